@@ -1,0 +1,1 @@
+"""Supervisor, lifecycle, operator commands and the zenoh bus contract shared by all processes."""

@@ -1,0 +1,72 @@
+"""The zenoh bus: one router (hosted by the gateway) and client sessions for every process.
+
+Scouting is off (multicast and gossip): every session names its endpoint explicitly, so a
+test on a free loopback port never meets a stray zenoh peer on 7447.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+from dataclasses import dataclass
+
+import zenoh
+
+from gateway.config import require
+from gateway.messages import Keys
+
+ENDPOINT_ENV = "LEADTHROUGH_BUS_ENDPOINT"
+_ENDPOINT_RE = re.compile(r"^(tcp|udp|unixsock-stream)/.+$")
+
+
+@dataclass(frozen=True)
+class BusConfig:
+    """``[bus]`` section of the cell config."""
+
+    #: zenoh endpoint the gateway's router listens on and every other process connects to.
+    #: Overridden by the environment variable LEADTHROUGH_BUS_ENDPOINT, then by --bus.
+    endpoint: str = "tcp/127.0.0.1:7460"
+    #: Prefix of every key expression (lets two cells share one network).
+    key_prefix: str = "lt"
+
+    def __post_init__(self) -> None:
+        require(
+            bool(_ENDPOINT_RE.match(self.endpoint)),
+            "[bus].endpoint",
+            f"{self.endpoint!r} is not a zenoh endpoint like 'tcp/127.0.0.1:7460'",
+        )
+        Keys(self.key_prefix)  # validates the prefix
+
+    @property
+    def keys(self) -> Keys:
+        return Keys(self.key_prefix)
+
+    def with_overrides(self, endpoint: str | None = None) -> BusConfig:
+        """Apply the documented precedence: explicit argument, then environment, then file."""
+        chosen = endpoint or os.environ.get(ENDPOINT_ENV) or self.endpoint
+        return BusConfig(endpoint=chosen, key_prefix=self.key_prefix)
+
+
+def _zenoh_config(mode: str, listen: list[str], connect: list[str]) -> zenoh.Config:
+    cfg = zenoh.Config()
+    cfg.insert_json5("mode", json.dumps(mode))
+    cfg.insert_json5("scouting/multicast/enabled", "false")
+    cfg.insert_json5("scouting/gossip/enabled", "false")
+    cfg.insert_json5("listen/endpoints", json.dumps(listen))
+    cfg.insert_json5("connect/endpoints", json.dumps(connect))
+    if connect:
+        # Keep retrying the router during start-up instead of failing the first attempt.
+        cfg.insert_json5("connect/timeout_ms", "10000")
+        cfg.insert_json5("connect/exit_on_failure", "true")
+    return cfg
+
+
+def open_router(bus: BusConfig) -> zenoh.Session:
+    """Open the router session that every other process connects to (gateway only)."""
+    return zenoh.open(_zenoh_config("router", [bus.endpoint], []))
+
+
+def open_client(bus: BusConfig) -> zenoh.Session:
+    """Open a client session connected to the router at ``bus.endpoint``."""
+    return zenoh.open(_zenoh_config("client", [], [bus.endpoint]))

@@ -1,0 +1,37 @@
+"""One exception tree for the whole product.
+
+Leaves also subclass the builtin they resemble, so callers that only know Python's
+exceptions still catch them (``except ValueError`` catches a bad config value).
+"""
+
+
+class LeadthroughError(Exception):
+    """Root of every error this product raises on purpose."""
+
+
+class ConfigError(LeadthroughError, ValueError):
+    """A configuration file or field is missing, malformed or out of range."""
+
+
+class MessageError(LeadthroughError, ValueError):
+    """A zenoh message could not be decoded or failed validation."""
+
+
+class FrameError(LeadthroughError, ValueError):
+    """A CAN frame is malformed: wrong length, bad checksum, out-of-range signal."""
+
+
+class ModbusReplyError(LeadthroughError, ValueError):
+    """A Modbus reply is an exception response, has the wrong size, or decodes to nonsense."""
+
+
+class LinkTimeoutError(LeadthroughError, TimeoutError):
+    """A peer (controller, I/O, bus process) stopped answering within its deadline."""
+
+
+class SafetyError(LeadthroughError, RuntimeError):
+    """A safety condition (e-stop, enabling device, limit) forbids the requested action."""
+
+
+class DataFileError(LeadthroughError, ValueError):
+    """A measurement file (CSV, MCAP) is malformed; the message names file and line."""

@@ -1,0 +1,371 @@
+"""Messages carried on the zenoh bus, and their key expressions.
+
+High-rate messages (joint state, joint command, I/O state, pressure set-points) are fixed
+little-endian binary layouts: a 4-byte magic naming the type, a 1-byte layout version, then
+fields. Decoding checks the magic, version, length and that every float is finite, and raises
+:class:`~gateway.errors.MessageError` naming what was wrong. Low-rate messages (lifecycle,
+health, operator requests) are UTF-8 JSON objects.
+
+Stamps are ``time.monotonic()`` seconds [s]. CLOCK_MONOTONIC is one clock for every process on
+the machine, so a stamp taken in the CAN driver can be aged in the control process.
+"""
+
+from __future__ import annotations
+
+import json
+import struct
+from dataclasses import dataclass, field
+from enum import IntEnum
+from typing import Any, ClassVar
+
+import numpy as np
+
+from gateway.errors import MessageError
+
+LAYOUT_VERSION = 1
+
+
+class Keys:
+    """Zenoh key expressions, all below one configurable prefix (default ``lt``)."""
+
+    def __init__(self, prefix: str = "lt") -> None:
+        if not prefix or prefix.startswith("/") or prefix.endswith("/") or "*" in prefix:
+            raise MessageError(f"zenoh key prefix {prefix!r} must be a plain path like 'lt'")
+        self.prefix = prefix
+        #: JointState, published by the CAN driver once per controller cycle.
+        self.joint_state = f"{prefix}/state/joints"
+        #: IoState, published by the Modbus driver at its poll rate.
+        self.io_state = f"{prefix}/state/io"
+        #: JointCommand, published by the control process, one per JointState.
+        self.joint_command = f"{prefix}/cmd/joints"
+        #: PressureSetpoint, published by the control process.
+        self.pressure_setpoint = f"{prefix}/cmd/pressure"
+        #: Lifecycle (JSON), published by the gateway on change and at LIFECYCLE_RATE_HZ.
+        self.lifecycle = f"{prefix}/gateway/lifecycle"
+        #: Queryable answering operator requests (JSON): start, stop, status, reset.
+        self.request = f"{prefix}/gateway/request"
+        #: Control diagnostics (JSON, low rate): desired torque, estimates, loop statistics.
+        self.control_telemetry = f"{prefix}/telemetry/control"
+        #: Driver diagnostics (JSON, low rate).
+        self.driver_telemetry = f"{prefix}/telemetry/drivers"
+
+    def health(self, process: str) -> str:
+        """Key of a process's heartbeat (JSON, HEALTH_RATE_HZ)."""
+        return f"{self.prefix}/health/{process}"
+
+    @property
+    def health_all(self) -> str:
+        return f"{self.prefix}/health/*"
+
+
+LIFECYCLE_RATE_HZ = 20.0
+HEALTH_RATE_HZ = 10.0
+
+
+class ControllerState(IntEnum):
+    """State of the closed robot controller as reported in its status frame."""
+
+    BRAKED = 0  #: brakes engaged, servo off (power-on default)
+    HOLD = 1  #: servo on, holding the last valid position command
+    EXTERNAL = 2  #: servo on, tracking external position/velocity commands
+    FAULT = 3  #: brakes engaged after a fault; needs a reset request
+
+
+class Lifecycle(IntEnum):
+    """Gateway lifecycle. STOPPED is the default and the state every error path leads back to."""
+
+    STOPPED = 0  #: brakes on; nothing moves
+    READY = 1  #: servo on, holding position; waiting for the enabling device
+    TEACHING = 2  #: enabling device held; the control process's commands reach the robot
+    FAULT = 3  #: an error stopped the robot; `reset` once the cause is gone
+
+
+def _finite(name: str, values: np.ndarray) -> np.ndarray:
+    if not np.all(np.isfinite(values)):
+        bad = int(np.flatnonzero(~np.isfinite(values))[0])
+        raise MessageError(f"{name}[{bad}] is {values.flat[bad]!r}; every value must be finite")
+    return values
+
+
+def _check_header(data: bytes, magic: bytes, what: str, min_len: int) -> None:
+    if not isinstance(data, bytes | bytearray | memoryview):
+        raise MessageError(f"{what}: payload must be bytes, got {type(data).__name__}")
+    if len(data) < min_len:
+        raise MessageError(f"{what}: payload is {len(data)} bytes, shorter than its header")
+    if bytes(data[:4]) != magic:
+        raise MessageError(f"{what}: magic {bytes(data[:4])!r} is not {magic!r}")
+    if data[4] != LAYOUT_VERSION:
+        raise MessageError(f"{what}: layout version {data[4]} unsupported (want {LAYOUT_VERSION})")
+
+
+def _vec(values: Any, n: int, name: str) -> np.ndarray:
+    arr = np.asarray(values, dtype=np.float64).reshape(-1)
+    if arr.shape != (n,):
+        raise MessageError(f"{name} has {arr.size} values, expected {n}")
+    return _finite(name, arr)
+
+
+@dataclass(frozen=True)
+class JointState:
+    """One controller cycle of joint feedback, as seen by the CAN driver.
+
+    ``q_cmd_rad``/``dq_cmd_rad_s`` echo the command the driver last sent to the controller
+    (hold or forwarded), so the control process can take over without a bump.
+    """
+
+    MAGIC: ClassVar[bytes] = b"LTJS"
+    _HEAD: ClassVar[struct.Struct] = struct.Struct("<4sBBIdBB")
+
+    cycle: int  #: controller cycle counter (16 bit on the wire, widened by the driver)
+    stamp_s: float  #: driver monotonic time when the full cycle had arrived [s]
+    controller_state: ControllerState
+    flags: int  #: bit 0: e-stop active at the controller; bit 1: servo power on
+    q_rad: np.ndarray
+    dq_rad_s: np.ndarray
+    current_a: np.ndarray
+    q_cmd_rad: np.ndarray
+    dq_cmd_rad_s: np.ndarray
+
+    @property
+    def n(self) -> int:
+        return int(self.q_rad.shape[0])
+
+    def to_bytes(self) -> bytes:
+        head = self._HEAD.pack(
+            self.MAGIC,
+            LAYOUT_VERSION,
+            self.n,
+            self.cycle & 0xFFFFFFFF,
+            self.stamp_s,
+            int(self.controller_state),
+            self.flags,
+        )
+        body = np.concatenate(
+            [self.q_rad, self.dq_rad_s, self.current_a, self.q_cmd_rad, self.dq_cmd_rad_s]
+        )
+        return head + body.astype("<f8").tobytes()
+
+    @classmethod
+    def from_bytes(cls, data: bytes) -> JointState:
+        _check_header(data, cls.MAGIC, "JointState", cls._HEAD.size)
+        _, _, n, cycle, stamp, cstate, flags = cls._HEAD.unpack_from(data)
+        if not 1 <= n <= 16:
+            raise MessageError(f"JointState: joint count {n} outside 1..16")
+        want = cls._HEAD.size + 5 * n * 8
+        if len(data) != want:
+            raise MessageError(f"JointState: {len(data)} bytes, expected {want} for {n} joints")
+        if not np.isfinite(stamp):
+            raise MessageError("JointState: stamp_s is not finite")
+        try:
+            state = ControllerState(cstate)
+        except ValueError:
+            raise MessageError(f"JointState: controller_state {cstate} unknown") from None
+        body = np.frombuffer(data, dtype="<f8", offset=cls._HEAD.size).reshape(5, n)
+        names = ("q_rad", "dq_rad_s", "current_a", "q_cmd_rad", "dq_cmd_rad_s")
+        vecs = [_finite(f"JointState.{nm}", body[i].copy()) for i, nm in enumerate(names)]
+        return cls(cycle, stamp, state, flags, *vecs)
+
+
+@dataclass(frozen=True)
+class JointCommand:
+    """Position/velocity command computed from one JointState (eq. (21) of the paper)."""
+
+    MAGIC: ClassVar[bytes] = b"LTJC"
+    _HEAD: ClassVar[struct.Struct] = struct.Struct("<4sBBIdd")
+
+    cycle: int  #: the JointState.cycle this command answers
+    state_stamp_s: float  #: JointState.stamp_s it was computed from: ages the command [s]
+    sent_stamp_s: float  #: control-process monotonic time at publication [s]
+    q_cmd_rad: np.ndarray
+    dq_cmd_rad_s: np.ndarray
+
+    @property
+    def n(self) -> int:
+        return int(self.q_cmd_rad.shape[0])
+
+    def to_bytes(self) -> bytes:
+        head = self._HEAD.pack(
+            self.MAGIC,
+            LAYOUT_VERSION,
+            self.n,
+            self.cycle & 0xFFFFFFFF,
+            self.state_stamp_s,
+            self.sent_stamp_s,
+        )
+        return head + np.concatenate([self.q_cmd_rad, self.dq_cmd_rad_s]).astype("<f8").tobytes()
+
+    @classmethod
+    def from_bytes(cls, data: bytes) -> JointCommand:
+        _check_header(data, cls.MAGIC, "JointCommand", cls._HEAD.size)
+        _, _, n, cycle, state_stamp, sent_stamp = cls._HEAD.unpack_from(data)
+        if not 1 <= n <= 16:
+            raise MessageError(f"JointCommand: joint count {n} outside 1..16")
+        want = cls._HEAD.size + 2 * n * 8
+        if len(data) != want:
+            raise MessageError(f"JointCommand: {len(data)} bytes, expected {want} for {n} joints")
+        if not (np.isfinite(state_stamp) and np.isfinite(sent_stamp)):
+            raise MessageError("JointCommand: stamps must be finite")
+        body = np.frombuffer(data, dtype="<f8", offset=cls._HEAD.size).reshape(2, n)
+        q = _finite("JointCommand.q_cmd_rad", body[0].copy())
+        dq = _finite("JointCommand.dq_cmd_rad_s", body[1].copy())
+        return cls(cycle, state_stamp, sent_stamp, q, dq)
+
+
+@dataclass(frozen=True)
+class IoState:
+    """Cylinder pressures and safety inputs, as read over Modbus."""
+
+    MAGIC: ClassVar[bytes] = b"LTIO"
+    _FMT: ClassVar[struct.Struct] = struct.Struct("<4sBdddddBB")
+
+    stamp_s: float  #: Modbus driver monotonic time of the poll [s]
+    p2_bar: float  #: measured pressure, assist cylinder of joint 2 [bar]
+    p3_bar: float  #: measured pressure, assist cylinder of joint 3 [bar]
+    p2_set_bar: float  #: set-point read back from the valve [bar]
+    p3_set_bar: float
+    enabling: bool  #: enabling device held (3-position switch in its middle position)
+    estop_ok: bool  #: e-stop chain closed (False = e-stop pressed or wire broken)
+
+    def to_bytes(self) -> bytes:
+        return self._FMT.pack(
+            self.MAGIC,
+            LAYOUT_VERSION,
+            self.stamp_s,
+            self.p2_bar,
+            self.p3_bar,
+            self.p2_set_bar,
+            self.p3_set_bar,
+            int(self.enabling),
+            int(self.estop_ok),
+        )
+
+    @classmethod
+    def from_bytes(cls, data: bytes) -> IoState:
+        _check_header(data, cls.MAGIC, "IoState", 5)
+        if len(data) != cls._FMT.size:
+            raise MessageError(f"IoState: {len(data)} bytes, expected {cls._FMT.size}")
+        _, _, stamp, p2, p3, s2, s3, en, es = cls._FMT.unpack(data)
+        _finite("IoState(stamp, p2, p3, p2_set, p3_set)", np.array([stamp, p2, p3, s2, s3]))
+        if en not in (0, 1) or es not in (0, 1):
+            raise MessageError(f"IoState: flags enabling={en} estop_ok={es} must be 0 or 1")
+        return cls(stamp, p2, p3, s2, s3, bool(en), bool(es))
+
+
+@dataclass(frozen=True)
+class PressureSetpoint:
+    """Cylinder pressure set-points for the proportional valves."""
+
+    MAGIC: ClassVar[bytes] = b"LTPS"
+    _FMT: ClassVar[struct.Struct] = struct.Struct("<4sBddd")
+
+    stamp_s: float
+    p2_set_bar: float
+    p3_set_bar: float
+
+    def to_bytes(self) -> bytes:
+        return self._FMT.pack(
+            self.MAGIC, LAYOUT_VERSION, self.stamp_s, self.p2_set_bar, self.p3_set_bar
+        )
+
+    @classmethod
+    def from_bytes(cls, data: bytes) -> PressureSetpoint:
+        _check_header(data, cls.MAGIC, "PressureSetpoint", 5)
+        if len(data) != cls._FMT.size:
+            raise MessageError(f"PressureSetpoint: {len(data)} bytes, expected {cls._FMT.size}")
+        _, _, stamp, p2, p3 = cls._FMT.unpack(data)
+        _finite("PressureSetpoint(stamp, p2, p3)", np.array([stamp, p2, p3]))
+        return cls(stamp, p2, p3)
+
+
+@dataclass(frozen=True)
+class LifecycleMsg:
+    """Lifecycle announcement from the gateway (JSON)."""
+
+    state: Lifecycle
+    seq: int
+    stamp_s: float
+    reason: str = ""
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def to_bytes(self) -> bytes:
+        return encode_json(
+            {
+                "state": self.state.name.lower(),
+                "seq": self.seq,
+                "stamp_s": self.stamp_s,
+                "reason": self.reason,
+                **self.extra,
+            }
+        )
+
+    @classmethod
+    def from_bytes(cls, data: bytes) -> LifecycleMsg:
+        obj = decode_json(data, "Lifecycle")
+        try:
+            state = Lifecycle[str(obj["state"]).upper()]
+            seq = int(obj["seq"])
+            stamp = float(obj["stamp_s"])
+        except (KeyError, ValueError, TypeError) as exc:
+            raise MessageError(f"Lifecycle: bad or missing field: {exc!r}") from None
+        if not np.isfinite(stamp):
+            raise MessageError("Lifecycle: stamp_s is not finite")
+        return cls(state, seq, stamp, str(obj.get("reason", "")))
+
+
+def encode_json(obj: dict[str, Any]) -> bytes:
+    return json.dumps(obj, allow_nan=False, separators=(",", ":")).encode()
+
+
+def decode_json(data: bytes, what: str) -> dict[str, Any]:
+    """Decode a JSON object payload; NaN/Infinity literals are refused."""
+
+    def _no_constants(name: str) -> Any:
+        raise MessageError(f"{what}: non-finite number {name} in JSON")
+
+    try:
+        obj = json.loads(bytes(data).decode("utf-8"), parse_constant=_no_constants)
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise MessageError(f"{what}: payload is not JSON: {exc}") from None
+    if not isinstance(obj, dict):
+        raise MessageError(f"{what}: payload must be a JSON object, got {type(obj).__name__}")
+    return obj
+
+
+def make_joint_state(
+    cycle: int,
+    stamp_s: float,
+    controller_state: ControllerState,
+    flags: int,
+    q_rad: Any,
+    dq_rad_s: Any,
+    current_a: Any,
+    q_cmd_rad: Any,
+    dq_cmd_rad_s: Any,
+) -> JointState:
+    """Build a validated JointState from array-likes (raises MessageError on NaN/shape)."""
+    n = len(q_rad)
+    return JointState(
+        cycle,
+        stamp_s,
+        ControllerState(controller_state),
+        flags,
+        _vec(q_rad, n, "q_rad"),
+        _vec(dq_rad_s, n, "dq_rad_s"),
+        _vec(current_a, n, "current_a"),
+        _vec(q_cmd_rad, n, "q_cmd_rad"),
+        _vec(dq_cmd_rad_s, n, "dq_cmd_rad_s"),
+    )
+
+
+def make_joint_command(
+    cycle: int, state_stamp_s: float, sent_stamp_s: float, q_cmd_rad: Any, dq_cmd_rad_s: Any
+) -> JointCommand:
+    """Build a validated JointCommand (raises MessageError on NaN or mismatched sizes)."""
+    n = len(q_cmd_rad)
+    return JointCommand(
+        cycle,
+        state_stamp_s,
+        sent_stamp_s,
+        _vec(q_cmd_rad, n, "q_cmd_rad"),
+        _vec(dq_cmd_rad_s, n, "dq_cmd_rad_s"),
+    )
