@@ -71,7 +71,10 @@ def _convert(value: Any, tp: Any, where: str) -> Any:
         if origin is tuple and args:
             if len(value) != len(args):
                 raise ConfigError(f"{where}: expected {len(args)} values, got {len(value)}")
-            return tuple(_convert(v, a, f"{where}[{i}]") for i, (v, a) in enumerate(zip(value, args, strict=True)))
+            return tuple(
+                _convert(v, a, f"{where}[{i}]")
+                for i, (v, a) in enumerate(zip(value, args, strict=True))
+            )
         inner = args[0] if args else Any
         return [_convert(v, inner, f"{where}[{i}]") for i, v in enumerate(value)]
     if origin is dict:

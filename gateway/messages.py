@@ -114,7 +114,7 @@ class JointState:
     """
 
     MAGIC: ClassVar[bytes] = b"LTJS"
-    _HEAD: ClassVar[struct.Struct] = struct.Struct("<4sBBIdBB")
+    _HEAD: ClassVar[struct.Struct] = struct.Struct("<4sBBIdBBd")
 
     cycle: int  #: controller cycle counter (16 bit on the wire, widened by the driver)
     stamp_s: float  #: driver monotonic time when the full cycle had arrived [s]
@@ -125,6 +125,8 @@ class JointState:
     current_a: np.ndarray
     q_cmd_rad: np.ndarray
     dq_cmd_rad_s: np.ndarray
+    #: the controller's command cycle (from its status frame) [s]; 0 = not reported
+    cycle_period_s: float = 0.0
 
     @property
     def n(self) -> int:
@@ -139,6 +141,7 @@ class JointState:
             self.stamp_s,
             int(self.controller_state),
             self.flags,
+            self.cycle_period_s,
         )
         body = np.concatenate(
             [self.q_rad, self.dq_rad_s, self.current_a, self.q_cmd_rad, self.dq_cmd_rad_s]
@@ -148,14 +151,14 @@ class JointState:
     @classmethod
     def from_bytes(cls, data: bytes) -> JointState:
         _check_header(data, cls.MAGIC, "JointState", cls._HEAD.size)
-        _, _, n, cycle, stamp, cstate, flags = cls._HEAD.unpack_from(data)
+        _, _, n, cycle, stamp, cstate, flags, period = cls._HEAD.unpack_from(data)
         if not 1 <= n <= 16:
             raise MessageError(f"JointState: joint count {n} outside 1..16")
         want = cls._HEAD.size + 5 * n * 8
         if len(data) != want:
             raise MessageError(f"JointState: {len(data)} bytes, expected {want} for {n} joints")
-        if not np.isfinite(stamp):
-            raise MessageError("JointState: stamp_s is not finite")
+        if not (np.isfinite(stamp) and np.isfinite(period) and period >= 0):
+            raise MessageError(f"JointState: stamp_s {stamp} / cycle_period_s {period} invalid")
         try:
             state = ControllerState(cstate)
         except ValueError:
@@ -163,7 +166,7 @@ class JointState:
         body = np.frombuffer(data, dtype="<f8", offset=cls._HEAD.size).reshape(5, n)
         names = ("q_rad", "dq_rad_s", "current_a", "q_cmd_rad", "dq_cmd_rad_s")
         vecs = [_finite(f"JointState.{nm}", body[i].copy()) for i, nm in enumerate(names)]
-        return cls(cycle, stamp, state, flags, *vecs)
+        return cls(cycle, stamp, state, flags, *vecs, cycle_period_s=period)
 
 
 @dataclass(frozen=True)
@@ -301,8 +304,11 @@ class LifecycleMsg:
     @classmethod
     def from_bytes(cls, data: bytes) -> LifecycleMsg:
         obj = decode_json(data, "Lifecycle")
+        name = str(obj.get("state", "")).upper()
+        if name not in Lifecycle.__members__:
+            raise MessageError(f"Lifecycle: state {obj.get('state')!r} is not one of {_STATES}")
         try:
-            state = Lifecycle[str(obj["state"]).upper()]
+            state = Lifecycle[name]
             seq = int(obj["seq"])
             stamp = float(obj["stamp_s"])
         except (KeyError, ValueError, TypeError) as exc:
@@ -310,6 +316,9 @@ class LifecycleMsg:
         if not np.isfinite(stamp):
             raise MessageError("Lifecycle: stamp_s is not finite")
         return cls(state, seq, stamp, str(obj.get("reason", "")))
+
+
+_STATES = [s.name.lower() for s in Lifecycle]
 
 
 def encode_json(obj: dict[str, Any]) -> bytes:
@@ -341,6 +350,7 @@ def make_joint_state(
     current_a: Any,
     q_cmd_rad: Any,
     dq_cmd_rad_s: Any,
+    cycle_period_s: float = 0.0,
 ) -> JointState:
     """Build a validated JointState from array-likes (raises MessageError on NaN/shape)."""
     n = len(q_rad)
@@ -354,6 +364,7 @@ def make_joint_state(
         _vec(current_a, n, "current_a"),
         _vec(q_cmd_rad, n, "q_cmd_rad"),
         _vec(dq_cmd_rad_s, n, "dq_cmd_rad_s"),
+        float(cycle_period_s),
     )
 
 

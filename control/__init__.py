@@ -1,0 +1,1 @@
+"""Control side: robot description, dynamic models and the lead-through controller."""

@@ -1,0 +1,68 @@
+"""``[control]`` section of the cell config."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from gateway.config import require
+
+
+@dataclass(frozen=True)
+class ControlConfig:
+    #: declared model file (TOML or JSON, see control/declared_model.py), relative to the config
+    model: Path
+    #: ω = 1/(K K_p) per joint [rad/s per N·m], from the vendor manual (eq. 21)
+    omega_rad_s_per_nm: tuple[float, ...]
+    #: Υ_I = K_I/K_p per joint [1/s], from the vendor manual (eq. 21)
+    upsilon_i_per_s: tuple[float, ...]
+    #: |q_cmd − q| never exceeds this per joint [rad] (the controller faults beyond 0.05)
+    max_offset_rad: tuple[float, ...]
+    #: |dq_cmd| never exceeds this per joint [rad/s]
+    max_velocity_rad_s: tuple[float, ...]
+    #: added viscous damping, a margin against model error [N·m·s/rad]
+    damping_nm_s_per_rad: tuple[float, ...]
+    #: fraction of the model friction that is compensated (1 = all)
+    friction_compensation: float = 1.0
+    #: below this joint speed no friction is compensated, so the arm rests on its own friction
+    #: instead of floating on velocity quantization noise; above it the compensation uses
+    #: |dq| − deadband [rad/s]
+    friction_deadband_rad_s: float = 5e-4
+    #: soft joint limits: a virtual spring pushes back this far inside the hard range [rad]
+    soft_limit_margin_rad: float = 0.05
+    wall_stiffness_nm_per_rad: float = 2000.0
+    #: cylinder pressure set-points sent to the valves [bar]
+    pressure_setpoint_bar: tuple[float, float] = (6.0, 4.0)
+    #: I/O older than this: no command is published (the CAN driver then holds) [s]
+    io_timeout_s: float = 0.25
+    lifecycle_timeout_s: float = 0.25
+    #: used when the controller does not report its cycle period [s]
+    default_cycle_period_s: float = 0.004
+
+    def __post_init__(self) -> None:
+        n = len(self.omega_rad_s_per_nm)
+        for name in (
+            "upsilon_i_per_s",
+            "max_offset_rad",
+            "max_velocity_rad_s",
+            "damping_nm_s_per_rad",
+        ):
+            require(len(getattr(self, name)) == n, f"[control].{name}", f"needs {n} values")
+        require(all(v > 0 for v in self.omega_rad_s_per_nm), "[control].omega_rad_s_per_nm", "> 0")
+        require(all(v > 0 for v in self.upsilon_i_per_s), "[control].upsilon_i_per_s", "> 0")
+        require(all(v > 0 for v in self.max_offset_rad), "[control].max_offset_rad", "> 0")
+        require(
+            0.0 <= self.friction_compensation <= 1.0,
+            "[control].friction_compensation",
+            f"{self.friction_compensation} not in [0, 1]",
+        )
+        require(
+            self.friction_deadband_rad_s >= 0,
+            "[control].friction_deadband_rad_s",
+            f"{self.friction_deadband_rad_s} must be >= 0",
+        )
+        require(
+            all(0 <= p <= 10 for p in self.pressure_setpoint_bar),
+            "[control].pressure_setpoint_bar",
+            f"{self.pressure_setpoint_bar} outside 0..10 bar",
+        )

@@ -1,0 +1,98 @@
+"""The declared dynamic model the control process compensates: gravity, friction, cylinders.
+
+File format (TOML), versioned::
+
+    format = "leadthrough-model"
+    version = 1
+    robot = "gr630st"            # packaged description, or a path to a description TOML
+    [[friction]]                 # one table per joint, eq. (15) (control/model/friction.py)
+    tau_s_nm = ...
+
+The rigid-body part is the description's inertial parameters (this issue); identification
+replaces it with fitted ones.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from control.model.cylinders import cylinder_torque_nm
+from control.model.dynamics import RigidBodyModel
+from control.model.friction import FrictionParams, friction_eq15
+from control.robot.description import RobotDescription, load_description
+from gateway.config import ConfigError, from_mapping, load_toml, require, resolve_path
+
+MODEL_FORMAT = "leadthrough-model"
+MODEL_VERSION = 1
+
+
+@dataclass(frozen=True)
+class FrictionEntry:
+    tau_s_nm: float
+    tau_c_nm: float
+    tau_v1_nm_s_per_rad: float
+    q_e_rad_s: float
+    tau_v2_nm_s2_per_rad2: float = 0.0
+    fourier_nm: tuple[float, float, float, float, float, float] = (0.0,) * 6
+
+    def __post_init__(self) -> None:
+        require(self.q_e_rad_s > 0, "[[friction]].q_e_rad_s", "must be > 0")
+
+
+class DeclaredModel:
+    def __init__(self, desc: RobotDescription, friction: list[FrictionParams]) -> None:
+        self.desc = desc
+        self.n = len(desc.joints)
+        self.rigid = RigidBodyModel.from_description(desc)
+        self.friction = friction
+
+    @classmethod
+    def load(cls, path: str | Path) -> DeclaredModel:
+        raw = load_toml(path)
+        where = str(path)
+        if raw.get("format") != MODEL_FORMAT or raw.get("version") != MODEL_VERSION:
+            raise ConfigError(
+                f"{where}: not a {MODEL_FORMAT} v{MODEL_VERSION} file "
+                f"(format={raw.get('format')!r}, version={raw.get('version')!r})"
+            )
+        robot = raw.get("robot", "gr630st")
+        desc = load_description(None if robot == "gr630st" else resolve_path(path, robot))
+        entries = raw.get("friction", [])
+        require(
+            isinstance(entries, list) and len(entries) == len(desc.joints),
+            f"{where} [[friction]]",
+            f"needs one table per joint ({len(desc.joints)})",
+        )
+        params = []
+        for i, (e, js) in enumerate(zip(entries, desc.joints, strict=True)):
+            fe = from_mapping(FrictionEntry, e, f"{where} [[friction]][{i}]")
+            f = fe.fourier_nm
+            params.append(
+                FrictionParams(
+                    tau_s_nm=fe.tau_s_nm,
+                    tau_c_nm=fe.tau_c_nm,
+                    f1_nm=f[0],
+                    f2_nm=f[1],
+                    f3_nm=f[2],
+                    f4_nm=f[3],
+                    f5_nm=f[4],
+                    f6_nm=f[5],
+                    tau_v1_nm_s_per_rad=fe.tau_v1_nm_s_per_rad,
+                    tau_v2_nm_s2_per_rad2=fe.tau_v2_nm_s2_per_rad2,
+                    q_e_rad_s=fe.q_e_rad_s,
+                    gear_ratio=js.gear_ratio,
+                )
+            )
+        return cls(desc, params)
+
+    def gravity_nm(self, q_rad: np.ndarray) -> np.ndarray:
+        return self.rigid.gravity_nm(q_rad)
+
+    def friction_nm(self, q_rad: np.ndarray, dq_rad_s: np.ndarray) -> np.ndarray:
+        return np.asarray(friction_eq15(q_rad, dq_rad_s, self.friction))
+
+    def cylinder_nm(self, q_rad: np.ndarray, p_bar: np.ndarray) -> np.ndarray:
+        return np.asarray(cylinder_torque_nm(q_rad, p_bar, self.desc))

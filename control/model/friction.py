@@ -1,0 +1,233 @@
+"""Joint friction models of the paper, Section 3.1.1: eq. (14) and eq. (15) with (16)-(17).
+
+Eq. (15) as printed is not physically sound: its static term ``τ_s sgn(i_c) S⁻¹(dq)`` with
+``S⁻¹ = exp(-dq/q_e)`` (eq. 17) grows without bound for negative velocity, the static and
+Coulomb terms follow two different signs (current and velocity), and the viscous terms are
+gated by the sigmoid ``S(dq)`` so they vanish in one direction. Our reading, per joint::
+
+    τ_f = [τ_s exp(-|dq|/q_e) + τ_c + f1 sin(q/R) + f2 cos(q/R) + f3 sin(2q/R) + f4 cos(2q/R)] s(dq)
+          + (f5 sin q + f6 cos q) s(dq) + τ_v1 dq + τ_v2 dq |dq|
+
+with the smooth sign ``s(dq) = 2 S(dq) - 1 = tanh(dq / (2 q_e))`` built from eq. (16). Every
+term is odd in dq (friction opposes motion in both directions), τ_f is continuous (and zero)
+at dq = 0, and for fixed q_e it is linear in the ten coefficients, which
+:func:`eq15_basis` exposes for identification. ``sgn(i_c)`` is replaced by the velocity sign:
+the model is evaluated on measured motion, and at rest the smooth sign gives zero.
+R is the joint's gear ratio, as the paper writes (``q/R``); note that over a joint's range
+``q/R`` stays small, so the f2 and f4 columns are nearly collinear with the Coulomb column.
+
+Eq. (14), the Fourier model of ref. [37], read the same way::
+
+    τ_f = f1 sin q + f2 cos q + f3 sin 2q + f4 cos 2q + f_c sgn(dq) + f_s exp(-|dq|/q_e) sgn(dq)
+          + f_v dq
+
+(the printed ``f_ic sin(q)`` is taken as Coulomb ``f_c sgn(dq)``, ``f_is e^{-f_ii dq} sgn(q)`` as
+static ``f_s exp(-|dq|/q_e) sgn(dq)`` with ``f_ii = 1/q_e``). Its Fourier terms do not depend
+on the direction of motion, as printed, and sgn is the hard sign (0 at dq = 0).
+
+Units: q [rad], dq [rad/s], torques [N·m] on the joint side.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import astuple, dataclass
+
+import numpy as np
+
+#: Column order of :func:`eq15_basis` and :meth:`FrictionParams.linear_parameters`.
+EQ15_PARAM_NAMES = (
+    "tau_s_nm",
+    "tau_c_nm",
+    "f1_nm",
+    "f2_nm",
+    "f3_nm",
+    "f4_nm",
+    "f5_nm",
+    "f6_nm",
+    "tau_v1_nm_s_per_rad",
+    "tau_v2_nm_s2_per_rad2",
+)
+
+#: Column order of :func:`eq14_basis` and :meth:`FourierFrictionParams.linear_parameters`.
+EQ14_PARAM_NAMES = ("f1_nm", "f2_nm", "f3_nm", "f4_nm", "f_c_nm", "f_s_nm", "f_v_nm_s_per_rad")
+
+
+def _check_positive(name: str, value: float) -> None:
+    if not (np.isfinite(value) and value > 0):
+        raise ValueError(f"{name}: {value!r} must be a finite number > 0")
+
+
+@dataclass(frozen=True)
+class FrictionParams:
+    """Eq. (15) coefficients of one joint (our reading, see the module docstring)."""
+
+    tau_s_nm: float  #: static friction τ_s [N·m]
+    tau_c_nm: float  #: Coulomb friction τ_c [N·m]
+    f1_nm: float  #: Fourier sin(q/R) [N·m]
+    f2_nm: float  #: Fourier cos(q/R) [N·m]
+    f3_nm: float  #: Fourier sin(2q/R) [N·m]
+    f4_nm: float  #: Fourier cos(2q/R) [N·m]
+    f5_nm: float  #: sin(q) [N·m]
+    f6_nm: float  #: cos(q) [N·m]
+    tau_v1_nm_s_per_rad: float  #: linear viscous τ_v1 [N·m·s/rad]
+    tau_v2_nm_s2_per_rad2: float  #: quadratic viscous τ_v2 [N·m·s²/rad²]
+    q_e_rad_s: float  #: transition velocity q_e of eqs. (16)-(17) [rad/s]
+    gear_ratio: float  #: R, joint gear ratio [-]
+
+    def __post_init__(self) -> None:
+        _check_positive("q_e_rad_s", self.q_e_rad_s)
+        _check_positive("gear_ratio", self.gear_ratio)
+
+    def linear_parameters(self) -> np.ndarray:
+        """The ten coefficients in :data:`EQ15_PARAM_NAMES` order, shape (10,)."""
+        return np.array(astuple(self)[: len(EQ15_PARAM_NAMES)], dtype=float)
+
+    @classmethod
+    def from_linear(
+        cls, theta: np.ndarray | Sequence[float], q_e_rad_s: float, gear_ratio: float
+    ) -> FrictionParams:
+        """Inverse of :meth:`linear_parameters` (e.g. from a least-squares fit on eq15_basis)."""
+        values = [float(v) for v in np.asarray(theta, dtype=float).ravel()]
+        if len(values) != len(EQ15_PARAM_NAMES):
+            raise ValueError(f"expected {len(EQ15_PARAM_NAMES)} coefficients, got {len(values)}")
+        return cls(*values, q_e_rad_s=q_e_rad_s, gear_ratio=gear_ratio)
+
+
+@dataclass(frozen=True)
+class FourierFrictionParams:
+    """Eq. (14) coefficients of one joint (our reading, see the module docstring)."""
+
+    f1_nm: float  #: sin(q) [N·m]
+    f2_nm: float  #: cos(q) [N·m]
+    f3_nm: float  #: sin(2q) [N·m]
+    f4_nm: float  #: cos(2q) [N·m]
+    f_c_nm: float  #: Coulomb [N·m]
+    f_s_nm: float  #: static (Stribeck) [N·m]
+    f_v_nm_s_per_rad: float  #: viscous [N·m·s/rad]
+    q_e_rad_s: float  #: transition velocity, 1/f_ii of eq. (14) [rad/s]
+
+    def __post_init__(self) -> None:
+        _check_positive("q_e_rad_s", self.q_e_rad_s)
+
+    def linear_parameters(self) -> np.ndarray:
+        """The seven coefficients in :data:`EQ14_PARAM_NAMES` order, shape (7,)."""
+        return np.array(astuple(self)[: len(EQ14_PARAM_NAMES)], dtype=float)
+
+
+def smooth_sign(dq_rad_s: np.ndarray, q_e_rad_s: np.ndarray | float) -> np.ndarray:
+    """``s(dq) = 2 S(dq) - 1 = tanh(dq / (2 q_e))`` with S the sigmoid of eq. (16); in (-1, 1)."""
+    return np.tanh(np.asarray(dq_rad_s, dtype=float) / (2.0 * np.asarray(q_e_rad_s)))
+
+
+def _per_joint(params_list: Sequence[object], names: Sequence[str]) -> dict[str, np.ndarray]:
+    return {name: np.array([getattr(p, name) for p in params_list], dtype=float) for name in names}
+
+
+def _check_shapes(q: np.ndarray, dq: np.ndarray, n: int) -> None:
+    if q.shape != dq.shape:
+        raise ValueError(f"q and dq shapes differ: {q.shape} vs {dq.shape}")
+    if q.shape[-1:] != (n,):
+        raise ValueError(f"last axis must hold the {n} joints, got shape {q.shape}")
+
+
+def friction_eq15(
+    q_rad: np.ndarray, dq_rad_s: np.ndarray, params_list: Sequence[FrictionParams]
+) -> np.ndarray:
+    """Friction torque of eq. (15) [N·m], our reading; ``q``, ``dq`` of shape (n,) or (T, n)."""
+    q = np.asarray(q_rad, dtype=float)
+    dq = np.asarray(dq_rad_s, dtype=float)
+    _check_shapes(q, dq, len(params_list))
+    p = _per_joint(params_list, (*EQ15_PARAM_NAMES, "q_e_rad_s", "gear_ratio"))
+    s = smooth_sign(dq, p["q_e_rad_s"])
+    qr = q / p["gear_ratio"]
+    coulomb_like = (
+        p["tau_s_nm"] * np.exp(-np.abs(dq) / p["q_e_rad_s"])
+        + p["tau_c_nm"]
+        + p["f1_nm"] * np.sin(qr)
+        + p["f2_nm"] * np.cos(qr)
+        + p["f3_nm"] * np.sin(2.0 * qr)
+        + p["f4_nm"] * np.cos(2.0 * qr)
+        + p["f5_nm"] * np.sin(q)
+        + p["f6_nm"] * np.cos(q)
+    )
+    viscous = p["tau_v1_nm_s_per_rad"] * dq + p["tau_v2_nm_s2_per_rad2"] * dq * np.abs(dq)
+    return coulomb_like * s + viscous
+
+
+def eq15_basis(
+    q_rad: np.ndarray, dq_rad_s: np.ndarray, q_e_rad_s: float, gear_ratio: float
+) -> np.ndarray:
+    """Design matrix of eq. (15) for one joint, shape (T, 10), columns :data:`EQ15_PARAM_NAMES`.
+
+    ``q_rad`` [rad] and ``dq_rad_s`` [rad/s] are that joint's samples, shape (T,). Given q_e
+    and R, ``eq15_basis(q, dq, q_e, R) @ params.linear_parameters()`` equals
+    :func:`friction_eq15` for that joint [N·m].
+    """
+    q = np.atleast_1d(np.asarray(q_rad, dtype=float))
+    dq = np.atleast_1d(np.asarray(dq_rad_s, dtype=float))
+    if q.ndim != 1 or q.shape != dq.shape:
+        raise ValueError(f"q and dq must be 1-D of equal length, got {q.shape} and {dq.shape}")
+    _check_positive("q_e_rad_s", q_e_rad_s)
+    _check_positive("gear_ratio", gear_ratio)
+    s = smooth_sign(dq, q_e_rad_s)
+    qr = q / gear_ratio
+    return np.column_stack(
+        [
+            np.exp(-np.abs(dq) / q_e_rad_s) * s,
+            s,
+            np.sin(qr) * s,
+            np.cos(qr) * s,
+            np.sin(2.0 * qr) * s,
+            np.cos(2.0 * qr) * s,
+            np.sin(q) * s,
+            np.cos(q) * s,
+            dq,
+            dq * np.abs(dq),
+        ]
+    )
+
+
+def friction_eq14(
+    q_rad: np.ndarray, dq_rad_s: np.ndarray, params_list: Sequence[FourierFrictionParams]
+) -> np.ndarray:
+    """Friction torque of eq. (14) [N·m], our reading; ``q``, ``dq`` of shape (n,) or (T, n)."""
+    q = np.asarray(q_rad, dtype=float)
+    dq = np.asarray(dq_rad_s, dtype=float)
+    _check_shapes(q, dq, len(params_list))
+    p = _per_joint(params_list, (*EQ14_PARAM_NAMES, "q_e_rad_s"))
+    sgn = np.sign(dq)
+    return (
+        p["f1_nm"] * np.sin(q)
+        + p["f2_nm"] * np.cos(q)
+        + p["f3_nm"] * np.sin(2.0 * q)
+        + p["f4_nm"] * np.cos(2.0 * q)
+        + p["f_c_nm"] * sgn
+        + p["f_s_nm"] * np.exp(-np.abs(dq) / p["q_e_rad_s"]) * sgn
+        + p["f_v_nm_s_per_rad"] * dq
+    )
+
+
+def eq14_basis(q_rad: np.ndarray, dq_rad_s: np.ndarray, q_e_rad_s: float) -> np.ndarray:
+    """Design matrix of eq. (14) for one joint, shape (T, 7), columns :data:`EQ14_PARAM_NAMES`.
+
+    ``q_rad`` [rad] and ``dq_rad_s`` [rad/s] have shape (T,); linear in the coefficients for a
+    given q_e [rad/s].
+    """
+    q = np.atleast_1d(np.asarray(q_rad, dtype=float))
+    dq = np.atleast_1d(np.asarray(dq_rad_s, dtype=float))
+    if q.ndim != 1 or q.shape != dq.shape:
+        raise ValueError(f"q and dq must be 1-D of equal length, got {q.shape} and {dq.shape}")
+    _check_positive("q_e_rad_s", q_e_rad_s)
+    sgn = np.sign(dq)
+    return np.column_stack(
+        [
+            np.sin(q),
+            np.cos(q),
+            np.sin(2.0 * q),
+            np.cos(2.0 * q),
+            sgn,
+            np.exp(-np.abs(dq) / q_e_rad_s) * sgn,
+            dq,
+        ]
+    )

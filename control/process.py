@@ -1,0 +1,259 @@
+"""`leadthrough control`: the zero-moment lead-through control process.
+
+For every JointState it computes the torque that makes the arm weightless and frictionless
+(gravity + friction − cylinder assist, eq. (1) without the operator), adds a little damping and
+soft joint limits, and turns it into a position/velocity command with eq. (21). It publishes a
+command only while the gateway says TEACHING and the cylinder pressures are fresh; otherwise it
+stays silent and the CAN driver holds position.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import signal
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from control.config import ControlConfig
+from control.declared_model import DeclaredModel
+from control.outer_loop import OuterLoop
+from gateway.bus import BusConfig, open_client
+from gateway.config import from_mapping, load_toml, resolve_path
+from gateway.errors import MessageError
+from gateway.messages import (
+    HEALTH_RATE_HZ,
+    ControllerState,
+    IoState,
+    JointState,
+    Lifecycle,
+    LifecycleMsg,
+    PressureSetpoint,
+    encode_json,
+    make_joint_command,
+)
+
+log = logging.getLogger("leadthrough.control")
+
+PRESSURE_PUBLISH_PERIOD_S = 0.1
+
+
+def load_control_config(cell_path: str | Path) -> tuple[ControlConfig, BusConfig]:
+    raw = load_toml(cell_path)
+    cfg = from_mapping(ControlConfig, raw.get("control", {}), f"{cell_path} [control]")
+    cfg = ControlConfig(**{**cfg.__dict__, "model": resolve_path(cell_path, cfg.model)})
+    bus = from_mapping(BusConfig, raw.get("bus", {}), f"{cell_path} [bus]")
+    return cfg, bus
+
+
+class ZeroMomentController:
+    """The computation, free of I/O: JointState (+ pressures) → JointCommand."""
+
+    def __init__(self, cfg: ControlConfig, model: DeclaredModel) -> None:
+        self.cfg = cfg
+        self.model = model
+        n = model.n
+        self.loop = OuterLoop(
+            np.array(cfg.omega_rad_s_per_nm),
+            np.array(cfg.upsilon_i_per_s),
+            np.array(cfg.max_offset_rad),
+            np.array(cfg.max_velocity_rad_s),
+        )
+        self.damping = np.array(cfg.damping_nm_s_per_rad)
+        self.lower = np.array([j.lower_rad for j in model.desc.joints]) + cfg.soft_limit_margin_rad
+        self.upper = np.array([j.upper_rad for j in model.desc.joints]) - cfg.soft_limit_margin_rad
+        self.engaged = False
+        self.last_cycle: int | None = None
+        self.tau_d_nm = np.zeros(n)
+
+    def desired_torque(self, q: np.ndarray, dq: np.ndarray, p_bar: np.ndarray) -> np.ndarray:
+        """Zero-moment torque: what the motors must give so the operator feels no load."""
+        m = self.model
+        tau = m.gravity_nm(q) - m.cylinder_nm(q, p_bar)
+        dead = self.cfg.friction_deadband_rad_s
+        dq_f = np.sign(dq) * np.maximum(np.abs(dq) - dead, 0.0)
+        tau = tau + self.cfg.friction_compensation * m.friction_nm(q, dq_f)
+        tau = tau - self.damping * dq
+        k = self.cfg.wall_stiffness_nm_per_rad
+        tau = tau - k * np.maximum(q - self.upper, 0.0) + k * np.maximum(self.lower - q, 0.0)
+        return tau
+
+    def disengage(self) -> None:
+        self.engaged = False
+
+    def update(self, st: JointState, p_bar: np.ndarray, now_s: float):
+        """Return the JointCommand answering ``st``."""
+        period = st.cycle_period_s or self.cfg.default_cycle_period_s
+        if not self.engaged:
+            # Bumpless: start from the command the robot follows now (the driver's hold).
+            self.loop.reset(st.q_cmd_rad - st.q_rad)
+            self.engaged = True
+            self.last_cycle = st.cycle - 1
+        gap = st.cycle - (self.last_cycle if self.last_cycle is not None else st.cycle - 1)
+        dt = period * max(1, min(gap, 50))
+        self.last_cycle = st.cycle
+        self.tau_d_nm = self.desired_torque(st.q_rad, st.dq_rad_s, p_bar)
+        out = self.loop.step(st.q_rad, st.dq_rad_s, self.tau_d_nm, dt)
+        return make_joint_command(st.cycle, st.stamp_s, now_s, out.q_cmd_rad, out.dq_cmd_rad_s)
+
+
+class ControlProcess:
+    def __init__(
+        self,
+        cfg: ControlConfig,
+        bus: BusConfig,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.cfg = cfg
+        self.bus = bus
+        self.keys = bus.keys
+        self.clock = clock
+        self.ctl = ZeroMomentController(cfg, DeclaredModel.load(cfg.model))
+        self._lock = threading.Lock()
+        self.io: IoState | None = None
+        self.lifecycle: LifecycleMsg | None = None
+        self.lifecycle_rx_s = -1e9
+        self.stats = {"states": 0, "commands": 0, "bad_messages": 0, "io_stale": 0}
+        self.stop_event = threading.Event()
+        self.session = None
+        self._subs: list = []
+        self._pub_cmd = None
+
+    def open(self) -> None:
+        self.session = open_client(self.bus)
+        s = self.session
+        self._pub_cmd = s.declare_publisher(self.keys.joint_command)
+        self._subs = [
+            s.declare_subscriber(self.keys.joint_state, self._on_state),
+            s.declare_subscriber(self.keys.io_state, self._on_io),
+            s.declare_subscriber(self.keys.lifecycle, self._on_lifecycle),
+        ]
+
+    def close(self) -> None:
+        for sub in self._subs:
+            try:
+                sub.undeclare()
+            except Exception:
+                log.exception("undeclare failed")
+        self._subs = []
+        if self._pub_cmd is not None:
+            self._pub_cmd.undeclare()
+            self._pub_cmd = None
+        if self.session is not None:
+            self.session.close()
+            self.session = None
+
+    # --- callbacks: decode, compute, publish; never block --------------------------------
+    def _on_io(self, sample) -> None:
+        try:
+            io = IoState.from_bytes(sample.payload.to_bytes())
+        except MessageError as exc:
+            self.stats["bad_messages"] += 1
+            log.warning("ignored I/O message: %s", exc)
+            return
+        with self._lock:
+            self.io = io
+
+    def _on_lifecycle(self, sample) -> None:
+        try:
+            msg = LifecycleMsg.from_bytes(sample.payload.to_bytes())
+        except MessageError as exc:
+            self.stats["bad_messages"] += 1
+            log.warning("ignored lifecycle message: %s", exc)
+            return
+        with self._lock:
+            self.lifecycle, self.lifecycle_rx_s = msg, self.clock()
+
+    def _teaching(self, now: float) -> bool:
+        lc = self.lifecycle
+        return (
+            lc is not None
+            and lc.state == Lifecycle.TEACHING
+            and now - self.lifecycle_rx_s <= self.cfg.lifecycle_timeout_s
+        )
+
+    def _on_state(self, sample) -> None:
+        try:
+            st = JointState.from_bytes(sample.payload.to_bytes())
+        except MessageError as exc:
+            self.stats["bad_messages"] += 1
+            log.warning("ignored joint state: %s", exc)
+            return
+        now = self.clock()
+        self.stats["states"] += 1
+        with self._lock:
+            io, teaching = self.io, self._teaching(now)
+        if st.n != self.ctl.model.n:
+            self.stats["bad_messages"] += 1
+            log.error("joint state has %d joints, model has %d", st.n, self.ctl.model.n)
+            return
+        following = st.controller_state in (ControllerState.HOLD, ControllerState.EXTERNAL)
+        if not (teaching and following):
+            self.ctl.disengage()
+            return
+        if io is None or now - io.stamp_s > self.cfg.io_timeout_s:
+            self.stats["io_stale"] += 1
+            self.ctl.disengage()  # no pressures, no cylinder torque: let the driver hold
+            return
+        try:
+            cmd = self.ctl.update(st, np.array([io.p2_bar, io.p3_bar]), self.clock())
+        except MessageError as exc:  # NaN from the model: never send it
+            self.stats["bad_messages"] += 1
+            self.ctl.disengage()
+            log.error("command not sent: %s", exc)
+            return
+        self._pub_cmd.put(cmd.to_bytes())
+        self.stats["commands"] += 1
+
+    # --- slow loop: pressure set-points, health, telemetry -------------------------------
+    def run(self) -> None:
+        s = self.session
+        assert s is not None
+        period = 1.0 / HEALTH_RATE_HZ
+        while not self.stop_event.wait(min(period, PRESSURE_PUBLISH_PERIOD_S)):
+            now = self.clock()
+            p2, p3 = self.cfg.pressure_setpoint_bar
+            s.put(self.keys.pressure_setpoint, PressureSetpoint(now, p2, p3).to_bytes())
+            health = {
+                "process": "control",
+                "stamp_s": now,
+                "engaged": self.ctl.engaged,
+                **self.stats,
+            }
+            s.put(self.keys.health("control"), encode_json(health))
+            tele = {
+                "stamp_s": now,
+                "tau_d_nm": [round(float(v), 3) for v in self.ctl.tau_d_nm],
+                "offset_rad": [round(float(v), 6) for v in self.ctl.loop.offset_rad],
+            }
+            s.put(self.keys.control_telemetry, encode_json(tele))
+
+    def stop(self) -> None:
+        self.stop_event.set()
+
+
+def configure_parser(p: argparse.ArgumentParser) -> None:
+    p.description = (
+        "Run the zero-moment lead-through control process. It reads joint state and pressures "
+        "from the zenoh bus and publishes joint position/velocity commands while the gateway "
+        "is TEACHING. Normally started by `leadthrough gateway`."
+    )
+    p.add_argument("--config", type=Path, required=True, help="cell config TOML")
+    p.add_argument("--bus", default=None, help="zenoh router endpoint (overrides the config)")
+
+
+def cli_main(args: argparse.Namespace) -> int:
+    cfg, bus = load_control_config(args.config)
+    proc = ControlProcess(cfg, bus.with_overrides(args.bus))
+    signal.signal(signal.SIGTERM, lambda *_: proc.stop())
+    signal.signal(signal.SIGINT, lambda *_: proc.stop())
+    proc.open()
+    try:
+        proc.run()
+    finally:
+        proc.close()
+    return 0

@@ -1,0 +1,1 @@
+"""Device drivers: one process per fieldbus, bridging it to the zenoh bus."""

@@ -1,0 +1,1 @@
+"""CAN driver: LTC-1 protocol codec, vendor adapters and the CAN driver process."""

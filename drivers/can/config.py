@@ -1,0 +1,144 @@
+"""``[can]`` section of the cell config: the CAN driver's adapter, transport, deadlines and limits.
+
+Example (virtual controller)::
+
+    [can]
+    adapter = "ltc_dbc"
+    joints = 6
+    deadline_s = 0.010
+    max_following_error_rad = [0.05, 0.05, 0.05, 0.08, 0.08, 0.08]
+    max_velocity_rad_s = 1.0          # one number applies to every joint
+
+    [can.transport]                   # keyword arguments of can.Bus()
+    interface = "socketcand"
+    channel = "vcan0"
+    host = "127.0.0.1"
+    port = 29536
+    tcp_tune = true
+
+Production differs only in the transport: ``interface = "socketcan"``, ``channel = "can0"``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from gateway.bus import BusConfig
+from gateway.config import from_mapping, load_toml, require
+
+_TRANSPORT_SCALARS = (str, int, float, bool)
+
+
+def _production_transport() -> dict[str, Any]:
+    return {"interface": "socketcan", "channel": "can0"}
+
+
+@dataclass(frozen=True)
+class CanDriverConfig:
+    """``[can]`` section of the cell config. Every duration is in seconds."""
+
+    #: Name of the controller protocol adapter (see drivers/registry.py).
+    adapter: str = "ltc_dbc"
+    #: Number of robot joints the driver reports and commands.
+    joints: int = 6
+    #: Keyword arguments of ``can.Bus(**transport)``. Only this differs between the virtual
+    #: controller (interface "socketcand") and the cell (interface "socketcan", channel "can0").
+    transport: dict[str, Any] = field(default_factory=_production_transport)
+    #: A JointCommand older than this (driver clock − its state_stamp_s) is never forwarded [s].
+    #: An unanswered cycle is answered with a hold set at this age, or earlier if the
+    #: controller's cycle period demands it (see driver.py).
+    deadline_s: float = 0.010
+    #: The gateway's lifecycle message counts as fresh for this long [s].
+    lifecycle_timeout_s: float = 0.25
+    #: The Modbus driver's IoState counts as fresh for this long [s].
+    io_timeout_s: float = 0.25
+    #: The controller link is up while a complete cycle arrived within this time [s].
+    controller_timeout_s: float = 0.1
+    #: Period of HEARTBEAT_HOST and of the repeated HOST_REQUEST [s].
+    heartbeat_period_s: float = 0.1
+    #: Per joint (or one value for all): a command with |q_cmd − q| beyond this is rejected [rad].
+    max_following_error_rad: float | tuple[float, ...] = 0.05
+    #: Per joint (or one value for all): a command with |dq_cmd| beyond this is rejected [rad/s].
+    max_velocity_rad_s: float | tuple[float, ...] = 1.0
+
+    def __post_init__(self) -> None:
+        where = "[can]"
+        require(bool(self.adapter), f"{where}.adapter", "must name an adapter, e.g. 'ltc_dbc'")
+        require(1 <= self.joints <= 16, f"{where}.joints", f"{self.joints} outside 1..16")
+        self._check_transport(dict(self.transport))
+        object.__setattr__(self, "transport", dict(self.transport))
+        for name, lo, hi in (
+            ("deadline_s", 0.0, 0.1),
+            ("lifecycle_timeout_s", 0.0, 5.0),
+            ("io_timeout_s", 0.0, 5.0),
+            ("controller_timeout_s", 0.0, 5.0),
+            ("heartbeat_period_s", 0.0, 1.0),
+        ):
+            value = getattr(self, name)
+            require(
+                math.isfinite(value) and lo < value <= hi,
+                f"{where}.{name}",
+                f"{value!r} s outside ({lo}, {hi}]",
+            )
+        for name in ("max_following_error_rad", "max_velocity_rad_s"):
+            object.__setattr__(self, name, self._per_joint(name, getattr(self, name)))
+
+    def _per_joint(self, name: str, value: float | tuple[float, ...]) -> tuple[float, ...]:
+        if isinstance(value, int | float):
+            values = (float(value),) * self.joints
+        else:
+            values = tuple(float(v) for v in value)
+        require(
+            len(values) == self.joints,
+            f"[can].{name}",
+            f"has {len(values)} values for {self.joints} joints",
+        )
+        for k, v in enumerate(values):
+            require(
+                math.isfinite(v) and v > 0, f"[can].{name}[{k}]", f"{v!r} must be finite and > 0"
+            )
+        return values
+
+    @staticmethod
+    def _check_transport(t: dict[str, Any]) -> None:
+        where = "[can].transport"
+        interface = t.get("interface")
+        require(
+            isinstance(interface, str) and bool(interface),
+            f"{where}.interface",
+            f"{interface!r}: name a python-can interface, e.g. 'socketcan' or 'socketcand'",
+        )
+        for key, value in t.items():
+            require(
+                isinstance(value, _TRANSPORT_SCALARS),
+                f"{where}.{key}",
+                f"{value!r} must be a string, number or boolean",
+            )
+        require(
+            isinstance(t.get("channel"), str) and bool(t.get("channel")),
+            f"{where}.channel",
+            f"{t.get('channel')!r}: name the CAN channel, e.g. 'can0' or 'vcan0'",
+        )
+        if interface == "socketcand":
+            require(
+                isinstance(t.get("host"), str) and bool(t.get("host")),
+                f"{where}.host",
+                f"{t.get('host')!r}: socketcand needs the server's host",
+            )
+            port = t.get("port")
+            require(
+                isinstance(port, int) and not isinstance(port, bool) and 0 < port < 65536,
+                f"{where}.port",
+                f"{port!r}: socketcand needs the server's TCP port 1..65535",
+            )
+
+
+def load_can_config(cell_config_path: str | Path) -> tuple[CanDriverConfig, BusConfig]:
+    """The ``[can]`` and ``[bus]`` sections of a cell config file (absent sections: defaults)."""
+    doc = load_toml(cell_config_path)
+    can_cfg = from_mapping(CanDriverConfig, doc.get("can", {}), f"{cell_config_path} [can]")
+    bus_cfg = from_mapping(BusConfig, doc.get("bus", {}), f"{cell_config_path} [bus]")
+    return can_cfg, bus_cfg

@@ -1,0 +1,1 @@
+"""Modbus TCP driver for the cell's pressure and safety I/O module."""

@@ -1,0 +1,116 @@
+"""`leadthrough`: the one command-line entry point; every tool is a subcommand.
+
+Subcommand modules are imported lazily so that `leadthrough status` does not load MuJoCo.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import logging
+import sys
+from pathlib import Path
+
+from gateway.errors import LeadthroughError
+
+#: name → (module, one-line help)
+SUBCOMMANDS: dict[str, tuple[str, str]] = {
+    "gateway": ("gateway.supervisor", "run the gateway: router, drivers, control, lifecycle"),
+    "start": (
+        "gateway.cli",
+        "operator: servo on and hold (teach while the enabling device is held)",
+    ),
+    "stop": ("gateway.cli", "operator: stop the robot (brakes on)"),
+    "status": ("gateway.cli", "operator: show lifecycle state, links and why it cannot start"),
+    "reset": ("gateway.cli", "operator: clear a fault once its cause is gone"),
+    "can-driver": ("drivers.can.driver", "run the CAN driver (started by the gateway)"),
+    "modbus-driver": ("drivers.modbus.driver", "run the Modbus driver (started by the gateway)"),
+    "control": ("control.process", "run the control process (started by the gateway)"),
+    "sim": ("sim_bridge.sim", "run the virtual robot cell (MuJoCo + virtual controller)"),
+    "demo": ("sim_bridge.demo", "run the whole product on the virtual cell and report"),
+    "bench": ("sim_bridge.bench", "measure wire-to-wire loop latency on the virtual cell"),
+}
+OPERATOR_COMMANDS = ("start", "stop", "status", "reset")
+
+
+def _configure_operator(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--config", type=Path, default=None, help="cell config TOML (for [bus])")
+    p.add_argument("--bus", default=None, help="zenoh endpoint of the gateway")
+    p.add_argument("--json", action="store_true", help="print the gateway's full JSON reply")
+    p.add_argument("--timeout", type=float, default=3.0, help="seconds to wait for the gateway")
+
+
+def _operator_main(args: argparse.Namespace) -> int:
+    from gateway.bus import BusConfig
+    from gateway.config import from_mapping, load_toml
+    from gateway.supervisor import operator_request
+
+    bus = BusConfig()
+    if args.config:
+        bus = from_mapping(BusConfig, load_toml(args.config).get("bus", {}), f"{args.config} [bus]")
+    reply = operator_request(bus.with_overrides(args.bus), args.command, args.timeout)
+    if args.json:
+        print(json.dumps(reply, indent=2))
+    else:
+        state = reply.get("state", "?")
+        print(f"{'OK' if reply.get('ok') else 'REFUSED'}: {reply.get('message')} [state: {state}]")
+        for problem in reply.get("problems", []) if args.command == "status" else []:
+            print(f"  - {problem}")
+    return 0 if reply.get("ok") else 1
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="leadthrough",
+        description=(
+            "Hand-guiding (lead-through teaching) for a closed-controller painting robot. "
+            "Typical use on the cell PC: `leadthrough gateway --config cell.toml`, then "
+            "`leadthrough start`, hold the enabling device and guide the tool; "
+            "`leadthrough stop` when done."
+        ),
+    )
+    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for name, (module, help_text) in SUBCOMMANDS.items():
+        p = sub.add_parser(name, help=help_text, description=help_text)
+        if name in OPERATOR_COMMANDS:
+            _configure_operator(p)
+        else:
+            importlib.import_module(module).configure_parser(p)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    # Build only the parser needed: importing every subcommand would load MuJoCo for `status`.
+    parser = build_parser() if not argv or argv[0] not in SUBCOMMANDS else _single(argv[0])
+    args = parser.parse_args(argv)
+    logging.basicConfig(
+        level=logging.DEBUG if getattr(args, "verbose", False) else logging.INFO,
+        format=f"%(asctime)s {args.command} %(levelname)s %(name)s: %(message)s",
+    )
+    try:
+        if args.command in OPERATOR_COMMANDS:
+            return _operator_main(args)
+        return int(importlib.import_module(SUBCOMMANDS[args.command][0]).cli_main(args) or 0)
+    except LeadthroughError as exc:
+        print(f"leadthrough {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+
+
+def _single(name: str) -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="leadthrough")
+    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    sub = parser.add_subparsers(dest="command", required=True)
+    module, help_text = SUBCOMMANDS[name]
+    p = sub.add_parser(name, help=help_text, description=help_text)
+    if name in OPERATOR_COMMANDS:
+        _configure_operator(p)
+    else:
+        importlib.import_module(module).configure_parser(p)
+    return parser
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,117 @@
+"""The gateway's lifecycle state machine (pure: no I/O, clock passed in).
+
+    STOPPED --start [links healthy]--> READY --enabling held, servo on--> TEACHING
+       ^                                 ^  <--enabling released---------     |
+       |---------------- stop -----------+-----------------------------------+
+    any --fault condition--> FAULT --reset [cause gone]--> STOPPED
+
+STOPPED is the initial state and the state `stop` leads to from anywhere but FAULT. Every fault
+condition wins over every operator command. Like ros2_control's hardware lifecycle, READY means
+"link up, states readable, holding still": only TEACHING lets the control process's commands
+through (the CAN driver checks the same conditions again before forwarding a command).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from gateway.messages import ControllerState, Lifecycle
+
+
+@dataclass(frozen=True)
+class Observations:
+    """What the gateway knows about the cell at one instant; ages in [s], None = never seen."""
+
+    joint_state_age_s: float | None
+    io_age_s: float | None
+    controller_state: ControllerState | None
+    enabling: bool
+    estop_ok: bool
+    dead_processes: tuple[str, ...] = ()
+    stale_processes: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class Limits:
+    joint_state_timeout_s: float = 0.1
+    io_timeout_s: float = 0.25
+
+
+@dataclass
+class LifecycleMachine:
+    limits: Limits = field(default_factory=Limits)
+    state: Lifecycle = Lifecycle.STOPPED
+    reason: str = "initial state"
+    seq: int = 0
+
+    def _go(self, state: Lifecycle, reason: str) -> None:
+        if state != self.state or reason != self.reason:
+            self.seq += 1
+        self.state, self.reason = state, reason
+
+    def link_problems(self, obs: Observations) -> list[str]:
+        """Why the cell cannot be started now (empty list: it can)."""
+        problems = []
+        if obs.dead_processes:
+            problems.append(f"process(es) not running: {', '.join(obs.dead_processes)}")
+        if obs.stale_processes:
+            problems.append(f"process(es) silent: {', '.join(obs.stale_processes)}")
+        lim = self.limits
+        if obs.joint_state_age_s is None or obs.joint_state_age_s > lim.joint_state_timeout_s:
+            problems.append("no fresh joint state from the CAN driver")
+        if obs.io_age_s is None or obs.io_age_s > lim.io_timeout_s:
+            problems.append("no fresh I/O state from the Modbus driver")
+        if not obs.estop_ok:
+            problems.append("e-stop chain open")
+        if obs.controller_state == ControllerState.FAULT:
+            problems.append("robot controller reports FAULT")
+        return problems
+
+    def update(self, obs: Observations) -> Lifecycle:
+        """Apply the automatic transitions for the latest observations."""
+        if self.state in (Lifecycle.READY, Lifecycle.TEACHING):
+            problems = self.link_problems(obs)
+            if problems:
+                self._go(Lifecycle.FAULT, "; ".join(problems))
+                return self.state
+            servo_on = obs.controller_state in (ControllerState.HOLD, ControllerState.EXTERNAL)
+            if self.state == Lifecycle.READY and obs.enabling and servo_on:
+                self._go(Lifecycle.TEACHING, "enabling device held")
+            elif self.state == Lifecycle.TEACHING and not obs.enabling:
+                self._go(Lifecycle.READY, "enabling device released")
+        elif self.state == Lifecycle.STOPPED and not obs.estop_ok and obs.io_age_s is not None:
+            self._go(Lifecycle.FAULT, "e-stop chain open")
+        return self.state
+
+    def command(self, name: str, obs: Observations) -> tuple[bool, str]:
+        """Apply an operator command; returns (accepted, message)."""
+        if name == "status":
+            return True, self.reason
+        if name == "stop":
+            if self.state == Lifecycle.FAULT:
+                return True, f"already stopped by fault ({self.reason}); use reset to clear it"
+            self._go(Lifecycle.STOPPED, "stop requested by operator")
+            return True, "stopped: brakes engaged"
+        if name == "start":
+            if self.state in (Lifecycle.READY, Lifecycle.TEACHING):
+                return True, f"already {self.state.name.lower()}"
+            if self.state == Lifecycle.FAULT:
+                return False, f"in fault ({self.reason}); use reset first"
+            problems = self.link_problems(obs)
+            if problems:
+                return False, "cannot start: " + "; ".join(problems)
+            self._go(Lifecycle.READY, "started by operator; hold the enabling device to teach")
+            return True, self.reason
+        if name == "reset":
+            if self.state != Lifecycle.FAULT:
+                return True, f"nothing to reset (state {self.state.name.lower()})"
+            problems = self.link_problems(obs)
+            if problems:
+                return False, "fault cause still present: " + "; ".join(problems)
+            self._go(Lifecycle.STOPPED, "fault reset by operator")
+            return True, self.reason
+        return False, f"unknown command {name!r}; use start, stop, status or reset"
+
+    def fault(self, reason: str) -> None:
+        """Enter FAULT from any state (used by error paths)."""
+        self._go(Lifecycle.FAULT, reason)

@@ -1,0 +1,1 @@
+"""Virtual robot cell: plant, vendor controller, I/O and their fieldbus endpoints."""

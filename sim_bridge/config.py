@@ -1,0 +1,171 @@
+"""The virtual controller's PRIVATE configuration: the plant's truth.
+
+Nothing outside ``sim_bridge/`` (and the tests that check this) may read these files: they hold
+what the real robot keeps to itself — the inner PI gains of eq. (19), the true friction, the
+pressure dynamics, and any effect injected to test identification. ``control/`` must get by with
+its own declared model and its own copy of ω and Υ_I, as it would on the real cell.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from gateway.config import from_mapping, load_toml, require
+
+DEFAULT_TRUTH = Path(__file__).with_name("gr630st_truth.toml")
+
+EFFECT_KINDS = (
+    "payload",  # mass on the last link: mass_kg, com_m [3] in the tool frame
+    "spring",  # position-proportional spring: joint, k_nm_per_rad, q0_rad
+    "ripple",  # position-periodic torque: joint, amplitude_nm, cycles_per_rev, phase_rad
+    "stribeck",  # friction transition shape: joint, amplitude_nm, velocity_rad_s
+    "load_friction",  # load-dependent friction: joint, coefficient (|tau_load| fraction)
+    "delay",  # torque/kinematics time delay at the sensor: delay_s (all joints)
+    "drift",  # slow thermal drift of the torque offset: joint, rate_nm_per_s
+    "coupling",  # wrist cross-coupling: joint, from_joint, coefficient
+)
+
+
+@dataclass(frozen=True)
+class InnerLoopTruth:
+    """Gains of the vendor's PI velocity loop, eq. (19). Unknown to control/."""
+
+    kp_a_s_per_rad: tuple[float, ...]  #: K_p per joint [A/(rad/s)]
+    ki_a_per_rad: tuple[float, ...]  #: K_I per joint [A/rad]
+
+    def __post_init__(self) -> None:
+        require(len(self.kp_a_s_per_rad) == len(self.ki_a_per_rad), "[inner_loop]", "lengths")
+        require(all(v > 0 for v in self.kp_a_s_per_rad), "[inner_loop].kp_a_s_per_rad", "> 0")
+        require(all(v > 0 for v in self.ki_a_per_rad), "[inner_loop].ki_a_per_rad", "> 0")
+
+
+@dataclass(frozen=True)
+class FrictionTruth:
+    """True joint friction, eq. (15) (our reading, see control/model/friction.py)."""
+
+    tau_s_nm: float
+    tau_c_nm: float
+    tau_v1_nm_s_per_rad: float
+    q_e_rad_s: float
+    tau_v2_nm_s2_per_rad2: float = 0.0
+    fourier_nm: tuple[float, float, float, float, float, float] = (0.0,) * 6
+
+    def __post_init__(self) -> None:
+        require(self.q_e_rad_s > 0, "[[friction]].q_e_rad_s", f"{self.q_e_rad_s} must be > 0")
+        require(self.tau_c_nm >= 0 and self.tau_s_nm >= 0, "[[friction]]", "tau_c, tau_s >= 0")
+
+
+@dataclass(frozen=True)
+class CylinderTruth:
+    time_constant_s: float = 0.25  #: first-order lag of pressure towards its set-point
+    noise_bar: float = 0.003  #: std of the transmitter noise [bar]
+    initial_bar: tuple[float, float] = (6.0, 4.0)
+
+    def __post_init__(self) -> None:
+        require(self.time_constant_s > 0, "[cylinders].time_constant_s", "must be > 0")
+
+
+@dataclass(frozen=True)
+class SensorTruth:
+    current_noise_a: float = 0.02  #: std of the motor-current measurement noise [A]
+
+
+@dataclass(frozen=True)
+class ControllerSpec:
+    """Public behaviour of the vendor controller (what its manual would say)."""
+
+    cycle_period_s: float = 0.004  #: external-command cycle (feedback and command rate)
+    max_missed_cycles: int = 25  #: consecutive cycles without commands before FAULT
+    host_heartbeat_timeout_s: float = 0.5
+    max_following_error_rad: float = 0.05  #: |q_cmd - q| beyond this → FAULT
+
+    def __post_init__(self) -> None:
+        require(
+            0.0005 <= self.cycle_period_s <= 0.05,
+            "[controller].cycle_period_s",
+            f"{self.cycle_period_s} outside 0.0005..0.05 s",
+        )
+
+
+@dataclass(frozen=True)
+class Endpoints:
+    can_host: str = "127.0.0.1"
+    can_port: int = 29536  #: socketcand-protocol TCP server of the virtual controller
+    modbus_host: str = "127.0.0.1"
+    modbus_port: int = 15020
+
+
+@dataclass(frozen=True)
+class OperatorScript:
+    """The simulated operator. Times after ``onset`` are counted from teaching onset: the first
+    control cycle in which the controller follows a non-hold command."""
+
+    enabling_after_s: float = 0.0  #: sim time at which the enabling device is pressed
+    release_after_s: float | None = None  #: after onset: enabling released (None: never)
+    mode: str = "none"  #: none | force | path
+    force_n: tuple[float, float, float] = (0.0, 0.0, 0.0)  #: world frame, mode force
+    start_s: float = 0.5  #: after onset: the push starts
+    duration_s: float = 2.0  #: push length (mode force)
+    ramp_s: float = 0.2  #: force ramp in and out
+    #: mode path: [t_s, dx_m, dy_m, dz_m] waypoints from the tool position at onset
+    path: tuple[tuple[float, float, float, float], ...] = ()
+    hand_stiffness_n_per_m: float = 600.0
+    hand_damping_n_s_per_m: float = 80.0
+    max_force_n: float = 60.0
+
+    def __post_init__(self) -> None:
+        require(self.mode in ("none", "force", "path"), "[operator].mode", f"{self.mode!r}")
+        if self.mode == "path":
+            require(len(self.path) >= 2, "[operator].path", "needs at least 2 waypoints")
+            times = [w[0] for w in self.path]
+            require(times == sorted(times), "[operator].path", "times must increase")
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    inner_loop: InnerLoopTruth
+    friction: tuple[FrictionTruth, ...]
+    timestep_s: float = 0.0005  #: physics and inner-loop step [s]
+    realtime: bool = True  #: False: lock-step, as fast as the command loop answers
+    lockstep_timeout_s: float = 0.25  #: lock-step: wall time to wait for a command set
+    initial_q_rad: tuple[float, ...] = (0.0,) * 6
+    seed: int = 1
+    cylinders: CylinderTruth = field(default_factory=CylinderTruth)
+    sensors: SensorTruth = field(default_factory=SensorTruth)
+    controller: ControllerSpec = field(default_factory=ControllerSpec)
+    endpoints: Endpoints = field(default_factory=Endpoints)
+    operator: OperatorScript = field(default_factory=OperatorScript)
+    effects: tuple[dict[str, Any], ...] = ()
+
+    def __post_init__(self) -> None:
+        n = len(self.inner_loop.kp_a_s_per_rad)
+        require(
+            len(self.friction) == n, "[[friction]]", f"need {n} joints, got {len(self.friction)}"
+        )
+        require(len(self.initial_q_rad) == n, "initial_q_rad", f"need {n} values")
+        require(0 < self.timestep_s <= 0.002, "timestep_s", f"{self.timestep_s} not in (0, 2 ms]")
+        ratio = self.controller.cycle_period_s / self.timestep_s
+        require(
+            abs(ratio - round(ratio)) < 1e-6,
+            "[controller].cycle_period_s",
+            "must be a whole number of timesteps",
+        )
+        for i, eff in enumerate(self.effects):
+            require(
+                eff.get("kind") in EFFECT_KINDS,
+                f"[[effects]][{i}].kind",
+                f"{eff.get('kind')!r} not one of {EFFECT_KINDS}",
+            )
+
+
+def load_sim_config(
+    path: str | Path | None = None, overrides: dict[str, Any] | None = None
+) -> SimConfig:
+    """Load the truth file; ``overrides`` replace whole top-level keys (tests, scenarios)."""
+    p = Path(path) if path else DEFAULT_TRUTH
+    raw = load_toml(p)
+    if overrides:
+        raw = {**raw, **overrides}
+    return from_mapping(SimConfig, raw, str(p))

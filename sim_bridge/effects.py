@@ -1,0 +1,121 @@
+"""Effects the simulator can inject that the declared model does not contain.
+
+They exist to test identification and residual analysis: each is configured per test in the
+simulator's private config (``[[effects]]``), never visible to ``control/``. Signs follow the
+plant's right-hand side: a returned torque *drives* the joint.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from typing import TYPE_CHECKING, Any
+
+import mujoco
+import numpy as np
+
+from gateway.config import require
+
+if TYPE_CHECKING:
+    from control.robot.description import RobotDescription
+    from sim_bridge.plant import Plant
+
+
+def _add_point_mass(model: mujoco.MjModel, body: int, mass_kg: float, pos_m: np.ndarray) -> None:
+    """Rigidly attach a point mass at ``pos_m`` (body frame) to ``body``, in place."""
+    m0 = float(model.body_mass[body])
+    c0 = model.body_ipos[body].copy()
+    rot = np.zeros(9)
+    mujoco.mju_quat2Mat(rot, model.body_iquat[body])
+    rot = rot.reshape(3, 3)
+    i0 = rot @ np.diag(model.body_inertia[body]) @ rot.T  # about c0, body axes
+    m = m0 + mass_kg
+    c = (m0 * c0 + mass_kg * pos_m) / m
+
+    def shift(mass: float, r: np.ndarray) -> np.ndarray:
+        return mass * (np.dot(r, r) * np.eye(3) - np.outer(r, r))
+
+    inertia = i0 + shift(m0, c0 - c) + shift(mass_kg, pos_m - c)
+    evals, evecs = np.linalg.eigh(inertia)
+    if np.linalg.det(evecs) < 0:
+        evecs[:, 0] *= -1
+    quat = np.zeros(4)
+    mujoco.mju_mat2Quat(quat, evecs.reshape(-1))
+    model.body_mass[body] = m
+    model.body_ipos[body] = c
+    model.body_iquat[body] = quat
+    model.body_inertia[body] = evals
+
+
+class EffectSet:
+    """All configured effects; ``torque`` is called every physics step."""
+
+    def __init__(
+        self,
+        effects: tuple[dict[str, Any], ...],
+        model: mujoco.MjModel,
+        desc: RobotDescription,
+        timestep_s: float,
+    ) -> None:
+        self.torque_effects: list[dict[str, Any]] = []
+        self.delay_steps = 0
+        n = len(desc.joints)
+        for i, eff in enumerate(effects):
+            where = f"[[effects]][{i}] ({eff.get('kind')})"
+            kind = eff["kind"]
+            if kind == "payload":
+                site = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, "tool")
+                body = int(model.site_bodyid[site])
+                pos = model.site_pos[site] + np.asarray(eff.get("com_m", (0.0, 0.0, 0.0)))
+                mass = float(eff["mass_kg"])
+                require(mass > 0, where, "mass_kg must be > 0")
+                _add_point_mass(model, body, mass, pos)
+            elif kind == "delay":
+                delay = float(eff["delay_s"])
+                require(0 < delay < 0.1, where, "delay_s must be in (0, 0.1)")
+                self.delay_steps = round(delay / timestep_s)
+            else:
+                j = int(eff["joint"]) - 1
+                require(0 <= j < n, where, f"joint must be 1..{n}")
+                self.torque_effects.append({**eff, "_j": j})
+        self._history: deque[tuple[np.ndarray, np.ndarray]] = deque(
+            maxlen=max(self.delay_steps, 1) + 1
+        )
+
+    def torque(self, plant: Plant, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
+        tau = np.zeros(plant.n)
+        for eff in self.torque_effects:
+            j, kind = eff["_j"], eff["kind"]
+            if kind == "spring":
+                tau[j] -= float(eff["k_nm_per_rad"]) * (q[j] - float(eff.get("q0_rad", 0.0)))
+            elif kind == "ripple":
+                c = float(eff["cycles_per_rev"])
+                tau[j] += float(eff["amplitude_nm"]) * np.sin(
+                    c * q[j] + float(eff.get("phase_rad", 0.0))
+                )
+            elif kind == "stribeck":
+                v = float(eff["velocity_rad_s"])
+                tau[j] -= (
+                    float(eff["amplitude_nm"]) * np.exp(-((dq[j] / v) ** 2)) * np.tanh(dq[j] / 1e-3)
+                )
+            elif kind == "load_friction":
+                tau[j] -= (
+                    float(eff["coefficient"]) * abs(plant.tau_motor_nm[j]) * np.tanh(dq[j] / 0.01)
+                )
+            elif kind == "drift":
+                tau[j] += float(eff["rate_nm_per_s"]) * plant.t_s
+            elif kind == "coupling":
+                k = int(eff["from_joint"]) - 1
+                tau[j] -= float(eff["coefficient"]) * plant.tau_motor_nm[k]
+        return tau
+
+    def advance(self, plant: Plant, dt: float) -> None:
+        if self.delay_steps:
+            self._history.append(
+                (plant.data.qpos[: plant.n].copy(), plant.data.qvel[: plant.n].copy())
+            )
+
+    def measured_kinematics(self, plant: Plant) -> tuple[np.ndarray, np.ndarray]:
+        """Joint position and velocity as the encoders report them (delayed if injected)."""
+        if self.delay_steps and len(self._history) == self._history.maxlen:
+            return self._history[0]
+        return plant.q_rad, plant.dq_rad_s

@@ -1,0 +1,200 @@
+"""Run the whole product on the virtual cell as separate processes, as a user would.
+
+Used by `leadthrough demo`, `leadthrough bench` and the stack tests: it writes a cell config and
+a simulator truth file for free loopback ports, starts ``leadthrough sim`` and
+``leadthrough gateway`` (which starts the drivers and the control process), talks to the gateway
+like an operator, and tears everything down, child processes included.
+"""
+
+from __future__ import annotations
+
+import copy
+import csv
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import tomli_w
+
+from gateway.bus import BusConfig
+from gateway.config import load_toml
+from gateway.supervisor import operator_request
+
+REPO = Path(__file__).resolve().parent.parent
+SIM_CELL = REPO / "deploy" / "config" / "sim_cell.toml"
+TRUTH = Path(__file__).with_name("gr630st_truth.toml")
+DECLARED = REPO / "deploy" / "config" / "gr630st_declared.toml"
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def deep_merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
+    out = copy.deepcopy(base)
+    for k, v in over.items():
+        if isinstance(v, dict) and isinstance(out.get(k), dict):
+            out[k] = deep_merge(out[k], v)
+        else:
+            out[k] = copy.deepcopy(v)
+    return out
+
+
+def _wait_port(host: str, port: int, timeout_s: float, proc: subprocess.Popen) -> None:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if proc.poll() is not None:
+            raise RuntimeError(f"process exited with {proc.returncode} before opening {port}")
+        try:
+            with socket.create_connection((host, port), timeout=0.2):
+                return
+        except OSError:
+            time.sleep(0.05)
+    raise TimeoutError(f"nothing listening on {host}:{port} after {timeout_s} s")
+
+
+class Stack:
+    """The product + virtual cell, each a separate process."""
+
+    def __init__(
+        self,
+        workdir: Path,
+        sim_overrides: dict[str, Any] | None = None,
+        cell_overrides: dict[str, Any] | None = None,
+        lockstep: bool = False,
+        quiet: bool = True,
+    ) -> None:
+        self.workdir = Path(workdir)
+        self.workdir.mkdir(parents=True, exist_ok=True)
+        self.lockstep = lockstep
+        self.quiet = quiet
+        self.ports = {"bus": free_port(), "can": free_port(), "modbus": free_port()}
+        self.bus = BusConfig(endpoint=f"tcp/127.0.0.1:{self.ports['bus']}")
+        cell = load_toml(SIM_CELL)
+        cell["control"]["model"] = str(DECLARED)
+        cell = deep_merge(
+            cell,
+            {
+                "bus": {"endpoint": self.bus.endpoint},
+                "can": {"transport": {"port": self.ports["can"]}},
+                "modbus": {"port": self.ports["modbus"]},
+            },
+        )
+        self.cell = deep_merge(cell, cell_overrides or {})
+        truth = load_toml(TRUTH)
+        truth = deep_merge(
+            truth,
+            {"endpoints": {"can_port": self.ports["can"], "modbus_port": self.ports["modbus"]}},
+        )
+        self.truth = deep_merge(truth, sim_overrides or {})
+        self.cell_path = self.workdir / "cell.toml"
+        self.truth_path = self.workdir / "truth.toml"
+        self.cell_path.write_bytes(tomli_w.dumps(self.cell).encode())
+        self.truth_path.write_bytes(tomli_w.dumps(self.truth).encode())
+        self.truth_log = self.workdir / "truth.csv"
+        self.sim_summary = self.workdir / "sim_summary.json"
+        self.sim: subprocess.Popen | None = None
+        self.gateway: subprocess.Popen | None = None
+        self._logs: list[Any] = []
+
+    def _spawn(self, name: str, args: list[str]) -> subprocess.Popen:
+        out = (self.workdir / f"{name}.log").open("w")
+        self._logs.append(out)
+        env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+        return subprocess.Popen(
+            [sys.executable, "-m", "gateway.cli", *args],
+            stdout=out,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+            cwd=REPO,
+            env=env,
+        )
+
+    def start(self, duration_s: float | None = None, timeout_s: float = 30.0) -> None:
+        sim_args = ["sim", "--truth", str(self.truth_path), "--log", str(self.truth_log),
+                    "--summary", str(self.sim_summary)]  # fmt: skip
+        if self.lockstep:
+            sim_args.append("--lockstep")
+        if duration_s is not None:
+            sim_args += ["--duration", str(duration_s)]
+        self.sim = self._spawn("sim", sim_args)
+        _wait_port("127.0.0.1", self.ports["can"], timeout_s, self.sim)
+        _wait_port("127.0.0.1", self.ports["modbus"], timeout_s, self.sim)
+        self.gateway = self._spawn("gateway", ["gateway", "--config", str(self.cell_path)])
+
+    def request(self, command: str, timeout_s: float = 3.0) -> dict[str, Any]:
+        return operator_request(self.bus, command, timeout_s)
+
+    def wait_status(
+        self, predicate: Callable[[dict[str, Any]], bool], timeout_s: float, what: str
+    ) -> dict[str, Any]:
+        deadline = time.monotonic() + timeout_s
+        last: dict[str, Any] = {}
+        while time.monotonic() < deadline:
+            self.check_alive()
+            last = self.request("status", timeout_s=1.0)
+            if predicate(last):
+                return last
+            time.sleep(0.1)
+        raise TimeoutError(f"waited {timeout_s} s for {what}; last status: {last}")
+
+    def start_teaching(self, timeout_s: float = 40.0) -> dict[str, Any]:
+        """Wait until the cell can start, send `start`, wait for TEACHING."""
+        self.wait_status(lambda s: s.get("can_start") is True, timeout_s, "cell ready to start")
+        reply = self.request("start")
+        if not reply.get("ok"):
+            raise RuntimeError(f"start refused: {reply}")
+        return self.wait_status(lambda s: s.get("state") == "teaching", 10.0, "teaching")
+
+    def check_alive(self) -> None:
+        for name, proc in (("sim", self.sim), ("gateway", self.gateway)):
+            if proc is not None and proc.poll() is not None:
+                log = (self.workdir / f"{name}.log").read_text()[-3000:]
+                raise RuntimeError(f"{name} exited with {proc.returncode}:\n{log}")
+
+    def child_pid(self, name: str) -> int:
+        status = self.request("status")
+        return int(status["processes"][name]["pid"])
+
+    def stop(self) -> None:
+        """Stop the gateway (which stops its children) then the simulator; kill stragglers."""
+        for proc in (self.gateway, self.sim):
+            if proc is not None and proc.poll() is None:
+                proc.send_signal(signal.SIGTERM)
+        for proc in (self.gateway, self.sim):
+            if proc is None:
+                continue
+            try:
+                proc.wait(timeout=10.0)
+            except subprocess.TimeoutExpired:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait()
+            # Children of the gateway live in their own sessions: make sure none survive.
+        for f in self._logs:
+            f.close()
+        self._logs = []
+
+    def truth(self) -> dict[str, np.ndarray]:
+        """The simulator's per-cycle truth log as columns."""
+        with self.truth_log.open() as fh:
+            rows = list(csv.reader(fh))
+        header, body = rows[0], rows[1:]
+        if body and len(body[-1]) != len(header):
+            body = body[:-1]  # last line may be cut if read while the simulator writes
+        data = np.array(body, dtype=float) if body else np.zeros((0, len(header)))
+        return {name: data[:, i] for i, name in enumerate(header)}
+
+    def __enter__(self) -> Stack:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()

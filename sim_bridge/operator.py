@@ -1,0 +1,64 @@
+"""The simulated operator: an enabling device and a hand on the tool.
+
+In ``force`` mode the hand pushes with a scripted force (trapezoid in time). In ``path`` mode it
+behaves like a human arm following a target that moves along waypoints: a spring-damper between
+target and tool, saturated at ``max_force_n`` — the force it needs is what the paper's Fig. 13
+measures with its force sensor.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sim_bridge.config import OperatorScript
+
+
+class Operator:
+    def __init__(self, script: OperatorScript) -> None:
+        self.s = script
+        self.onset_s: float | None = None  #: sim time teaching began
+        self.origin_m: np.ndarray | None = None  #: tool position at onset
+        if script.mode == "path":
+            wp = np.array(script.path, dtype=float)
+            self._t, self._xyz = wp[:, 0], wp[:, 1:4]
+
+    def mark_onset(self, t_s: float, tool_m: np.ndarray) -> None:
+        if self.onset_s is None:
+            self.onset_s, self.origin_m = t_s, tool_m.copy()
+
+    def enabling(self, t_s: float) -> bool:
+        if t_s < self.s.enabling_after_s:
+            return False
+        if self.onset_s is not None and self.s.release_after_s is not None:
+            return t_s - self.onset_s < self.s.release_after_s
+        return True
+
+    def target_m(self, t_s: float) -> np.ndarray | None:
+        """Where the hand wants the tool (path mode, after onset)."""
+        if self.s.mode != "path" or self.onset_s is None or self.origin_m is None:
+            return None
+        tau = t_s - self.onset_s
+        offset = np.array([np.interp(tau, self._t, self._xyz[:, k]) for k in range(3)])
+        return self.origin_m + offset
+
+    def force_n(self, t_s: float, tool_m: np.ndarray, tool_vel_m_s: np.ndarray) -> np.ndarray:
+        if self.onset_s is None or not self.enabling(t_s):
+            return np.zeros(3)
+        s = self.s
+        tau = t_s - self.onset_s
+        if s.mode == "force":
+            a, b = s.start_s, s.start_s + s.duration_s
+            if tau <= a or tau >= b:
+                return np.zeros(3)
+            ramp = min(1.0, (tau - a) / s.ramp_s, (b - tau) / s.ramp_s) if s.ramp_s > 0 else 1.0
+            return ramp * np.asarray(s.force_n, dtype=float)
+        if s.mode == "path":
+            target = self.target_m(t_s)
+            assert target is not None
+            f = (
+                s.hand_stiffness_n_per_m * (target - tool_m)
+                - s.hand_damping_n_s_per_m * tool_vel_m_s
+            )
+            norm = float(np.linalg.norm(f))
+            return f if norm <= s.max_force_n else f * (s.max_force_n / norm)
+        return np.zeros(3)

@@ -1,0 +1,133 @@
+"""The simulated robot: MuJoCo rigid bodies, the vendor's inner PI loop, true friction,
+assist cylinders with pressure lag, brakes, injected effects and the operator's hand.
+
+Torque balance per joint (eq. (1) plus the cylinders and the hand):
+
+    M(q) ddq + C dq + g(q) + τ_f(q, dq) = K sat(i_c) + T_cyl(q, p) + J(q)ᵀ F_hand + τ_effects
+
+with i_c from eq. (19). MuJoCo supplies M, C, g (``qfrc_bias``) and integrates; everything on
+the right side and the friction enter through ``qfrc_applied``; the hand force enters through
+``xfrc_applied`` of the last link at the tool point.
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+from control.model.cylinders import cylinder_torque_nm
+from control.model.friction import FrictionParams, friction_eq15
+from control.robot.description import RobotDescription
+from control.robot.mjcf import to_mjcf
+from sim_bridge.config import SimConfig
+from sim_bridge.effects import EffectSet
+
+
+def friction_params(cfg: SimConfig, desc: RobotDescription) -> list[FrictionParams]:
+    out = []
+    for ft, js in zip(cfg.friction, desc.joints, strict=True):
+        f = ft.fourier_nm
+        out.append(
+            FrictionParams(
+                tau_s_nm=ft.tau_s_nm,
+                tau_c_nm=ft.tau_c_nm,
+                f1_nm=f[0],
+                f2_nm=f[1],
+                f3_nm=f[2],
+                f4_nm=f[3],
+                f5_nm=f[4],
+                f6_nm=f[5],
+                tau_v1_nm_s_per_rad=ft.tau_v1_nm_s_per_rad,
+                tau_v2_nm_s2_per_rad2=ft.tau_v2_nm_s2_per_rad2,
+                q_e_rad_s=ft.q_e_rad_s,
+                gear_ratio=js.gear_ratio,
+            )
+        )
+    return out
+
+
+class Plant:
+    """One robot arm. Call :meth:`step` once per physics timestep."""
+
+    def __init__(self, desc: RobotDescription, cfg: SimConfig) -> None:
+        self.desc = desc
+        self.cfg = cfg
+        self.n = len(desc.joints)
+        self.model = mujoco.MjModel.from_xml_string(to_mjcf(desc, timestep_s=cfg.timestep_s))
+        self.effects = EffectSet(cfg.effects, self.model, desc, cfg.timestep_s)
+        self.data = mujoco.MjData(self.model)
+        self.data.qpos[:] = cfg.initial_q_rad
+        self.tool_site = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_SITE, "tool")
+        self.last_body = self.model.site_bodyid[self.tool_site]
+        self.k_nm_per_a = np.array([j.drive_gain_nm_per_a for j in desc.joints])
+        self.i_max_a = np.array([j.max_current_a for j in desc.joints])
+        self.kp = np.array(cfg.inner_loop.kp_a_s_per_rad)
+        self.ki = np.array(cfg.inner_loop.ki_a_per_rad)
+        self.friction = friction_params(cfg, desc)
+        self.rng = np.random.default_rng(cfg.seed)
+        self.pressure_bar = np.array(cfg.cylinders.initial_bar, dtype=float)
+        self.pressure_set_bar = self.pressure_bar.copy()
+        self.current_a = np.zeros(self.n)
+        self.brakes = True
+        self.hand_force_n = np.zeros(3)
+        self.tau_motor_nm = np.zeros(self.n)
+        mujoco.mj_forward(self.model, self.data)
+
+    @property
+    def t_s(self) -> float:
+        return float(self.data.time)
+
+    @property
+    def q_rad(self) -> np.ndarray:
+        return self.data.qpos[: self.n].copy()
+
+    @property
+    def dq_rad_s(self) -> np.ndarray:
+        return self.data.qvel[: self.n].copy()
+
+    def tool_position_m(self) -> np.ndarray:
+        return self.data.site_xpos[self.tool_site].copy()
+
+    def tool_velocity_m_s(self) -> np.ndarray:
+        jac = np.zeros((3, self.model.nv))
+        mujoco.mj_jacSite(self.model, self.data, jac, None, self.tool_site)
+        return jac @ self.data.qvel
+
+    def measured_pressure_bar(self) -> np.ndarray:
+        return self.pressure_bar + self.rng.normal(0.0, self.cfg.cylinders.noise_bar, 2)
+
+    def measured_current_a(self) -> np.ndarray:
+        return self.current_a + self.rng.normal(0.0, self.cfg.sensors.current_noise_a, self.n)
+
+    def step(self, q_cmd_rad: np.ndarray | None, dq_cmd_rad_s: np.ndarray | None) -> None:
+        """Advance one timestep. ``None`` commands mean servo off (brakes hold the joints)."""
+        dt = self.cfg.timestep_s
+        alpha = dt / self.cfg.cylinders.time_constant_s
+        self.pressure_bar += alpha * (self.pressure_set_bar - self.pressure_bar)
+        d = self.data
+        if q_cmd_rad is None or dq_cmd_rad_s is None:
+            # Brakes engaged: joints locked, motor unpowered. Time still passes.
+            self.brakes = True
+            self.current_a[:] = 0.0
+            self.tau_motor_nm[:] = 0.0
+            d.qvel[:] = 0.0
+            d.time += dt
+            mujoco.mj_kinematics(self.model, d)
+            self.effects.advance(self, dt)
+            return
+        self.brakes = False
+        q, dq = d.qpos[: self.n], d.qvel[: self.n]
+        i_c = -self.kp * (dq - dq_cmd_rad_s) - self.ki * (q - q_cmd_rad)  # eq. (19)
+        self.current_a = np.clip(i_c, -self.i_max_a, self.i_max_a)
+        self.tau_motor_nm = self.k_nm_per_a * self.current_a
+        tau_f = friction_eq15(q, dq, self.friction)
+        tau_cyl = cylinder_torque_nm(q, self.pressure_bar, self.desc)
+        tau_eff = self.effects.torque(self, q, dq)
+        d.qfrc_applied[: self.n] = self.tau_motor_nm - tau_f + tau_cyl + tau_eff
+        d.xfrc_applied[:] = 0.0
+        if np.any(self.hand_force_n):
+            arm = d.site_xpos[self.tool_site] - d.xipos[self.last_body]
+            d.xfrc_applied[self.last_body, :3] = self.hand_force_n
+            d.xfrc_applied[self.last_body, 3:] = np.cross(arm, self.hand_force_n)
+        mujoco.mj_step(self.model, d)
+        self.effects.advance(self, dt)

@@ -1,0 +1,287 @@
+"""`leadthrough sim`: the virtual robot cell.
+
+Runs the MuJoCo plant with the vendor's inner loop, and exposes the same endpoints as the real
+cell: a CAN endpoint speaking LTC-1 (as a socketcand-protocol TCP server, since this kernel has
+no SocketCAN) and a Modbus TCP server for pressures, valves and safety inputs.
+
+Each controller cycle: apply the command set that arrived during the previous cycle, run the
+physics substeps (inner loop at every substep), send JOINT_FB_J1..Jn then CTRL_STATUS, then wait:
+in real time until the cycle's wall-clock end, in lock-step until the command set for this cycle
+has arrived (or ``lockstep_timeout_s``), which runs the whole product faster than real time.
+
+The truth log (CSV, one row per cycle) records what no product process can see — the tool
+position, the operator's force — for the demo and the tests to judge the product by.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import math
+import signal
+import threading
+import time
+from pathlib import Path
+from typing import TextIO
+
+import numpy as np
+
+from control.robot.description import load_description
+from drivers.can.ltc import LtcProtocol
+from gateway.messages import ControllerState
+from sim_bridge.can_endpoint import SocketcandServerBus
+from sim_bridge.config import SimConfig, load_sim_config
+from sim_bridge.controller import VirtualController
+from sim_bridge.modbus_server import VirtualIoServer
+from sim_bridge.operator import Operator
+from sim_bridge.plant import Plant
+
+log = logging.getLogger("leadthrough.sim")
+
+HEARTBEAT_PERIOD_S = 0.1
+# Feedback saturates at the protocol's range, as a real encoder interface would.
+Q_FB_LIMIT_RAD = 8.388607
+DQ_FB_LIMIT_RAD_S = 3.2767
+I_FB_LIMIT_A = 327.67
+
+
+def truth_log_columns(n: int) -> list[str]:
+    cols = ["t_s", "wall_s", "cycle", "ctrl_state", "teaching", "enabling"]
+    for name in ("q", "dq", "i"):
+        cols += [f"{name}{j + 1}" for j in range(n)]
+    cols += ["tool_x", "tool_y", "tool_z", "f_x", "f_y", "f_z", "p2", "p3", "latency_s"]
+    return cols
+
+
+class VirtualCell:
+    def __init__(
+        self,
+        cfg: SimConfig,
+        truth_log: Path | None = None,
+        summary_path: Path | None = None,
+    ) -> None:
+        self.cfg = cfg
+        self.desc = load_description()
+        self.plant = Plant(self.desc, cfg)
+        self.n = self.plant.n
+        self.proto = LtcProtocol(n_joints=self.n)
+        lower = np.array([j.lower_rad for j in self.desc.joints])
+        upper = np.array([j.upper_rad for j in self.desc.joints])
+        self.ctrl = VirtualController(cfg.controller, self.proto, lower, upper)
+        self.operator = Operator(cfg.operator)
+        self.period_s = cfg.controller.cycle_period_s
+        self.substeps = round(self.period_s / cfg.timestep_s)
+        self.truth_log_path = truth_log
+        self.summary_path = summary_path
+        self.stop_event = threading.Event()
+        self.estop_open = False  #: scripted e-stop (tests)
+        self.latencies_s: list[float] = []
+        self.teaching_cycles = 0
+        self.teaching_missed = 0
+        self._fb_sent_wall: float | None = None
+        self._set_arrival_wall: float | None = None
+        self.can: SocketcandServerBus | None = None
+        self.io: VirtualIoServer | None = None
+        self._log: TextIO | None = None
+
+    # --- endpoints ----------------------------------------------------------------------
+    def open(self) -> None:
+        ep = self.cfg.endpoints
+        self.can = SocketcandServerBus(host=ep.can_host, port=ep.can_port)
+        self.io = VirtualIoServer(ep.modbus_host, ep.modbus_port)
+        self.io.start()
+        p = self.plant.pressure_bar
+        self.io.set_inputs(float(p[0]), float(p[1]), False, True)
+        if self.truth_log_path:
+            self._log = self.truth_log_path.open("w", buffering=1 << 16)
+            self._log.write(",".join(truth_log_columns(self.n)) + "\n")
+        log.info(
+            "virtual controller up: CAN (socketcand) %s:%d, Modbus %s:%d, %s, cycle %.1f ms",
+            ep.can_host,
+            ep.can_port,
+            ep.modbus_host,
+            ep.modbus_port,
+            "real time" if self.cfg.realtime else "lock-step",
+            self.period_s * 1e3,
+        )
+
+    def close(self) -> None:
+        try:
+            if self._log:
+                self._log.close()
+                self._log = None
+        finally:
+            try:
+                if self.can:
+                    self.can.shutdown()
+            finally:
+                if self.io:
+                    self.io.stop()
+        self.write_summary()
+
+    # --- one cycle ----------------------------------------------------------------------
+    def _receive(self, timeout_s: float) -> None:
+        assert self.can is not None
+        msg = self.can.recv(timeout=max(timeout_s, 0.0))
+        while msg is not None:
+            self.ctrl.on_frame(msg, time.monotonic())
+            if self._set_arrival_wall is None and self.ctrl.complete_for_cycle == self.ctrl.cycle:
+                self._set_arrival_wall = time.perf_counter()
+            msg = self.can.recv(timeout=0.0)
+
+    def _cycle(self) -> None:
+        assert self.can is not None and self.io is not None
+        plant, ctrl, op = self.plant, self.ctrl, self.operator
+        got_set = ctrl.complete_for_cycle == ctrl.cycle and ctrl._new_set is not None
+        was_hold = ctrl.complete_hold
+        latency = math.nan
+        if got_set and not was_hold and self._fb_sent_wall and self._set_arrival_wall:
+            latency = self._set_arrival_wall - self._fb_sent_wall
+            self.latencies_s.append(latency)
+        following = ctrl.state == ControllerState.EXTERNAL and not ctrl.ref_is_hold
+        if following:
+            self.teaching_cycles += 1
+            if not got_set or was_hold:
+                self.teaching_missed += 1
+        ctrl.estop = self.estop_open
+        ctrl.begin_cycle(plant.t_s, plant.q_rad, time.monotonic())
+        teaching = ctrl.state == ControllerState.EXTERNAL and not ctrl.ref_is_hold
+        if teaching:
+            op.mark_onset(plant.t_s, plant.tool_position_m())
+        for _ in range(self.substeps):
+            t = plant.t_s
+            if ctrl.servo_on:
+                q_c, dq_c = ctrl.reference(t)
+                plant.hand_force_n = op.force_n(
+                    t, plant.tool_position_m(), plant.tool_velocity_m_s()
+                )
+                plant.step(q_c, dq_c)
+            else:
+                plant.hand_force_n = np.zeros(3)
+                plant.step(None, None)
+        p_meas = plant.measured_pressure_bar()
+        enabling = op.enabling(plant.t_s)
+        self.io.set_inputs(float(p_meas[0]), float(p_meas[1]), enabling, not self.estop_open)
+        plant.pressure_set_bar = np.array(self.io.setpoints(), dtype=float)
+        q_m, dq_m = plant.effects.measured_kinematics(plant)
+        i_m = plant.measured_current_a()
+        counter = ctrl.cycle & 0xFF
+        self._fb_sent_wall = time.perf_counter()
+        self._set_arrival_wall = None
+        for j in range(self.n):
+            self.can.send(
+                self.proto.encode_feedback(
+                    j + 1,
+                    float(np.clip(q_m[j], -Q_FB_LIMIT_RAD, Q_FB_LIMIT_RAD)),
+                    float(np.clip(dq_m[j], -DQ_FB_LIMIT_RAD_S, DQ_FB_LIMIT_RAD_S)),
+                    float(np.clip(i_m[j], -I_FB_LIMIT_A, I_FB_LIMIT_A)),
+                    counter,
+                )
+            )
+        self.can.send(self.proto.encode_status(ctrl.status()))
+        if self._log:
+            tool = plant.tool_position_m()
+            row = [
+                plant.t_s,
+                time.monotonic(),
+                ctrl.cycle,
+                int(ctrl.state),
+                int(teaching),
+                int(enabling),
+            ]
+            row += [*q_m, *dq_m, *i_m, *tool, *plant.hand_force_n, *p_meas, latency]
+            self._log.write(",".join(f"{v:.9g}" for v in row) + "\n")
+
+    def run(self, duration_s: float | None = None) -> None:
+        """Run cycles until ``duration_s`` of simulated time or :meth:`stop`."""
+        assert self.can is not None
+        t0 = time.perf_counter()
+        next_hb = 0.0
+        k = 0
+        while not self.stop_event.is_set():
+            if duration_s is not None and self.plant.t_s >= duration_s:
+                break
+            self._cycle()
+            now = time.perf_counter()
+            if now >= next_hb:
+                self.can.send(self.proto.encode_heartbeat("CTRL", 5))
+                next_hb = now + HEARTBEAT_PERIOD_S
+            k += 1
+            if self.cfg.realtime:
+                deadline = t0 + k * self.period_s
+                while (left := deadline - time.perf_counter()) > 0:
+                    self._receive(left)
+                if time.perf_counter() - deadline > 5 * self.period_s:
+                    t0 = time.perf_counter() - k * self.period_s  # overrun: don't race to catch up
+            else:
+                deadline = time.perf_counter() + self.cfg.lockstep_timeout_s
+                while (
+                    self.ctrl.complete_for_cycle != self.ctrl.cycle
+                    and (left := deadline - time.perf_counter()) > 0
+                    and not self.stop_event.is_set()
+                ):
+                    self._receive(min(left, 0.01))
+                self._receive(0.0)
+
+    def stop(self) -> None:
+        self.stop_event.set()
+
+    def summary(self) -> dict:
+        lat = np.array(self.latencies_s) if self.latencies_s else np.array([math.nan])
+        st = self.ctrl.stats
+        return {
+            "sim_time_s": self.plant.t_s,
+            "cycles": self.ctrl.cycle,
+            "cycle_period_s": self.period_s,
+            "command_sets": st.command_sets,
+            "hold_sets": st.hold_sets,
+            "controller_missed_cycles": st.missed_cycles,
+            "late_frames": st.late_frames,
+            "bad_frames": st.bad_frames,
+            "faults": st.faults,
+            "teaching_cycles": self.teaching_cycles,
+            "teaching_missed_cycles": self.teaching_missed,
+            "latency_p50_s": float(np.nanpercentile(lat, 50)),
+            "latency_p99_s": float(np.nanpercentile(lat, 99)),
+            "latency_max_s": float(np.nanmax(lat)),
+            "latency_samples": len(self.latencies_s),
+        }
+
+    def write_summary(self) -> None:
+        if self.summary_path:
+            self.summary_path.write_text(json.dumps(self.summary(), indent=2))
+
+
+def configure_parser(p: argparse.ArgumentParser) -> None:
+    p.description = (
+        "Run the virtual robot cell: a simulated GR630ST with its closed controller, exposing "
+        "the same CAN (LTC-1 over a socketcand TCP endpoint) and Modbus TCP endpoints as the "
+        "real cell. Stop it with Ctrl-C."
+    )
+    p.add_argument("--truth", type=Path, default=None, help="simulator config (private truth) TOML")
+    p.add_argument(
+        "--duration", type=float, default=None, help="stop after this simulated time [s]"
+    )
+    p.add_argument("--lockstep", action="store_true", help="run lock-step, faster than real time")
+    p.add_argument("--log", type=Path, default=None, help="write the per-cycle truth log (CSV)")
+    p.add_argument("--summary", type=Path, default=None, help="write counters and latency (JSON)")
+
+
+def cli_main(args: argparse.Namespace) -> int:
+    cfg = load_sim_config(args.truth)
+    if args.lockstep:
+        cfg = load_sim_config(args.truth, {"realtime": False})
+    cell = VirtualCell(cfg, args.log, args.summary)
+
+    def _stop(signum: int, frame: object) -> None:
+        cell.stop()
+
+    signal.signal(signal.SIGTERM, _stop)
+    signal.signal(signal.SIGINT, _stop)
+    cell.open()
+    try:
+        cell.run(args.duration)
+    finally:
+        cell.close()
+    return 0

@@ -1,0 +1,122 @@
+"""The whole product on the virtual cell, every part its own process, as a user runs it:
+`leadthrough sim` + `leadthrough gateway` (CAN driver, Modbus driver, control), driven through
+the operator commands. Physical outcomes are judged from the simulator's truth log."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from sim_bridge.harness import Stack
+
+pytestmark = pytest.mark.stack
+
+
+def tool_xyz(truth: dict[str, np.ndarray], mask: np.ndarray) -> np.ndarray:
+    return np.stack([truth[f"tool_{a}"][mask] for a in "xyz"], axis=1)
+
+
+def teaching_rows(truth: dict[str, np.ndarray]) -> np.ndarray:
+    rows = np.flatnonzero(truth["teaching"] > 0.5)
+    assert rows.size, "the robot never followed the control process's commands"
+    return rows
+
+
+def wait_teaching_time(stack: Stack, seconds: float, timeout_s: float) -> dict[str, np.ndarray]:
+    """Wait until the truth log holds ``seconds`` of teaching."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        stack.check_alive()
+        truth = stack.truth()
+        if truth["t_s"].size and np.any(truth["teaching"] > 0.5):
+            rows = np.flatnonzero(truth["teaching"] > 0.5)
+            if truth["t_s"][rows[-1]] - truth["t_s"][rows[0]] >= seconds:
+                return truth
+        time.sleep(0.25)
+    raise TimeoutError(f"no {seconds} s of teaching within {timeout_s} s")
+
+
+def test_weightless_arm_without_operator_drifts_less_than_1mm_in_5s(tmp_path):
+    with Stack(tmp_path) as stack:
+        stack.start()
+        stack.start_teaching()
+        truth = wait_teaching_time(stack, 5.2, 30.0)
+        stack.request("stop")
+    rows = teaching_rows(truth)
+    t = truth["t_s"][rows]
+    window = rows[t - t[0] <= 5.0]
+    xyz = tool_xyz(truth, window)
+    drift_m = np.linalg.norm(xyz - xyz[0], axis=1).max()
+    assert drift_m < 1e-3, f"tool drifted {drift_m * 1e3:.3f} mm in 5 s"
+    # and it really was the control process holding it (weightless), not brakes
+    assert np.all(truth["ctrl_state"][window] == 2)
+
+
+def test_20N_push_along_x_moves_the_tool_along_x(tmp_path):
+    operator = {"mode": "force", "force_n": [20.0, 0.0, 0.0], "start_s": 0.5, "duration_s": 2.0}
+    with Stack(tmp_path, sim_overrides={"operator": operator}) as stack:
+        stack.start()
+        stack.start_teaching()
+        truth = wait_teaching_time(stack, 3.0, 30.0)
+        stack.request("stop")
+    rows = teaching_rows(truth)
+    t = truth["t_s"][rows] - truth["t_s"][rows[0]]
+    before = rows[t <= 0.5][-1]
+    after = rows[t <= 2.6][-1]
+    d = tool_xyz(truth, [after])[0] - tool_xyz(truth, [before])[0]
+    # A weightless arm's apparent mass is not isotropic, so the motion is not exactly along the
+    # force; +x must be its largest component.
+    assert d[0] > 0.01, f"tool moved {d * 1e3} mm under a 20 N +x push"
+    assert d[0] > max(abs(d[1]), abs(d[2])), f"motion {d * 1e3} mm is not mainly along +x"
+
+
+def test_killing_control_makes_the_driver_hold_and_the_arm_stop(tmp_path):
+    # The operator drags the tool along +x at 0.1 m/s and keeps pulling after the kill.
+    operator = {"mode": "path", "path": [[0.0, 0, 0, 0], [0.5, 0, 0, 0], [4.5, 0.4, 0, 0]]}
+    with Stack(tmp_path, sim_overrides={"operator": operator}) as stack:
+        stack.start()
+        stack.start_teaching()
+        wait_teaching_time(stack, 2.0, 30.0)
+        pid = stack.child_pid("control")
+        t_kill = time.monotonic()
+        os.kill(pid, signal.SIGKILL)
+        time.sleep(2.0)
+        status = stack.request("status")
+        truth = stack.truth()
+    assert status["state"] == "fault" and "control" in status["reason"]
+    wall = truth["wall_s"]
+    k = int(np.searchsorted(wall, t_kill))
+    speed_at_kill = np.linalg.norm(
+        tool_xyz(truth, [k])[0] - tool_xyz(truth, [k - 25])[0]
+    ) / (truth["t_s"][k] - truth["t_s"][k - 25])
+    assert speed_at_kill > 0.03, "the arm was not moving when control was killed"
+    # Commands computed by control stop, and the driver's hold takes over within its deadline.
+    following = np.flatnonzero(truth["teaching"][k:] > 0.5)
+    last_follow_s = truth["wall_s"][k + following[-1]] - t_kill if following.size else 0.0
+    assert last_follow_s < 0.010 + 0.02, f"kept following for {last_follow_s * 1e3:.1f} ms"
+    after = tool_xyz(truth, np.arange(k, wall.size))
+    travel_m = np.linalg.norm(after - after[0], axis=1).max()
+    assert travel_m < 5e-3, f"tool travelled {travel_m * 1e3:.2f} mm after the kill"
+
+
+def test_operator_commands_from_the_command_line(tmp_path):
+    with Stack(tmp_path) as stack:
+        stack.start()
+        stack.wait_status(lambda s: s.get("can_start") is True, 40.0, "cell ready")
+        cli = [sys.executable, "-m", "gateway.cli"]
+        bus = ["--bus", stack.bus.endpoint]
+        out = subprocess.run([*cli, "status", *bus], capture_output=True, text=True, timeout=20)
+        assert out.returncode == 0 and "state: stopped" in out.stdout
+        out = subprocess.run([*cli, "start", *bus], capture_output=True, text=True, timeout=20)
+        assert out.returncode == 0, out.stdout + out.stderr
+        stack.wait_status(lambda s: s.get("state") in ("ready", "teaching"), 5.0, "started")
+        out = subprocess.run([*cli, "stop", *bus], capture_output=True, text=True, timeout=20)
+        assert out.returncode == 0 and "state: stopped" in out.stdout
+        out = subprocess.run([*cli, "fly", *bus], capture_output=True, text=True, timeout=20)
+        assert out.returncode != 0
