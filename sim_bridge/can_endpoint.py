@@ -219,14 +219,21 @@ class SocketcandServerBus(can.BusABC):
         return len(self._raw_clients())
 
     def wait_for_clients(self, n: int, timeout_s: float) -> bool:
-        """Block until at least ``n`` clients completed the handshake; False on timeout."""
+        """Block until at least ``n`` clients completed the handshake and frames sent from now
+        on reach them at once (their :attr:`HANDSHAKE_GRACE_S` is over); False on timeout."""
         deadline = time.monotonic() + timeout_s
         with self._clients_changed:
-            while sum(c.state == _RAW for c in self._clients.values()) < n:
+            while len(raw := [c for c in self._clients.values() if c.state == _RAW]) < n:
                 left = deadline - time.monotonic()
                 if left <= 0:
                     return False
                 self._clients_changed.wait(left)
+            ready_at_s = sorted(c.ready_at_s for c in raw)[n - 1] if n > 0 else 0.0
+        wait_s = ready_at_s - time.monotonic()
+        if wait_s > deadline - time.monotonic():
+            return False
+        if wait_s > 0:
+            time.sleep(wait_s)
         return True
 
     # --- internals -------------------------------------------------------------------------

@@ -6,20 +6,21 @@ the ``[modbus]`` host/port and register map differ. The encodings below are deli
 exercised end to end. This is the module's "manual"; protocol addresses are 0-based, as on the
 wire, unit id ``device_id`` (default 1):
 
-=================  =======  ============  =======  =======================================  =====
-table              address  name          type     encoding                                 unit
-=================  =======  ============  =======  =======================================  =====
-input registers    0–1      p2 measured   float32  big-endian bytes and words ("ABCD")      bar
-input registers    2        p3 measured   uint16   0..65535; saturates, NaN → 65535          mbar
-holding registers  0–1      p2 set-point  int32    word order little: low word at 0 ("CDAB") mbar
-holding registers  2–3      p3 set-point  int32    as p2 set-point                          mbar
+=================  =======  ============  =======  ==================================  ====
+table              address  name          type     encoding                            unit
+=================  =======  ============  =======  ==================================  ====
+input registers    0–1      p2 measured   float32  big-endian words and bytes ("ABCD")  bar
+input registers    2        p3 measured   uint16   saturating 0..65535; NaN → 65535    mbar
+holding registers  0–1      p2 set-point  int32    low word first, bytes big ("CDAB")  mbar
+holding registers  2–3      p3 set-point  int32    as p2 set-point                     mbar
 discrete inputs    0        enabling      bit      1 = enabling device held
 discrete inputs    1        estop_ok      bit      1 = e-stop chain closed
-coils              0        (reserved)    bit      no function; present so the table exists
-=================  =======  ============  =======  =======================================  =====
+coils              0        (reserved)    bit      none; present so the table exists
+=================  =======  ============  =======  ==================================  ====
 
-Any other address answers exception 2 (ILLEGAL DATA ADDRESS). Set-points are stored as written
-(no clamping: the driver owns the limits) and read back unchanged.
+Any other register address answers exception 2 (ILLEGAL DATA ADDRESS); discrete inputs
+2–15 and coils 1–15 exist (pymodbus stores bits 16 to a word) and read 0. Set-points are
+stored as written (no clamping: the driver owns the limits) and read back unchanged.
 
 The encodings here are written out with :mod:`struct`, independently of
 :mod:`drivers.modbus.registermap`, so a symmetric bug in the map cannot hide itself.
@@ -34,6 +35,7 @@ registers are encoded from that snapshot when a request arrives, on the server t
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import math
 import struct
 import threading
@@ -47,6 +49,7 @@ _FC_WRITE_HR = (6, 16, 23)
 
 _FLOAT32_MAX = 3.4028234663852886e38
 _N_HOLDING = 4
+_DRAIN_TURNS = 5
 _N_INPUT = 3
 
 _SIM_POINTS_TOML = """\
@@ -229,10 +232,8 @@ class VirtualIoServer:
         if thread is None:
             return
         if loop is not None and stopped is not None and not loop.is_closed():
-            try:
+            with contextlib.suppress(RuntimeError):  # the loop finished meanwhile
                 loop.call_soon_threadsafe(stopped.set)
-            except RuntimeError:  # loop already finished
-                pass
         thread.join(self.STOP_TIMEOUT_S)
         if thread.is_alive():
             raise RuntimeError(f"virtual I/O server thread {thread.name} did not stop")
@@ -267,6 +268,9 @@ class VirtualIoServer:
 
     async def _serve(self) -> None:
         self._stopped = asyncio.Event()
+        # SimData addresses are protocol addresses (0 = first register on the wire). The
+        # deprecated ModbusSequentialDataBlock instead subtracts 1 from its start address;
+        # tests/transport/test_modbus_link.py pins address 0 to the first value.
         device = SimDevice(
             id=self.device_id,
             simdata=(
@@ -293,11 +297,18 @@ class VirtualIoServer:
             self._started.set()
             await self._stopped.wait()
         finally:
-            await server.shutdown()
-            # Let the transports' close callbacks (which close the sockets) run before the
-            # loop goes away.
-            for _ in range(3):
+            # Let accepts already under way reach pymodbus first: asyncio (3.11) cannot attach a
+            # connection to a closed Server and would leak that connection's socket.
+            for _ in range(_DRAIN_TURNS):
                 await asyncio.sleep(0)
+            await server.shutdown()
+            # A connection accepted just before the shutdown reaches pymodbus only a loop turn
+            # later, after the shutdown closed the others: close stragglers too, and let the
+            # transports' close callbacks (which close the sockets) run before the loop ends.
+            for _ in range(_DRAIN_TURNS):
+                await asyncio.sleep(0)
+                for conn in list(server.active_connections.values()):
+                    conn.close()
             self._server = None
 
     async def _on_request(

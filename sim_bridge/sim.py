@@ -89,7 +89,12 @@ class VirtualCell:
     def open(self) -> None:
         ep = self.cfg.endpoints
         self.can = SocketcandServerBus(host=ep.can_host, port=ep.can_port)
-        self.io = VirtualIoServer(ep.modbus_host, ep.modbus_port)
+        # The valves power up holding the initial pressures: a 0 bar set-point would let the arm
+        # sag onto its brakes before the first set-point arrives.
+        p2_set, p3_set = self.cfg.cylinders.initial_bar
+        self.io = VirtualIoServer(
+            ep.modbus_host, ep.modbus_port, p2_set_bar=p2_set, p3_set_bar=p3_set
+        )
         self.io.start()
         p = self.plant.pressure_bar
         self.io.set_inputs(float(p[0]), float(p[1]), False, True)

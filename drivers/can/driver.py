@@ -79,6 +79,12 @@ def _fresh(stamp_s: float, received_s: float, now_s: float, timeout_s: float) ->
     return (now_s - received_s) < timeout_s and -timeout_s < (now_s - stamp_s) < timeout_s
 
 
+def _next_tick(previous_s: float, period_s: float, now_s: float) -> float:
+    """Next time of a periodic action: on the grid, or one period from now if behind."""
+    following = previous_s + period_s
+    return following if following > now_s else now_s + period_s
+
+
 class _RateLimitedLog:
     """At most one record per key and period; says how many were suppressed in between."""
 
@@ -217,9 +223,20 @@ class CanDriver:
 
     # --- lifecycle --------------------------------------------------------------------------
     def start(self) -> None:
-        """Open the CAN bus and the zenoh session, subscribe, and start the loop thread."""
+        """:meth:`open` the links, then run :meth:`spin_once` in the loop thread."""
         if self._thread is not None or self._closed:
             raise RuntimeError("CanDriver.start() called twice or after close()")
+        self.open()
+        self._thread = threading.Thread(target=self._loop, name="can-driver", daemon=True)
+        self._thread.start()
+
+    def open(self) -> None:
+        """Open the CAN bus and the zenoh session and subscribe; no thread (tests may then
+        drive :meth:`spin_once` themselves). Idempotent; on failure everything is closed."""
+        if self._closed:
+            raise RuntimeError("CanDriver.open() after close()")
+        if self._publisher is not None:
+            return
         try:
             if self._bus is None:
                 self._bus = can.Bus(**self.config.transport)
@@ -235,8 +252,6 @@ class CanDriver:
         except BaseException:
             self.close()
             raise
-        self._thread = threading.Thread(target=self._loop, name="can-driver", daemon=True)
-        self._thread.start()
         log.info(
             "CAN driver up: adapter %s, %d joints, CAN %s, zenoh %s",
             self.adapter.name,
@@ -321,7 +336,7 @@ class CanDriver:
         checks. The loop thread calls this; tests without the thread may call it directly."""
         bus = self._bus
         if bus is None:
-            raise RuntimeError("CanDriver is not started")
+            raise RuntimeError("CanDriver is not open")
         timeout = self.RECV_TIMEOUT_S if recv_timeout_s is None else recv_timeout_s
         try:
             msg = bus.recv(timeout=timeout)
@@ -418,8 +433,8 @@ class CanDriver:
             frames: list[can.Message] = []
             if heartbeat_due:
                 frames.append(self.adapter.heartbeat_frame())
-                self._next_heartbeat_s = max(
-                    self._next_heartbeat_s + self.config.heartbeat_period_s, now
+                self._next_heartbeat_s = _next_tick(
+                    self._next_heartbeat_s, self.config.heartbeat_period_s, now
                 )
             if desired != self._request_sent or heartbeat_due:
                 if desired == HostRequest.SERVO_ON and self._request_sent != desired:
@@ -439,7 +454,7 @@ class CanDriver:
             if frames:
                 self._send_locked(frames)
             if now >= self._next_health_s:
-                self._next_health_s = max(self._next_health_s + self.HEALTH_PERIOD_S, now)
+                self._next_health_s = _next_tick(self._next_health_s, self.HEALTH_PERIOD_S, now)
                 health = self._health_locked(now)
         session = self._session
         if health is not None and session is not None:

@@ -523,7 +523,11 @@ class LtcAdapter(CanAdapter):
         except FrameError as exc:
             stats.bad_frames += 1
             stats.last_error = str(exc)
-            if msg.is_error_frame or self.is_cycle_frame(msg):
+            if msg.arbitration_id == self.protocol.status_id and not msg.is_error_frame:
+                # The status that would close this cycle is lost: so is the cycle.
+                self._fb, self._tainted = [None] * self.n_joints, ""
+                stats.corrupt_cycles += 1
+            elif msg.is_error_frame or self.is_cycle_frame(msg):
                 self._tainted = str(exc)
             return None
         if frame is None:

@@ -94,10 +94,10 @@ class RegisterMapAdapter(PressureIoAdapter):
                 raise ConfigError(f"{where}: {name!r} must be numeric, not bool")
         for name in self.BOOLS:
             if self.map[name].type != "bool":
-                raise ConfigError(f"{where}: {name!r} must have type 'bool', not {self.map[name].type!r}")
-        self.link = link or ModbusLink(
-            config.host, config.port, config.device_id, config.timeout_s
-        )
+                raise ConfigError(
+                    f"{where}: {name!r} must have type 'bool', not {self.map[name].type!r}"
+                )
+        self.link = link or ModbusLink(config.host, config.port, config.device_id, config.timeout_s)
 
     def connect(self) -> None:
         self.link.connect()

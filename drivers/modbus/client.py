@@ -207,5 +207,5 @@ class ModbusLink:
 def _check_range(what: str, address: int, count: int, max_count: int) -> None:
     if not 1 <= count <= max_count:
         raise ValueError(f"{what}: count must be 1..{max_count}")
-    if not (0 <= address and address + count - 1 <= 0xFFFF):
+    if address < 0 or address + count - 1 > 0xFFFF:
         raise ValueError(f"{what}: addresses outside 0..65535")

@@ -1,6 +1,7 @@
 """``[modbus]`` section of the cell config: where the I/O module is and what its registers mean.
 
-Example (the virtual I/O module's map is in :func:`sim_bridge.modbus_server.sim_modbus_section_toml`)::
+Example (the virtual I/O module's section is
+:func:`sim_bridge.modbus_server.sim_modbus_section_toml`)::
 
     [modbus]
     adapter = "register_map"
@@ -70,7 +71,9 @@ class ModbusDriverConfig:
         )
 
     @classmethod
-    def from_cell_config(cls, cell: dict[str, Any], where: str = "cell config") -> ModbusDriverConfig:
+    def from_cell_config(
+        cls, cell: dict[str, Any], where: str = "cell config"
+    ) -> ModbusDriverConfig:
         """Build from a whole parsed cell config (its ``[modbus]`` table)."""
         require("modbus" in cell, where, "has no [modbus] section")
         return from_mapping(cls, cell["modbus"], f"{where} [modbus]")

@@ -304,12 +304,16 @@ class ModbusDriver:
         except ModbusReplyError as exc:
             self._fail("read", f"I/O reply rejected, no IoState published: {exc}")
             return None
+        pressures = reading[:4]
+        if not all(math.isfinite(p) for p in pressures):  # a plug-in adapter's slip
+            self._fail("read", f"adapter returned non-finite pressures {pressures}")
+            return None
         state = IoState(stamp_s, *reading)
         if self._pub_io is not None:
             self._pub_io.put(state.to_bytes())
         self.polls += 1
         if not self.link_ok:
-            log.info("I/O polling healthy (%s)", self.config.host)
+            self._log("recovered", logging.INFO, f"I/O polling healthy ({self.config.host})")
             self._log.reset("read")
         self.link_ok = True
         self._backoff_s = self.RECONNECT_MIN_S
@@ -415,12 +419,9 @@ def cli_main(args: argparse.Namespace) -> int:
     """Run the driver until SIGTERM/SIGINT. Returns 0 on a clean stop, 2 on a bad config,
     1 on any other failure."""
     logging.basicConfig(
-        level=getattr(logging, args.log_level, logging.INFO),
+        level=getattr(logging, getattr(args, "log_level", "INFO"), logging.INFO),
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",
     )
-    if args.log_level != "DEBUG":
-        # pymodbus logs every failed connect itself; the driver reports those rate-limited.
-        logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
     try:
         cell = load_toml(args.config)
         bus = from_mapping(BusConfig, cell.get("bus", {}), f"{args.config} [bus]")
@@ -430,6 +431,9 @@ def cli_main(args: argparse.Namespace) -> int:
     except ConfigError as exc:
         log.error("%s", exc)
         return 2
+    if getattr(args, "log_level", "INFO") != "DEBUG":
+        # pymodbus logs every failed connect itself; the driver reports those rate-limited.
+        logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
 
     stop = threading.Event()
     old_handlers: dict[int, Any] = {}

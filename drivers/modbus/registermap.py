@@ -31,6 +31,7 @@ Conventions
 
 from __future__ import annotations
 
+import itertools
 import math
 import struct
 from collections.abc import Iterable, Mapping
@@ -62,7 +63,12 @@ _INT_RANGE = {
 _FLOAT32_MAX = 3.4028234663852886e38
 
 #: Largest request a read group may grow to (protocol limits: 125 registers, 2000 bits).
-MAX_GROUP = {"input_registers": 125, "holding_registers": 125, "discrete_inputs": 2000, "coils": 2000}
+MAX_GROUP = {
+    "input_registers": 125,
+    "holding_registers": 125,
+    "discrete_inputs": 2000,
+    "coils": 2000,
+}
 #: Largest register write (function 0x10 takes at most 123 registers).
 MAX_WRITE_GROUP = 123
 
@@ -108,7 +114,7 @@ class Point:
         )
         require(
             isinstance(self.address, int)
-            and 0 <= self.address
+            and self.address >= 0
             and self.address + self.count - 1 <= 0xFFFF,
             f"{where}.address",
             f"{self.address!r} (+{self.count} registers) is outside 0..65535",
@@ -137,9 +143,7 @@ class Point:
                 bound is None or math.isfinite(bound), f"{where}.{label}", f"{bound!r} not finite"
             )
         if self.min is not None and self.max is not None:
-            require(
-                self.min <= self.max, where, f"min {self.min} is greater than max {self.max}"
-            )
+            require(self.min <= self.max, where, f"min {self.min} is greater than max {self.max}")
 
     @property
     def count(self) -> int:
@@ -234,9 +238,7 @@ def encode_point(point: Point, value: float | bool) -> list[int]:
     if (point.min is not None and value < point.min) or (
         point.max is not None and value > point.max
     ):
-        raise ValueError(
-            f"point {point.name!r}: {value:g} outside its range {_range(point)}"
-        )
+        raise ValueError(f"point {point.name!r}: {value:g} outside its range {_range(point)}")
     raw = (value - point.offset) / point.scale
     code = TYPES[point.type][0]
     if point.type == "float32":
@@ -304,7 +306,7 @@ class RegisterMap:
             )
         for table in TABLES:
             in_table = sorted((p for p in self.points if p.table == table), key=lambda p: p.address)
-            for a, b in zip(in_table, in_table[1:], strict=False):
+            for a, b in itertools.pairwise(in_table):
                 if b.address < a.end:
                     raise ConfigError(
                         f"{where}: points {a.name!r} ({table} {a.address}..{a.end - 1}) and "
@@ -339,7 +341,9 @@ class RegisterMap:
                 groups.append(_make_group(table, current))
         return groups
 
-    def decode_group(self, group: ReadGroup, raw: list[int] | list[bool]) -> dict[str, float | bool]:
+    def decode_group(
+        self, group: ReadGroup, raw: list[int] | list[bool]
+    ) -> dict[str, float | bool]:
         """Decode every point of ``group`` from the raw values read for it."""
         if len(raw) != group.count:
             raise ModbusReplyError(

@@ -153,7 +153,7 @@ def test_point_validation_names_the_field():
         Point("p", "input_registers", 65535, "float32")
     with pytest.raises(ConfigError, match=r"point 'p'\.type.*bit tables"):
         Point("p", "discrete_inputs", 0, "uint16")
-    with pytest.raises(ConfigError, match="min 5.0 is greater than max 1.0"):
+    with pytest.raises(ConfigError, match=r"min 5\.0 is greater than max 1\.0"):
         Point("p", "input_registers", 0, "uint16", min=5.0, max=1.0)
     with pytest.raises(ConfigError, match=r"point 'p'\.scale"):
         Point("p", "input_registers", 0, "uint16", scale=0.0)

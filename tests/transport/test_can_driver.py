@@ -1,0 +1,447 @@
+"""CAN driver between a fake LTC-1 controller (socketcand server) and a zenoh router, in-process.
+
+The driver opens its links from config exactly as in production (``can.Bus(**transport)``,
+a zenoh client session); only the transport differs. Controller cycles are 20 ms here so that
+a 10 ms deadline is the binding one.
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+import uuid
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from conftest_can import ControlStub, FakeController, GatewayStub, free_port, wait_for
+
+from drivers.can.config import CanDriverConfig
+from drivers.can.driver import CanDriver, cli_main, configure_parser, run
+from drivers.can.ltc import FaultCode, HostRequest, crc8_sae_j1850
+from gateway.bus import BusConfig, open_client, open_router
+from gateway.messages import ControllerState, JointCommand, JointState, Lifecycle
+from sim_bridge.can_endpoint import SocketcandServerBus
+
+REPO = Path(__file__).resolve().parents[2]
+PERIOD_S = 0.02
+DEADLINE_S = 0.010
+N = 6
+
+
+def own_threads() -> set[threading.Thread]:
+    # zenoh's native threads that ever ran Python appear as _DummyThread: not ours.
+    return {t for t in threading.enumerate() if not isinstance(t, threading._DummyThread)}
+
+
+@pytest.fixture(scope="module")
+def router() -> Iterator[str]:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    session = open_router(BusConfig(endpoint=endpoint))
+    yield endpoint
+    session.close()
+
+
+@dataclass
+class Cell:
+    server: SocketcandServerBus
+    controller: FakeController
+    driver: CanDriver
+    gateway: GatewayStub
+    control: ControlStub
+    bus: BusConfig
+    config: CanDriverConfig
+
+    def teach(self, policy: Callable[[JointState], Any] | None) -> None:
+        self.control.policy = policy
+        self.gateway.set(Lifecycle.TEACHING, enabling=True)
+
+
+def driver_config(port: int, **overrides: Any) -> CanDriverConfig:
+    values: dict[str, Any] = {
+        "transport": {
+            "interface": "socketcand",
+            "channel": "vcan0",
+            "host": "127.0.0.1",
+            "port": port,
+            "tcp_tune": True,
+        },
+        "deadline_s": DEADLINE_S,
+        "heartbeat_period_s": 0.05,
+        "max_following_error_rad": 0.05,
+        "max_velocity_rad_s": 1.0,
+    }
+    values.update(overrides)
+    return CanDriverConfig(**values)
+
+
+@pytest.fixture
+def make_cell(router: str) -> Iterator[Callable[..., Cell]]:
+    threads_before = own_threads()
+    cleanups: list[Callable[[], None]] = []
+
+    def make(
+        first_counter: int = 0,
+        setup: Callable[[FakeController], None] | None = None,
+        **overrides: Any,
+    ) -> Cell:
+        bus = BusConfig(endpoint=router, key_prefix=f"t{uuid.uuid4().hex[:8]}")
+        server = SocketcandServerBus(port=0)
+        cleanups.append(server.shutdown)
+        controller = FakeController(server, N, PERIOD_S, first_counter)
+        if setup is not None:
+            setup(controller)
+        cleanups.append(controller.stop)
+        session = open_client(bus)
+        cleanups.append(session.close)
+        control = ControlStub(session, bus.keys)
+        cleanups.append(control.close)
+        gateway = GatewayStub(session, bus.keys).start()
+        cleanups.append(gateway.stop)
+        config = driver_config(server.port, **overrides)
+        driver = CanDriver(config, bus)
+        cleanups.append(driver.close)
+        driver.start()
+        assert server.wait_for_clients(1, 5.0)
+        controller.start()
+        return Cell(server, controller, driver, gateway, control, bus, config)
+
+    yield make
+    for cleanup in reversed(cleanups):
+        cleanup()
+    deadline = time.monotonic() + 2.0
+    while (leaked := own_threads() - threads_before) and time.monotonic() < deadline:
+        time.sleep(0.02)
+    assert not leaked, f"threads left running: {leaked}"
+
+
+def follow(offset_rad: float = 0.01, dq_rad_s: float = 0.05) -> Callable[[JointState], Any]:
+    """A control process that commands the measured position plus ``offset_rad``."""
+
+    def policy(s: JointState) -> JointCommand:
+        q = s.q_rad + offset_rad
+        return JointCommand(s.cycle, s.stamp_s, time.monotonic(), q, np.full(s.n, dq_rad_s))
+
+    return policy
+
+
+def at_least(n: int, get: Callable[[], list[Any]]) -> Callable[[], list[Any] | None]:
+    def check() -> list[Any] | None:
+        items = get()
+        return items if len(items) >= n else None
+
+    return check
+
+
+# --- joint state ----------------------------------------------------------------------------
+def test_joint_state_published_every_cycle_with_the_feedback_values(make_cell):
+    cell = make_cell(first_counter=65530)  # the 16-bit counter wraps during the test
+    states = wait_for(at_least(12, cell.control.joint_states), what="12 joint states")
+    cycles = [s.cycle for s in states]
+    assert cycles == list(range(cycles[0], cycles[0] + len(cycles))), "a cycle was skipped"
+    assert cycles[0] == 65531 and cycles[-1] > 65535, "counter widened past the wrap"
+    for s in states:
+        sent = cell.controller.sent[s.cycle & 0xFFFF]
+        np.testing.assert_allclose(s.q_rad, sent.q_rad, atol=0.5e-6)
+        np.testing.assert_allclose(s.dq_rad_s, sent.dq_rad_s, atol=0.5e-4)
+        np.testing.assert_allclose(s.current_a, sent.current_a, atol=0.5e-2)
+        assert s.controller_state == ControllerState.BRAKED
+        assert s.flags == 0
+        np.testing.assert_allclose(s.q_cmd_rad, s.q_rad, atol=1e-6)  # nothing commanded yet
+        np.testing.assert_array_equal(s.dq_cmd_rad_s, np.zeros(N))
+    assert all(b.stamp_s > a.stamp_s for a, b in itertools.pairwise(states))
+
+
+# --- forwarding -----------------------------------------------------------------------------
+def test_fresh_command_is_forwarded_with_counter_and_crc(make_cell):
+    cell = make_cell()
+    cell.teach(follow(offset_rad=0.01, dq_rad_s=0.05))
+    sets = wait_for(at_least(10, lambda: cell.controller.command_sets(hold=False)))
+    for cset in sets:
+        sent = cell.controller.sent[cset.cycle_counter]
+        np.testing.assert_allclose(cset.q_cmd_rad, sent.q_rad + 0.01, atol=1.5e-6)
+        np.testing.assert_allclose(cset.dq_cmd_rad_s, 0.05, atol=0.5e-4)
+        for k, msg in enumerate(cset.raw):
+            assert msg.arbitration_id == 0x201 + k and not msg.is_extended_id
+            assert msg.data[6] == cset.cycle_counter & 0xFF, "counter = low byte of the cycle"
+            id_bytes = bytes((msg.arbitration_id & 0xFF, msg.arbitration_id >> 8))
+            assert msg.data[7] == crc8_sae_j1850(id_bytes + bytes(msg.data[:7]))
+    assert np.median([s.after_status_s for s in sets]) < DEADLINE_S
+    assert cell.controller.bad_frames == []
+    assert cell.controller.state == ControllerState.EXTERNAL
+    assert cell.driver.forwarded >= 10
+    # JointState echoes the command last sent to the controller (here: q + 0.01, 0.05 rad/s)
+    echoed = [
+        s
+        for s in cell.control.joint_states()[-5:]
+        if np.allclose(s.q_cmd_rad, s.q_rad + 0.01, atol=2e-6)
+        and np.allclose(s.dq_cmd_rad_s, 0.05, atol=1e-4)
+    ]
+    assert echoed, "no JointState echoed the forwarded command"
+
+
+def test_stale_command_is_not_forwarded_and_hold_is_sent(make_cell):
+    cell = make_cell()
+
+    def stale(s: JointState) -> JointCommand:
+        return JointCommand(s.cycle, s.stamp_s - 0.05, time.monotonic(), s.q_rad, np.zeros(N))
+
+    cell.teach(stale)
+    wait_for(lambda: cell.driver.rejected["stale"] >= 5, what="5 stale rejections")
+    holds = wait_for(at_least(5, lambda: cell.controller.command_sets(hold=True)))
+    assert cell.controller.command_sets(hold=False) == []
+    assert cell.driver.forwarded == 0
+    assert all(np.all(h.dq_cmd_rad_s == 0) for h in holds)
+
+
+@pytest.mark.parametrize(
+    ("lifecycle", "enabling", "reason"),
+    [
+        (Lifecycle.TEACHING, False, "blocked_enabling"),
+        (Lifecycle.READY, True, "blocked_lifecycle"),
+    ],
+)
+def test_without_teaching_and_enabling_only_hold_is_sent(make_cell, lifecycle, enabling, reason):
+    cell = make_cell()
+    cell.control.policy = follow()
+    cell.gateway.set(lifecycle, enabling=enabling)
+    wait_for(lambda: cell.driver.rejected[reason] >= 5, what=f"5 {reason} rejections")
+    wait_for(lambda: cell.controller.state == ControllerState.EXTERNAL, what="servo on")
+    holds = wait_for(at_least(5, lambda: cell.controller.command_sets(hold=True)))
+    assert cell.controller.command_sets(hold=False) == []
+    assert all(h.after_status_s < DEADLINE_S for h in holds), "blocked cycles are held at once"
+    assert HostRequest.SERVO_ON in cell.controller.request_log()
+
+
+def test_when_commands_stop_hold_keeps_the_last_forwarded_position(make_cell):
+    cell = make_cell()
+    cell.teach(follow(offset_rad=0.02, dq_rad_s=0.1))
+    wait_for(at_least(5, lambda: cell.controller.command_sets(hold=False)))
+    with cell.controller.lock:
+        cell.controller.q_drift_rad_per_cycle = -0.001  # the arm sags: q must not be re-sampled
+    cell.control.policy = None
+    n_sets = len(cell.controller.command_sets())
+    wait_for(lambda: len(cell.controller.command_sets()) >= n_sets + 8, what="8 more sets")
+    sets = cell.controller.command_sets()
+    last_forwarded = max(i for i, s in enumerate(sets) if not s.hold)
+    holds = sets[last_forwarded + 1 :]
+    assert len(holds) >= 6 and all(h.hold for h in holds)
+    for h in holds:
+        np.testing.assert_allclose(h.q_cmd_rad, sets[last_forwarded].q_cmd_rad, atol=1e-9)
+        np.testing.assert_array_equal(h.dq_cmd_rad_s, np.zeros(N))
+    delays = np.array([h.after_status_s for h in holds])
+    assert np.median(delays) < DEADLINE_S + 0.004, f"holds {delays * 1e3} ms after status"
+    assert np.all(delays < PERIOD_S), "every hold reached the controller within its cycle"
+    assert cell.driver.held >= len(holds)
+
+
+def test_garbled_nan_and_out_of_range_commands_are_rejected(make_cell):
+    cell = make_cell()
+
+    def unsafe(s: JointState) -> Any:
+        nan = np.full(N, np.nan)
+        variants = [
+            b"\x00 not a command",
+            JointCommand(s.cycle, s.stamp_s, 0.0, nan, np.zeros(N)),  # NaN on the wire
+            JointCommand(s.cycle, s.stamp_s, 0.0, s.q_rad[:5], np.zeros(5)),  # 5 joints
+            JointCommand(s.cycle, s.stamp_s, 0.0, s.q_rad + 0.5, np.zeros(N)),  # following error
+            JointCommand(s.cycle, s.stamp_s, 0.0, s.q_rad, np.full(N, 2.0)),  # too fast
+        ]
+        return variants[s.cycle % len(variants)]
+
+    cell.teach(unsafe)
+    wait_for(lambda: cell.driver.rejected["bad_message"] >= 6, what="6 bad messages")
+    wait_for(lambda: cell.driver.rejected["out_of_range"] >= 4, what="4 out-of-range commands")
+    assert cell.controller.command_sets(hold=False) == []
+    assert cell.driver.forwarded == 0
+    assert cell.controller.command_sets(hold=True)
+    assert cell.controller.bad_frames == []
+
+
+# --- CAN side faults ------------------------------------------------------------------------
+def test_corrupt_or_missing_feedback_frame_drops_that_cycle(make_cell):
+    def setup(controller: FakeController) -> None:
+        controller.corrupt_joint[106] = 3  # JOINT_FB_J3 with DLC 7
+        controller.skip_joint[109] = 2  # JOINT_FB_J2 missing
+
+    cell = make_cell(first_counter=100, setup=setup)
+    wait_for(lambda: any(s.cycle >= 112 for s in cell.control.joint_states()), what="cycle 112")
+    cycles = {s.cycle for s in cell.control.joint_states()}
+    assert {105, 107, 108, 110, 111} <= cycles
+    assert 106 not in cycles and 109 not in cycles
+    health = wait_for(
+        lambda: (h := cell.control.last_health()) and h["cycles"] >= 10 and h,
+        what="health after the bad cycles",
+    )
+    assert health["bad_frames"] >= 1
+    assert health["corrupt_cycles"] >= 1 and health["incomplete_cycles"] >= 1
+
+
+# --- servo requests -------------------------------------------------------------------------
+def test_lifecycle_stopped_requests_brake(make_cell):
+    cell = make_cell()
+    cell.teach(follow())
+    wait_for(lambda: cell.controller.state == ControllerState.EXTERNAL, what="EXTERNAL")
+    n_before = len(cell.controller.request_log())
+    cell.gateway.set(Lifecycle.STOPPED)
+    wait_for(lambda: cell.controller.state == ControllerState.BRAKED, timeout_s=1.0)
+    after = cell.controller.request_log()[n_before:]
+    assert after and set(after) == {HostRequest.BRAKE}
+    wait_for(lambda: cell.controller.request_log().count(HostRequest.BRAKE) >= 3, timeout_s=1.0)
+
+
+def test_silent_gateway_means_brake(make_cell):
+    cell = make_cell()
+    cell.gateway.set(Lifecycle.READY)
+    wait_for(lambda: cell.controller.state == ControllerState.EXTERNAL, what="servo on (hold)")
+    cell.gateway.silent = True
+    t0 = time.monotonic()
+    wait_for(lambda: cell.controller.state == ControllerState.BRAKED, timeout_s=2.0)
+    assert time.monotonic() - t0 < cell.config.lifecycle_timeout_s + 0.15
+
+
+def test_operator_reset_sends_reset_fault_once(make_cell):
+    cell = make_cell()
+    with cell.controller.lock:
+        cell.controller.state, cell.controller.fault = ControllerState.FAULT, FaultCode.CMD_TIMEOUT
+    cell.gateway.set(Lifecycle.FAULT)
+    wait_for(
+        lambda: any(s.controller_state == ControllerState.FAULT for s in cell.control.states),
+        what="the controller's FAULT in a JointState",
+    )
+    time.sleep(0.1)
+    assert HostRequest.RESET_FAULT not in cell.controller.request_log()
+    cell.gateway.set(Lifecycle.STOPPED)
+    wait_for(lambda: cell.controller.state == ControllerState.BRAKED, timeout_s=1.0)
+    time.sleep(0.2)
+    assert cell.controller.request_log().count(HostRequest.RESET_FAULT) == 1
+
+
+# --- health and shutdown ----------------------------------------------------------------------
+def test_health_reports_link_and_counters(make_cell):
+    cell = make_cell()
+    cell.teach(follow())
+    wait_for(lambda: cell.driver.forwarded >= 3)
+    health = wait_for(lambda: (h := cell.control.last_health()) and h["forwarded"] >= 3 and h)
+    assert health["process"] == "can_driver"
+    assert health["link_ok"] is True
+    assert health["controller_state"] == "EXTERNAL"
+    assert health["cycles"] >= 3 and health["held"] >= 0
+    assert set(health["rejected"]) >= {
+        "stale",
+        "blocked_lifecycle",
+        "blocked_enabling",
+        "bad_message",
+        "out_of_range",
+        "late_cycle",
+    }
+    cell.controller.stop()  # controller silent → link down
+    wait_for(lambda: cell.control.last_health()["link_ok"] is False, timeout_s=1.0)
+
+
+def test_close_requests_brake_and_holds(make_cell):
+    cell = make_cell()
+    cell.teach(follow(offset_rad=0.02))
+    wait_for(at_least(3, lambda: cell.controller.command_sets(hold=False)))
+    late_before = cell.controller.late_frames
+    cell.driver.close()
+    wait_for(lambda: cell.controller.state == ControllerState.BRAKED, timeout_s=1.0)
+    events = cell.controller.event_log()
+    brake = max(i for i, (kind, v) in enumerate(events) if v == HostRequest.BRAKE)
+    assert all(kind == "set" for kind, _ in events[brake + 1 :])
+    assert not any(kind == "request" and v != HostRequest.BRAKE for kind, v in events[brake:])
+    # the exit hold set answers the newest cycle (late if the controller has just moved on)
+    holds_after = [v for kind, v in events[brake + 1 :] if kind == "set" and v.hold]
+    assert holds_after or cell.controller.late_frames > late_before
+    cell.driver.close()  # idempotent
+
+
+def test_run_entry_point_until_stop_event(make_cell, tmp_path):
+    cell = make_cell()
+    config = tmp_path / "cell.toml"
+    config.write_text(
+        f"""
+[bus]
+endpoint = "{cell.bus.endpoint}"
+key_prefix = "{cell.bus.key_prefix}"
+
+[can]
+deadline_s = {DEADLINE_S}
+
+[can.transport]
+interface = "socketcand"
+channel = "vcan0"
+host = "127.0.0.1"
+port = {cell.server.port}
+"""
+    )
+    cell.driver.close()  # the fixture's driver leaves; run() brings its own
+    n_before = len(cell.control.joint_states())
+    stop = threading.Event()
+    thread = threading.Thread(target=run, args=(config,), kwargs={"stop_event": stop})
+    thread.start()
+    try:
+        wait_for(lambda: len(cell.control.joint_states()) >= n_before + 5, what="joint states")
+    finally:
+        stop.set()
+        thread.join(5.0)
+    assert not thread.is_alive()
+    assert cell.controller.request_log()[-1] == HostRequest.BRAKE
+
+
+def test_cli_help_and_bad_config(tmp_path, capsys):
+    import argparse
+
+    parser = configure_parser(argparse.ArgumentParser(prog="leadthrough can-driver"))
+    help_text = parser.format_help()
+    assert "--config" in help_text and "--bus" in help_text and "brake" in help_text
+    bad = tmp_path / "bad.toml"
+    bad.write_text('[can]\ndeadline_s = "soon"\n')
+    assert cli_main(parser.parse_args(["--config", str(bad)])) == 2
+    assert cli_main(parser.parse_args(["--config", str(tmp_path / "missing.toml")])) == 2
+
+
+def test_sigterm_stops_the_process_cleanly(make_cell, tmp_path):
+    cell = make_cell()
+    cell.driver.close()
+    config = tmp_path / "cell.toml"
+    config.write_text(
+        f"""
+[bus]
+key_prefix = "{cell.bus.key_prefix}"
+
+[can.transport]
+interface = "socketcand"
+channel = "vcan0"
+host = "127.0.0.1"
+port = {cell.server.port}
+"""
+    )
+    n_before = len(cell.control.joint_states())
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    cmd = [sys.executable, "-m", "drivers.can.driver", "--config", str(config)]
+    proc = subprocess.Popen(
+        [*cmd, "--bus", cell.bus.endpoint],
+        cwd=REPO,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+    )
+    try:
+        wait_for(lambda: len(cell.control.joint_states()) >= n_before + 3, timeout_s=10.0)
+        proc.send_signal(signal.SIGTERM)
+        out, _ = proc.communicate(timeout=5.0)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 0, out.decode(errors="replace")
+    wait_for(lambda: cell.controller.request_log()[-1] == HostRequest.BRAKE, timeout_s=1.0)

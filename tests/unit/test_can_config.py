@@ -1,0 +1,96 @@
+"""``[can]`` config validation and the adapter registry."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from drivers.can.adapter import ADAPTER_GROUP, CanAdapter
+from drivers.can.config import CanDriverConfig, load_can_config
+from drivers.can.ltc import LtcAdapter
+from drivers.registry import available, load_adapter
+from gateway.config import from_mapping
+from gateway.errors import ConfigError
+
+REPO = Path(__file__).resolve().parents[2]
+SOCKETCAND = {
+    "interface": "socketcand",
+    "channel": "vcan0",
+    "host": "127.0.0.1",
+    "port": 29536,
+    "tcp_tune": True,
+}
+
+
+def test_defaults_are_production_socketcan():
+    cfg = CanDriverConfig()
+    assert cfg.adapter == "ltc_dbc" and cfg.joints == 6
+    assert cfg.transport == {"interface": "socketcan", "channel": "can0"}
+    assert (cfg.deadline_s, cfg.lifecycle_timeout_s, cfg.io_timeout_s) == (0.010, 0.25, 0.25)
+    assert (cfg.controller_timeout_s, cfg.heartbeat_period_s) == (0.1, 0.1)
+    assert cfg.max_following_error_rad == (0.05,) * 6
+    assert cfg.max_velocity_rad_s == (1.0,) * 6
+
+
+def test_from_toml_table_with_per_joint_lists():
+    cfg = from_mapping(
+        CanDriverConfig,
+        {
+            "joints": 3,
+            "transport": SOCKETCAND,
+            "max_following_error_rad": [0.03, 0.03, 0.1],
+            "max_velocity_rad_s": 2,
+        },
+        "cell.toml [can]",
+    )
+    assert cfg.max_following_error_rad == (0.03, 0.03, 0.1)
+    assert cfg.max_velocity_rad_s == (2.0, 2.0, 2.0)
+    assert cfg.transport["port"] == 29536
+
+
+@pytest.mark.parametrize(
+    ("table", "message"),
+    [
+        ({"deadline_s": 0.0}, r"\[can\].deadline_s: 0.0 s outside"),
+        ({"deadline_s": "soon"}, "expected a number"),
+        ({"joints": 0}, r"\[can\].joints: 0 outside 1..16"),
+        ({"max_following_error_rad": [0.1, 0.1]}, "has 2 values for 6 joints"),
+        ({"max_velocity_rad_s": [1, 1, 1, 1, 1, -1]}, r"max_velocity_rad_s\[5\]: -1.0"),
+        ({"heartbeat_period_s": 2.0}, "heartbeat_period_s"),
+        ({"transport": {"channel": "can0"}}, "transport.interface"),
+        ({"transport": {"interface": "socketcan"}}, "transport.channel"),
+        ({"transport": {**SOCKETCAND, "port": "29536"}}, "TCP port"),
+        ({"transport": {k: v for k, v in SOCKETCAND.items() if k != "port"}}, "TCP port"),
+        ({"transport": {**SOCKETCAND, "host": ""}}, "server's host"),
+        ({"transport": {**SOCKETCAND, "bitrate": [1]}}, "transport.bitrate"),
+        ({"deadline": 0.01}, "unknown key"),
+    ],
+)
+def test_bad_values_are_refused_with_field_and_reason(table, message):
+    with pytest.raises(ConfigError, match=message):
+        from_mapping(CanDriverConfig, table, "cell.toml [can]")
+
+
+def test_the_virtual_cell_config_loads():
+    can_cfg, bus_cfg = load_can_config(REPO / "deploy" / "config" / "sim_cell.toml")
+    assert can_cfg.transport["interface"] == "socketcand"
+    assert bus_cfg.key_prefix == "lt"
+
+
+def test_missing_file_is_a_config_error(tmp_path):
+    with pytest.raises(ConfigError, match="not found"):
+        load_can_config(tmp_path / "nope.toml")
+
+
+def test_registry_finds_the_builtin_adapter_lazily():
+    cls = load_adapter(ADAPTER_GROUP, "ltc_dbc")
+    assert cls is LtcAdapter and issubclass(cls, CanAdapter)
+    assert "ltc_dbc" in available(ADAPTER_GROUP)
+
+
+def test_unknown_adapter_lists_the_available_ones():
+    with pytest.raises(ConfigError, match=r"unknown adapter 'acme'.*available: \[.*'ltc_dbc'"):
+        load_adapter(ADAPTER_GROUP, "acme")
+    with pytest.raises(ConfigError, match=r"available: \[\]"):
+        load_adapter("leadthrough.no_such_group", "x")
