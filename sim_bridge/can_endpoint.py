@@ -246,29 +246,35 @@ class SocketcandServerBus(can.BusABC):
             self._wake_w.send(b"\0")
 
     def _write(self, client: _Client, data: bytes, *, handshake: bool = False) -> None:
-        """Queue or send ``data``; never blocks. Any thread."""
-        wake = False
+        """Queue or send ``data``; never blocks. Any thread. ``handshake`` replies skip the
+        post-handshake hold-back (frames never precede them: see :meth:`_handle`)."""
         with client.lock:
-            if client.dead or client.closed:
-                return
-            if client.outbuf or (not handshake and time.monotonic() < client.ready_at_s):
-                wake = not client.outbuf
-                client.outbuf += data
-            else:
-                try:
-                    sent = client.sock.send(data)
-                except (BlockingIOError, InterruptedError):
-                    sent = 0
-                except OSError as exc:
-                    client.dead, sent, wake = f"send failed: {exc}", len(data), True
-                if sent < len(data):
-                    client.outbuf += data[sent:]
-                    wake = True
-            if len(client.outbuf) > self.MAX_BACKLOG_BYTES and not client.dead:
-                client.dead = f"stopped reading ({len(client.outbuf)} bytes queued)"
-                wake = True
+            wake = self._write_locked(client, data, handshake=handshake)
         if wake:
             self._wake()
+
+    def _write_locked(self, client: _Client, data: bytes, *, handshake: bool = False) -> bool:
+        """:meth:`_write` with ``client.lock`` held; True if the I/O thread must look."""
+        if client.dead or client.closed:
+            return False
+        wake = False
+        if client.outbuf or (not handshake and time.monotonic() < client.ready_at_s):
+            wake = not client.outbuf
+            client.outbuf += data
+        else:
+            try:
+                sent = client.sock.send(data)
+            except (BlockingIOError, InterruptedError):
+                sent = 0
+            except OSError as exc:
+                client.dead, sent, wake = f"send failed: {exc}", len(data), True
+            if sent < len(data):
+                client.outbuf += data[sent:]
+                wake = True
+        if len(client.outbuf) > self.MAX_BACKLOG_BYTES and not client.dead:
+            client.dead = f"stopped reading ({len(client.outbuf)} bytes queued)"
+            wake = True
+        return wake
 
     def _flush(self, client: _Client) -> None:
         with client.lock:
@@ -450,12 +456,16 @@ class SocketcandServerBus(can.BusABC):
             else:
                 self._bad_line(client, element, "expected '< open CHANNEL >'")
         elif command == "rawmode" and len(tokens) == 1:
-            self._write(client, b"< ok >", handshake=True)
+            # Join the bus and answer under the client's lock: a frame sent from now on is
+            # queued (held back by ready_at_s) behind this "< ok >", never lost or ahead of it.
             with client.lock:
                 client.ready_at_s = time.monotonic() + self._grace_s
-            with self._clients_changed:
-                client.state = _RAW
-                self._clients_changed.notify_all()
+                with self._clients_changed:
+                    client.state = _RAW
+                    self._clients_changed.notify_all()
+                wake = self._write_locked(client, b"< ok >", handshake=True)
+            if wake:
+                self._wake()
             log.info("%s: client %s joined", self.channel_info, client.name)
         else:
             self._write(client, b"< error only rawmode is supported >", handshake=True)

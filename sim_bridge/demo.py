@@ -54,8 +54,8 @@ def teaching_metrics(truth: dict[str, np.ndarray], summary: dict[str, Any]) -> d
         "nominal_rate_hz": 1.0 / summary["cycle_period_s"],
         "commands_missed": int(missed),
         "controller_faults": summary.get("faults", []),
-        "latency_p50_ms": summary.get("latency_p50_s", float("nan")) * 1e3,
-        "latency_p99_ms": summary.get("latency_p99_s", float("nan")) * 1e3,
+        "latency_p50_ms": (summary.get("latency_p50_s") or float("nan")) * 1e3,
+        "latency_p99_ms": (summary.get("latency_p99_s") or float("nan")) * 1e3,
     }
 
 

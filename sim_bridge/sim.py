@@ -233,8 +233,12 @@ class VirtualCell:
         self.stop_event.set()
 
     def summary(self) -> dict:
-        lat = np.array(self.latencies_s) if self.latencies_s else np.array([math.nan])
+        lat = np.array(self.latencies_s)
         st = self.ctrl.stats
+
+        def pct(p: float) -> float | None:
+            return float(np.percentile(lat, p)) if lat.size else None
+
         return {
             "sim_time_s": self.plant.t_s,
             "cycles": self.ctrl.cycle,
@@ -247,9 +251,9 @@ class VirtualCell:
             "faults": st.faults,
             "teaching_cycles": self.teaching_cycles,
             "teaching_missed_cycles": self.teaching_missed,
-            "latency_p50_s": float(np.nanpercentile(lat, 50)),
-            "latency_p99_s": float(np.nanpercentile(lat, 99)),
-            "latency_max_s": float(np.nanmax(lat)),
+            "latency_p50_s": pct(50),
+            "latency_p99_s": pct(99),
+            "latency_max_s": pct(100),
             "latency_samples": len(self.latencies_s),
         }
 

@@ -181,10 +181,10 @@ class FakeController:
                     arbitration_id=msg.arbitration_id, is_extended_id=False, data=msg.data[:7]
                 )
             self.server.send(msg)
-        t_status = time.monotonic()
-        self.server.send(self.proto.encode_status(status))
-        with self.lock:
-            self.sent[c] = SentCycle(c, q, dq, cur, status.state, t_status)
+        status_frame = self.proto.encode_status(status)
+        with self.lock:  # recorded first: the host may react before send() returns
+            self.sent[c] = SentCycle(c, q, dq, cur, status.state, time.monotonic())
+        self.server.send(status_frame)
 
     def _on_frame(self, msg: can.Message) -> None:
         now = time.monotonic()

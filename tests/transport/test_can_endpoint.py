@@ -111,11 +111,13 @@ def test_handshake_survives_traffic_during_connect(server, connect):
         stop.set()
         spammer.join()
     server.send(msg(0x182, b"\x01"))  # a marker after the spam: every client gets it
-    for c in clients:
+    for i, c in enumerate(clients):
         deadline = time.monotonic() + 2.0
+        n = 0
         while (m := c.recv(0.5)) is not None and m.arbitration_id != 0x182:
+            n += 1
             assert time.monotonic() < deadline
-        assert m is not None
+        assert m is not None, f"client {i} got {n} frames, no marker; {server._clients}"
 
 
 def test_malformed_lines_are_dropped_and_the_server_carries_on(server, connect, caplog):

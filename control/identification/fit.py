@@ -1,0 +1,471 @@
+"""Joint identification of rigid body + friction, and the identified model file and its loader.
+
+Model, per joint j (torques joint side [N·m])::
+
+    τ_j = Y_b,j(q, dq, ddq) β + F_j(q_j, dq_j; q_e,j) φ_j  (+ accepted effect columns)
+
+with the base regressor of :mod:`.rigid`, and per joint friction (``--friction``):
+
+- ``eq15``: the paper's eq. (15), our reading in :mod:`control.model.friction` (10 columns);
+- ``eq14``: the Fourier model of eq. (14) (7 columns), fitted alongside for comparison like
+  the paper's Fig. 7;
+- ``simple``: Coulomb ``tanh(dq / 2 q_e)`` + viscous ``dq`` + constant offset (3 columns).
+
+The transition velocity q_e of each joint is not linear in the torque: it is picked from
+:data:`Q_E_GRID_RAD_S` by a 1-D grid search minimising that joint's training residual
+(coordinate sweeps over the joints, :data:`Q_E_SWEEPS` of them). Everything else is linear
+and solved jointly by weighted least squares (:mod:`.lsq`): first with rows scaled by
+1/RMS(τ_j), then — the usual two-step weighted LS — by 1/σ_j, σ_j the joint's residual RMS of
+that first fit. Near-collinear columns are handled by the truncated solve of :mod:`.lsq`: a
+group of columns the data cannot tell apart gets the minimum-norm split of its one identifiable
+combination. With R ≈ 150, eq. (15)'s ``cos(q/R) s(dq)`` and ``cos(2q/R) s(dq)`` are the Coulomb
+column to 1e-5, so τ_c, f2 and f4 share the Coulomb level, and ``sin(q/R)``, ``sin(2q/R)`` act
+as one ``q s(dq)`` column (f1 = 2 f3): individually odd-looking numbers whose sum is what the
+data determine, and which cannot blow up.
+
+Assist cylinders: when the files carry ``p2``/``p3`` pressures, the cylinder torque of eqs.
+(10)/(12) (:func:`control.model.cylinders.torque_per_pa`) is added to the measured motor torque
+before fitting (the motor holds ``g - T_cyl``), so the identified model is the arm without
+cylinders; the control process adds them back from live pressures.
+
+The model file (``model.json``, :data:`MODEL_FORMAT` version :data:`MODEL_VERSION`) holds the
+URDF (path, sha256 and text), the base-parameter mapping and values, friction per joint and
+the accepted effects; :class:`IdentifiedModel` loads and evaluates it, vectorised.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from control.identification.lsq import BlockLS, Evaluation, Solution
+from control.identification.preprocess import Prepared
+from control.identification.rigid import BaseParameters, RobotRegressor
+from control.identification.terms import (
+    FRICTION_MODELS,
+    FRICTION_PARAM_NAMES,
+    Context,
+    EffectTerm,
+    FrictionTerm,
+    RigidTerm,
+    shift_signal,
+)
+from control.model.cylinders import torque_per_pa
+from control.robot.description import BAR_TO_PA, CylinderSpec, RobotDescription
+from gateway.errors import ConfigError, DataFileError
+
+MODEL_FORMAT = "leadthrough-model"
+MODEL_VERSION = 2
+#: Candidate transition velocities q_e [rad/s] of eqs. (16)-(17) for the grid search.
+Q_E_GRID_RAD_S = (0.002, 0.005, 0.01, 0.02, 0.05, 0.1, 0.2)
+Q_E_SWEEPS = 2
+#: Rows used by the q_e grid search at most (evenly thinned beyond): q_e is one number per
+#: joint and does not need every sample.
+Q_E_SEARCH_MAX_ROWS = 40_000
+_SIGMA_FLOOR_NM = 1e-9
+
+Progress = Callable[[str], None]
+
+
+def _quiet(_: str) -> None:
+    pass
+
+
+def make_context(
+    reg: RobotRegressor, data: Prepared, progress: Progress | None = None, payload: bool = True
+) -> Context:
+    """Context of ``data`` with the base regressor (and the payload columns) computed."""
+    nb = reg.base.n_base
+    cols = np.concatenate([reg.base.independent, reg.payload_indices if payload else []])
+    y = reg.regressor_columns(data.q, data.dq, data.ddq, cols.astype(int), progress)
+    return Context(
+        q=data.q,
+        dq=data.dq,
+        ddq=data.ddq,
+        t=data.t,
+        y_base=y[:, :, :nb],
+        y_payload=y[:, :, nb:] if payload else None,
+    )
+
+
+def cylinder_joint_map(
+    reg: RobotRegressor, desc: RobotDescription, p_joints: Sequence[int], where: str
+) -> list[tuple[int, CylinderSpec]]:
+    """(pressure column index, cylinder spec) for every ``pK`` column; checks the URDF joints."""
+    out = []
+    for col, joint_number in enumerate(p_joints):
+        specs = [c for c in desc.cylinders if c.joint_index == joint_number - 1]
+        if not specs:
+            have = [f"p{c.joint_index + 1}" for c in desc.cylinders]
+            raise DataFileError(
+                f"{where}: pressure column p{joint_number}, but description {desc.name!r} has "
+                f"cylinders only for {have}"
+            )
+        name = desc.joints[joint_number - 1].name
+        if joint_number > reg.n or reg.joint_names[joint_number - 1] != name:
+            raise ConfigError(
+                f"{where} has pressure column p{joint_number} for the cylinder on joint "
+                f"{name!r} of description {desc.name!r}, but the URDF's joints are "
+                f"{list(reg.joint_names)}: no matching joint {joint_number} named {name!r} "
+                f"(use the robot's own URDF and --description)"
+            )
+        out.append((col, specs[0]))
+    return out
+
+
+def remove_cylinders(
+    data: Prepared, reg: RobotRegressor, desc: RobotDescription | None
+) -> Prepared:
+    """``data`` with the cylinder torque added to the motor torque (``τ + T_cyl``), see the
+    module docstring; unchanged without pressure columns."""
+    if data.p is None:
+        return data
+    if desc is None:
+        raise ConfigError(f"{data.sources[0]}: has pressure columns but no robot description")
+    tau = data.tau.copy()
+    for col, spec in cylinder_joint_map(reg, desc, data.p_joints, data.sources[0]):
+        j = spec.joint_index
+        tau[:, j] += torque_per_pa(spec, data.q[:, j]) * data.p[:, col] * BAR_TO_PA
+    return data.with_tau(tau)
+
+
+def _rms(x: np.ndarray) -> np.ndarray:
+    return np.sqrt(np.mean(np.square(x), axis=0))
+
+
+def _thinned(ctx: Context, y: np.ndarray, max_rows: int) -> tuple[Context, np.ndarray]:
+    step = max(1, int(np.ceil(ctx.n_rows / max_rows)))
+    if step == 1:
+        return ctx, y
+    assert ctx.y_base is not None
+    return (
+        Context(ctx.q[::step], ctx.dq[::step], ctx.ddq[::step], None, ctx.y_base[:, ::step]),
+        y[::step],
+    )
+
+
+@dataclass
+class FrictionFit:
+    """Rigid + friction fit of one friction family on the training data."""
+
+    kind: str
+    terms: list[FrictionTerm]
+    weights: np.ndarray
+    evaluation: Evaluation
+
+    @property
+    def names(self) -> list[str]:
+        return ["rigid", *(t.key for t in self.terms)]
+
+
+def fit_rigid_friction(
+    ls: BlockLS,
+    ctx: Context,
+    kind: str,
+    gear_ratios: np.ndarray,
+    q_e_grid: Sequence[float] = Q_E_GRID_RAD_S,
+    progress: Progress | None = None,
+) -> FrictionFit:
+    """Rigid body + friction ``kind`` on ``ls`` (whose group "rigid" is already added).
+
+    q_e per joint by grid search (on at most :data:`Q_E_SEARCH_MAX_ROWS` rows), then the
+    two-step weighted LS on all rows; the friction groups are left in ``ls``.
+    """
+    if kind not in FRICTION_MODELS:
+        raise ConfigError(f"--friction: {kind!r} is not one of {list(FRICTION_MODELS)}")
+    progress = progress or _quiet
+    n = ls.n
+    if "rigid" not in ls.cols:
+        ls.add("rigid", RigidTerm().columns(ctx))
+    w0 = 1.0 / np.maximum(_rms(ls.y), _SIGMA_FLOOR_NM)
+    sctx, sy = _thinned(ctx, ls.y, Q_E_SEARCH_MAX_ROWS)
+    search = BlockLS(sy, [slice(0, sy.shape[0])]) if sctx is not ctx else None
+    target = search if search is not None else ls
+    if search is not None:
+        search.add("rigid", RigidTerm().columns(sctx))
+    grid = sorted(float(v) for v in q_e_grid)
+    q_e = [grid[len(grid) // 2]] * n
+    terms = [FrictionTerm(j, kind, q_e[j], float(gear_ratios[j])) for j in range(n)]
+    for term in terms:
+        target.add(term.key, term.columns(sctx))
+    names = ["rigid", *(t.key for t in terms)]
+    for _sweep in range(Q_E_SWEEPS if len(grid) > 1 else 0):
+        for j in range(n):
+            best = (np.inf, terms[j])
+            for value in grid:
+                cand = FrictionTerm(j, kind, value, float(gear_ratios[j]))
+                target.add(cand.key, cand.columns(sctx))
+                sse = target.fold_sse(target.solve(names, w0)).sum(axis=0)[j]
+                if sse < best[0]:
+                    best = (sse, cand)
+            terms[j] = best[1]
+            target.add(terms[j].key, terms[j].columns(sctx))
+    if target is not ls:
+        for term in terms:
+            ls.add(term.key, term.columns(ctx))
+    first = ls.solve(names, w0)
+    sigma = np.sqrt(ls.fold_sse(first).sum(axis=0) / ls.n_rows)
+    weights = 1.0 / np.maximum(sigma, max(_SIGMA_FLOOR_NM, 1e-6 * float(sigma.max())))
+    evaluation = ls.evaluate(names, weights)
+    progress(
+        f"friction {kind}: q_e = {[t.q_e_rad_s for t in terms]} rad/s, training RMS "
+        f"{np.array2string(evaluation.fit_rms, precision=3)} N·m"
+    )
+    return FrictionFit(kind, terms, weights, evaluation)
+
+
+# --------------------------------------------------------------------------------------------
+# The identified model: file format and evaluation
+
+
+@dataclass
+class IdentifiedModel:
+    """An identified model, as saved in ``model.json``; evaluation is vectorised over samples.
+
+    Torques are joint side [N·m] and *exclude* the assist cylinders (they were taken out of the
+    measured torque): the motor torque is ``torque_nm(...) - T_cyl(q, p)``. A ``time_delay``
+    effect is a property of the measurement chain: it is reported as :attr:`delay_s` and not
+    applied by :meth:`torque_nm`; a ``thermal_drift`` effect needs ``t_s``.
+    """
+
+    regressor: RobotRegressor
+    beta: np.ndarray
+    friction_kind: str
+    friction_terms: list[FrictionTerm]
+    friction_coef: list[np.ndarray]
+    effects: list[tuple[EffectTerm, np.ndarray, str]] = field(default_factory=list)
+    urdf_path: str = ""
+    metadata: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        return self.regressor.joint_names
+
+    @property
+    def n(self) -> int:
+        return self.regressor.n
+
+    @property
+    def delay_s(self) -> float:
+        """Accepted torque-vs-kinematics delay δ [s] (0 without a time_delay effect)."""
+        for term, _, _ in self.effects:
+            if term.name == "time_delay":
+                return float(term.setting["delay_s"])
+        return 0.0
+
+    def _arrays(self, *arrays: np.ndarray) -> tuple[bool, list[np.ndarray]]:
+        arrs = [np.asarray(a, dtype=float) for a in arrays]
+        single = arrs[0].ndim == 1
+        out = [a.reshape(-1, self.n) for a in arrs]
+        for a in out[1:]:
+            if a.shape != out[0].shape:
+                raise ValueError(f"shapes differ: {[x.shape for x in arrs]}")
+        return single, out
+
+    def _context(
+        self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray, t_s: np.ndarray | None
+    ) -> Context:
+        reg = self.regressor
+        payload = any(term.name == "payload" for term, _, _ in self.effects)
+        nb = reg.base.n_base
+        cols = np.concatenate([reg.base.independent, reg.payload_indices if payload else []])
+        y = reg.regressor_columns(q, dq, ddq, cols.astype(int))
+        return Context(q, dq, ddq, t_s, y[:, :, :nb], y[:, :, nb:] if payload else None)
+
+    def _friction(self, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
+        out = np.zeros_like(q)
+        for term, coef in zip(self.friction_terms, self.friction_coef, strict=True):
+            out[:, term.joint] = term.columns(Context(q, dq, dq))[term.joint] @ coef
+        return out
+
+    def gravity_nm(self, q_rad: np.ndarray) -> np.ndarray:
+        """Rigid-body torque at rest, g(q) of eq. (1) [N·m]; q (n,) or (T, n)."""
+        single, (q,) = self._arrays(q_rad)
+        zeros = np.zeros_like(q)
+        y = self.regressor.base_regressor(q, zeros, zeros)
+        out = np.einsum("jtb,b->tj", y, self.beta)
+        return out[0] if single else out
+
+    def friction_nm(self, q_rad: np.ndarray, dq_rad_s: np.ndarray) -> np.ndarray:
+        """Friction torque of the identified friction model [N·m]; (n,) or (T, n)."""
+        single, (q, dq) = self._arrays(q_rad, dq_rad_s)
+        out = self._friction(q, dq)
+        return out[0] if single else out
+
+    def rigid_nm(
+        self, q_rad: np.ndarray, dq_rad_s: np.ndarray, ddq_rad_s2: np.ndarray
+    ) -> np.ndarray:
+        """``Y_b(q, dq, ddq) β`` [N·m]: identified rigid-body inverse dynamics."""
+        single, (q, dq, ddq) = self._arrays(q_rad, dq_rad_s, ddq_rad_s2)
+        out = np.einsum("jtb,b->tj", self.regressor.base_regressor(q, dq, ddq), self.beta)
+        return out[0] if single else out
+
+    def torque_nm(
+        self,
+        q_rad: np.ndarray,
+        dq_rad_s: np.ndarray,
+        ddq_rad_s2: np.ndarray,
+        t_s: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """Rigid body + friction + accepted effect terms [N·m]; (n,) or (T, n).
+
+        ``t_s`` [s] (scalar or (T,)) is only used by a thermal_drift effect (omitted without).
+        """
+        single, (q, dq, ddq) = self._arrays(q_rad, dq_rad_s, ddq_rad_s2)
+        t = None if t_s is None else np.broadcast_to(np.asarray(t_s, dtype=float), (q.shape[0],))
+        out = self.torque_from_context(self._context(q, dq, ddq, t))
+        return out[0] if single else out
+
+    def torque_from_context(self, ctx: Context) -> np.ndarray:
+        """:meth:`torque_nm` on a :class:`Context` whose regressor columns are computed (the
+        analysis reuses its own); sets ``ctx.rigid`` and ``ctx.friction``. (T, n) [N·m]."""
+        assert ctx.y_base is not None
+        ctx.rigid = np.einsum("jtb,b->tj", ctx.y_base, self.beta)
+        ctx.friction = self._friction(ctx.q, ctx.dq)
+        out = ctx.rigid + ctx.friction
+        for term, coef, _ in self.effects:
+            if not term.is_linear or (term.name == "thermal_drift" and ctx.t is None):
+                continue
+            for j, cols in term.columns(ctx).items():
+                out[:, j] += cols @ coef
+        return out
+
+    def predict_measured(self, data: Prepared) -> np.ndarray:
+        """What the torque sensor/drive should read on ``data`` (T, n): :meth:`torque_nm` at
+        the sample times, delayed by :attr:`delay_s` when a time_delay effect was accepted."""
+        tau = self.torque_nm(data.q, data.dq, data.ddq, data.t)
+        return shift_signal(data.t, data.segment, tau, -self.delay_s) if self.delay_s else tau
+
+    # -- file format -------------------------------------------------------------------------
+
+    def to_json(self) -> dict[str, Any]:
+        reg = self.regressor
+        xml = self.metadata.get("urdf_xml", "")
+        base = reg.base
+        return {
+            "format": MODEL_FORMAT,
+            "version": MODEL_VERSION,
+            "urdf": {
+                "path": self.urdf_path,
+                "sha256": hashlib.sha256(xml.encode()).hexdigest(),
+                "xml": xml,
+            },
+            "gravity_m_s2": [float(v) for v in reg.gravity_m_s2],
+            "joints": list(reg.joint_names),
+            "base_parameters": {
+                "columns": list(base.base_names),
+                "values": [float(v) for v in self.beta],
+                "definitions": base.definitions(),
+                "independent_indices": [int(i) for i in base.independent],
+                "dependent_indices": [int(i) for i in base.dependent],
+                "dependent_in_independent": base.dependent_in_independent.tolist(),
+                "full_parameter_names": list(base.names),
+            },
+            "friction": {
+                "model": self.friction_kind,
+                "parameter_names": list(FRICTION_PARAM_NAMES[self.friction_kind]),
+                "joints": [
+                    {"joint": reg.joint_names[t.joint], **t.parameters(c)}
+                    for t, c in zip(self.friction_terms, self.friction_coef, strict=True)
+                ],
+            },
+            "effects": [term.to_json(coef, appeared) for term, coef, appeared in self.effects],
+            "cylinders_removed_from_torque": bool(self.metadata.get("cylinders_removed", False)),
+            "analysis": {k: v for k, v in self.metadata.items() if k not in ("urdf_xml",)},
+        }
+
+    def save(self, path: str | Path) -> None:
+        Path(path).write_text(json.dumps(self.to_json(), indent=1) + "\n")
+
+    @classmethod
+    def load(cls, path: str | Path) -> IdentifiedModel:
+        """Load ``model.json``; a malformed or foreign file raises :class:`DataFileError`."""
+        p = Path(path)
+        try:
+            doc = json.loads(p.read_text())
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise DataFileError(f"{p}: not a readable model file: {exc}") from None
+        try:
+            return cls.from_json(doc, str(p))
+        except (KeyError, TypeError, ValueError, IndexError) as exc:
+            if isinstance(exc, DataFileError):
+                raise
+            raise DataFileError(f"{p}: malformed model file: {exc!r}") from None
+
+    @classmethod
+    def from_json(cls, doc: dict[str, Any], where: str = "model") -> IdentifiedModel:
+        if doc.get("format") != MODEL_FORMAT:
+            raise DataFileError(f"{where}: format {doc.get('format')!r} is not {MODEL_FORMAT!r}")
+        if doc.get("version") != MODEL_VERSION:
+            raise DataFileError(
+                f"{where}: version {doc.get('version')!r}, expected {MODEL_VERSION}"
+            )
+        urdf = doc["urdf"]
+        xml = urdf["xml"]
+        if hashlib.sha256(xml.encode()).hexdigest() != urdf["sha256"]:
+            raise DataFileError(f"{where}: URDF text does not match its sha256")
+        bp = doc["base_parameters"]
+        base = BaseParameters(
+            independent=np.asarray(bp["independent_indices"], dtype=int),
+            dependent=np.asarray(bp["dependent_indices"], dtype=int),
+            dependent_in_independent=np.asarray(
+                bp["dependent_in_independent"], dtype=float
+            ).reshape(len(bp["independent_indices"]), len(bp["dependent_indices"])),
+            names=tuple(bp["full_parameter_names"]),
+        )
+        reg = RobotRegressor(xml, tuple(doc["gravity_m_s2"]), base=base)
+        if list(reg.joint_names) != list(doc["joints"]):
+            raise DataFileError(f"{where}: joints {doc['joints']} differ from the URDF's")
+        fr = doc["friction"]
+        kind = fr["model"]
+        terms, coefs = [], []
+        for j, entry in enumerate(fr["joints"]):
+            names = FRICTION_PARAM_NAMES[kind]
+            terms.append(
+                FrictionTerm(
+                    j, kind, float(entry["q_e_rad_s"]), float(entry.get("gear_ratio", 1.0))
+                )
+            )
+            coefs.append(np.array([float(entry[k]) for k in names]))
+        effects = [
+            (
+                EffectTerm.from_json(e),
+                np.asarray(e["coefficients"], dtype=float),
+                str(e["appeared"]),
+            )
+            for e in doc.get("effects", [])
+        ]
+        beta = np.asarray(bp["values"], dtype=float)
+        if beta.shape != (base.n_base,):
+            raise DataFileError(f"{where}: {beta.size} base parameter values for {base.n_base}")
+        meta = dict(doc.get("analysis", {}))
+        meta["urdf_xml"] = xml
+        meta["cylinders_removed"] = bool(doc.get("cylinders_removed_from_torque", False))
+        return cls(reg, beta, kind, terms, coefs, effects, str(urdf.get("path", "")), meta)
+
+
+def model_from_solution(
+    reg: RobotRegressor,
+    friction: FrictionFit,
+    solution: Solution,
+    effects: Sequence[tuple[EffectTerm, np.ndarray, str]],
+    urdf_path: str,
+    metadata: dict[str, Any],
+) -> IdentifiedModel:
+    """Assemble an :class:`IdentifiedModel` from a fit's solution and accepted effects."""
+    return IdentifiedModel(
+        regressor=reg,
+        beta=np.asarray(solution.coef["rigid"], dtype=float),
+        friction_kind=friction.kind,
+        friction_terms=list(friction.terms),
+        friction_coef=[np.asarray(solution.coef[t.key], dtype=float) for t in friction.terms],
+        effects=list(effects),
+        urdf_path=urdf_path,
+        metadata=dict(metadata),
+    )

@@ -1,0 +1,265 @@
+"""Weighted least squares over joint-grouped rows, with blocked cross-validation, from Grams.
+
+The identification problem stacks, for every joint j, the rows ``y_j = A_j x`` where the
+columns come in named *groups* (the rigid base regressor touches every joint, a joint's friction
+basis only its own rows, an effect term the joints it acts on). Rows are weighted per joint
+(``w_j``, usually 1/σ_j of the joint's residual: the classic two-step weighted LS).
+
+Everything is solved from Gram blocks ``A_{g1,j}ᵀ A_{g2,j}``, ``A_{g,j}ᵀ y_j`` and ``y_jᵀ y_j``
+kept per *fold* (contiguous blocks of samples). So
+
+- adding or swapping one group (a candidate effect, another q_e) costs one pass over that
+  group's columns, not a refit over all data;
+- the fit without fold k, and its error on fold k, come from sums of blocks: trajectory-wise
+  K-fold cross-validation at the price of K small solves.
+
+Solving: columns are scaled to unit weighted norm, then the normal equations are solved by
+truncated eigen-decomposition (TSVD): directions whose singular value is below
+:data:`RCOND` × the largest are dropped (minimum-norm solution). That is how near-collinear
+columns (the eq. (15) ``q/R`` Fourier terms are almost constant when R ≈ 150, regressor
+columns that a trajectory hardly excites) are kept from blowing up; the number of kept
+directions is the effective parameter count used by BIC.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from itertools import pairwise
+
+import numpy as np
+
+#: Relative singular-value cut of the scaled design (eigenvalue cut RCOND² of the Gram).
+RCOND = 1e-5
+
+
+@dataclass(frozen=True)
+class Solution:
+    """Coefficients per group (name → (m,) array) and the effective rank of the solve."""
+
+    coef: dict[str, np.ndarray]
+    rank: int
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """One model (set of groups) judged on the data of a :class:`BlockLS`.
+
+    ``fit_sse`` (n,) in-sample SSE per joint of the fit on all folds [N²·m²], ``cv_sse`` (n,)
+    held-out SSE per joint (each fold predicted by the fit on the others), ``rank`` the
+    effective parameter count, ``n_rows`` samples per joint, ``solution`` the all-fold fit.
+    """
+
+    fit_sse: np.ndarray
+    cv_sse: np.ndarray
+    rank: int
+    n_rows: int
+    solution: Solution
+
+    @property
+    def cv_rms(self) -> np.ndarray:
+        return np.sqrt(self.cv_sse / self.n_rows)
+
+    @property
+    def fit_rms(self) -> np.ndarray:
+        return np.sqrt(self.fit_sse / self.n_rows)
+
+
+def tsvd_solve(gram: np.ndarray, rhs: np.ndarray, rcond: float = RCOND) -> tuple[np.ndarray, int]:
+    """Minimum-norm solution of ``gram x = rhs`` on the well-determined subspace; (x, rank)."""
+    p = gram.shape[0]
+    x = np.zeros(p)
+    if p == 0:
+        return x, 0
+    d = np.sqrt(np.clip(np.diag(gram), 0.0, None))
+    keep = d > 1e-150 * max(1.0, float(d.max()))
+    if not keep.any():
+        return x, 0
+    dk = d[keep]
+    gs = gram[np.ix_(keep, keep)] / np.outer(dk, dk)
+    bs = rhs[keep] / dk
+    evals, evecs = np.linalg.eigh(0.5 * (gs + gs.T))
+    good = evals > (rcond**2) * max(float(evals[-1]), 1e-300)
+    v = evecs[:, good]
+    xs = v @ ((v.T @ bs) / evals[good])
+    x[keep] = xs / dk
+    return x, int(good.sum())
+
+
+def contiguous_folds(n_rows: int, k: int) -> list[slice]:
+    """``k`` contiguous blocks covering ``range(n_rows)`` (never random samples)."""
+    k = max(1, min(k, n_rows))
+    edges = np.linspace(0, n_rows, k + 1).round().astype(int)
+    return [slice(int(a), int(b)) for a, b in pairwise(edges)]
+
+
+class BlockLS:
+    """Per-joint, per-fold Gram blocks of named column groups (see the module docstring).
+
+    ``y`` (T, n) targets; ``folds`` contiguous slices of the T rows.
+    """
+
+    def __init__(self, y: np.ndarray, folds: Sequence[slice]) -> None:
+        self.y = np.asarray(y, dtype=float)
+        self.n_rows, self.n = self.y.shape
+        self.folds = list(folds)
+        self.cols: dict[str, dict[int, np.ndarray]] = {}
+        self.sizes: dict[str, int] = {}
+        self._gram: dict[tuple[str, str], dict[int, np.ndarray]] = {}
+        self._xy: dict[str, dict[int, np.ndarray]] = {}
+        self._yy = self._fold_yy(self.y)
+
+    def _fold_yy(self, y: np.ndarray) -> np.ndarray:
+        return np.array([np.einsum("ij,ij->j", y[s], y[s]) for s in self.folds])
+
+    def _fold_products(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        return np.stack([a[s].T @ b[s] for s in self.folds])
+
+    def add(self, name: str, cols: dict[int, np.ndarray]) -> None:
+        """Add group ``name``: joint index → (T, m) columns acting on that joint's rows."""
+        if name in self.cols:
+            self.remove(name)
+        m = None
+        clean: dict[int, np.ndarray] = {}
+        for j, c in cols.items():
+            arr = np.asarray(c, dtype=float)
+            arr = arr[:, None] if arr.ndim == 1 else arr
+            if arr.shape[0] != self.n_rows or (m is not None and arr.shape[1] != m):
+                raise ValueError(f"group {name}: columns of joint {j} have shape {arr.shape}")
+            m = arr.shape[1]
+            clean[int(j)] = arr
+        if m is None:
+            raise ValueError(f"group {name} has no columns")
+        self.cols[name] = clean
+        self.sizes[name] = m
+        self._xy[name] = {
+            j: self._fold_products(c, self.y[:, j : j + 1])[:, :, 0] for j, c in clean.items()
+        }
+        for other, ocols in self.cols.items():
+            shared = set(clean) & set(ocols)
+            if not shared:
+                continue
+            key = (name, other) if name <= other else (other, name)
+            first, second = (clean, ocols) if name <= other else (ocols, clean)
+            self._gram[key] = {j: self._fold_products(first[j], second[j]) for j in shared}
+
+    def remove(self, name: str) -> None:
+        self.cols.pop(name)
+        self.sizes.pop(name)
+        self._xy.pop(name)
+        for key in [k for k in self._gram if name in k]:
+            del self._gram[key]
+
+    def set_y(self, y: np.ndarray) -> None:
+        """Replace the targets (e.g. torques shifted by a delay); Gram blocks are kept."""
+        self.y = np.asarray(y, dtype=float)
+        self._yy = self._fold_yy(self.y)
+        for name, cols in self.cols.items():
+            self._xy[name] = {
+                j: self._fold_products(c, self.y[:, j : j + 1])[:, :, 0] for j, c in cols.items()
+            }
+
+    def _offsets(self, names: Sequence[str]) -> dict[str, slice]:
+        out, k = {}, 0
+        for name in names:
+            out[name] = slice(k, k + self.sizes[name])
+            k += self.sizes[name]
+        return out
+
+    def _normal(
+        self, names: Sequence[str], weights: np.ndarray, fold_weights: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        off = self._offsets(names)
+        p = sum(self.sizes[n] for n in names)
+        gram = np.zeros((p, p))
+        rhs = np.zeros(p)
+        w2 = np.asarray(weights, dtype=float) ** 2
+        for a in names:
+            for j, xy in self._xy[a].items():
+                rhs[off[a]] += w2[j] * np.tensordot(fold_weights, xy, axes=1)
+        for i, a in enumerate(names):
+            for b in names[i:]:
+                key = (a, b) if a <= b else (b, a)
+                blocks = self._gram.get(key)
+                if not blocks:
+                    continue
+                total = sum(
+                    w2[j] * np.tensordot(fold_weights, g, axes=1) for j, g in blocks.items()
+                )
+                block = total if a <= b else total.T
+                gram[off[a], off[b]] += block
+                if a != b:
+                    gram[off[b], off[a]] += block.T
+        return gram, rhs
+
+    def solve(
+        self,
+        names: Sequence[str],
+        weights: np.ndarray,
+        exclude_fold: int | None = None,
+        rcond: float = RCOND,
+    ) -> Solution:
+        """Weighted LS fit of the groups ``names`` on all folds but ``exclude_fold``."""
+        fw = np.ones(len(self.folds))
+        if exclude_fold is not None:
+            fw[exclude_fold] = 0.0
+        gram, rhs = self._normal(list(names), weights, fw)
+        x, rank = tsvd_solve(gram, rhs, rcond)
+        off = self._offsets(names)
+        return Solution({n: x[off[n]] for n in names}, rank)
+
+    def fold_sse(self, sol: Solution) -> np.ndarray:
+        """SSE of ``sol`` per fold and joint, shape (K, n)."""
+        out = self._yy.copy()
+        names = list(sol.coef)
+        for a in names:
+            xa = sol.coef[a]
+            for j, xy in self._xy[a].items():
+                out[:, j] -= 2.0 * xy @ xa
+        for i, a in enumerate(names):
+            for b in names[i:]:
+                key = (a, b) if a <= b else (b, a)
+                blocks = self._gram.get(key)
+                if not blocks:
+                    continue
+                xa, xb = sol.coef[a], sol.coef[b]
+                for j, g in blocks.items():
+                    quad = (
+                        np.einsum("kij,i,j->k", g, xa, xb)
+                        if a <= b
+                        else np.einsum("kij,i,j->k", g, xb, xa)
+                    )
+                    out[:, j] += quad if a == b else 2.0 * quad
+        return np.maximum(out, 0.0)
+
+    def evaluate(self, names: Sequence[str], weights: np.ndarray) -> Evaluation:
+        """All-fold fit (in-sample SSE) and K-fold held-out SSE per joint of groups ``names``."""
+        names = list(names)
+        full = self.solve(names, weights) if names else Solution({}, 0)
+        fit_sse = self.fold_sse(full).sum(axis=0)
+        if len(self.folds) < 2 or not names:
+            cv = fit_sse.copy()
+        else:
+            cv = np.zeros(self.n)
+            for k in range(len(self.folds)):
+                cv += self.fold_sse(self.solve(names, weights, exclude_fold=k))[k]
+        return Evaluation(fit_sse, cv, full.rank, self.n_rows, full)
+
+    def predict(self, sol: Solution, rows: slice | None = None) -> np.ndarray:
+        """Model output of ``sol`` on this object's rows (or a slice), shape (T, n)."""
+        s = rows if rows is not None else slice(0, self.n_rows)
+        t = len(range(*s.indices(self.n_rows)))
+        out = np.zeros((t, self.n))
+        for name, x in sol.coef.items():
+            for j, c in self.cols[name].items():
+                out[:, j] += c[s] @ x
+        return out
+
+    def cv_predict(self, names: Sequence[str], weights: np.ndarray) -> np.ndarray:
+        """Held-out predictions: each fold's rows from the fit on the other folds, (T, n)."""
+        out = np.zeros((self.n_rows, self.n))
+        if not names:
+            return out
+        for k, s in enumerate(self.folds):
+            out[s] = self.predict(self.solve(names, weights, exclude_fold=k), s)
+        return out

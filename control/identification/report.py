@@ -1,0 +1,139 @@
+"""The analysis outputs a person reads (``report.md``) and a program reads (``summary.json``).
+
+``summary.json`` keys (torques [N·m], per joint in URDF order, on the *test* files unless the
+key says train): ``joints``, ``friction_model``, ``rms_before`` / ``rms_after`` (held-out RMS
+without / with the accepted effects), ``relative_before`` / ``relative_after``
+(RMS / RMS of the measured torque), ``rms_train`` (final model, training files, in-sample),
+``rms_train_before``, ``effects`` (list of ``{"name", "joints" (1-based), "parameters" (units in
+the keys), "appeared": "all_along" | "between_train_and_test", "improved_joints",
+"heldout_rms_before", "heldout_rms_after"}``), ``friction_comparison`` (per family: train and
+test RMS and q_e), ``timing_s`` (seconds per stage and ``total``), plus file names and counts.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+from control.identification.effects import ALL_ALONG, BETWEEN
+
+_CASES = {
+    ALL_ALONG: "present all along (training and test files)",
+    BETWEEN: "appeared between training and test (absent from the training files)",
+}
+_FITTED = {
+    "train": "refitted with the model on the training files, judged on the test files",
+    "test": "estimated on the test residual of the fixed training model, judged by blocked "
+    "K-fold cross-validation on the test files",
+}
+
+
+def _fmt(v: float) -> str:
+    return f"{v:.3g}" if abs(v) < 1000 else f"{v:.0f}"
+
+
+def _param_text(params: dict[str, Any]) -> str:
+    parts = []
+    for k, v in params.items():
+        if isinstance(v, list):
+            parts.append(f"{k} = [{', '.join(_fmt(x) for x in v)}]")
+        elif isinstance(v, float):
+            parts.append(f"{k} = {_fmt(v)}")
+        else:
+            parts.append(f"{k} = {v}")
+    return ", ".join(parts)
+
+
+def render_markdown(summary: dict[str, Any]) -> str:
+    """``report.md`` text from a summary dict."""
+    joints = summary["joints"]
+    lines = [
+        "# Identification report",
+        "",
+        f"URDF `{summary['files']['urdf']}`; {len(joints)} joints, "
+        f"{summary['base_parameters']} base parameters; "
+        f"friction model `{summary['friction_model']}`.",
+        f"Training files: {', '.join(f'`{p}`' for p in summary['files']['train'])} "
+        f"({summary['n_samples']['train']} samples at {summary['rate_hz']:.0f} Hz). "
+        f"Held-out test files: {', '.join(f'`{p}`' for p in summary['files']['test'])} "
+        f"({summary['n_samples']['test']} samples).",
+    ]
+    if summary.get("cylinders_removed"):
+        lines.append(
+            "Assist-cylinder torque (eqs. 10/12, from the measured pressures) was taken out of "
+            "the measured torque before fitting."
+        )
+    lines += [
+        "",
+        "## Held-out torque error per joint (test files)",
+        "",
+        "| joint | RMS measured [N·m] | RMS before [N·m] | rel. before | RMS after [N·m] "
+        "| rel. after | change | train RMS [N·m] |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for j, name in enumerate(joints):
+        before, after = summary["rms_before"][j], summary["rms_after"][j]
+        change = f"{100 * (after - before) / before:+.1f} %" if before > 0 else "-"
+        lines.append(
+            f"| {name} | {_fmt(summary['rms_measured_test'][j])} | {_fmt(before)} | "
+            f"{100 * summary['relative_before'][j]:.1f} % | {_fmt(after)} | "
+            f"{100 * summary['relative_after'][j]:.1f} % | {change} | "
+            f"{_fmt(summary['rms_train'][j])} |"
+        )
+    lines += ["", "## Effects found in the residual", ""]
+    if not summary.get("effects_searched", True):
+        lines.append("The effect search was switched off (`--no-effects`).")
+    elif not summary["effects"]:
+        lines.append(
+            "No further effect found: no candidate of the effect vocabulary cut a joint's "
+            f"held-out RMS by {100 * summary['margin']:.0f} % and lowered BIC."
+        )
+    for e in summary["effects"]:
+        case = _CASES[e["appeared"]] + "; " + _FITTED[e["estimated_on"]]
+        improved = ", ".join(joints[j - 1] for j in e["improved_joints"]) or "-"
+        lines += [
+            f"### `{e['name']}` on joint(s) {', '.join(joints[j - 1] for j in e['joints'])}",
+            "",
+            f"- {case}",
+            f"- parameters: {_param_text(e['parameters'])}",
+            f"- held-out RMS improved on: {improved}",
+            "",
+        ]
+    if summary["effects"]:
+        lines.append("No further effect found after these.")
+    comp = summary.get("friction_comparison", {})
+    if comp:
+        lines += [
+            "",
+            "## Friction models compared (before effects)",
+            "",
+            "Eq. (14) is the Fourier model of ref. [37], eq. (15) the paper's model (our reading, "
+            "`control/model/friction.py`), simple = Coulomb + viscous + offset.",
+            "",
+            "| joint | " + " | ".join(f"{k} train / test RMS [N·m]" for k in comp) + " |",
+            "|---|" + "---|" * len(comp),
+        ]
+        for j, name in enumerate(joints):
+            cells = [f"{_fmt(c['rms_train'][j])} / {_fmt(c['rms_test'][j])}" for c in comp.values()]
+            lines.append(f"| {name} | " + " | ".join(cells) + " |")
+        lines.append("")
+        lines.append(
+            "q_e per joint [rad/s]: " + "; ".join(f"{k}: {c['q_e_rad_s']}" for k, c in comp.items())
+        )
+    if summary.get("plots"):
+        lines += ["", "## Plots", ""]
+        lines += [f"- [{p}]({p})" for p in summary["plots"]]
+    timing = summary.get("timing_s", {})
+    if timing:
+        lines += ["", "## Timing", "", ", ".join(f"{k} {v:.2f} s" for k, v in timing.items())]
+    lines += ["", f"Model file: [{summary['model_file']}]({summary['model_file']})", ""]
+    return "\n".join(lines)
+
+
+def write_report(out_dir: str | Path, summary: dict[str, Any]) -> None:
+    """Write ``summary.json`` and ``report.md`` into ``out_dir``."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
+    (out / "report.md").write_text(render_markdown(summary))

@@ -1,0 +1,275 @@
+"""Column groups of the identified model: rigid body, friction, and the effect vocabulary.
+
+A *term* turns samples (a :class:`Context`) into regressor columns, per joint it acts on, and
+its fitted coefficients into named physical parameters. The same term objects build the
+columns for fitting (:mod:`.fit`, :mod:`.effects`) and evaluate the loaded model
+(:class:`.fit.IdentifiedModel`), so the two cannot drift apart.
+
+Effect vocabulary (names are part of the model and report formats; joints are 1-based there,
+0-based in code). Each adds ``columns @ coefficients`` to the joint torque:
+
+- ``position_ripple`` on joint j: ``sin(c q_j)``, ``cos(c q_j)``, c scanned; parameters
+  ``cycles_per_rev`` c, ``amplitude_nm`` A, ``phase_rad`` φ (``A sin(c q_j + φ)``).
+- ``payload``, all joints: the last link's ten regressor columns [m, mcx, mcy, mcz, Ixx, Ixy,
+  Iyy, Ixz, Iyz, Izz]; parameters ``mass_kg``, ``com_m`` (in the last link's frame, as the
+  URDF/pinocchio defines it) and ``inertia_at_origin_kgm2`` (about that frame's origin).
+- ``spring`` on joint j: ``q_j``, ``1``; parameters ``k_nm_per_rad``, ``q0_rad`` and
+  ``torque_at_zero_nm`` (= -k q0). A restoring spring (k > 0) pushes with ``-k (q - q0)``, which
+  the motor must add: ``+k (q_j - q0)``. With k ≈ 0 it is a constant torque offset.
+- ``stribeck`` on joint j: ``exp(-(dq_j/v_s)²) sgn(dq_j)``, v_s scanned; parameters
+  ``amplitude_nm``, ``velocity_rad_s`` v_s.
+- ``load_dependent_friction`` on joint j: ``|τ_rigid,j| sgn(dq_j)`` with τ_rigid the model's
+  rigid-body torque; parameter ``coefficient``.
+- ``time_delay``, all joints: no columns; the measured torque lags the kinematics by δ,
+  ``τ_meas(t) = τ_model(t - δ)``, δ scanned; parameter ``delay_s``.
+- ``thermal_drift`` on joint j: ``t`` (each file's own clock [s]); parameter ``rate_nm_per_s``.
+- ``wrist_coupling`` on joint j from joint k (k ≠ j, both among the last three): joint k's
+  model torque (rigid + friction, ``source = "torque"``) or its friction torque
+  (``source = "friction"``); parameters ``from_joint`` k, ``coefficient``, ``source``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from control.model.friction import (
+    EQ14_PARAM_NAMES,
+    EQ15_PARAM_NAMES,
+    eq14_basis,
+    eq15_basis,
+    smooth_sign,
+)
+
+EFFECT_NAMES = (
+    "position_ripple",
+    "payload",
+    "spring",
+    "stribeck",
+    "load_dependent_friction",
+    "time_delay",
+    "thermal_drift",
+    "wrist_coupling",
+)
+FRICTION_MODELS = ("simple", "eq14", "eq15")
+#: Simple friction per joint: ``τ_c s(dq) + τ_v dq + offset`` with the smooth sign of eq. (16).
+SIMPLE_PARAM_NAMES = ("coulomb_nm", "viscous_nm_s_per_rad", "offset_nm")
+FRICTION_PARAM_NAMES = {
+    "simple": SIMPLE_PARAM_NAMES,
+    "eq14": EQ14_PARAM_NAMES,
+    "eq15": EQ15_PARAM_NAMES,
+}
+COUPLING_SOURCES = ("torque", "friction")
+
+
+@dataclass
+class Context:
+    """Samples a term needs; arrays (T, n) unless noted.
+
+    ``y_base`` (n, T, nb) base regressor per joint and ``y_payload`` (n, T, 10) the last link's
+    regressor columns (None until computed); ``rigid`` and ``friction`` [N·m] are the
+    current model's rigid-body and friction torques, needed by terms built on the model
+    itself (load-dependent friction, wrist coupling).
+    """
+
+    q: np.ndarray
+    dq: np.ndarray
+    ddq: np.ndarray
+    t: np.ndarray | None = None
+    y_base: np.ndarray | None = None
+    y_payload: np.ndarray | None = None
+    rigid: np.ndarray | None = None
+    friction: np.ndarray | None = None
+
+    @property
+    def n_rows(self) -> int:
+        return int(self.q.shape[0])
+
+
+def friction_basis(
+    kind: str, q: np.ndarray, dq: np.ndarray, q_e: float, gear_ratio: float
+) -> np.ndarray:
+    """Friction design matrix of one joint, (T, m), columns :data:`FRICTION_PARAM_NAMES`.
+
+    ``eq15`` and ``eq14`` are :func:`control.model.friction.eq15_basis` / ``eq14_basis``;
+    ``simple`` is Coulomb ``s(dq) = tanh(dq / 2 q_e)``, viscous ``dq`` and a constant offset.
+    """
+    if kind == "eq15":
+        return eq15_basis(q, dq, q_e, gear_ratio)
+    if kind == "eq14":
+        return eq14_basis(q, dq, q_e)
+    if kind == "simple":
+        return np.column_stack([smooth_sign(dq, q_e), dq, np.ones_like(dq)])
+    raise ValueError(f"unknown friction model {kind!r}")
+
+
+@dataclass(frozen=True)
+class RigidTerm:
+    """``Y_b(q, dq, ddq) β``: the base-parameter rigid-body model, all joints."""
+
+    key: str = "rigid"
+
+    def columns(self, ctx: Context) -> dict[int, np.ndarray]:
+        assert ctx.y_base is not None
+        return {j: ctx.y_base[j] for j in range(ctx.y_base.shape[0])}
+
+
+@dataclass(frozen=True)
+class FrictionTerm:
+    """Friction of one joint (0-based ``joint``) with transition velocity ``q_e`` [rad/s]."""
+
+    joint: int
+    kind: str
+    q_e_rad_s: float
+    gear_ratio: float
+
+    @property
+    def key(self) -> str:
+        return f"friction-{self.kind}:{self.joint}"
+
+    def columns(self, ctx: Context) -> dict[int, np.ndarray]:
+        j = self.joint
+        return {
+            j: friction_basis(self.kind, ctx.q[:, j], ctx.dq[:, j], self.q_e_rad_s, self.gear_ratio)
+        }
+
+    def parameters(self, coef: np.ndarray) -> dict[str, float]:
+        out = {
+            name: float(v) for name, v in zip(FRICTION_PARAM_NAMES[self.kind], coef, strict=True)
+        }
+        out["q_e_rad_s"] = float(self.q_e_rad_s)
+        if self.kind == "eq15":
+            out["gear_ratio"] = float(self.gear_ratio)
+        return out
+
+
+@dataclass(frozen=True)
+class EffectTerm:
+    """One effect of the vocabulary (module docstring); ``joints`` are 0-based here.
+
+    ``setting`` holds what is fixed before the linear fit (scanned values: cycles per rev,
+    v_s, delay; the source joint of a coupling).
+    """
+
+    name: str
+    joints: tuple[int, ...]
+    setting: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def key(self) -> str:
+        extra = ",".join(f"{k}={v}" for k, v in sorted(self.setting.items()))
+        return f"{self.name}:{'/'.join(map(str, self.joints))}:{extra}"
+
+    @property
+    def is_linear(self) -> bool:
+        """False for the time delay, which shifts signals instead of adding columns."""
+        return self.name != "time_delay"
+
+    def columns(self, ctx: Context) -> dict[int, np.ndarray]:
+        name, s = self.name, self.setting
+        if name == "payload":
+            assert ctx.y_payload is not None
+            return {j: ctx.y_payload[j] for j in range(ctx.y_payload.shape[0])}
+        (j,) = self.joints
+        q, dq = ctx.q[:, j], ctx.dq[:, j]
+        if name == "position_ripple":
+            c = float(s["cycles_per_rev"])
+            return {j: np.column_stack([np.sin(c * q), np.cos(c * q)])}
+        if name == "spring":
+            return {j: np.column_stack([q, np.ones_like(q)])}
+        if name == "stribeck":
+            v = float(s["velocity_rad_s"])
+            return {j: (np.exp(-((dq / v) ** 2)) * np.sign(dq))[:, None]}
+        if name == "load_dependent_friction":
+            assert ctx.rigid is not None
+            return {j: (np.abs(ctx.rigid[:, j]) * np.sign(dq))[:, None]}
+        if name == "thermal_drift":
+            if ctx.t is None:
+                return {j: np.zeros((ctx.n_rows, 1))}
+            return {j: np.asarray(ctx.t, dtype=float)[:, None]}
+        if name == "wrist_coupling":
+            assert ctx.friction is not None and ctx.rigid is not None
+            k = int(s["from_joint"])
+            src = (
+                ctx.friction[:, k]
+                if s["source"] == "friction"
+                else ctx.rigid[:, k] + ctx.friction[:, k]
+            )
+            return {j: src[:, None]}
+        raise ValueError(f"effect {name!r} has no columns")
+
+    def parameters(self, coef: np.ndarray) -> dict[str, Any]:
+        """Physical parameters (units in the keys) from the fitted coefficients."""
+        c = [float(v) for v in np.asarray(coef, dtype=float).ravel()]
+        name, s = self.name, self.setting
+        if name == "position_ripple":
+            return {
+                "cycles_per_rev": int(s["cycles_per_rev"]),
+                "amplitude_nm": math.hypot(c[0], c[1]),
+                "phase_rad": math.atan2(c[1], c[0]),
+            }
+        if name == "payload":
+            m = c[0]
+            com = [v / m for v in c[1:4]] if abs(m) > 1e-9 else [0.0, 0.0, 0.0]
+            return {"mass_kg": m, "com_m": com, "inertia_at_origin_kgm2": c[4:10]}
+        if name == "spring":
+            k, b = c
+            q0 = -b / k if abs(k) > 1e-12 else 0.0
+            return {"k_nm_per_rad": k, "q0_rad": q0, "torque_at_zero_nm": b}
+        if name == "stribeck":
+            return {"amplitude_nm": c[0], "velocity_rad_s": float(s["velocity_rad_s"])}
+        if name == "load_dependent_friction":
+            return {"coefficient": c[0]}
+        if name == "time_delay":
+            return {"delay_s": float(s["delay_s"])}
+        if name == "thermal_drift":
+            return {"rate_nm_per_s": c[0]}
+        if name == "wrist_coupling":
+            return {
+                "from_joint": int(s["from_joint"]) + 1,
+                "coefficient": c[0],
+                "source": str(s["source"]),
+            }
+        raise ValueError(f"unknown effect {name!r}")
+
+    def to_json(self, coef: np.ndarray, appeared: str) -> dict[str, Any]:
+        return {
+            "name": self.name,
+            "joints": [j + 1 for j in self.joints],
+            "parameters": self.parameters(coef),
+            "appeared": appeared,
+            "setting": dict(self.setting),
+            "coefficients": [float(v) for v in np.asarray(coef, dtype=float).ravel()],
+        }
+
+    @classmethod
+    def from_json(cls, doc: dict[str, Any]) -> EffectTerm:
+        name = doc["name"]
+        if name not in EFFECT_NAMES:
+            raise ValueError(f"unknown effect {name!r} (known: {list(EFFECT_NAMES)})")
+        return cls(name, tuple(int(j) - 1 for j in doc["joints"]), dict(doc.get("setting", {})))
+
+
+def shift_signal(
+    t: np.ndarray, segment: np.ndarray | None, x: np.ndarray, delta_s: float
+) -> np.ndarray:
+    """``x`` evaluated at ``t + delta_s`` within each segment (linear, held at the ends).
+
+    ``x`` (T,) or (T, n). Used for the time-delay effect: with the torque lagging by δ,
+    ``τ_model(t - δ)`` is ``shift_signal(t, seg, τ_model, -δ)``.
+    """
+    if delta_s == 0.0:
+        return np.array(x, dtype=float, copy=True)
+    arr = np.asarray(x, dtype=float)
+    flat = arr[:, None] if arr.ndim == 1 else arr
+    out = np.empty_like(flat)
+    seg = np.zeros(t.size, dtype=int) if segment is None else segment
+    bounds = np.flatnonzero(np.diff(seg) != 0) + 1
+    for a, b in zip(np.r_[0, bounds], np.r_[bounds, t.size], strict=True):
+        tt = t[a:b]
+        for c in range(flat.shape[1]):
+            out[a:b, c] = np.interp(tt + delta_s, tt, flat[a:b, c])
+    return out[:, 0] if arr.ndim == 1 else out

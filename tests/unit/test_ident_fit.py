@@ -1,0 +1,291 @@
+"""Fit, model file, cylinders, preprocessing and the command line of `leadthrough analyze`."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from control.identification.cli import cli_main, configure_parser
+from control.identification.datafile import Measurements, read_measurements, write_measurements
+from control.identification.dh_urdf import PANDA_DH_ROWS, urdf_from_dh
+from control.identification.fit import IdentifiedModel, remove_cylinders
+from control.identification.preprocess import prepare
+from control.identification.rigid import RobotRegressor
+from control.identification.synthetic import (
+    GR630ST_MAX_SPEED_RAD_S,
+    GR630ST_NOISE_NM,
+    MultiSine,
+    default_friction,
+    synthesize,
+)
+from control.robot.description import load_description
+from control.robot.urdf import to_urdf
+from gateway.errors import ConfigError, DataFileError
+
+RATE_HZ = 1000.0
+
+
+def _parse(argv: list[str]) -> argparse.Namespace:
+    p = argparse.ArgumentParser()
+    configure_parser(p)
+    return p.parse_args(argv)
+
+
+@pytest.fixture(scope="module")
+def cylinder_run(tmp_path_factory) -> dict:
+    """GR630ST recordings with assist cylinders (pressures wander ±15 %) analysed by the CLI."""
+    root = tmp_path_factory.mktemp("ident_fit")
+    desc = load_description()
+    urdf = root / "gr630st.urdf"
+    urdf.write_text(to_urdf(desc))
+    reg = RobotRegressor(urdf.read_text())
+    friction = default_friction(
+        desc.gear_ratios, (300, 1500, 600, 30, 10, 5), np.random.default_rng(1)
+    )
+    nominal = np.array([c.nominal_pressure_bar for c in desc.cylinders])
+    paths = {}
+    for name, seed, seconds, base_hz in (("train", 1, 40.0, 0.05), ("test", 2, 25.0, 0.07)):
+        rng = np.random.default_rng(seed)
+        traj = MultiSine.random(
+            desc.lower_rad, desc.upper_rad, rng, GR630ST_MAX_SPEED_RAD_S, base_hz=base_hz
+        )
+        t = np.arange(round(seconds * RATE_HZ)) / RATE_HZ
+        p = nominal * (1 + 0.15 * np.sin(2 * np.pi * 0.03 * t[:, None] + np.array([0.0, 1.0])))
+        m = synthesize(
+            reg,
+            traj,
+            t,
+            friction,
+            GR630ST_NOISE_NM,
+            rng,
+            desc=desc,
+            pressures_bar=p,
+            with_dq=(name == "test"),
+        )
+        paths[name] = root / f"{name}.csv"
+        write_measurements(paths[name], m)
+    out = root / "out"
+    code = cli_main(
+        _parse(
+            [
+                "--urdf",
+                str(urdf),
+                "--train",
+                str(paths["train"]),
+                "--test",
+                str(paths["test"]),
+                "--out",
+                str(out),
+                "--no-effects",
+            ]
+        )
+    )
+    assert code == 0
+    summary = json.loads((out / "summary.json").read_text())
+    return {
+        "root": root,
+        "urdf": urdf,
+        "paths": paths,
+        "out": out,
+        "summary": summary,
+        "desc": desc,
+        "reg": reg,
+    }
+
+
+def test_cylinder_torque_is_taken_out_before_fitting(cylinder_run):
+    s = cylinder_run["summary"]
+    assert s["cylinders_removed"] is True
+    floor = np.asarray(GR630ST_NOISE_NM) * np.sqrt(2 * 40.0 / RATE_HZ)
+    assert np.all(np.asarray(s["rms_before"]) < 1.5 * floor), s["rms_before"]
+    assert s["rms_after"] == s["rms_before"]
+    assert set(s["friction_comparison"]) == {"eq14", "eq15", "simple"}
+    assert {"read", "preprocess", "regressor", "fit", "effects", "validate", "total"} <= set(
+        s["timing_s"]
+    )
+    for png in s["plots"]:
+        assert (cylinder_run["out"] / png).stat().st_size > 0
+
+
+def test_model_file_reproduces_the_reported_held_out_error(cylinder_run):
+    model = IdentifiedModel.load(cylinder_run["out"] / "model.json")
+    assert model.joint_names == ("j1", "j2", "j3", "j4", "j5", "j6")
+    assert model.friction_kind == "eq15"
+    test = prepare(read_measurements(cylinder_run["paths"]["test"]))
+    test = remove_cylinders(test, model.regressor, cylinder_run["desc"])
+    rms = np.sqrt(np.mean((test.tau - model.predict_measured(test)) ** 2, axis=0))
+    np.testing.assert_allclose(rms, cylinder_run["summary"]["rms_before"], rtol=1e-9)
+
+
+def test_model_evaluation_is_vectorised_and_consistent(cylinder_run):
+    model = IdentifiedModel.load(cylinder_run["out"] / "model.json")
+    rng = np.random.default_rng(9)
+    q = rng.uniform(-0.5, 0.5, size=(5, 6))
+    dq = rng.uniform(-0.5, 0.5, size=(5, 6))
+    ddq = rng.uniform(-1, 1, size=(5, 6))
+    batch = model.torque_nm(q, dq, ddq)
+    assert batch.shape == (5, 6)
+    np.testing.assert_allclose(model.torque_nm(q[2], dq[2], ddq[2]), batch[2])
+    np.testing.assert_allclose(batch, model.rigid_nm(q, dq, ddq) + model.friction_nm(q, dq))
+    # eq. (15) friction vanishes at rest, so the torque at rest is the gravity torque
+    np.testing.assert_allclose(model.gravity_nm(q), model.torque_nm(q, 0 * q, 0 * q), atol=1e-9)
+    # and the identified gravity is the URDF's (the synthetic data came from it)
+    reg = cylinder_run["reg"]
+    true_g = reg.rnea(q, 0 * q, 0 * q)
+    assert np.max(np.abs(model.gravity_nm(q) - true_g)) < 0.01 * np.max(np.abs(true_g))
+
+
+def test_model_file_is_versioned(cylinder_run, tmp_path):
+    doc = json.loads((cylinder_run["out"] / "model.json").read_text())
+    assert doc["format"] == "leadthrough-model" and doc["version"] == 2
+    assert len(doc["base_parameters"]["columns"]) == len(doc["base_parameters"]["values"]) == 36
+    assert doc["friction"]["model"] == "eq15" and len(doc["friction"]["joints"]) == 6
+    doc["version"] = 1
+    bad = tmp_path / "old.json"
+    bad.write_text(json.dumps(doc))
+    with pytest.raises(DataFileError, match="version"):
+        IdentifiedModel.load(bad)
+    (tmp_path / "junk.json").write_text("{")
+    with pytest.raises(DataFileError, match=r"junk\.json"):
+        IdentifiedModel.load(tmp_path / "junk.json")
+
+
+def test_pressures_need_matching_urdf_joints(cylinder_run, tmp_path):
+    """Pressure columns with a URDF that has no joint j2/j3 of the description: clear error."""
+    urdf = tmp_path / "panda.urdf"
+    urdf.write_text(urdf_from_dh(PANDA_DH_ROWS[:6] + PANDA_DH_ROWS[7:], "modified", "six"))
+    args = _parse(
+        [
+            "--urdf",
+            str(urdf),
+            "--train",
+            str(cylinder_run["paths"]["train"]),
+            "--test",
+            str(cylinder_run["paths"]["test"]),
+            "--out",
+            str(tmp_path / "o"),
+            "--no-plots",
+            "--no-effects",
+        ]
+    )
+    with pytest.raises(ConfigError, match="no matching joint 2 named 'j2'"):
+        cli_main(args)
+
+
+def test_joint_count_mismatch_names_the_file(cylinder_run, tmp_path):
+    urdf = tmp_path / "panda.urdf"
+    urdf.write_text(urdf_from_dh(PANDA_DH_ROWS, "modified", "panda"))
+    train = cylinder_run["paths"]["train"]
+    args = _parse(
+        [
+            "--urdf",
+            str(urdf),
+            "--train",
+            str(train),
+            "--test",
+            str(train),
+            "--out",
+            str(tmp_path / "o"),
+        ]
+    )
+    with pytest.raises(DataFileError, match=rf"{train}:1: has 6 joints"):
+        cli_main(args)
+
+
+def test_bad_command_line_values_are_config_errors(cylinder_run, tmp_path):
+    train = str(cylinder_run["paths"]["train"])
+    common = [
+        "--urdf",
+        str(cylinder_run["urdf"]),
+        "--train",
+        train,
+        "--test",
+        train,
+        "--out",
+        str(tmp_path),
+    ]
+    with pytest.raises(ConfigError, match="--gravity"):
+        cli_main(_parse([*common, "--gravity", "0,0"]))
+    with pytest.raises(ConfigError, match="--gear-ratios"):
+        cli_main(_parse([*common, "--gear-ratios", "1,2,x"]))
+    with pytest.raises(ConfigError, match="--margin"):
+        cli_main(_parse([*common, "--margin", "1.5"]))
+
+
+# -- preprocessing ----------------------------------------------------------------------------
+
+
+def _sine_measurements(t: np.ndarray, freq_hz: float = 0.5) -> Measurements:
+    w = 2 * np.pi * freq_hz
+    q = np.sin(w * t)[:, None]
+    return Measurements(t=t, q=q, dq=None, tau=np.cos(w * t)[:, None], p=None, source="sine.csv")
+
+
+def test_preprocess_is_zero_phase_and_differentiates_accurately():
+    t = np.arange(0, 20, 1e-3)
+    w = 2 * np.pi * 0.5
+    d = prepare(_sine_measurements(t), rate_hz=200.0)
+    assert d.rate_hz == pytest.approx(200.0)
+    np.testing.assert_allclose(d.q[:, 0], np.sin(w * d.t), atol=1e-4)
+    np.testing.assert_allclose(d.dq[:, 0], w * np.cos(w * d.t), atol=1e-3 * w)
+    np.testing.assert_allclose(d.ddq[:, 0], -(w**2) * np.sin(w * d.t), atol=2e-3 * w**2)
+    np.testing.assert_allclose(d.tau[:, 0], np.cos(w * d.t), atol=1e-4)
+
+
+def test_preprocess_resamples_jittered_time_and_splits_at_gaps():
+    rng = np.random.default_rng(0)
+    t = np.cumsum(rng.uniform(0.7e-3, 1.3e-3, 20_000))
+    t[10_000:] += 1.0  # a one-second gap
+    d = prepare(_sine_measurements(t))
+    assert set(np.unique(d.segment)) == {0, 1}
+    w = 2 * np.pi * 0.5
+    np.testing.assert_allclose(d.q[:, 0], np.sin(w * d.t), atol=1e-3)
+
+
+def test_position_jump_is_refused_with_its_line():
+    t = np.arange(0, 2, 1e-3)
+    m = _sine_measurements(t)
+    q = m.q.copy()
+    q[500:, 0] += 2 * np.pi  # a wrapped angle
+    bad = Measurements(t=t, q=q, dq=None, tau=m.tau, p=None, source="wrapped.csv")
+    with pytest.raises(DataFileError, match=r"wrapped.csv:502: q1 jumps"):
+        prepare(bad)
+
+
+def test_too_short_file_is_refused():
+    t = np.arange(0, 0.1, 1e-3)
+    with pytest.raises(DataFileError, match="too short"):
+        prepare(_sine_measurements(t))
+
+
+def test_other_friction_families_give_loadable_models(cylinder_run, tmp_path):
+    paths = cylinder_run["paths"]
+    for kind in ("simple", "eq14"):
+        out = tmp_path / kind
+        args = _parse(
+            [
+                "--urdf",
+                str(cylinder_run["urdf"]),
+                "--train",
+                str(paths["train"]),
+                "--test",
+                str(paths["test"]),
+                "--out",
+                str(out),
+                "--friction",
+                kind,
+                "--no-effects",
+                "--no-plots",
+            ]
+        )
+        assert cli_main(args) == 0
+        model = IdentifiedModel.load(out / "model.json")
+        assert model.friction_kind == kind
+        assert model.friction_nm(np.zeros(6), np.full(6, 0.3)).shape == (6,)
+        summary = json.loads((out / "summary.json").read_text())
+        assert summary["friction_model"] == kind
+        assert Path(out / "report.md").read_text().startswith("# Identification report")
