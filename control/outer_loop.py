@@ -80,16 +80,3 @@ class OuterLoop:
         self.offset_rad = e_next
         return OuterLoopCommand(q_cmd, dq_cmd, e.copy(), sat | vsat)
 
-
-def inner_loop_torque(
-    k_nm_per_a: np.ndarray,
-    kp_a_s_per_rad: np.ndarray,
-    ki_a_per_rad: np.ndarray,
-    q_rad: np.ndarray,
-    dq_rad_s: np.ndarray,
-    q_cmd_rad: np.ndarray,
-    dq_cmd_rad_s: np.ndarray,
-) -> np.ndarray:
-    """Torque of the vendor PI loop, eq. (19)–(20), before current saturation [N·m]."""
-    i_c = -kp_a_s_per_rad * (dq_rad_s - dq_cmd_rad_s) - ki_a_per_rad * (q_rad - q_cmd_rad)
-    return k_nm_per_a * i_c

@@ -290,40 +290,35 @@ class SocketcandServerBus(can.BusABC):
             del client.outbuf[:sent]
 
     def _serve(self) -> None:
-        try:
-            while not self._stop.is_set():
-                self._service_backlogs()
-                timeout = self._next_timeout()
-                for key, mask in self._sel.select(timeout):
-                    if key.data == "accept":
-                        self._accept()
-                    elif key.data == "wake":
-                        with contextlib.suppress(OSError):
-                            while self._wake_r.recv(4096):
-                                pass
-                    else:
-                        client: _Client = key.data
-                        if mask & selectors.EVENT_READ and not client.closed:
-                            self._read(client)
-                        if mask & selectors.EVENT_WRITE and not client.closed:
-                            self._flush(client)
-        except Exception:
-            if not self._stop.is_set():
-                log.exception("%s: I/O thread failed", self.channel_info)
+        while not self._stop.is_set():
+            try:
+                self._serve_once()
+            except Exception:  # a bug must not take the whole bus down: log, carry on
+                if self._stop.is_set():
+                    break
+                log.exception("%s: I/O error; continuing", self.channel_info)
+                self._stop.wait(0.01)
 
-    def _next_timeout(self) -> float:
+    def _serve_once(self) -> None:
+        timeout = self._service_backlogs()
+        for key, mask in self._sel.select(timeout):
+            if key.data == "accept":
+                self._accept()
+            elif key.data == "wake":
+                with contextlib.suppress(OSError):
+                    while self._wake_r.recv(4096):
+                        pass
+            else:
+                client: _Client = key.data
+                if mask & selectors.EVENT_READ and not client.closed:
+                    self._read(client)
+                if mask & selectors.EVENT_WRITE and not client.closed:
+                    self._flush(client)
+
+    def _service_backlogs(self) -> float:
+        """Drop dead clients, flush ready backlogs, keep write interest in step; return how
+        long the I/O thread may sleep before a held-back backlog becomes due [s]."""
         now, timeout = time.monotonic(), 0.5
-        with self._clients_changed:
-            clients = list(self._clients.values())
-        for client in clients:
-            with client.lock:
-                if client.outbuf and client.ready_at_s > now:
-                    timeout = min(timeout, client.ready_at_s - now)
-        return max(timeout, 0.0)
-
-    def _service_backlogs(self) -> None:
-        """Drop dead clients, flush ready backlogs, and keep write interest in step."""
-        now = time.monotonic()
         with self._clients_changed:
             clients = list(self._clients.values())
         for client in clients:
@@ -331,15 +326,19 @@ class SocketcandServerBus(can.BusABC):
                 self._drop(client, client.dead)
                 continue
             with client.lock:
-                ready = bool(client.outbuf) and now >= client.ready_at_s
-            if ready:
+                due = client.ready_at_s - now
+            if due <= 0:
                 self._flush(client)
             with client.lock:
-                want = bool(client.outbuf) and now >= client.ready_at_s and not client.dead
+                backlog = bool(client.outbuf) and not client.dead
+            if backlog and due > 0:
+                timeout = min(timeout, due)  # one clock reading for both: nothing falls between
+            want = backlog and due <= 0
             if want != client.want_write and not client.closed:
                 events = selectors.EVENT_READ | (selectors.EVENT_WRITE if want else 0)
                 self._sel.modify(client.sock, events, client)
                 client.want_write = want
+        return timeout
 
     def _accept(self) -> None:
         while True:

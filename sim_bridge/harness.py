@@ -95,11 +95,11 @@ class Stack:
             truth,
             {"endpoints": {"can_port": self.ports["can"], "modbus_port": self.ports["modbus"]}},
         )
-        self.truth = deep_merge(truth, sim_overrides or {})
+        self.truth_cfg = deep_merge(truth, sim_overrides or {})
         self.cell_path = self.workdir / "cell.toml"
         self.truth_path = self.workdir / "truth.toml"
         self.cell_path.write_bytes(tomli_w.dumps(self.cell).encode())
-        self.truth_path.write_bytes(tomli_w.dumps(self.truth).encode())
+        self.truth_path.write_bytes(tomli_w.dumps(self.truth_cfg).encode())
         self.truth_log = self.workdir / "truth.csv"
         self.sim_summary = self.workdir / "sim_summary.json"
         self.sim: subprocess.Popen | None = None

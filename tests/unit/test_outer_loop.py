@@ -4,11 +4,16 @@ delivers converges to the desired torque."""
 import numpy as np
 import pytest
 
-from control.outer_loop import OuterLoop, inner_loop_torque
+from control.outer_loop import OuterLoop
 
 K = np.array([46.21, 66.18, 39.0])
 KP = np.array([224.4, 375.3, 226.0])
 KI = np.array([7479.0, 12510.0, 7532.0])
+
+
+def inner_loop_torque(k, kp, ki, q, dq, q_cmd, dq_cmd):
+    """The vendor's PI loop, eq. (19)–(20): the torque it produces [N·m]."""
+    return k * (-kp * (dq - dq_cmd) - ki * (q - q_cmd))
 
 
 def make_loop(omega=None, upsilon=None) -> OuterLoop:
