@@ -79,4 +79,3 @@ class OuterLoop:
         q_cmd = q_rad + e
         self.offset_rad = e_next
         return OuterLoopCommand(q_cmd, dq_cmd, e.copy(), sat | vsat)
-

@@ -126,7 +126,10 @@ def cli_main(args: argparse.Namespace) -> int:
         ("tool travel (path length)", f"{m['tool_path_length_m'] * 1e3:.0f} mm"),
         ("loop rate achieved", f"{m['loop_rate_hz']:.1f} Hz of {m['nominal_rate_hz']:.0f} Hz"),
         ("commands missed", f"{m['commands_missed']}"),
-        ("wire-to-wire latency p50/p99", f"{m['latency_p50_ms']:.2f} / {m['latency_p99_ms']:.2f} ms"),
+        (
+            "wire-to-wire latency p50/p99",
+            f"{m['latency_p50_ms']:.2f} / {m['latency_p99_ms']:.2f} ms",
+        ),
         ("controller faults", ", ".join(m["controller_faults"]) or "none"),
     ]
     width = max(len(r[0]) for r in rows)

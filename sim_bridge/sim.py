@@ -44,6 +44,8 @@ HEARTBEAT_PERIOD_S = 0.1
 Q_FB_LIMIT_RAD = 8.388607
 DQ_FB_LIMIT_RAD_S = 3.2767
 I_FB_LIMIT_A = 327.67
+#: after an overrun the next cycle still leaves the host at least this long to answer [s]
+MIN_ANSWER_WINDOW_S = 0.5e-3
 
 
 def truth_log_columns(n: int) -> list[str]:
@@ -79,6 +81,7 @@ class VirtualCell:
         self.latencies_s: list[float] = []
         self.teaching_cycles = 0
         self.teaching_missed = 0
+        self.overruns = 0  #: real time: cycles that started late
         self._fb_sent_wall: float | None = None
         self._set_arrival_wall: float | None = None
         self.can: SocketcandServerBus | None = None
@@ -215,10 +218,14 @@ class VirtualCell:
             k += 1
             if self.cfg.realtime:
                 deadline = t0 + k * self.period_s
+                if time.perf_counter() > deadline - MIN_ANSWER_WINDOW_S:
+                    # Overrun. A controller never runs cycles back to back to catch up (the
+                    # host could not answer them): restart the schedule from now.
+                    self.overruns += 1
+                    t0 = time.perf_counter() + MIN_ANSWER_WINDOW_S - k * self.period_s
+                    deadline = t0 + k * self.period_s
                 while (left := deadline - time.perf_counter()) > 0:
                     self._receive(left)
-                if time.perf_counter() - deadline > 5 * self.period_s:
-                    t0 = time.perf_counter() - k * self.period_s  # overrun: don't race to catch up
             else:
                 deadline = time.perf_counter() + self.cfg.lockstep_timeout_s
                 while (
@@ -251,6 +258,7 @@ class VirtualCell:
             "faults": st.faults,
             "teaching_cycles": self.teaching_cycles,
             "teaching_missed_cycles": self.teaching_missed,
+            "overruns": self.overruns,
             "latency_p50_s": pct(50),
             "latency_p99_s": pct(99),
             "latency_max_s": pct(100),

@@ -92,9 +92,9 @@ def test_killing_control_makes_the_driver_hold_and_the_arm_stop(tmp_path):
     assert status["state"] == "fault" and "control" in status["reason"]
     wall = truth["wall_s"]
     k = int(np.searchsorted(wall, t_kill))
-    speed_at_kill = np.linalg.norm(
-        tool_xyz(truth, [k])[0] - tool_xyz(truth, [k - 25])[0]
-    ) / (truth["t_s"][k] - truth["t_s"][k - 25])
+    speed_at_kill = np.linalg.norm(tool_xyz(truth, [k])[0] - tool_xyz(truth, [k - 25])[0]) / (
+        truth["t_s"][k] - truth["t_s"][k - 25]
+    )
     assert speed_at_kill > 0.03, "the arm was not moving when control was killed"
     # Commands computed by control stop, and the driver's hold takes over within its deadline.
     following = np.flatnonzero(truth["teaching"][k:] > 0.5)
