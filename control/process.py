@@ -21,11 +21,13 @@ import numpy as np
 
 from control.config import ControlConfig
 from control.declared_model import DeclaredModel
+from control.experiments import build_plan
 from control.outer_loop import OuterLoop
 from gateway.bus import BusConfig, open_client
 from gateway.config import from_mapping, load_toml, resolve_path
 from gateway.errors import MessageError
 from gateway.messages import (
+    COMMANDING,
     HEALTH_RATE_HZ,
     ControllerState,
     IoState,
@@ -101,6 +103,66 @@ class ZeroMomentController:
         return make_joint_command(st.cycle, st.stamp_s, now_s, out.q_cmd_rad, out.dq_cmd_rad_s)
 
 
+class PlanPlayer:
+    """Plays an excitation plan (control/experiments.py) as position/velocity commands, one
+    sample per controller cycle, starting from the position the robot is holding."""
+
+    #: keep plans this far inside the joint range [rad]
+    LIMIT_MARGIN_RAD = 0.05
+
+    def __init__(self, lower_rad: np.ndarray, upper_rad: np.ndarray) -> None:
+        self.lower, self.upper = lower_rad, upper_rad
+        self.plan_id: str | None = None
+        self.state = "idle"  # idle | running | done | failed
+        self.reason = ""
+        self.start_cycle = 0
+        self.q = self.dq = np.zeros((0, len(lower_rad)))
+        self.segments: list[dict] = []
+        self.k = 0
+
+    def start(self, plan: dict, st: JointState, period_s: float) -> None:
+        self.plan_id, self.k = str(plan.get("plan_id")), 0
+        self.start_cycle = st.cycle
+        try:
+            parts = build_plan(plan, st.q_cmd_rad.copy(), self.lower, self.upper, period_s,
+                               self.LIMIT_MARGIN_RAD)  # fmt: skip
+        except ValueError as exc:
+            self.state, self.reason = "failed", str(exc)
+            log.error("excitation plan %s refused: %s", self.plan_id, exc)
+            return
+        self.segments, offset = [], 0
+        for label, role, q, _dq in parts:
+            self.segments.append({"label": label, "role": role,
+                                  "start_cycle": self.start_cycle + offset,
+                                  "end_cycle": self.start_cycle + offset + len(q) - 1})  # fmt: skip
+            offset += len(q)
+        self.q = np.vstack([p[2] for p in parts])
+        self.dq = np.vstack([p[3] for p in parts])
+        self.state, self.reason = "running", ""
+        log.info("excitation plan %s: %d segments, %.1f s", self.plan_id, len(parts),
+                 len(self.q) * period_s)  # fmt: skip
+
+    def command(self, st: JointState) -> tuple[np.ndarray, np.ndarray] | None:
+        if self.state not in ("running", "done"):
+            return None
+        k = st.cycle - self.start_cycle
+        if k >= len(self.q):
+            self.state = "done"
+            return self.q[-1], np.zeros_like(self.dq[-1])
+        self.k = max(k, 0)
+        return self.q[self.k], self.dq[self.k]
+
+    def report(self) -> dict:
+        return {
+            "plan_id": self.plan_id,
+            "state": self.state,
+            "reason": self.reason,
+            "progress": self.k / max(len(self.q), 1),
+            "start_cycle": self.start_cycle,
+            "segments": self.segments,
+        }
+
+
 class ControlProcess:
     def __init__(
         self,
@@ -113,6 +175,9 @@ class ControlProcess:
         self.keys = bus.keys
         self.clock = clock
         self.ctl = ZeroMomentController(cfg, DeclaredModel.load(cfg.model))
+        self.player = PlanPlayer(self.ctl.lower - cfg.soft_limit_margin_rad,
+                                 self.ctl.upper + cfg.soft_limit_margin_rad)  # fmt: skip
+        self._report_sent: tuple | None = None
         self._lock = threading.Lock()
         self.io: IoState | None = None
         self.lifecycle: LifecycleMsg | None = None
@@ -168,13 +233,12 @@ class ControlProcess:
         with self._lock:
             self.lifecycle, self.lifecycle_rx_s = msg, self.clock()
 
-    def _teaching(self, now: float) -> bool:
+    def _mode(self, now: float) -> Lifecycle | None:
+        """TEACHING or IDENTIFYING when the gateway says so (fresh), else None."""
         lc = self.lifecycle
-        return (
-            lc is not None
-            and lc.state == Lifecycle.TEACHING
-            and now - self.lifecycle_rx_s <= self.cfg.lifecycle_timeout_s
-        )
+        if lc is None or now - self.lifecycle_rx_s > self.cfg.lifecycle_timeout_s:
+            return None
+        return lc.state if lc.state in COMMANDING else None
 
     def _on_state(self, sample) -> None:
         try:
@@ -186,14 +250,26 @@ class ControlProcess:
         now = self.clock()
         self.stats["states"] += 1
         with self._lock:
-            io, teaching = self.io, self._teaching(now)
+            io, mode, lc = self.io, self._mode(now), self.lifecycle
         if st.n != self.ctl.model.n:
             self.stats["bad_messages"] += 1
             log.error("joint state has %d joints, model has %d", st.n, self.ctl.model.n)
             return
         following = st.controller_state in (ControllerState.HOLD, ControllerState.EXTERNAL)
-        if not (teaching and following):
+        if mode is None or not following:
             self.ctl.disengage()
+            return
+        if mode == Lifecycle.IDENTIFYING:
+            self.ctl.disengage()
+            plan = lc.extra.get("plan") if lc else None
+            if isinstance(plan, dict) and str(plan.get("plan_id")) != self.player.plan_id:
+                period = st.cycle_period_s or self.cfg.default_cycle_period_s
+                self.player.start(plan, st, period)
+            qd = self.player.command(st)
+            if qd is not None:
+                cmd = make_joint_command(st.cycle, st.stamp_s, self.clock(), qd[0], qd[1])
+                self._pub_cmd.put(cmd.to_bytes())
+                self.stats["commands"] += 1
             return
         if io is None or now - io.stamp_s > self.cfg.io_timeout_s:
             self.stats["io_stale"] += 1
@@ -231,6 +307,8 @@ class ControlProcess:
                 "offset_rad": [round(float(v), 6) for v in self.ctl.loop.offset_rad],
             }
             s.put(self.keys.control_telemetry, encode_json(tele))
+            if self.player.plan_id is not None:
+                s.put(self.keys.experiment, encode_json(self.player.report()))
 
     def stop(self) -> None:
         self.stop_event.set()

@@ -4,6 +4,8 @@
        ^                                 ^  <--enabling released---------     |
        |---------------- stop -----------+-----------------------------------+
     any --fault condition--> FAULT --reset [cause gone]--> STOPPED
+    READY --identify PLAN [enabling held, servo on]--> IDENTIFYING
+    IDENTIFYING --plan done | enabling released--> READY
 
 STOPPED is the initial state and the state `stop` leads to from anywhere but FAULT. Every fault
 condition wins over every operator command. Like ros2_control's hardware lifecycle, READY means
@@ -43,6 +45,8 @@ class LifecycleMachine:
     state: Lifecycle = Lifecycle.STOPPED
     reason: str = "initial state"
     seq: int = 0
+    #: the excitation plan being run while IDENTIFYING (JSON-able), with its "plan_id"
+    plan: dict | None = None
 
     def _go(self, state: Lifecycle, reason: str) -> None:
         if state != self.state or reason != self.reason:
@@ -69,10 +73,14 @@ class LifecycleMachine:
 
     def update(self, obs: Observations) -> Lifecycle:
         """Apply the automatic transitions for the latest observations."""
-        if self.state in (Lifecycle.READY, Lifecycle.TEACHING):
+        if self.state in (Lifecycle.READY, Lifecycle.TEACHING, Lifecycle.IDENTIFYING):
             problems = self.link_problems(obs)
             if problems:
                 self._go(Lifecycle.FAULT, "; ".join(problems))
+                return self.state
+            if self.state == Lifecycle.IDENTIFYING:
+                if not obs.enabling:
+                    self._go(Lifecycle.READY, "identification aborted: enabling device released")
                 return self.state
             servo_on = obs.controller_state in (ControllerState.HOLD, ControllerState.EXTERNAL)
             if self.state == Lifecycle.READY and obs.enabling and servo_on:
@@ -93,7 +101,7 @@ class LifecycleMachine:
             self._go(Lifecycle.STOPPED, "stop requested by operator")
             return True, "stopped: brakes engaged"
         if name == "start":
-            if self.state in (Lifecycle.READY, Lifecycle.TEACHING):
+            if self.state in (Lifecycle.READY, Lifecycle.TEACHING, Lifecycle.IDENTIFYING):
                 return True, f"already {self.state.name.lower()}"
             if self.state == Lifecycle.FAULT:
                 return False, f"in fault ({self.reason}); use reset first"
@@ -111,6 +119,27 @@ class LifecycleMachine:
             self._go(Lifecycle.STOPPED, "fault reset by operator")
             return True, self.reason
         return False, f"unknown command {name!r}; use start, stop, status or reset"
+
+    def identify(self, plan: dict, obs: Observations) -> tuple[bool, str]:
+        """Start an excitation plan (operator command `identify`)."""
+        if self.state != Lifecycle.READY:
+            return False, f"identify needs state ready, not {self.state.name.lower()}"
+        if not obs.enabling:
+            return False, "hold the enabling device: the robot will move by itself"
+        if obs.controller_state not in (ControllerState.HOLD, ControllerState.EXTERNAL):
+            return False, "robot controller is not servo-on yet"
+        self.plan = plan
+        self._go(Lifecycle.IDENTIFYING, f"running excitation plan {plan.get('plan_id')}")
+        return True, self.reason
+
+    def plan_finished(self, plan_id: str, ok: bool, why: str) -> None:
+        """The control process reports the plan ended (done, or refused/aborted)."""
+        if (
+            self.state == Lifecycle.IDENTIFYING
+            and self.plan
+            and self.plan.get("plan_id") == plan_id
+        ):
+            self._go(Lifecycle.READY, f"plan {plan_id} {'done' if ok else 'failed: ' + why}")
 
     def fault(self, reason: str) -> None:
         """Enter FAULT from any state (used by error paths)."""

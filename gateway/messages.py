@@ -48,6 +48,9 @@ class Keys:
         self.control_telemetry = f"{prefix}/telemetry/control"
         #: Driver diagnostics (JSON, low rate).
         self.driver_telemetry = f"{prefix}/telemetry/drivers"
+        #: Excitation-plan progress (JSON): plan_id, state running|done|failed, segments with
+        #: their controller-cycle ranges, published by the control process.
+        self.experiment = f"{prefix}/telemetry/experiment"
 
     def health(self, process: str) -> str:
         """Key of a process's heartbeat (JSON, HEALTH_RATE_HZ)."""
@@ -78,6 +81,11 @@ class Lifecycle(IntEnum):
     READY = 1  #: servo on, holding position; waiting for the enabling device
     TEACHING = 2  #: enabling device held; the control process's commands reach the robot
     FAULT = 3  #: an error stopped the robot; `reset` once the cause is gone
+    IDENTIFYING = 4  #: enabling device held; the control process plays an excitation plan
+
+
+#: Lifecycle states in which the control process's commands may reach the robot.
+COMMANDING = (Lifecycle.TEACHING, Lifecycle.IDENTIFYING)
 
 
 def _finite(name: str, values: np.ndarray) -> np.ndarray:
@@ -315,7 +323,9 @@ class LifecycleMsg:
             raise MessageError(f"Lifecycle: bad or missing field: {exc!r}") from None
         if not np.isfinite(stamp):
             raise MessageError("Lifecycle: stamp_s is not finite")
-        return cls(state, seq, stamp, str(obj.get("reason", "")))
+        known = {"state", "seq", "stamp_s", "reason"}
+        extra = {k: v for k, v in obj.items() if k not in known}
+        return cls(state, seq, stamp, str(obj.get("reason", "")), extra)
 
 
 _STATES = [s.name.lower() for s in Lifecycle]

@@ -211,16 +211,34 @@ class Gateway:
             "q_rad": None if st is None else [round(float(v), 6) for v in st.q_rad],
         }
 
+    def _on_experiment(self, sample) -> None:
+        try:
+            msg = decode_json(sample.payload.to_bytes(), "experiment")
+            plan_id, state = str(msg["plan_id"]), str(msg["state"])
+        except (MessageError, KeyError) as exc:
+            log.warning("ignored experiment message: %s", exc)
+            return
+        if state in ("done", "failed"):
+            with self.lock:
+                self.machine.plan_finished(plan_id, state == "done", str(msg.get("reason", "")))
+
     def _on_request(self, query) -> None:
         now = time.monotonic()
         try:
             req = decode_json(query.payload.to_bytes() if query.payload else b"", "request")
             command = str(req.get("command", ""))
+            plan = req.get("plan")
+            if command == "identify" and not (isinstance(plan, dict) and plan.get("plan_id")):
+                raise MessageError("identify needs a 'plan' object with a 'plan_id'")
         except MessageError as exc:
             reply = {"ok": False, "message": str(exc)}
         else:
             with self.lock:
-                ok, message = self.machine.command(command, self.observations(now, self._dead))
+                obs = self.observations(now, self._dead)
+                if command == "identify":
+                    ok, message = self.machine.identify(plan, obs)
+                else:
+                    ok, message = self.machine.command(command, obs)
                 reply = {"ok": ok, "message": message, **self.status(now)}
             log.info("operator %s → %s: %s", command, "ok" if ok else "refused", message)
         query.reply(query.key_expr, encode_json(reply))
@@ -228,7 +246,8 @@ class Gateway:
     def _publish_lifecycle(self, now: float) -> None:
         m = self.machine
         if m.seq != self._last_seq or now - self._last_pub_s >= 1.0 / LIFECYCLE_RATE_HZ:
-            msg = LifecycleMsg(m.state, m.seq, now, m.reason)
+            extra = {"plan": m.plan} if m.state == Lifecycle.IDENTIFYING and m.plan else {}
+            msg = LifecycleMsg(m.state, m.seq, now, m.reason, extra)
             self.session.put(self.keys.lifecycle, msg.to_bytes())
             if m.seq != self._last_seq:
                 log.info("lifecycle → %s (%s)", m.state.name, m.reason)
@@ -244,6 +263,7 @@ class Gateway:
             s.declare_subscriber(self.keys.joint_state, self._on_state),
             s.declare_subscriber(self.keys.io_state, self._on_io),
             s.declare_subscriber(self.keys.health_all, self._on_health),
+            s.declare_subscriber(self.keys.experiment, self._on_experiment),
             s.declare_queryable(self.keys.request, self._on_request),
         ]
         if self.spawn:
@@ -319,13 +339,13 @@ def cli_main(args: argparse.Namespace) -> int:
     return 0
 
 
-def operator_request(bus: BusConfig, command: str, timeout_s: float = 3.0) -> dict:
-    """Send an operator command to the gateway and return its JSON reply."""
+def operator_request(bus: BusConfig, command: str, timeout_s: float = 3.0, **fields) -> dict:
+    """Send an operator command (plus ``fields``, e.g. ``plan``) and return the JSON reply."""
     from gateway.bus import open_client
 
     session = open_client(bus)
     try:
-        payload = json.dumps({"command": command}).encode()
+        payload = json.dumps({"command": command, **fields}).encode()
         for reply in session.get(bus.keys.request, payload=payload, timeout=timeout_s):
             if reply.ok is not None:
                 return decode_json(reply.ok.payload.to_bytes(), "gateway reply")

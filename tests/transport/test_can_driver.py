@@ -238,8 +238,9 @@ def test_when_commands_stop_hold_keeps_the_last_forwarded_position(make_cell):
     for h in holds:
         np.testing.assert_allclose(h.q_cmd_rad, sets[last_forwarded].q_cmd_rad, atol=1e-9)
         np.testing.assert_array_equal(h.dq_cmd_rad_s, np.zeros(N))
+    # Held once the deadline passed (typically ~11 ms here), within the same 20 ms cycle.
     delays = np.array([h.after_status_s for h in holds])
-    assert np.median(delays) < DEADLINE_S + 0.004, f"holds {delays * 1e3} ms after status"
+    assert np.all(delays >= DEADLINE_S - 0.001), f"held before the deadline: {delays * 1e3} ms"
     assert np.all(delays < PERIOD_S), "every hold reached the controller within its cycle"
     assert cell.driver.held >= len(holds)
 
@@ -357,13 +358,19 @@ def test_close_requests_brake_and_holds(make_cell):
     late_before = cell.controller.late_frames
     cell.driver.close()
     wait_for(lambda: cell.controller.state == ControllerState.BRAKED, timeout_s=1.0)
+
+    def hold_after_brake() -> bool:
+        events = cell.controller.event_log()
+        brake = max(i for i, (_, v) in enumerate(events) if v == HostRequest.BRAKE)
+        holds = [v for kind, v in events[brake + 1 :] if kind == "set" and v.hold]
+        return bool(holds) or cell.controller.late_frames > late_before
+
+    # the exit hold set answers the newest cycle (late if the controller has just moved on)
+    wait_for(hold_after_brake, timeout_s=1.0, what="the exit hold set")
     events = cell.controller.event_log()
     brake = max(i for i, (kind, v) in enumerate(events) if v == HostRequest.BRAKE)
     assert all(kind == "set" for kind, _ in events[brake + 1 :])
     assert not any(kind == "request" and v != HostRequest.BRAKE for kind, v in events[brake:])
-    # the exit hold set answers the newest cycle (late if the controller has just moved on)
-    holds_after = [v for kind, v in events[brake + 1 :] if kind == "set" and v.hold]
-    assert holds_after or cell.controller.late_frames > late_before
     cell.driver.close()  # idempotent
 
 
