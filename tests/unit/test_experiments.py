@@ -13,7 +13,6 @@ LOWER, UPPER = np.full(6, -1.0), np.full(6, 1.0)
 def test_reciprocating_stroke_is_constant_speed_with_parabolic_blends_and_dwell():
     seg = reciprocating(Q0, 1, 0.2, np.radians(4.0), DT, strokes=1)
     dq = seg.dq_rad_s[:, 1]
-    one_way = np.flatnonzero(np.abs(dq) > 1e-9)[0]
     plateau = dq[np.abs(dq) > 0.99 * np.radians(4.0)]
     assert plateau.size > 0.8 * 0.2 / np.radians(4.0) / DT  # 90 % of the path at speed
     np.testing.assert_allclose(np.abs(plateau), np.radians(4.0), rtol=0.02)
@@ -21,7 +20,7 @@ def test_reciprocating_stroke_is_constant_speed_with_parabolic_blends_and_dwell(
     np.testing.assert_allclose(seg.q_rad[[0, -1]], [Q0, Q0], atol=1e-9)
     others = np.delete(seg.q_rad, 1, axis=1)
     np.testing.assert_array_equal(others, np.tile(np.delete(Q0, 1), (len(seg.q_rad), 1)))
-    assert one_way == 1  # moves from the first sample on
+    assert abs(dq[0]) < 0.05 * np.radians(4.0) and abs(dq[-1]) < 0.05 * np.radians(4.0)
 
 
 def test_friction_runs_cover_every_joint_and_speed():
