@@ -30,6 +30,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "sim": ("sim_bridge.sim", "run the virtual robot cell (MuJoCo + virtual controller)"),
     "demo": ("sim_bridge.demo", "run the whole product on the virtual cell and report"),
     "bench": ("sim_bridge.bench", "measure wire-to-wire loop latency on the virtual cell"),
+    "identify": ("control.identify", "run identification experiments on the cell and fit"),
     "record": ("gateway.recorder", "record everything on the bus into an MCAP file"),
     "analyze": (
         "control.identification.cli",

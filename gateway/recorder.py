@@ -127,11 +127,11 @@ def export_csv(
     csv_path: Path,
     drive_gains_nm_per_a: list[float],
     keys: Keys | None = None,
-    t_range_s: tuple[float, float] | None = None,
+    cycle_range: tuple[int, int] | None = None,
 ) -> int:
     """Export joint states (+ latest pressures) to the measurement CSV; returns rows written.
 
-    ``t_range_s`` keeps only rows whose controller time (from the first cycle) lies in it.
+    ``cycle_range`` keeps only the controller cycles ``first..last`` (inclusive).
     Malformed messages are counted and skipped with a warning, never exported.
     """
     keys = keys or Keys()
@@ -151,10 +151,10 @@ def export_csv(
                     n = st.n
                 if st.n != n or st.cycle_period_s <= 0 or np.isnan(p).any():
                     continue
+                if cycle_range and not cycle_range[0] <= st.cycle <= cycle_range[1]:
+                    continue
                 cycle0 = st.cycle if cycle0 is None else cycle0
                 t = (st.cycle - cycle0) * st.cycle_period_s
-                if t_range_s and not t_range_s[0] <= t <= t_range_s[1]:
-                    continue
                 rows.append(np.concatenate([[t], st.q_rad, st.dq_rad_s, st.current_a, p]))
         except MessageError as exc:
             bad += 1
