@@ -4,8 +4,8 @@ Every control cycle the controller sends its joint feedback; the driver publishe
 JointState and answers the cycle exactly once, with either
 
 * the control process's JointCommand for that cycle, forwarded only if every check passes
-  (lifecycle TEACHING, enabling device held and e-stop chain closed, controller servoing, the
-  command fresh, for this very cycle, within the following-error and velocity limits), or
+  (lifecycle TEACHING or IDENTIFYING, enabling device held and e-stop chain closed, controller
+  servoing, the command fresh, for this very cycle, within the following-error and velocity limits), or
 * a hold set (hold=1, zero velocity) at a position latched when holding began: at once when
   forwarding is not allowed, otherwise when the cycle's answer deadline passes.
 
@@ -45,6 +45,7 @@ from gateway.bus import BusConfig, open_client
 from gateway.config import require
 from gateway.errors import ConfigError, FrameError, MessageError
 from gateway.messages import (
+    COMMANDING,
     HEALTH_RATE_HZ,
     ControllerState,
     IoState,
@@ -62,7 +63,7 @@ PROCESS_NAME = "can_driver"
 #: Why a JointCommand was not forwarded (the keys of the health message's "rejected").
 REJECT_REASONS = (
     "stale",  # older than deadline_s
-    "blocked_lifecycle",  # lifecycle not TEACHING, or silent
+    "blocked_lifecycle",  # lifecycle not TEACHING/IDENTIFYING, or silent
     "blocked_enabling",  # enabling device released, e-stop chain open, or I/O silent
     "blocked_controller",  # controller not servoing (BRAKED/FAULT) or its link is down
     "bad_message",  # undecodable payload, NaN, wrong joint count
@@ -409,6 +410,7 @@ class CanDriver:
                 fb.current_a,
                 q_cmd,
                 dq_cmd,
+                fb.cycle_period_s,
             )
             blocked = self._blocked_locked(now)
             if blocked is not None:
@@ -470,7 +472,7 @@ class CanDriver:
             lc.stamp_s, self._lifecycle_rx_s, now, self.config.lifecycle_timeout_s
         ):
             return HostRequest.BRAKE
-        if lc.state in (Lifecycle.READY, Lifecycle.TEACHING):
+        if lc.state in (Lifecycle.READY, *COMMANDING):
             return HostRequest.SERVO_ON
         return HostRequest.BRAKE
 
@@ -482,7 +484,7 @@ class CanDriver:
         lc = self._lifecycle
         if (
             lc is None
-            or lc.state != Lifecycle.TEACHING
+            or lc.state not in COMMANDING
             or not _fresh(lc.stamp_s, self._lifecycle_rx_s, now, self.config.lifecycle_timeout_s)
         ):
             return "blocked_lifecycle"
