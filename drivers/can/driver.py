@@ -5,7 +5,8 @@ JointState and answers the cycle exactly once, with either
 
 * the control process's JointCommand for that cycle, forwarded only if every check passes
   (lifecycle TEACHING or IDENTIFYING, enabling device held and e-stop chain closed, controller
-  servoing, the command fresh, for this very cycle, within the following-error and velocity limits), or
+  servoing, the command fresh, for this very cycle, within the following-error and velocity
+  limits), or
 * a hold set (hold=1, zero velocity) at a position latched when holding began: at once when
   forwarding is not allowed, otherwise when the cycle's answer deadline passes.
 
