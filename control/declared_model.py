@@ -8,8 +8,9 @@ File format (TOML), versioned::
     [[friction]]                 # one table per joint, eq. (15) (control/model/friction.py)
     tau_s_nm = ...
 
-The rigid-body part is the description's inertial parameters (this issue); identification
-replaces it with fitted ones.
+The rigid-body part is the description's inertial parameters. A ``.json`` path instead loads
+a model identified by `leadthrough identify` / `analyze` (format version 2, base parameters,
+fitted friction and accepted effect terms): see :class:`IdentifiedControlModel`.
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ import numpy as np
 
 from control.model.cylinders import cylinder_torque_nm
 from control.model.dynamics import RigidBodyModel
-from control.model.friction import FrictionParams, friction_eq15
+from control.model.friction import Eq15Friction, FrictionParams
 from control.robot.description import RobotDescription, load_description
 from gateway.config import ConfigError, from_mapping, load_toml, require, resolve_path
 
@@ -47,10 +48,12 @@ class DeclaredModel:
         self.desc = desc
         self.n = len(desc.joints)
         self.rigid = RigidBodyModel.from_description(desc)
-        self.friction = friction
+        self.friction = Eq15Friction(friction)
 
     @classmethod
     def load(cls, path: str | Path) -> DeclaredModel:
+        if Path(path).suffix == ".json":
+            return IdentifiedControlModel(Path(path))
         raw = load_toml(path)
         where = str(path)
         if raw.get("format") != MODEL_FORMAT or raw.get("version") != MODEL_VERSION:
@@ -92,7 +95,36 @@ class DeclaredModel:
         return self.rigid.gravity_nm(q_rad)
 
     def friction_nm(self, q_rad: np.ndarray, dq_rad_s: np.ndarray) -> np.ndarray:
-        return np.asarray(friction_eq15(q_rad, dq_rad_s, self.friction))
+        return self.friction(q_rad, dq_rad_s)
 
     def cylinder_nm(self, q_rad: np.ndarray, p_bar: np.ndarray) -> np.ndarray:
         return np.asarray(cylinder_torque_nm(q_rad, p_bar, self.desc))
+
+
+class IdentifiedControlModel(DeclaredModel):
+    """An identified model (control/identification/fit.py) behind the DeclaredModel methods.
+
+    ``gravity_nm`` is everything that acts at rest (rigid-body gravity plus position effects
+    such as a spring or a ripple); ``friction_nm`` is everything that grows with velocity
+    (friction, velocity effects, and the small Coriolis/centrifugal torque). The cylinders
+    stay on the description's eqs. (10), (12): they were taken out before fitting.
+    """
+
+    def __init__(self, path: Path) -> None:
+        from control.identification.fit import IdentifiedModel
+
+        self.identified = IdentifiedModel.load(path)
+        self.desc = load_description()
+        self.n = len(self.desc.joints)
+        if self.identified.n != self.n:
+            raise ConfigError(f"{path}: model has {self.identified.n} joints, robot {self.n}")
+        self._zeros = np.zeros(self.n)
+
+    def gravity_nm(self, q_rad: np.ndarray) -> np.ndarray:
+        return self.identified.torque_nm(q_rad, self._zeros, self._zeros)
+
+    def friction_nm(self, q_rad: np.ndarray, dq_rad_s: np.ndarray) -> np.ndarray:
+        im = self.identified
+        return im.torque_nm(q_rad, dq_rad_s, self._zeros) - im.torque_nm(
+            q_rad, self._zeros, self._zeros
+        )

@@ -4,7 +4,7 @@
        ^                                 ^  <--enabling released---------     |
        |---------------- stop -----------+-----------------------------------+
     any --fault condition--> FAULT --reset [cause gone]--> STOPPED
-    READY --identify PLAN [enabling held, servo on]--> IDENTIFYING
+    READY|TEACHING --identify PLAN [enabling held, servo on]--> IDENTIFYING
     IDENTIFYING --plan done | enabling released--> READY
 
 STOPPED is the initial state and the state `stop` leads to from anywhere but FAULT. Every fault
@@ -122,7 +122,7 @@ class LifecycleMachine:
 
     def identify(self, plan: dict, obs: Observations) -> tuple[bool, str]:
         """Start an excitation plan (operator command `identify`)."""
-        if self.state != Lifecycle.READY:
+        if self.state not in (Lifecycle.READY, Lifecycle.TEACHING):
             return False, f"identify needs state ready, not {self.state.name.lower()}"
         if not obs.enabling:
             return False, "hold the enabling device: the robot will move by itself"

@@ -79,6 +79,7 @@ class Gateway:
         self.stop_event = threading.Event()
         self.spawn = spawn
         self.joint_state: JointState | None = None
+        self._joint_state_raw: tuple[bytes, float] | None = None
         self.joint_state_rx_s: float | None = None
         self.io: IoState | None = None
         self.io_rx_s: float | None = None
@@ -138,13 +139,22 @@ class Gateway:
 
     # --- bus ------------------------------------------------------------------------------
     def _on_state(self, sample) -> None:
+        # Arrives every controller cycle: keep the bytes; the 100 Hz tick decodes the latest.
+        raw = sample.payload.to_bytes()
+        with self.lock:
+            self._joint_state_raw = (raw, time.monotonic())
+
+    def _decode_latest_state(self) -> None:
+        """Decode the newest joint state (call with the lock held)."""
+        item, self._joint_state_raw = self._joint_state_raw, None
+        if item is None:
+            return
         try:
-            st = JointState.from_bytes(sample.payload.to_bytes())
+            st = JointState.from_bytes(item[0])
         except MessageError as exc:
             log.warning("ignored joint state: %s", exc)
             return
-        with self.lock:
-            self.joint_state, self.joint_state_rx_s = st, time.monotonic()
+        self.joint_state, self.joint_state_rx_s = st, item[1]
 
     def _on_io(self, sample) -> None:
         try:
@@ -234,6 +244,7 @@ class Gateway:
             reply = {"ok": False, "message": str(exc)}
         else:
             with self.lock:
+                self._decode_latest_state()
                 obs = self.observations(now, self._dead)
                 if command == "identify":
                     ok, message = self.machine.identify(plan, obs)
@@ -277,6 +288,7 @@ class Gateway:
             now = time.monotonic()
             dead = tuple(self._poll_children(now))
             with self.lock:
+                self._decode_latest_state()
                 self._dead = dead
                 before = self.machine.state
                 self.machine.update(self.observations(now, dead))

@@ -2,7 +2,9 @@
 
 They exist to test identification and residual analysis: each is configured per test in the
 simulator's private config (``[[effects]]``), never visible to ``control/``. Signs follow the
-plant's right-hand side: a returned torque *drives* the joint.
+plant's right-hand side: a returned torque *drives* the joint. An effect with ``after_s``
+appears only from that simulated time on, one with ``after_onset_s`` that long after teaching
+onset (the first cycle following a non-hold command): mounted between training and test.
 """
 
 from __future__ import annotations
@@ -57,6 +59,9 @@ class EffectSet:
         timestep_s: float,
     ) -> None:
         self.torque_effects: list[dict[str, Any]] = []
+        self.pending_payloads: list[tuple[dict[str, Any], int, float, np.ndarray]] = []
+        self._model = model
+        self.onset_s: float | None = None  #: set by the simulator at teaching onset
         self.delay_steps = 0
         n = len(desc.joints)
         for i, eff in enumerate(effects):
@@ -68,7 +73,10 @@ class EffectSet:
                 pos = model.site_pos[site] + np.asarray(eff.get("com_m", (0.0, 0.0, 0.0)))
                 mass = float(eff["mass_kg"])
                 require(mass > 0, where, "mass_kg must be > 0")
-                _add_point_mass(model, body, mass, pos)
+                if "after_s" in eff or "after_onset_s" in eff:
+                    self.pending_payloads.append((eff, body, mass, pos))
+                else:
+                    _add_point_mass(model, body, mass, pos)
             elif kind == "delay":
                 delay = float(eff["delay_s"])
                 require(0 < delay < 0.1, where, "delay_s must be in (0, 0.1)")
@@ -84,6 +92,8 @@ class EffectSet:
     def torque(self, plant: Plant, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
         tau = np.zeros(plant.n)
         for eff in self.torque_effects:
+            if not self._active(eff, plant.t_s):
+                continue  # not there yet (e.g. a hose clipped on after the training runs)
             j, kind = eff["_j"], eff["kind"]
             if kind == "spring":
                 tau[j] -= float(eff["k_nm_per_rad"]) * (q[j] - float(eff.get("q0_rad", 0.0)))
@@ -108,7 +118,16 @@ class EffectSet:
                 tau[j] -= float(eff["coefficient"]) * plant.tau_motor_nm[k]
         return tau
 
+    def _active(self, eff: dict[str, Any], t_s: float) -> bool:
+        if "after_onset_s" in eff:
+            return self.onset_s is not None and t_s - self.onset_s >= float(eff["after_onset_s"])
+        return t_s >= float(eff.get("after_s", 0.0))
+
     def advance(self, plant: Plant, dt: float) -> None:
+        for item in [p for p in self.pending_payloads if self._active(p[0], plant.t_s)]:
+            self.pending_payloads.remove(item)
+            _, body, mass, pos = item
+            _add_point_mass(self._model, body, mass, pos)  # the gun is mounted now
         if self.delay_steps:
             self._history.append(
                 (plant.data.qpos[: plant.n].copy(), plant.data.qvel[: plant.n].copy())

@@ -8,9 +8,14 @@ measures with its force sensor.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from sim_bridge.config import OperatorScript
+
+if TYPE_CHECKING:
+    from sim_bridge.plant import Plant
 
 
 class Operator:
@@ -41,7 +46,18 @@ class Operator:
         offset = np.array([np.interp(tau, self._t, self._xyz[:, k]) for k in range(3)])
         return self.origin_m + offset
 
-    def force_n(self, t_s: float, tool_m: np.ndarray, tool_vel_m_s: np.ndarray) -> np.ndarray:
+    def hand(self, plant: Plant) -> np.ndarray:
+        """Hand force on the tool now [N] (world frame); the plant calls it every step."""
+        t = plant.t_s
+        if self.onset_s is None or self.s.mode == "none" or not self.enabling(t):
+            return np.zeros(3)
+        if self.s.mode == "force":
+            return self.force_n(t, None, None)
+        return self.force_n(t, plant.tool_position_m(), plant.tool_velocity_m_s())
+
+    def force_n(
+        self, t_s: float, tool_m: np.ndarray | None, tool_vel_m_s: np.ndarray | None
+    ) -> np.ndarray:
         if self.onset_s is None or not self.enabling(t_s):
             return np.zeros(3)
         s = self.s
@@ -54,7 +70,7 @@ class Operator:
             return ramp * np.asarray(s.force_n, dtype=float)
         if s.mode == "path":
             target = self.target_m(t_s)
-            assert target is not None
+            assert target is not None and tool_m is not None and tool_vel_m_s is not None
             f = (
                 s.hand_stiffness_n_per_m * (target - tool_m)
                 - s.hand_damping_n_s_per_m * tool_vel_m_s

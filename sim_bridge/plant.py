@@ -12,11 +12,13 @@ the right side and the friction enter through ``qfrc_applied``; the hand force e
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import mujoco
 import numpy as np
 
 from control.model.cylinders import cylinder_torque_nm
-from control.model.friction import FrictionParams, friction_eq15
+from control.model.friction import Eq15Friction, FrictionParams
 from control.robot.description import RobotDescription
 from control.robot.mjcf import to_mjcf
 from sim_bridge.config import SimConfig
@@ -63,13 +65,15 @@ class Plant:
         self.i_max_a = np.array([j.max_current_a for j in desc.joints])
         self.kp = np.array(cfg.inner_loop.kp_a_s_per_rad)
         self.ki = np.array(cfg.inner_loop.ki_a_per_rad)
-        self.friction = friction_params(cfg, desc)
+        self.friction = Eq15Friction(friction_params(cfg, desc))
         self.rng = np.random.default_rng(cfg.seed)
         self.pressure_bar = np.array(cfg.cylinders.initial_bar, dtype=float)
         self.pressure_set_bar = self.pressure_bar.copy()
         self.current_a = np.zeros(self.n)
         self.brakes = True
         self.hand_force_n = np.zeros(3)
+        #: called each step with the plant, returns the hand force [N] (world frame)
+        self.hand: Callable[[Plant], np.ndarray] | None = None
         self.tau_motor_nm = np.zeros(self.n)
         mujoco.mj_forward(self.model, self.data)
 
@@ -106,8 +110,9 @@ class Plant:
         self.pressure_bar += alpha * (self.pressure_set_bar - self.pressure_bar)
         d = self.data
         if q_cmd_rad is None or dq_cmd_rad_s is None:
-            # Brakes engaged: joints locked, motor unpowered. Time still passes.
+            # Brakes engaged: joints locked, motor unpowered, the hand can't move it.
             self.brakes = True
+            self.hand_force_n = np.zeros(3)
             self.current_a[:] = 0.0
             self.tau_motor_nm[:] = 0.0
             d.qvel[:] = 0.0
@@ -120,9 +125,10 @@ class Plant:
         i_c = -self.kp * (dq - dq_cmd_rad_s) - self.ki * (q - q_cmd_rad)  # eq. (19)
         self.current_a = np.clip(i_c, -self.i_max_a, self.i_max_a)
         self.tau_motor_nm = self.k_nm_per_a * self.current_a
-        tau_f = friction_eq15(q, dq, self.friction)
+        tau_f = self.friction(q, dq)
         tau_cyl = cylinder_torque_nm(q, self.pressure_bar, self.desc)
         tau_eff = self.effects.torque(self, q, dq)
+        self.hand_force_n = self.hand(self) if self.hand is not None else np.zeros(3)
         d.qfrc_applied[: self.n] = self.tau_motor_nm - tau_f + tau_cyl + tau_eff
         d.xfrc_applied[:] = 0.0
         if np.any(self.hand_force_n):

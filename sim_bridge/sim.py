@@ -72,6 +72,7 @@ class VirtualCell:
         upper = np.array([j.upper_rad for j in self.desc.joints])
         self.ctrl = VirtualController(cfg.controller, self.proto, lower, upper)
         self.operator = Operator(cfg.operator)
+        self.plant.hand = self.operator.hand
         self.period_s = cfg.controller.cycle_period_s
         self.substeps = round(self.period_s / cfg.timestep_s)
         self.truth_log_path = truth_log
@@ -157,16 +158,13 @@ class VirtualCell:
         teaching = ctrl.state == ControllerState.EXTERNAL and not ctrl.ref_is_hold
         if teaching:
             op.mark_onset(plant.t_s, plant.tool_position_m())
+            if plant.effects.onset_s is None:
+                plant.effects.onset_s = plant.t_s
         for _ in range(self.substeps):
-            t = plant.t_s
             if ctrl.servo_on:
-                q_c, dq_c = ctrl.reference(t)
-                plant.hand_force_n = op.force_n(
-                    t, plant.tool_position_m(), plant.tool_velocity_m_s()
-                )
+                q_c, dq_c = ctrl.reference(plant.t_s)
                 plant.step(q_c, dq_c)
             else:
-                plant.hand_force_n = np.zeros(3)
                 plant.step(None, None)
         p_meas = plant.measured_pressure_bar()
         enabling = op.enabling(plant.t_s)

@@ -131,28 +131,45 @@ def _check_shapes(q: np.ndarray, dq: np.ndarray, n: int) -> None:
         raise ValueError(f"last axis must hold the {n} joints, got shape {q.shape}")
 
 
+class Eq15Friction:
+    """Eq. (15) with the per-joint parameters gathered into arrays once: the form to call at
+    servo rate (the simulator's inner loop, the control cycle)."""
+
+    def __init__(self, params_list: Sequence[FrictionParams]) -> None:
+        self.n = len(params_list)
+        p = _per_joint(params_list, (*EQ15_PARAM_NAMES, "q_e_rad_s", "gear_ratio"))
+        self._p = p
+        self._half_inv_qe = 1.0 / (2.0 * p["q_e_rad_s"])
+        self._inv_qe = 1.0 / p["q_e_rad_s"]
+        self._inv_r = 1.0 / p["gear_ratio"]
+
+    def __call__(self, q_rad: np.ndarray, dq_rad_s: np.ndarray) -> np.ndarray:
+        """Friction torque [N·m]; ``q``, ``dq`` of shape (n,) or (T, n)."""
+        q = np.asarray(q_rad, dtype=float)
+        dq = np.asarray(dq_rad_s, dtype=float)
+        _check_shapes(q, dq, self.n)
+        p = self._p
+        s = np.tanh(dq * self._half_inv_qe)  # smooth_sign
+        qr = q * self._inv_r
+        coulomb_like = (
+            p["tau_s_nm"] * np.exp(-np.abs(dq) * self._inv_qe)
+            + p["tau_c_nm"]
+            + p["f1_nm"] * np.sin(qr)
+            + p["f2_nm"] * np.cos(qr)
+            + p["f3_nm"] * np.sin(2.0 * qr)
+            + p["f4_nm"] * np.cos(2.0 * qr)
+            + p["f5_nm"] * np.sin(q)
+            + p["f6_nm"] * np.cos(q)
+        )
+        viscous = p["tau_v1_nm_s_per_rad"] * dq + p["tau_v2_nm_s2_per_rad2"] * dq * np.abs(dq)
+        return coulomb_like * s + viscous
+
+
 def friction_eq15(
     q_rad: np.ndarray, dq_rad_s: np.ndarray, params_list: Sequence[FrictionParams]
 ) -> np.ndarray:
     """Friction torque of eq. (15) [N·m], our reading; ``q``, ``dq`` of shape (n,) or (T, n)."""
-    q = np.asarray(q_rad, dtype=float)
-    dq = np.asarray(dq_rad_s, dtype=float)
-    _check_shapes(q, dq, len(params_list))
-    p = _per_joint(params_list, (*EQ15_PARAM_NAMES, "q_e_rad_s", "gear_ratio"))
-    s = smooth_sign(dq, p["q_e_rad_s"])
-    qr = q / p["gear_ratio"]
-    coulomb_like = (
-        p["tau_s_nm"] * np.exp(-np.abs(dq) / p["q_e_rad_s"])
-        + p["tau_c_nm"]
-        + p["f1_nm"] * np.sin(qr)
-        + p["f2_nm"] * np.cos(qr)
-        + p["f3_nm"] * np.sin(2.0 * qr)
-        + p["f4_nm"] * np.cos(2.0 * qr)
-        + p["f5_nm"] * np.sin(q)
-        + p["f6_nm"] * np.cos(q)
-    )
-    viscous = p["tau_v1_nm_s_per_rad"] * dq + p["tau_v2_nm_s2_per_rad2"] * dq * np.abs(dq)
-    return coulomb_like * s + viscous
+    return Eq15Friction(params_list)(q_rad, dq_rad_s)
 
 
 def eq15_basis(

@@ -16,9 +16,9 @@ it is a missed cycle (PROTOCOL.md §3), so with the default 10 ms deadline and a
 hold goes out 3 ms into the cycle. A command arriving after its cycle was answered is rejected
 as ``late_cycle``.
 
-Servo power is requested from the gateway's lifecycle (READY or TEACHING, and fresh: SERVO_ON;
-anything else, including silence: BRAKE), repeated with every host heartbeat. The default,
-the ``except`` path and the exit path all lead to BRAKE.
+Servo power is requested from the gateway's lifecycle (READY, TEACHING or IDENTIFYING, and
+fresh: SERVO_ON; anything else, including silence: BRAKE), repeated with every host heartbeat.
+The default, the ``except`` path and the exit path all lead to BRAKE.
 
 Threads: the main loop owns the CAN receive side and the adapter's cycle assembly; zenoh
 callbacks decode, check and send under one lock and never wait for anything but that lock.
@@ -29,6 +29,7 @@ from __future__ import annotations
 import argparse
 import logging
 import signal
+import socket
 import threading
 import time
 from collections.abc import Callable
@@ -44,7 +45,7 @@ from drivers.can.config import CanDriverConfig, load_can_config
 from drivers.registry import load_adapter
 from gateway.bus import BusConfig, open_client
 from gateway.config import require
-from gateway.errors import ConfigError, FrameError, MessageError
+from gateway.errors import ConfigError, FrameError, LinkTimeoutError, MessageError
 from gateway.messages import (
     COMMANDING,
     HEALTH_RATE_HZ,
@@ -79,6 +80,44 @@ _BRAKED = (ControllerState.BRAKED, ControllerState.FAULT)
 def _fresh(stamp_s: float, received_s: float, now_s: float, timeout_s: float) -> bool:
     """Both the sender's stamp and our receipt are recent (a future stamp never keeps it fresh)."""
     return (now_s - received_s) < timeout_s and -timeout_s < (now_s - stamp_s) < timeout_s
+
+
+class _DropPartialReadNotes(logging.Filter):
+    """python-can's socketcand client warns "Got incomplete message" whenever one TCP read ends
+    mid-frame (it then waits for the rest: nothing is lost). Under load that is every few
+    cycles; keep its other warnings (bad data, invalid frames)."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not str(record.msg).startswith("Got incomplete message")
+
+
+_SOCKETCAND_LOG = logging.getLogger("can.interfaces.socketcand.socketcand")
+
+
+def _quiet_socketcand_partial_reads() -> None:
+    if not any(isinstance(f, _DropPartialReadNotes) for f in _SOCKETCAND_LOG.filters):
+        _SOCKETCAND_LOG.addFilter(_DropPartialReadNotes())
+
+
+def _await_socketcand_server(transport: dict[str, Any], timeout_s: float) -> None:
+    """Wait until the socketcand server accepts TCP connections, or raise LinkTimeoutError.
+
+    python-can's client retries a refused connection in a tight loop for 10 s, logging each
+    attempt; checking first turns "the virtual controller is not up" into one clear error.
+    """
+    host, port = transport["host"], transport["port"]
+    deadline = time.monotonic() + timeout_s
+    while True:
+        try:
+            with socket.create_connection((host, port), timeout=0.5):
+                return
+        except OSError as exc:
+            if time.monotonic() >= deadline:
+                raise LinkTimeoutError(
+                    f"no socketcand server at {host}:{port} after {timeout_s:g} s ({exc}); "
+                    "is the virtual controller (leadthrough sim) running?"
+                ) from None
+            time.sleep(0.1)
 
 
 def _next_tick(previous_s: float, period_s: float, now_s: float) -> float:
@@ -142,6 +181,8 @@ class CanDriver:
     LOG_PERIOD_S = 1.0
     #: How long stop() waits for the loop thread [s].
     JOIN_TIMEOUT_S = 2.0
+    #: How long open() waits for a socketcand server to accept connections [s].
+    CONNECT_TIMEOUT_S = 5.0
 
     def __init__(
         self,
@@ -241,6 +282,9 @@ class CanDriver:
             return
         try:
             if self._bus is None:
+                if self.config.transport.get("interface") == "socketcand":
+                    _await_socketcand_server(self.config.transport, self.CONNECT_TIMEOUT_S)
+                    _quiet_socketcand_partial_reads()
                 self._bus = can.Bus(**self.config.transport)
             if self._session is None:
                 self._session = open_client(self.bus_config)
@@ -602,7 +646,8 @@ class CanDriver:
         try:
             msg = LifecycleMsg.from_bytes(sample.payload.to_bytes())
         except MessageError as exc:
-            self.bad_inputs += 1
+            with self._lock:
+                self.bad_inputs += 1
             self._rlog(logging.WARNING, "lifecycle", "bad lifecycle message: %s", exc)
             return
         with self._lock:
@@ -620,7 +665,8 @@ class CanDriver:
         try:
             msg = IoState.from_bytes(sample.payload.to_bytes())
         except MessageError as exc:
-            self.bad_inputs += 1
+            with self._lock:
+                self.bad_inputs += 1
             self._rlog(logging.WARNING, "io", "bad IoState message: %s", exc)
             return
         with self._lock:
@@ -676,12 +722,12 @@ def run(
     """
     can_cfg, bus_cfg = load_can_config(cell_config_path)
     bus_cfg = bus_cfg.with_overrides(bus_endpoint)
+    driver = CanDriver(can_cfg, bus_cfg)
     stop = stop_event or threading.Event()
     previous: dict[int, Any] = {}
     if threading.current_thread() is threading.main_thread():
         for signum in (signal.SIGTERM, signal.SIGINT):
             previous[signum] = signal.signal(signum, lambda *_: stop.set())
-    driver = CanDriver(can_cfg, bus_cfg)
     try:
         driver.start()
         while not stop.wait(0.1):
@@ -701,7 +747,8 @@ def configure_parser(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
     p.description = (
         "Bridge the robot controller's CAN link to the zenoh bus. Publishes the joint state of "
         "every controller cycle; forwards the control process's joint commands only while the "
-        "cell is TEACHING with the enabling device held; otherwise tells the controller to hold "
+        "cell is TEACHING (or IDENTIFYING) with the enabling device held; otherwise tells the "
+        "controller to hold "
         "still, and to brake whenever the gateway is silent or stopped. Stop it with Ctrl-C or "
         "SIGTERM: it asks the controller to brake before it exits."
     )

@@ -28,6 +28,7 @@ from drivers.can.config import CanDriverConfig
 from drivers.can.driver import CanDriver, cli_main, configure_parser, run
 from drivers.can.ltc import FaultCode, HostRequest, crc8_sae_j1850
 from gateway.bus import BusConfig, open_client, open_router
+from gateway.errors import LinkTimeoutError
 from gateway.messages import ControllerState, JointCommand, JointState, Lifecycle
 from sim_bridge.can_endpoint import SocketcandServerBus
 
@@ -455,3 +456,11 @@ port = {cell.server.port}
             proc.wait()
     assert proc.returncode == 0, out.decode(errors="replace")
     wait_for(lambda: cell.controller.request_log()[-1] == HostRequest.BRAKE, timeout_s=1.0)
+
+
+def test_no_socketcand_server_is_one_clear_link_error(router):
+    driver = CanDriver(driver_config(free_port()), BusConfig(endpoint=router, key_prefix="tx"))
+    driver.CONNECT_TIMEOUT_S = 0.3
+    with pytest.raises(LinkTimeoutError, match=r"no socketcand server at 127\.0\.0\.1"):
+        driver.start()
+    driver.close()
