@@ -23,7 +23,7 @@ from control.config import ControlConfig
 from control.declared_model import DeclaredModel
 from control.experiments import build_plan
 from control.outer_loop import OuterLoop
-from gateway.bus import BusConfig, open_client
+from gateway.bus import BusConfig, open_peer
 from gateway.config import from_mapping, load_toml, resolve_path
 from gateway.errors import MessageError
 from gateway.messages import (
@@ -189,7 +189,7 @@ class ControlProcess:
         self._pub_cmd = None
 
     def open(self) -> None:
-        self.session = open_client(self.bus)
+        self.session = open_peer(self.bus)
         s = self.session
         self._pub_cmd = s.declare_publisher(self.keys.joint_command)
         self._subs = [

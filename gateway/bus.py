@@ -1,7 +1,10 @@
-"""The zenoh bus: one router (hosted by the gateway) and client sessions for every process.
+"""The zenoh bus: one router (hosted by the gateway); the drivers and the control process
+join as peers, short-lived tools (operator commands, the recorder) as clients.
 
-Scouting is off (multicast and gossip): every session names its endpoint explicitly, so a
-test on a free loopback port never meets a stray zenoh peer on 7447.
+Multicast scouting is off: every session names the router's endpoint explicitly, so a test on
+a free loopback port never meets a stray zenoh peer on 7447. Peers learn each other through
+the router (gossip) and then talk directly, which saves the router hop on the control loop's
+two zenoh legs (measured here: 268 → 181 µs one-way p50).
 """
 
 from __future__ import annotations
@@ -29,6 +32,8 @@ class BusConfig:
     endpoint: str = "tcp/127.0.0.1:7460"
     #: Prefix of every key expression (lets two cells share one network).
     key_prefix: str = "lt"
+    #: Where each peer process listens for the others (port 0: any free port).
+    peer_listen: str = "tcp/127.0.0.1:0"
 
     def __post_init__(self) -> None:
         require(
@@ -45,14 +50,14 @@ class BusConfig:
     def with_overrides(self, endpoint: str | None = None) -> BusConfig:
         """Apply the documented precedence: explicit argument, then environment, then file."""
         chosen = endpoint or os.environ.get(ENDPOINT_ENV) or self.endpoint
-        return BusConfig(endpoint=chosen, key_prefix=self.key_prefix)
+        return BusConfig(chosen, self.key_prefix, self.peer_listen)
 
 
 def _zenoh_config(mode: str, listen: list[str], connect: list[str]) -> zenoh.Config:
     cfg = zenoh.Config()
     cfg.insert_json5("mode", json.dumps(mode))
     cfg.insert_json5("scouting/multicast/enabled", "false")
-    cfg.insert_json5("scouting/gossip/enabled", "false")
+    cfg.insert_json5("scouting/gossip/enabled", json.dumps(mode != "client"))
     cfg.insert_json5("listen/endpoints", json.dumps(listen))
     cfg.insert_json5("connect/endpoints", json.dumps(connect))
     if connect:
@@ -68,5 +73,10 @@ def open_router(bus: BusConfig) -> zenoh.Session:
 
 
 def open_client(bus: BusConfig) -> zenoh.Session:
-    """Open a client session connected to the router at ``bus.endpoint``."""
+    """Open a client session connected to the router at ``bus.endpoint`` (short-lived tools)."""
     return zenoh.open(_zenoh_config("client", [], [bus.endpoint]))
+
+
+def open_peer(bus: BusConfig) -> zenoh.Session:
+    """Open a peer session: connects to the router, then directly to the other peers."""
+    return zenoh.open(_zenoh_config("peer", [bus.peer_listen], [bus.endpoint]))

@@ -92,7 +92,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
-    sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
+    # sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
     # Build only the parser needed: importing every subcommand would load MuJoCo for `status`.
     parser = build_parser() if not argv or argv[0] not in SUBCOMMANDS else _single(argv[0])
     args = parser.parse_args(argv)

@@ -31,12 +31,17 @@ class Observations:
     estop_ok: bool
     dead_processes: tuple[str, ...] = ()
     stale_processes: tuple[str, ...] = ()
+    max_speed_rad_s: float | None = None  #: fastest joint in the latest joint state
 
 
 @dataclass(frozen=True)
 class Limits:
     joint_state_timeout_s: float = 0.1
     io_timeout_s: float = 0.25
+    #: teaching (and identification) start only from standstill: after servo-on the arm first
+    #: settles onto the vendor loop's position error, and a weightless arm would keep any
+    #: velocity it has at takeover [rad/s]
+    standstill_rad_s: float = 0.002
 
 
 @dataclass
@@ -83,7 +88,7 @@ class LifecycleMachine:
                     self._go(Lifecycle.READY, "identification aborted: enabling device released")
                 return self.state
             servo_on = obs.controller_state in (ControllerState.HOLD, ControllerState.EXTERNAL)
-            if self.state == Lifecycle.READY and obs.enabling and servo_on:
+            if self.state == Lifecycle.READY and obs.enabling and servo_on and self._still(obs):
                 self._go(Lifecycle.TEACHING, "enabling device held")
             elif self.state == Lifecycle.TEACHING and not obs.enabling:
                 self._go(Lifecycle.READY, "enabling device released")
@@ -120,6 +125,10 @@ class LifecycleMachine:
             return True, self.reason
         return False, f"unknown command {name!r}; use start, stop, status or reset"
 
+    def _still(self, obs: Observations) -> bool:
+        speed = obs.max_speed_rad_s
+        return speed is not None and speed <= self.limits.standstill_rad_s
+
     def identify(self, plan: dict, obs: Observations) -> tuple[bool, str]:
         """Start an excitation plan (operator command `identify`)."""
         if self.state not in (Lifecycle.READY, Lifecycle.TEACHING):
@@ -128,6 +137,8 @@ class LifecycleMachine:
             return False, "hold the enabling device: the robot will move by itself"
         if obs.controller_state not in (ControllerState.HOLD, ControllerState.EXTERNAL):
             return False, "robot controller is not servo-on yet"
+        if self.state == Lifecycle.READY and not self._still(obs):
+            return False, "the robot is still settling after servo-on; try again"
         self.plan = plan
         self._go(Lifecycle.IDENTIFYING, f"running excitation plan {plan.get('plan_id')}")
         return True, self.reason

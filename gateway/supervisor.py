@@ -49,6 +49,7 @@ class GatewayConfig:
 
     joint_state_timeout_s: float = 0.1
     io_timeout_s: float = 0.25
+    standstill_rad_s: float = 0.002  #: teaching starts only below this joint speed [rad/s]
     health_timeout_s: float = 0.5  #: a child whose heartbeat is older is "silent"
     restart_backoff_s: float = 2.0
     processes: tuple[str, ...] = SUPERVISED
@@ -74,7 +75,9 @@ class Gateway:
         self.bus = bus
         self.keys = bus.keys
         self.cfg = cfg
-        self.machine = LifecycleMachine(Limits(cfg.joint_state_timeout_s, cfg.io_timeout_s))
+        self.machine = LifecycleMachine(
+            Limits(cfg.joint_state_timeout_s, cfg.io_timeout_s, cfg.standstill_rad_s)
+        )
         self.lock = threading.Lock()
         self.stop_event = threading.Event()
         self.spawn = spawn
@@ -194,6 +197,7 @@ class Gateway:
             estop_ok=bool(io.estop_ok) if io else True,
             dead_processes=dead,
             stale_processes=tuple(stale),
+            max_speed_rad_s=None if st is None else float(abs(st.dq_rad_s).max()),
         )
 
     def status(self, now: float) -> dict:

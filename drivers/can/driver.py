@@ -43,7 +43,7 @@ import numpy as np
 from drivers.can.adapter import ADAPTER_GROUP, CanAdapter, CycleFeedback, HostRequest
 from drivers.can.config import CanDriverConfig, load_can_config
 from drivers.registry import load_adapter
-from gateway.bus import BusConfig, open_client
+from gateway.bus import BusConfig, open_peer
 from gateway.config import require
 from gateway.errors import ConfigError, FrameError, LinkTimeoutError, MessageError
 from gateway.messages import (
@@ -287,7 +287,7 @@ class CanDriver:
                     _quiet_socketcand_partial_reads()
                 self._bus = can.Bus(**self.config.transport)
             if self._session is None:
-                self._session = open_client(self.bus_config)
+                self._session = open_peer(self.bus_config)
             session, keys = self._session, self.keys
             self._publisher = session.declare_publisher(keys.joint_state, express=True)
             self._subscribers = [

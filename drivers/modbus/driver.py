@@ -50,7 +50,7 @@ import zenoh
 from drivers.modbus.adapter import PressureIoAdapter, create_adapter
 from drivers.modbus.client import ModbusLinkError
 from drivers.modbus.config import ModbusDriverConfig
-from gateway.bus import BusConfig, open_client
+from gateway.bus import BusConfig, open_peer
 from gateway.config import from_mapping, load_toml
 from gateway.errors import ConfigError, MessageError, ModbusReplyError
 from gateway.messages import HEALTH_RATE_HZ, IoState, Keys, PressureSetpoint, encode_json
@@ -443,7 +443,7 @@ def cli_main(args: argparse.Namespace) -> int:
     session: zenoh.Session | None = None
     driver: ModbusDriver | None = None
     try:
-        session = open_client(bus)
+        session = open_peer(bus)
         driver = ModbusDriver(config, session, bus.keys, adapter=adapter)
         driver.start()
         log.info(

@@ -49,10 +49,16 @@ def test_build_plan_concatenates_segments_with_roles():
         "friction": {"joints": [2], "amplitude_rad": 0.1, "speeds_deg_s": [4.0]},
         "multisine": [
             {"seed": 1, "duration_s": 4, "amplitude_rad": 0.05, "base_hz": 0.5, "harmonics": 3},
-            {"seed": 2, "duration_s": 4, "amplitude_rad": 0.05, "base_hz": 0.5, "harmonics": 3,
-             "role": "test"},
+            {
+                "seed": 2,
+                "duration_s": 4,
+                "amplitude_rad": 0.05,
+                "base_hz": 0.5,
+                "harmonics": 3,
+                "role": "test",
+            },
         ],
-    }  # fmt: skip
+    }
     parts = build_plan(plan, Q0, LOWER, UPPER, DT, 0.05)
     assert [(label, role) for label, role, _, _ in parts] == [
         ("friction/j2/4.0dps", "train"),
@@ -72,7 +78,7 @@ def test_build_plan_concatenates_segments_with_roles():
                 "friction": {"joints": [7], "amplitude_rad": 0.1, "speeds_deg_s": [1]},
             },
             "1..6",
-        ),  # fmt: skip
+        ),
         ({"plan_id": "x", "gravity": {"joints": [2]}}, "missing"),
         (
             {
@@ -80,7 +86,7 @@ def test_build_plan_concatenates_segments_with_roles():
                 "friction": {"joints": [2], "amplitude_rad": 0.95, "speeds_deg_s": [8]},
             },
             "outside its range",
-        ),  # fmt: skip
+        ),
     ],
 )
 def test_bad_plans_are_refused_with_a_reason(plan, match):

@@ -9,6 +9,7 @@ def healthy(**kw) -> Observations:
         controller_state=ControllerState.HOLD,
         enabling=False,
         estop_ok=True,
+        max_speed_rad_s=0.0,
     )
     return Observations(**{**base, **kw})
 
@@ -88,3 +89,26 @@ def test_seq_increments_on_every_change():
     assert m.seq == s0 + 1
     m.update(healthy())
     assert m.seq == s0 + 1
+
+
+def test_teaching_waits_for_standstill_after_servo_on():
+    m = LifecycleMachine()
+    m.command("start", healthy())
+    assert m.update(healthy(enabling=True, max_speed_rad_s=0.01)) == Lifecycle.READY
+    assert m.update(healthy(enabling=True, max_speed_rad_s=None)) == Lifecycle.READY
+    assert m.update(healthy(enabling=True, max_speed_rad_s=0.001)) == Lifecycle.TEACHING
+
+
+def test_identify_needs_enabling_and_ends_back_in_ready():
+    m = LifecycleMachine()
+    m.command("start", healthy())
+    ok, msg = m.identify({"plan_id": "p"}, healthy())
+    assert not ok and "enabling" in msg
+    ok, _ = m.identify({"plan_id": "p"}, healthy(enabling=True))
+    assert ok and m.state == Lifecycle.IDENTIFYING
+    m.plan_finished("other", True, "")
+    assert m.state == Lifecycle.IDENTIFYING
+    m.plan_finished("p", True, "")
+    assert m.state == Lifecycle.READY
+    m.identify({"plan_id": "q"}, healthy(enabling=True))
+    assert m.update(healthy(enabling=False)) == Lifecycle.READY
