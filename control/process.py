@@ -23,7 +23,7 @@ from control.config import ControlConfig
 from control.declared_model import DeclaredModel
 from control.experiments import build_plan
 from control.outer_loop import OuterLoop
-from gateway.bus import BusConfig, open_peer
+from gateway.bus import BusConfig, declare_loop_publisher, open_peer
 from gateway.config import from_mapping, load_toml, resolve_path
 from gateway.errors import MessageError
 from gateway.messages import (
@@ -191,7 +191,7 @@ class ControlProcess:
     def open(self) -> None:
         self.session = open_peer(self.bus)
         s = self.session
-        self._pub_cmd = s.declare_publisher(self.keys.joint_command)
+        self._pub_cmd = declare_loop_publisher(s, self.keys.joint_command)
         self._subs = [
             s.declare_subscriber(self.keys.joint_state, self._on_state),
             s.declare_subscriber(self.keys.io_state, self._on_io),

@@ -80,3 +80,15 @@ def open_client(bus: BusConfig) -> zenoh.Session:
 def open_peer(bus: BusConfig) -> zenoh.Session:
     """Open a peer session: connects to the router, then directly to the other peers."""
     return zenoh.open(_zenoh_config("peer", [bus.peer_listen], [bus.endpoint]))
+
+
+def declare_loop_publisher(session: zenoh.Session, key: str):
+    """Publisher for the control loop's data: never blocks (a dead or slow peer must not stall
+    the loop: the message is dropped and the receiver's deadline handles it), sent at once
+    (no batching), at real-time priority."""
+    return session.declare_publisher(
+        key,
+        congestion_control=zenoh.CongestionControl.DROP,
+        priority=zenoh.Priority.REAL_TIME,
+        express=True,
+    )

@@ -43,7 +43,7 @@ import numpy as np
 from drivers.can.adapter import ADAPTER_GROUP, CanAdapter, CycleFeedback, HostRequest
 from drivers.can.config import CanDriverConfig, load_can_config
 from drivers.registry import load_adapter
-from gateway.bus import BusConfig, open_peer
+from gateway.bus import BusConfig, declare_loop_publisher, open_peer
 from gateway.config import require
 from gateway.errors import ConfigError, FrameError, LinkTimeoutError, MessageError
 from gateway.messages import (
@@ -252,6 +252,9 @@ class CanDriver:
         self._last_sent_q: np.ndarray | None = None
         self._last_sent_dq: np.ndarray | None = None
         self._last_forwarded_q: np.ndarray | None = None  #: since servo-on
+        #: (state stamp, cycle, q_cmd, dq_cmd, period) of the last forwarded command: coasting
+        self._last_forward: tuple[float, int, np.ndarray, np.ndarray, float] | None = None
+        self.coasted = 0  #: late cycles answered by coasting on the last command
         self._hold_q: np.ndarray | None = None
         self._holding = False
         # counters
@@ -289,7 +292,7 @@ class CanDriver:
             if self._session is None:
                 self._session = open_peer(self.bus_config)
             session, keys = self._session, self.keys
-            self._publisher = session.declare_publisher(keys.joint_state, express=True)
+            self._publisher = declare_loop_publisher(session, keys.joint_state)
             self._subscribers = [
                 session.declare_subscriber(keys.lifecycle, self._on_lifecycle),
                 session.declare_subscriber(keys.io_state, self._on_io_state),
@@ -437,6 +440,7 @@ class CanDriver:
             if fb.controller_state in _BRAKED:
                 # On its brakes the arm is where it is: the next hold starts from there.
                 self._holding, self._last_forwarded_q = False, None
+                self._last_forward = None
             budget_s = self.config.deadline_s
             if fb.cycle_period_s > 0:
                 budget_s = min(budget_s, self.ANSWER_BY_PERIOD_FRACTION * fb.cycle_period_s)
@@ -473,7 +477,8 @@ class CanDriver:
             if self._closing:
                 return
             pending = self._pending
-            if pending is not None and not pending.answered and now >= pending.answer_by_s:
+            late = pending is not None and not pending.answered and now >= pending.answer_by_s
+            if late and not self._send_coast_locked(pending, now):
                 self._send_hold_locked(pending)
             desired = self._desired_request(now)
             heartbeat_due = now >= self._next_heartbeat_s
@@ -487,6 +492,7 @@ class CanDriver:
                 if desired == HostRequest.SERVO_ON and self._request_sent != desired:
                     # A new servo-on period: nothing forwarded in it yet.
                     self._holding, self._last_forwarded_q = False, None
+                    self._last_forward = None
                 if desired != self._request_sent:
                     log.info("requesting %s from the controller", desired.name)
                 frames.append(self.adapter.request_frame(desired))
@@ -589,6 +595,26 @@ class CanDriver:
         assert self._hold_q is not None
         return self.adapter.command_frames(pending.counter, self._hold_q, self._zeros, True)
 
+    def _send_coast_locked(self, pending: _Cycle, now: float) -> bool:
+        """Answer a cycle whose command is late with the last forwarded command, moved on by its
+        own velocity (what the controller's interpolation does within a cycle), as long as that
+        command is not older than ``deadline_s``; True if sent. One late answer then costs
+        nothing, where a hold would jerk the operator's arm."""
+        last = self._last_forward
+        if last is None or self._holding or now - last[0] > self.config.deadline_s:
+            return False
+        _stamp, cycle, q, dq, period = last
+        q_coast = q + dq * (pending.cycle - cycle) * period
+        try:
+            frames = self.adapter.command_frames(pending.counter, q_coast, dq, False)
+        except FrameError:
+            return False
+        if self._send_locked(frames):
+            pending.answered = True
+            self.coasted += 1
+            self._last_sent_q, self._last_sent_dq = q_coast, dq
+        return True
+
     def _send_hold_locked(self, pending: _Cycle) -> None:
         try:
             frames = self._hold_frames_locked(pending)
@@ -630,6 +656,7 @@ class CanDriver:
             "cycles": self.cycles,
             "forwarded": self.forwarded,
             "held": self.held,
+            "coasted": self.coasted,
             "unanswered": self.unanswered,
             "rejected": dict(self.rejected),
             "bad_frames": stats.bad_frames,
@@ -706,6 +733,14 @@ class CanDriver:
                 self.forwarded += 1
                 self._last_sent_q, self._last_sent_dq = cmd.q_cmd_rad, cmd.dq_cmd_rad_s
                 self._last_forwarded_q = cmd.q_cmd_rad
+                period = self._feedback.cycle_period_s if self._feedback is not None else 0.0
+                self._last_forward = (
+                    min(cmd.state_stamp_s, pending.stamp_s),
+                    pending.cycle,
+                    cmd.q_cmd_rad,
+                    cmd.dq_cmd_rad_s,
+                    period,
+                )
                 self._holding = False
 
 
