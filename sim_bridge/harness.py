@@ -26,6 +26,7 @@ import tomli_w
 from gateway.bus import BusConfig
 from gateway.config import load_toml
 from gateway.supervisor import operator_request
+from sim_bridge.sim import truth_log_columns
 
 REPO = Path(__file__).resolve().parent.parent
 SIM_CELL = REPO / "deploy" / "config" / "sim_cell.toml"
@@ -187,6 +188,8 @@ class Stack:
         """The simulator's per-cycle truth log as columns."""
         with self.truth_log.open() as fh:
             rows = list(csv.reader(fh))
+        if not rows:
+            return {name: np.zeros(0) for name in truth_log_columns(6)}
         header, body = rows[0], rows[1:]
         if body and len(body[-1]) != len(header):
             body = body[:-1]  # last line may be cut if read while the simulator writes

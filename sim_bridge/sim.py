@@ -44,6 +44,8 @@ HEARTBEAT_PERIOD_S = 0.1
 Q_FB_LIMIT_RAD = 8.388607
 DQ_FB_LIMIT_RAD_S = 3.2767
 I_FB_LIMIT_A = 327.67
+#: the truth log is flushed every this many cycles
+LOG_FLUSH_CYCLES = 25
 #: after an overrun the next cycle still leaves the host at least this long to answer [s]
 MIN_ANSWER_WINDOW_S = 0.5e-3
 
@@ -198,6 +200,8 @@ class VirtualCell:
             ]
             row += [*q_m, *dq_m, *i_m, *tool, *plant.hand_force_n, *p_meas, latency]
             self._log.write(",".join(f"{v:.9g}" for v in row) + "\n")
+            if ctrl.cycle % LOG_FLUSH_CYCLES == 0:
+                self._log.flush()  # readers (demo, tests) follow the run as it happens
 
     def run(self, duration_s: float | None = None) -> None:
         """Run cycles until ``duration_s`` of simulated time or :meth:`stop`."""

@@ -170,7 +170,7 @@ class CanDriver:
     """
 
     #: An unanswered cycle gets its hold set at this fraction of the controller's period [1].
-    ANSWER_BY_PERIOD_FRACTION = 0.75
+    ANSWER_BY_PERIOD_FRACTION = 0.5
     #: Longest wait in bus.recv before the loop checks deadlines and heartbeats [s].
     RECV_TIMEOUT_S = 0.001
     #: Longest a CAN send may block (socketcan tx queue full) [s].

@@ -205,7 +205,7 @@ def teaching(make_rig: Any, **overrides: Any) -> Rig:
 
 
 # --- answering every cycle ------------------------------------------------------------------
-@pytest.mark.parametrize(("period_us", "answer_by_s"), [(20000, 0.010), (4000, 0.003)])
+@pytest.mark.parametrize(("period_us", "answer_by_s"), [(20000, 0.010), (4000, 0.002)])
 def test_unanswered_cycle_is_held_at_the_deadline_or_before_the_next_cycle(
     make_rig, period_us, answer_by_s
 ):
