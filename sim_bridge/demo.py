@@ -22,14 +22,16 @@ from sim_bridge.harness import Stack
 DEMO_PATH = [
     [0.0, 0.0, 0.0, 0.0],
     [1.0, 0.0, 0.0, 0.0],
-    [4.0, 0.30, 0.0, 0.0],
-    [5.0, 0.30, 0.0, 0.0],
-    [7.0, 0.30, 0.0, -0.20],
-    [8.0, 0.30, 0.0, -0.20],
-    [11.0, 0.0, 0.0, -0.20],
-    [12.0, 0.0, 0.0, -0.20],
+    [6.0, 0.30, 0.0, 0.0],
+    [7.0, 0.30, 0.0, 0.0],
+    [10.5, 0.30, 0.0, -0.20],
+    [11.5, 0.30, 0.0, -0.20],
+    [16.5, 0.0, 0.0, -0.20],
+    [17.5, 0.0, 0.0, -0.20],
 ]
-RELEASE_AFTER_S = 12.5
+RELEASE_AFTER_S = 18.0
+#: the operator's arm: stiff enough to steer a heavy arm along a line, like a painter's grip
+HAND = {"hand_stiffness_n_per_m": 1500.0, "hand_damping_n_s_per_m": 300.0, "max_force_n": 80.0}
 
 
 def teaching_metrics(truth: dict[str, np.ndarray], summary: dict[str, Any]) -> dict[str, Any]:
@@ -105,13 +107,14 @@ def cli_main(args: argparse.Namespace) -> int:
         "release_after_s": RELEASE_AFTER_S,
         "mode": "path",
         "path": DEMO_PATH,
+        **HAND,
     }
     t0 = time.monotonic()
     print("starting the virtual cell, the drivers, the control process and the gateway ...")
     with Stack(out / "run", sim_overrides={"operator": operator}) as stack:
         stack.start()
         stack.start_teaching()
-        print("teaching: the simulated operator guides the tool (about 13 s) ...")
+        print(f"teaching: the simulated operator guides the tool ({RELEASE_AFTER_S:.0f} s) ...")
         stack.wait_status(lambda s: s.get("state") == "ready", RELEASE_AFTER_S + 20.0, "release")
         stack.request("stop")
     truth = stack.truth()

@@ -16,6 +16,12 @@ every other column is ``Y[:, dep] = Y_b K``, so
     τ = Y θ = Y_b β   with   β = θ[indep] + K θ[dep]
 
 and each base parameter is a documented combination (:meth:`BaseParameters.definitions`).
+
+Geared drives add the rotor inertia reflected through the gear, ``I_a = J_rotor R²``, to each
+joint: ``τ_j += I_a,j ddq_j`` (for a big gearbox it rivals the link inertia: 11.7 kg·m² on the
+GR630ST's joint 2). The URDF cannot say it, so θ carries one more parameter per joint,
+``<joint>.armature``, whose column is ``ddq_j`` in row j; the QR regroups it where it is not
+separable (joint 1's armature adds to link 1's Izz).
 """
 
 from __future__ import annotations
@@ -141,7 +147,7 @@ class RobotRegressor:
         self.link_names = tuple(_body_names(self.model))
         self.parameter_names = tuple(
             f"{link}.{p}" for link in self.link_names for p in LINK_PARAMETER_NAMES
-        )
+        ) + tuple(f"{joint}.armature" for joint in self.joint_names)
         lower = np.asarray(self.model.lowerPositionLimit, dtype=float)
         upper = np.asarray(self.model.upperPositionLimit, dtype=float)
         bad = ~np.isfinite(lower) | ~np.isfinite(upper) | (upper <= lower)
@@ -166,8 +172,10 @@ class RobotRegressor:
         return cls(xml, gravity_m_s2)
 
     def regressor(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> np.ndarray:
-        """Full joint-torque regressor Y of one sample, shape (n, 10 n)."""
-        return pin.computeJointTorqueRegressor(self.model, self.data, q, dq, ddq).copy()
+        """Full joint-torque regressor Y of one sample, shape (n, 11 n): ten link columns per
+        link, then one armature column per joint."""
+        y = pin.computeJointTorqueRegressor(self.model, self.data, q, dq, ddq)
+        return np.hstack([y, np.diag(np.asarray(ddq, dtype=float))])
 
     def regressor_columns(
         self,
@@ -187,9 +195,16 @@ class RobotRegressor:
         cols = np.asarray(columns, dtype=int)
         out = np.empty((self.n, q.shape[0], cols.size))
         model, data, fn = self.model, self.data, pin.computeJointTorqueRegressor
+        link_cols = cols[cols < 10 * self.n]
+        arm_pos = np.flatnonzero(cols >= 10 * self.n)  # positions in ``cols`` of armatures
+        arm_joint = cols[arm_pos] - 10 * self.n
+        link_pos = np.flatnonzero(cols < 10 * self.n)
+        out[:, :, arm_pos] = 0.0
+        for j_col, j in zip(arm_pos, arm_joint, strict=True):
+            out[j, :, j_col] = ddq[:, j]
         step = max(1, q.shape[0] // 10)
         for k in range(q.shape[0]):
-            out[:, k, :] = fn(model, data, q[k], dq[k], ddq[k])[:, cols]
+            out[:, k, link_pos] = fn(model, data, q[k], dq[k], ddq[k])[:, link_cols]
             if progress is not None and k and k % step == 0 and q.shape[0] > 50_000:
                 progress(f"regressor {100 * k // q.shape[0]} %")
         return out
@@ -208,10 +223,10 @@ class RobotRegressor:
         )
 
     def parameters(self) -> np.ndarray:
-        """The URDF's own link parameters θ, shape (10 n,)."""
-        return np.concatenate(
-            [self.model.inertias[i].toDynamicParameters() for i in range(1, self.model.njoints)]
-        )
+        """The URDF's own parameters θ, shape (11 n,): link parameters, then zero armatures
+        (a URDF has none)."""
+        links = [self.model.inertias[i].toDynamicParameters() for i in range(1, self.model.njoints)]
+        return np.concatenate([*links, np.zeros(self.n)])
 
     def random_samples(
         self, n_samples: int, rng: np.random.Generator
@@ -227,7 +242,7 @@ def compute_base_parameters(
     reg: RobotRegressor, n_samples: int | None = None, seed: int = 0
 ) -> BaseParameters:
     """Base parameters by pivoted QR of Y stacked over random samples (module docstring)."""
-    n_params = 10 * reg.n
+    n_params = 11 * reg.n
     if n_samples is None:
         n_samples = max(100, (4 * n_params) // reg.n)
     rng = np.random.default_rng(seed)
