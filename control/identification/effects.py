@@ -25,10 +25,12 @@ contiguous blocks, never random samples (samples 5 ms apart are anything but ind
 
 A candidate is accepted only if (i) the held-out RMS of its joint (for the all-joint
 ``payload`` and ``time_delay``: of some joint) falls by at least ``margin`` (default
-:data:`MARGIN` = 10 %), (ii) no joint's held-out RMS grows by more than
-:data:`WORSEN_TOLERANCE`, and (iii) BIC falls, computed with the sample count of data decimated
-to :data:`BIC_RATE_HZ` (the residual is strongly autocorrelated, so the nominal count would
-make every extra column look significant). Among the acceptable ones the largest drop of the
+:data:`MARGIN` = 10 %) and by at least ``min_gain_nm`` (default :data:`MIN_GAIN_NM`: a
+relative gain on a joint that carries almost no torque is noise, not an effect), (ii) no
+joint's held-out RMS grows by more than :data:`WORSEN_TOLERANCE`, and (iii) BIC falls,
+computed with the sample count of data decimated to :data:`BIC_RATE_HZ` (the residual is
+strongly autocorrelated, so the nominal count would make every extra column look
+significant). Among the acceptable ones the largest drop of the
 weighted held-out error wins. With no effect in the data nothing passes: the margin and the
 BIC penalty are far above what fitting two columns to noise buys (tested on synthetic data).
 """
@@ -45,6 +47,8 @@ from control.identification.preprocess import Prepared
 from control.identification.terms import Context, EffectTerm, shift_signal
 
 MARGIN = 0.10
+#: smallest held-out RMS drop that counts as an effect on a joint [N·m]
+MIN_GAIN_NM = 0.1
 WORSEN_TOLERANCE = 0.05
 BIC_RATE_HZ = 10.0
 MAX_EFFECTS = 6
@@ -67,6 +71,7 @@ class Options:
     """Search settings (see the module docstring)."""
 
     margin: float = MARGIN
+    min_gain_nm: float = MIN_GAIN_NM
     max_effects: int = MAX_EFFECTS
     folds: int = DEFAULT_FOLDS
     bic_rate_hz: float = BIC_RATE_HZ
@@ -136,11 +141,14 @@ def judge(
     """Accept/reject ``term`` (module docstring); ``extra_params`` counts non-linear settings."""
     cur = np.maximum(current.cv_sse, 1e-300)
     rel = 1.0 - np.sqrt(new.cv_sse / cur)
+    rows = max(current.n_rows, 1)
+    gain_nm = np.sqrt(cur / rows) - np.sqrt(np.maximum(new.cv_sse, 0.0) / rows)
+    good = (rel >= options.margin) & (gain_nm >= options.min_gain_nm)
     if len(term.joints) == 1:
-        improved = tuple(j for j in term.joints if rel[j] >= options.margin)
+        improved = tuple(j for j in term.joints if good[j])
         target_ok = bool(improved)
     else:
-        improved = tuple(int(j) for j in np.flatnonzero(rel >= options.margin))
+        improved = tuple(int(j) for j in np.flatnonzero(good))
         target_ok = bool(improved)
     no_worse = bool(np.all(rel >= -WORSEN_TOLERANCE))
     new_bic = bic(new, weights, rate_hz, options.bic_rate_hz) + extra_params * np.log(
