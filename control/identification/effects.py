@@ -219,7 +219,11 @@ def candidates(
     lo, hi = options.ripple_cycles
     for j in range(n):
         r = residual[:, j]
-        for c in _peaks(ripple_scores(ctx.q[:, j], r, hi), lo, RIPPLE_PEAKS):
+        # A ripple is only told apart from a spring (or gravity) when the motion spans at
+        # least one of its periods: over a shorter range sin(c q) is nearly linear in q.
+        span = float(np.ptp(ctx.q[:, j])) if ctx.q.shape[0] else 0.0
+        lo_j = max(lo, int(np.ceil(2 * np.pi / span)) if span > 0 else hi + 1)
+        for c in _peaks(ripple_scores(ctx.q[:, j], r, hi), lo_j, RIPPLE_PEAKS):
             if ((j,), c) not in ripples:
                 out.append(EffectTerm("position_ripple", (j,), {"cycles_per_rev": c}))
         out.append(EffectTerm("spring", (j,)))
