@@ -38,9 +38,6 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     ),
 }
 OPERATOR_COMMANDS = ("start", "stop", "status", "reset")
-#: Python hands the GIL between threads every 5 ms by default: far too coarse for a zenoh
-#: callback thread that must answer a 4 ms controller cycle [s].
-GIL_SWITCH_INTERVAL_S = 2e-4
 
 
 def _configure_operator(p: argparse.ArgumentParser) -> None:
@@ -92,7 +89,6 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
-    # sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
     # Build only the parser needed: importing every subcommand would load MuJoCo for `status`.
     parser = build_parser() if not argv or argv[0] not in SUBCOMMANDS else _single(argv[0])
     args = parser.parse_args(argv)
