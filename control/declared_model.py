@@ -72,23 +72,7 @@ class DeclaredModel:
         params = []
         for i, (e, js) in enumerate(zip(entries, desc.joints, strict=True)):
             fe = from_mapping(FrictionEntry, e, f"{where} [[friction]][{i}]")
-            f = fe.fourier_nm
-            params.append(
-                FrictionParams(
-                    tau_s_nm=fe.tau_s_nm,
-                    tau_c_nm=fe.tau_c_nm,
-                    f1_nm=f[0],
-                    f2_nm=f[1],
-                    f3_nm=f[2],
-                    f4_nm=f[3],
-                    f5_nm=f[4],
-                    f6_nm=f[5],
-                    tau_v1_nm_s_per_rad=fe.tau_v1_nm_s_per_rad,
-                    tau_v2_nm_s2_per_rad2=fe.tau_v2_nm_s2_per_rad2,
-                    q_e_rad_s=fe.q_e_rad_s,
-                    gear_ratio=js.gear_ratio,
-                )
-            )
+            params.append(FrictionParams.from_table(fe, js.gear_ratio))
         return cls(desc, params)
 
     def gravity_nm(self, q_rad: np.ndarray) -> np.ndarray:

@@ -26,26 +26,10 @@ from sim_bridge.effects import EffectSet
 
 
 def friction_params(cfg: SimConfig, desc: RobotDescription) -> list[FrictionParams]:
-    out = []
-    for ft, js in zip(cfg.friction, desc.joints, strict=True):
-        f = ft.fourier_nm
-        out.append(
-            FrictionParams(
-                tau_s_nm=ft.tau_s_nm,
-                tau_c_nm=ft.tau_c_nm,
-                f1_nm=f[0],
-                f2_nm=f[1],
-                f3_nm=f[2],
-                f4_nm=f[3],
-                f5_nm=f[4],
-                f6_nm=f[5],
-                tau_v1_nm_s_per_rad=ft.tau_v1_nm_s_per_rad,
-                tau_v2_nm_s2_per_rad2=ft.tau_v2_nm_s2_per_rad2,
-                q_e_rad_s=ft.q_e_rad_s,
-                gear_ratio=js.gear_ratio,
-            )
-        )
-    return out
+    return [
+        FrictionParams.from_table(ft, js.gear_ratio)
+        for ft, js in zip(cfg.friction, desc.joints, strict=True)
+    ]
 
 
 class Plant:

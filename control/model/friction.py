@@ -32,6 +32,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import astuple, dataclass
+from typing import Any
 
 import numpy as np
 
@@ -92,6 +93,16 @@ class FrictionParams:
         if len(values) != len(EQ15_PARAM_NAMES):
             raise ValueError(f"expected {len(EQ15_PARAM_NAMES)} coefficients, got {len(values)}")
         return cls(*values, q_e_rad_s=q_e_rad_s, gear_ratio=gear_ratio)
+
+    @classmethod
+    def from_table(cls, entry: Any, gear_ratio: float) -> FrictionParams:
+        """From a config table (``tau_s_nm``, ``tau_c_nm``, ``tau_v1_nm_s_per_rad``,
+        ``tau_v2_nm_s2_per_rad2``, ``q_e_rad_s``, ``fourier_nm`` = f1..f6), as written in the
+        declared model and the simulator's truth."""
+        f1, f2, f3, f4, f5, f6 = entry.fourier_nm
+        return cls(entry.tau_s_nm, entry.tau_c_nm, f1, f2, f3, f4, f5, f6,
+                   entry.tau_v1_nm_s_per_rad, entry.tau_v2_nm_s2_per_rad2,
+                   entry.q_e_rad_s, gear_ratio)  # fmt: skip
 
 
 @dataclass(frozen=True)
