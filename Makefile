@@ -21,6 +21,7 @@ test: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/leadthrough bench --rates 250 500 --cycles 10000
+	$(BIN)/python -m control.identification.bench
 
 lint: $(STAMP)
 	$(BIN)/ruff check .
