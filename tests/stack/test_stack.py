@@ -53,6 +53,7 @@ def test_weightless_arm_without_operator_drifts_less_than_1mm_in_5s(tmp_path):
     window = rows[t - t[0] <= 5.0]
     xyz = tool_xyz(truth, window)
     drift_m = np.linalg.norm(xyz - xyz[0], axis=1).max()
+    print(f"tool drift in 5 s without operator force: {drift_m * 1e3:.3f} mm")
     assert drift_m < 1e-3, f"tool drifted {drift_m * 1e3:.3f} mm in 5 s"
     # and it really was the control process holding it (weightless), not brakes
     assert np.all(truth["ctrl_state"][window] == 2)
@@ -70,6 +71,7 @@ def test_20N_push_along_x_moves_the_tool_along_x(tmp_path):
     before = rows[t <= 0.5][-1]
     after = rows[t <= 2.6][-1]
     d = tool_xyz(truth, [after])[0] - tool_xyz(truth, [before])[0]
+    print(f"tool displacement after a 2 s, 20 N push along +x: {np.round(d * 1e3, 1)} mm")
     # A weightless arm's apparent mass is not isotropic: in this pose a push at the tool pitches
     # the shoulder forward, so the tool arcs forward and down. It must still go +x, within 60°.
     assert d[0] > 0.01, f"tool moved {d * 1e3} mm under a 20 N +x push"
@@ -103,6 +105,10 @@ def test_killing_control_makes_the_driver_hold_and_the_arm_stop(tmp_path):
     assert last_follow_s < 0.010 + 0.02, f"kept following for {last_follow_s * 1e3:.1f} ms"
     after = tool_xyz(truth, np.arange(k, wall.size))
     travel_m = np.linalg.norm(after - after[0], axis=1).max()
+    print(
+        f"speed at kill {speed_at_kill * 1e3:.0f} mm/s, commands followed for "
+        f"{last_follow_s * 1e3:.1f} ms after the kill, travel after it {travel_m * 1e3:.2f} mm"
+    )
     assert travel_m < 5e-3, f"tool travelled {travel_m * 1e3:.2f} mm after the kill"
 
 
