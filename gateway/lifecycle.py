@@ -32,6 +32,7 @@ class Observations:
     dead_processes: tuple[str, ...] = ()
     stale_processes: tuple[str, ...] = ()
     max_speed_rad_s: float | None = None  #: fastest joint in the latest joint state
+    still_for_s: float = 0.0  #: how long every joint has been below the standstill speed
 
 
 @dataclass(frozen=True)
@@ -40,8 +41,9 @@ class Limits:
     io_timeout_s: float = 0.25
     #: teaching (and identification) start only from standstill: after servo-on the arm first
     #: settles onto the vendor loop's position error, and a weightless arm would keep any
-    #: velocity it has at takeover [rad/s]
-    standstill_rad_s: float = 0.002
+    #: velocity it has at takeover [rad/s], for at least ``standstill_s`` [s]
+    standstill_rad_s: float = 5e-4
+    standstill_s: float = 0.3
 
 
 @dataclass
@@ -127,7 +129,11 @@ class LifecycleMachine:
 
     def _still(self, obs: Observations) -> bool:
         speed = obs.max_speed_rad_s
-        return speed is not None and speed <= self.limits.standstill_rad_s
+        return (
+            speed is not None
+            and speed <= self.limits.standstill_rad_s
+            and obs.still_for_s >= self.limits.standstill_s
+        )
 
     def identify(self, plan: dict, obs: Observations) -> tuple[bool, str]:
         """Start an excitation plan (operator command `identify`)."""

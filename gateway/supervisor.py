@@ -49,7 +49,8 @@ class GatewayConfig:
 
     joint_state_timeout_s: float = 0.1
     io_timeout_s: float = 0.25
-    standstill_rad_s: float = 0.002  #: teaching starts only below this joint speed [rad/s]
+    standstill_rad_s: float = 5e-4  #: teaching starts only below this joint speed [rad/s]
+    standstill_s: float = 0.3  #: ... held for this long [s]
     health_timeout_s: float = 0.5  #: a child whose heartbeat is older is "silent"
     restart_backoff_s: float = 2.0
     processes: tuple[str, ...] = SUPERVISED
@@ -76,13 +77,19 @@ class Gateway:
         self.keys = bus.keys
         self.cfg = cfg
         self.machine = LifecycleMachine(
-            Limits(cfg.joint_state_timeout_s, cfg.io_timeout_s, cfg.standstill_rad_s)
+            Limits(
+                cfg.joint_state_timeout_s,
+                cfg.io_timeout_s,
+                cfg.standstill_rad_s,
+                cfg.standstill_s,
+            )
         )
         self.lock = threading.Lock()
         self.stop_event = threading.Event()
         self.spawn = spawn
         self.joint_state: JointState | None = None
         self._joint_state_raw: tuple[bytes, float] | None = None
+        self._moving_s: float | None = None  #: last time a joint moved faster than standstill
         self.joint_state_rx_s: float | None = None
         self.io: IoState | None = None
         self.io_rx_s: float | None = None
@@ -158,6 +165,8 @@ class Gateway:
             log.warning("ignored joint state: %s", exc)
             return
         self.joint_state, self.joint_state_rx_s = st, item[1]
+        if float(abs(st.dq_rad_s).max()) > self.cfg.standstill_rad_s or self._moving_s is None:
+            self._moving_s = item[1]
 
     def _on_io(self, sample) -> None:
         try:
@@ -198,6 +207,7 @@ class Gateway:
             dead_processes=dead,
             stale_processes=tuple(stale),
             max_speed_rad_s=None if st is None else float(abs(st.dq_rad_s).max()),
+            still_for_s=0.0 if self._moving_s is None else now - self._moving_s,
         )
 
     def status(self, now: float) -> dict:

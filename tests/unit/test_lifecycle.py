@@ -10,6 +10,7 @@ def healthy(**kw) -> Observations:
         enabling=False,
         estop_ok=True,
         max_speed_rad_s=0.0,
+        still_for_s=1.0,
     )
     return Observations(**{**base, **kw})
 
@@ -96,7 +97,10 @@ def test_teaching_waits_for_standstill_after_servo_on():
     m.command("start", healthy())
     assert m.update(healthy(enabling=True, max_speed_rad_s=0.01)) == Lifecycle.READY
     assert m.update(healthy(enabling=True, max_speed_rad_s=None)) == Lifecycle.READY
-    assert m.update(healthy(enabling=True, max_speed_rad_s=0.001)) == Lifecycle.TEACHING
+    assert (
+        m.update(healthy(enabling=True, max_speed_rad_s=1e-4, still_for_s=0.1)) == Lifecycle.READY
+    )
+    assert m.update(healthy(enabling=True, max_speed_rad_s=1e-4)) == Lifecycle.TEACHING
 
 
 def test_identify_needs_enabling_and_ends_back_in_ready():
