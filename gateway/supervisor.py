@@ -99,6 +99,7 @@ class Gateway:
         self._decls: list = []
         self._last_pub_s = 0.0
         self._last_seq = -1
+        self._dead: tuple[str, ...] = ()  #: children not running, as of the last tick
 
     # --- processes ----------------------------------------------------------------------
     def _argv(self, name: str) -> list[str]:
@@ -279,8 +280,6 @@ class Gateway:
             self._last_pub_s, self._last_seq = now, m.seq
 
     # --- main -----------------------------------------------------------------------------
-    _dead: tuple[str, ...] = ()
-
     def open(self) -> None:
         self.session = open_router(self.bus)
         s = self.session
