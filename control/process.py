@@ -213,25 +213,26 @@ class ControlProcess:
             self.session = None
 
     # --- callbacks: decode, compute, publish; never block --------------------------------
-    def _on_io(self, sample) -> None:
+    def _decode(self, cls, sample):
+        """``cls.from_bytes`` of the sample, or None (counted and logged) if malformed."""
         try:
-            io = IoState.from_bytes(sample.payload.to_bytes())
+            return cls.from_bytes(sample.payload.to_bytes())
         except MessageError as exc:
             self.stats["bad_messages"] += 1
-            log.warning("ignored I/O message: %s", exc)
-            return
-        with self._lock:
-            self.io = io
+            log.warning("ignored %s on %s: %s", cls.__name__, sample.key_expr, exc)
+            return None
+
+    def _on_io(self, sample) -> None:
+        io = self._decode(IoState, sample)
+        if io is not None:
+            with self._lock:
+                self.io = io
 
     def _on_lifecycle(self, sample) -> None:
-        try:
-            msg = LifecycleMsg.from_bytes(sample.payload.to_bytes())
-        except MessageError as exc:
-            self.stats["bad_messages"] += 1
-            log.warning("ignored lifecycle message: %s", exc)
-            return
-        with self._lock:
-            self.lifecycle, self.lifecycle_rx_s = msg, self.clock()
+        msg = self._decode(LifecycleMsg, sample)
+        if msg is not None:
+            with self._lock:
+                self.lifecycle, self.lifecycle_rx_s = msg, self.clock()
 
     def _mode(self, now: float) -> Lifecycle | None:
         """TEACHING or IDENTIFYING when the gateway says so (fresh), else None."""
@@ -241,11 +242,8 @@ class ControlProcess:
         return lc.state if lc.state in COMMANDING else None
 
     def _on_state(self, sample) -> None:
-        try:
-            st = JointState.from_bytes(sample.payload.to_bytes())
-        except MessageError as exc:
-            self.stats["bad_messages"] += 1
-            log.warning("ignored joint state: %s", exc)
+        st = self._decode(JointState, sample)
+        if st is None:
             return
         now = self.clock()
         self.stats["states"] += 1

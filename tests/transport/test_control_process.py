@@ -1,0 +1,90 @@
+"""The control process over a real zenoh router: bad messages are refused and counted, and no
+command is published unless the gateway says TEACHING with fresh pressures."""
+
+import math
+import time
+
+import numpy as np
+import pytest
+
+from control.process import ControlProcess, load_control_config
+from gateway.bus import BusConfig, open_client, open_router
+from gateway.messages import (
+    ControllerState,
+    IoState,
+    JointCommand,
+    Lifecycle,
+    LifecycleMsg,
+    make_joint_state,
+)
+from sim_bridge.harness import SIM_CELL
+
+Q0 = np.array([0.0, 0.15, 0.25, 0.0, -0.4, 0.0])
+
+
+@pytest.fixture
+def rig(port):
+    bus = BusConfig(endpoint=f"tcp/127.0.0.1:{port}")
+    router = open_router(bus)
+    cfg, _ = load_control_config(SIM_CELL)
+    proc = ControlProcess(cfg, bus)
+    proc.open()
+    client = open_client(bus)
+    commands: list[JointCommand] = []
+    sub = client.declare_subscriber(
+        bus.keys.joint_command,
+        lambda s: commands.append(JointCommand.from_bytes(s.payload.to_bytes())),
+    )
+    time.sleep(0.5)  # declarations reach every session
+    yield bus, client, proc, commands
+    sub.undeclare()
+    client.close()
+    proc.close()
+    router.close()
+
+
+def state(cycle: int) -> bytes:
+    return make_joint_state(
+        cycle, time.monotonic(), ControllerState.EXTERNAL, 2, Q0, np.zeros(6), np.zeros(6), Q0,
+        np.zeros(6), 0.008,
+    ).to_bytes()  # fmt: skip
+
+
+def settle() -> None:
+    time.sleep(0.3)
+
+
+def test_commands_only_while_teaching_with_fresh_pressures(rig):
+    bus, client, proc, commands = rig
+    keys = bus.keys
+    client.put(keys.joint_state, state(1))
+    settle()
+    assert commands == [], "a command without the gateway's TEACHING"
+    client.put(keys.lifecycle, LifecycleMsg(Lifecycle.TEACHING, 1, time.monotonic()).to_bytes())
+    time.sleep(0.05)
+    client.put(keys.joint_state, state(2))
+    settle()
+    assert commands == [] and proc.stats["io_stale"] == 1, "a command without cylinder pressures"
+    # as the gateway and the Modbus driver do: fresh lifecycle and pressures, then the state
+    client.put(keys.io_state, IoState(time.monotonic(), 6.0, 4.0, 6.0, 4.0, True, True).to_bytes())
+    client.put(keys.lifecycle, LifecycleMsg(Lifecycle.TEACHING, 1, time.monotonic()).to_bytes())
+    time.sleep(0.05)
+    client.put(keys.joint_state, state(3))
+    settle()
+    assert [c.cycle for c in commands] == [3]
+    assert np.all(np.isfinite(commands[0].q_cmd_rad))
+    assert np.max(np.abs(commands[0].q_cmd_rad - Q0)) < 0.02  # bumpless: starts at the echo
+
+
+def test_garbage_and_nan_messages_are_refused_and_counted(rig):
+    bus, client, proc, commands = rig
+    keys = bus.keys
+    client.put(keys.lifecycle, LifecycleMsg(Lifecycle.TEACHING, 1, time.monotonic()).to_bytes())
+    client.put(keys.io_state, IoState(time.monotonic(), 6.0, 4.0, 6.0, 4.0, True, True).to_bytes())
+    nan_io = IoState(time.monotonic(), math.nan, 4.0, 6.0, 4.0, True, True).to_bytes()
+    for bad in ((keys.joint_state, b"not a joint state"), (keys.io_state, nan_io),
+                (keys.lifecycle, b'{"state": "teaching", "seq": 1, "stamp_s": NaN}')):  # fmt: skip
+        client.put(*bad)
+    settle()
+    assert proc.stats["bad_messages"] == 3
+    assert commands == [], "a command was published from a malformed message"
