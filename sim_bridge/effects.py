@@ -137,4 +137,4 @@ class EffectSet:
         """Joint position and velocity as the encoders report them (delayed if injected)."""
         if self.delay_steps and len(self._history) == self._history.maxlen:
             return self._history[0]
-        return plant.q_rad, plant.dq_rad_s
+        return plant.sample_q_rad, plant.sample_dq_rad_s

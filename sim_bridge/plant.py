@@ -56,6 +56,10 @@ class Plant:
         self.current_a = np.zeros(self.n)
         self.brakes = True
         self.hand_force_n = np.zeros(3)
+        #: position and velocity latched at the last servo tick, with the current computed
+        #: from them: a drive reports all three from one instant [rad], [rad/s]
+        self.sample_q_rad = self.data.qpos[: self.n].copy()
+        self.sample_dq_rad_s = self.data.qvel[: self.n].copy()
         #: called each step with the plant, returns the hand force [N] (world frame)
         self.hand: Callable[[Plant], np.ndarray] | None = None
         self.tau_motor_nm = np.zeros(self.n)
@@ -85,6 +89,7 @@ class Plant:
         return self.pressure_bar + self.rng.normal(0.0, self.cfg.cylinders.noise_bar, 2)
 
     def measured_current_a(self) -> np.ndarray:
+        """The current of the last servo tick (latched with ``sample_q_rad``), plus noise [A]."""
         return self.current_a + self.rng.normal(0.0, self.cfg.sensors.current_noise_a, self.n)
 
     def step(self, q_cmd_rad: np.ndarray | None, dq_cmd_rad_s: np.ndarray | None) -> None:
@@ -100,12 +105,14 @@ class Plant:
             self.current_a[:] = 0.0
             self.tau_motor_nm[:] = 0.0
             d.qvel[:] = 0.0
+            self.sample_q_rad, self.sample_dq_rad_s = d.qpos[: self.n].copy(), np.zeros(self.n)
             d.time += dt
             mujoco.mj_kinematics(self.model, d)
             self.effects.advance(self, dt)
             return
         self.brakes = False
         q, dq = d.qpos[: self.n], d.qvel[: self.n]
+        self.sample_q_rad, self.sample_dq_rad_s = q.copy(), dq.copy()
         i_c = -self.kp * (dq - dq_cmd_rad_s) - self.ki * (q - q_cmd_rad)  # eq. (19)
         self.current_a = np.clip(i_c, -self.i_max_a, self.i_max_a)
         self.tau_motor_nm = self.k_nm_per_a * self.current_a
