@@ -20,8 +20,8 @@ from typing import Any
 from control.identification.analyze import AnalyzeOptions, analyze
 from control.robot.description import load_description
 from control.robot.urdf import to_urdf
-from gateway.bus import BusConfig
-from gateway.config import from_mapping, load_toml
+from gateway.bus import BusConfig, bus_config_from
+from gateway.config import load_toml
 from gateway.errors import LeadthroughError
 from gateway.messages import decode_json
 from gateway.recorder import BusRecorder, export_csv, iter_mcap
@@ -142,7 +142,7 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
 
 def cli_main(args: argparse.Namespace) -> int:
     raw = load_toml(args.config)
-    bus = from_mapping(BusConfig, raw.get("bus", {}), f"{args.config} [bus]")
+    bus = bus_config_from(raw, str(args.config))
     bus = bus.with_overrides(args.bus)
     if args.plan:
         plan = json.loads(args.plan.read_text())

@@ -23,7 +23,13 @@ from control.config import ControlConfig
 from control.declared_model import DeclaredModel
 from control.experiments import build_plan
 from control.outer_loop import OuterLoop
-from gateway.bus import BusConfig, declare_loop_publisher, open_peer
+from gateway.bus import (
+    BusConfig,
+    bus_config_from,
+    declare_loop_publisher,
+    open_peer,
+    undeclare_all,
+)
 from gateway.config import from_mapping, load_toml, resolve_path
 from gateway.errors import MessageError
 from gateway.messages import (
@@ -48,7 +54,7 @@ def load_control_config(cell_path: str | Path) -> tuple[ControlConfig, BusConfig
     raw = load_toml(cell_path)
     cfg = from_mapping(ControlConfig, raw.get("control", {}), f"{cell_path} [control]")
     cfg = ControlConfig(**{**cfg.__dict__, "model": resolve_path(cell_path, cfg.model)})
-    bus = from_mapping(BusConfig, raw.get("bus", {}), f"{cell_path} [bus]")
+    bus = bus_config_from(raw, str(cell_path))
     return cfg, bus
 
 
@@ -199,15 +205,8 @@ class ControlProcess:
         ]
 
     def close(self) -> None:
-        for sub in self._subs:
-            try:
-                sub.undeclare()
-            except Exception:
-                log.exception("undeclare failed")
-        self._subs = []
-        if self._pub_cmd is not None:
-            self._pub_cmd.undeclare()
-            self._pub_cmd = None
+        undeclare_all([*self._subs, self._pub_cmd])
+        self._subs, self._pub_cmd = [], None
         if self.session is not None:
             self.session.close()
             self.session = None

@@ -48,13 +48,13 @@ def _configure_operator(p: argparse.ArgumentParser) -> None:
 
 
 def _operator_main(args: argparse.Namespace) -> int:
-    from gateway.bus import BusConfig
-    from gateway.config import from_mapping, load_toml
+    from gateway.bus import BusConfig, bus_config_from
+    from gateway.config import load_toml
     from gateway.supervisor import operator_request
 
     bus = BusConfig()
     if args.config:
-        bus = from_mapping(BusConfig, load_toml(args.config).get("bus", {}), f"{args.config} [bus]")
+        bus = bus_config_from(load_toml(args.config), str(args.config))
     reply = operator_request(bus.with_overrides(args.bus), args.command, args.timeout)
     if args.json:
         print(json.dumps(reply, indent=2))

@@ -29,8 +29,8 @@ import numpy as np
 from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
 
-from gateway.bus import BusConfig, open_client
-from gateway.config import from_mapping, load_toml
+from gateway.bus import BusConfig, bus_config_from, open_client, undeclare_all
+from gateway.config import load_toml
 from gateway.errors import DataFileError, MessageError
 from gateway.messages import IoState, JointCommand, JointState, Keys, PressureSetpoint
 
@@ -98,9 +98,8 @@ class BusRecorder:
     def stop(self) -> None:
         """Undeclare, close the session, flush and close the file (never loses queued data)."""
         try:
-            if self._sub is not None:
-                self._sub.undeclare()
-                self._sub = None
+            undeclare_all([self._sub])
+            self._sub = None
             if self._session is not None:
                 self._session.close()
                 self._session = None
@@ -188,7 +187,7 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
 def cli_main(args: argparse.Namespace) -> int:
     bus = BusConfig()
     if args.config:
-        bus = from_mapping(BusConfig, load_toml(args.config).get("bus", {}), str(args.config))
+        bus = bus_config_from(load_toml(args.config), str(args.config))
     rec = BusRecorder(bus.with_overrides(args.bus), args.out)
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())

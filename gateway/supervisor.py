@@ -20,7 +20,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from gateway.bus import BusConfig, open_router
+from gateway.bus import BusConfig, bus_config_from, open_router, undeclare_all
 from gateway.config import from_mapping, load_toml, require
 from gateway.errors import MessageError
 from gateway.lifecycle import LifecycleMachine, Limits, Observations
@@ -319,11 +319,7 @@ class Gateway:
                 time.sleep(STOP_GRACE_S)  # let the drivers brake before they are stopped
         finally:
             self._stop_children()
-            for d in self._decls:
-                try:
-                    d.undeclare()
-                except Exception:
-                    log.exception("undeclare failed")
+            undeclare_all(self._decls)
             self._decls = []
             if self.session is not None:
                 self.session.close()
@@ -336,7 +332,7 @@ class Gateway:
 def load_gateway_config(cell_path: Path) -> tuple[GatewayConfig, BusConfig]:
     raw = load_toml(cell_path)
     cfg = from_mapping(GatewayConfig, raw.get("gateway", {}), f"{cell_path} [gateway]")
-    bus = from_mapping(BusConfig, raw.get("bus", {}), f"{cell_path} [bus]")
+    bus = bus_config_from(raw, str(cell_path))
     return cfg, bus
 
 

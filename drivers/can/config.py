@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from gateway.bus import BusConfig
+from gateway.bus import BusConfig, bus_config_from
 from gateway.config import from_mapping, load_toml, require
 
 _TRANSPORT_SCALARS = (str, int, float, bool)
@@ -140,5 +140,5 @@ def load_can_config(cell_config_path: str | Path) -> tuple[CanDriverConfig, BusC
     """The ``[can]`` and ``[bus]`` sections of a cell config file (absent sections: defaults)."""
     doc = load_toml(cell_config_path)
     can_cfg = from_mapping(CanDriverConfig, doc.get("can", {}), f"{cell_config_path} [can]")
-    bus_cfg = from_mapping(BusConfig, doc.get("bus", {}), f"{cell_config_path} [bus]")
+    bus_cfg = bus_config_from(doc, str(cell_config_path))
     return can_cfg, bus_cfg

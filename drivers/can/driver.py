@@ -43,7 +43,7 @@ import numpy as np
 from drivers.can.adapter import ADAPTER_GROUP, CanAdapter, CycleFeedback, HostRequest
 from drivers.can.config import CanDriverConfig, load_can_config
 from drivers.registry import load_adapter
-from gateway.bus import BusConfig, declare_loop_publisher, open_peer
+from gateway.bus import BusConfig, declare_loop_publisher, open_peer, undeclare_all
 from gateway.config import require
 from gateway.errors import ConfigError, FrameError, LinkTimeoutError, MessageError
 from gateway.messages import (
@@ -337,13 +337,7 @@ class CanDriver:
                         self._send_locked(self._hold_frames_locked(self._pending))
                 except Exception:
                     log.exception("could not send the hold set on exit")
-        for entity in [*self._subscribers, self._publisher]:
-            if entity is None:
-                continue
-            try:
-                entity.undeclare()
-            except Exception:
-                log.exception("could not undeclare %r", entity)
+        undeclare_all([*self._subscribers, self._publisher])
         self._subscribers, self._publisher = [], None
         if self._owns_session and self._session is not None:
             try:

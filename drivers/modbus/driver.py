@@ -50,8 +50,8 @@ import zenoh
 from drivers.modbus.adapter import PressureIoAdapter, create_adapter
 from drivers.modbus.client import ModbusLinkError
 from drivers.modbus.config import ModbusDriverConfig
-from gateway.bus import BusConfig, open_peer
-from gateway.config import from_mapping, load_toml
+from gateway.bus import bus_config_from, open_peer, undeclare_all
+from gateway.config import load_toml
 from gateway.errors import ConfigError, MessageError, ModbusReplyError
 from gateway.messages import HEALTH_RATE_HZ, IoState, Keys, PressureSetpoint, encode_json
 
@@ -202,12 +202,7 @@ class ModbusDriver:
         try:
             self.stop()
         finally:
-            for entity in (self._sub, self._pub_io, self._pub_health):
-                if entity is not None:
-                    try:
-                        entity.undeclare()
-                    except Exception as exc:  # session already closed: nothing left to undo
-                        log.debug("undeclare failed: %r", exc)
+            undeclare_all((self._sub, self._pub_io, self._pub_health))
             self._sub = self._pub_io = self._pub_health = None
             try:
                 self.adapter.close()
@@ -424,7 +419,7 @@ def cli_main(args: argparse.Namespace) -> int:
     )
     try:
         cell = load_toml(args.config)
-        bus = from_mapping(BusConfig, cell.get("bus", {}), f"{args.config} [bus]")
+        bus = bus_config_from(cell, str(args.config))
         bus = bus.with_overrides(args.bus)
         config = ModbusDriverConfig.from_cell_config(cell, str(args.config))
         adapter = create_adapter(config)
