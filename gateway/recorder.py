@@ -8,8 +8,10 @@ enqueue; a writer thread owns the file, so a slow disk never stalls the bus.
 CSV export (the measurement format of control/identification/datafile.py): one row per
 JointState, ``t`` counted from the first exported cycle in controller time
 (cycle × cycle period, so lock-step recordings keep their true time base), ``q``, ``dq``, motor
-currents ``i``, and the latest cylinder pressures ``p2``, ``p3``; a sidecar ``<stem>.json``
-carries the drive gains that turn currents into torques.
+currents ``i`` (interpolated to the instant of ``q``), and the latest cylinder pressures ``p2``,
+``p3``; a sidecar ``<stem>.json``
+carries the drive gains that turn currents into torques. Cycles disturbed by a hold or coast
+of the CAN driver are left out (:func:`export_csv`).
 """
 
 from __future__ import annotations
@@ -121,22 +123,43 @@ def iter_mcap(path: Path) -> Iterator[tuple[str, int, bytes]]:
         raise DataFileError(f"{path}: not a readable MCAP recording: {exc}") from exc
 
 
+#: After a cycle the CAN driver answered with something other than the control process's
+#: command (a hold or a coast, PROTOCOL.md §3), the vendor loop answers with a current transient
+#: the kinematics sampled once per cycle cannot follow; so many seconds of cycles are left out
+#: of the export [s] (the inner loop of eq. 19 settles in ~4/(ζ ω_n) ≈ 0.08 s).
+DISTURBANCE_SETTLE_S = 0.15
+#: How far the motor current of a JointState lags its q and dq [cycles]: LTC-1 drives report
+#: the current averaged over the cycle (PROTOCOL.md §2.1), centred half a cycle earlier.
+CURRENT_LAG_CYCLES = 0.5
+
+
 def export_csv(
     mcap_path: Path,
     csv_path: Path,
     drive_gains_nm_per_a: list[float],
     keys: Keys | None = None,
     cycle_range: tuple[int, int] | None = None,
+    settle_s: float = DISTURBANCE_SETTLE_S,
+    current_lag_cycles: float = CURRENT_LAG_CYCLES,
 ) -> int:
     """Export joint states (+ latest pressures) to the measurement CSV; returns rows written.
 
-    ``cycle_range`` keeps only the controller cycles ``first..last`` (inclusive).
-    Malformed messages are counted and skipped with a warning, never exported.
+    ``cycle_range`` keeps only the controller cycles ``first..last`` (inclusive). When the
+    recording holds the control process's JointCommands, cycles answered with anything else
+    (the driver's hold or coast: the JointState of the next cycle reports what was sent) are
+    *disturbed*: the cycles up to ``settle_s`` after one are left out, which leaves a time gap
+    that the analysis treats as a segment boundary; the sidecar lists them.
+
+    The reported current describes ``current_lag_cycles`` of a cycle before the kinematics
+    (LTC-1 reports its mean over the cycle: 0.5, PROTOCOL.md §2.1); each row gets the current
+    interpolated to its own instant from the next cycle's, so a row whose next cycle was not
+    recorded is not exported. Malformed messages are counted and skipped with a warning,
+    never exported.
     """
     keys = keys or Keys()
-    rows: list[np.ndarray] = []
+    states: list[tuple[JointState, np.ndarray]] = []
+    commands: dict[int, JointCommand] = {}
     p = np.array([np.nan, np.nan])
-    cycle0: int | None = None
     bad = 0
     n = None
     for key, _t_ns, payload in iter_mcap(mcap_path):
@@ -144,20 +167,40 @@ def export_csv(
             if key == keys.io_state:
                 io = IoState.from_bytes(payload)
                 p = np.array([io.p2_bar, io.p3_bar])
+            elif key == keys.joint_command:
+                cmd = JointCommand.from_bytes(payload)
+                commands[cmd.cycle] = cmd
             elif key == keys.joint_state:
                 st = JointState.from_bytes(payload)
                 if n is None:
                     n = st.n
                 if st.n != n or st.cycle_period_s <= 0 or np.isnan(p).any():
                     continue
-                if cycle_range and not cycle_range[0] <= st.cycle <= cycle_range[1]:
-                    continue
-                cycle0 = st.cycle if cycle0 is None else cycle0
-                t = (st.cycle - cycle0) * st.cycle_period_s
-                rows.append(np.concatenate([[t], st.q_rad, st.dq_rad_s, st.current_a, p]))
+                states.append((st, p))
         except MessageError as exc:
             bad += 1
             log.warning("skipped a malformed message on %s: %s", key, exc)
+    disturbed = _disturbed_cycles(states, commands, cycle_range) if commands else []
+    excluded: set[int] = set()
+    for cycle, period in disturbed:
+        excluded.update(range(cycle, cycle + 1 + int(np.ceil(settle_s / period))))
+    by_cycle = {st.cycle: st for st, _ in states}
+    rows: list[np.ndarray] = []
+    cycle0: int | None = None
+    for st, pressure in states:
+        if cycle_range and not cycle_range[0] <= st.cycle <= cycle_range[1]:
+            continue
+        cycle0 = st.cycle if cycle0 is None else cycle0
+        if st.cycle in excluded:
+            continue
+        current = st.current_a
+        if current_lag_cycles:
+            nxt = by_cycle.get(st.cycle + 1)
+            if nxt is None:
+                continue  # the current of this instant is not known
+            current = (1 - current_lag_cycles) * current + current_lag_cycles * nxt.current_a
+        t = (st.cycle - cycle0) * st.cycle_period_s
+        rows.append(np.concatenate([[t], st.q_rad, st.dq_rad_s, current, pressure]))
     if not rows or n is None:
         raise DataFileError(f"{mcap_path}: no joint states with pressures to export")
     if len(drive_gains_nm_per_a) != n:
@@ -168,12 +211,51 @@ def export_csv(
     with csv_path.open("w") as fh:
         fh.write(",".join(header) + "\n")
         np.savetxt(fh, data, delimiter=",", fmt="%.9g")
-    csv_path.with_suffix(".json").write_text(
-        json.dumps({"drive_gains_nm_per_a": list(drive_gains_nm_per_a), "source": str(mcap_path)})
-    )
+    sidecar = {
+        "drive_gains_nm_per_a": list(drive_gains_nm_per_a),
+        "source": str(mcap_path),
+        "disturbed_cycles": [c for c, _ in disturbed],
+        "settle_s": settle_s,
+        "current_lag_cycles": current_lag_cycles,
+    }
+    csv_path.with_suffix(".json").write_text(json.dumps(sidecar))
+    if disturbed:
+        log.info(
+            "%s: %d cycles answered with a hold or coast instead of the command; %d cycles "
+            "after them left out",
+            csv_path,
+            len(disturbed),
+            len(excluded),
+        )
     if bad:
         log.warning("%d malformed messages skipped", bad)
     return len(rows)
+
+
+def _disturbed_cycles(
+    states: list[tuple[JointState, np.ndarray]],
+    commands: dict[int, JointCommand],
+    cycle_range: tuple[int, int] | None,
+) -> list[tuple[int, float]]:
+    """(cycle, period) of the cycles in range whose answer was not the control process's
+    command: the next JointState's ``q_cmd``/``dq_cmd`` (what the driver sent last) differ
+    from it, or there was none."""
+    by_cycle = {st.cycle: st for st, _ in states}
+    out = []
+    for st, _ in states:
+        if cycle_range and not cycle_range[0] <= st.cycle <= cycle_range[1]:
+            continue
+        nxt = by_cycle.get(st.cycle + 1)
+        if nxt is None:
+            continue
+        cmd = commands.get(st.cycle)
+        if (
+            cmd is None
+            or not np.array_equal(cmd.q_cmd_rad, nxt.q_cmd_rad)
+            or not np.array_equal(cmd.dq_cmd_rad_s, nxt.dq_cmd_rad_s)
+        ):
+            out.append((st.cycle, st.cycle_period_s))
+    return out
 
 
 def configure_parser(p: argparse.ArgumentParser) -> None:

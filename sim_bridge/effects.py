@@ -4,7 +4,10 @@ They exist to test identification and residual analysis: each is configured per 
 simulator's private config (``[[effects]]``), never visible to ``control/``. Signs follow the
 plant's right-hand side: a returned torque *drives* the joint. An effect with ``after_s``
 appears only from that simulated time on, one with ``after_onset_s`` that long after teaching
-onset (the first cycle following a non-hold command): mounted between training and test.
+onset (the first cycle following a non-hold command), one with ``after_motion_s`` once the arm
+has been in motion (some joint faster than :data:`MOTION_RAD_S`) for that long in total: an
+excitation plan's moving time is known in advance where its start is not, so this mounts a
+tool between a plan's training and test runs (in their pause).
 """
 
 from __future__ import annotations
@@ -16,6 +19,9 @@ import mujoco
 import numpy as np
 
 from gateway.config import require
+
+#: A joint faster than this counts as the arm being in motion (``after_motion_s``) [rad/s].
+MOTION_RAD_S = 0.01
 
 if TYPE_CHECKING:
     from control.robot.description import RobotDescription
@@ -62,6 +68,7 @@ class EffectSet:
         self.pending_payloads: list[tuple[dict[str, Any], int, float, np.ndarray]] = []
         self._model = model
         self.onset_s: float | None = None  #: set by the simulator at teaching onset
+        self.motion_s = 0.0  #: simulated time spent in motion so far [s]
         self.delay_steps = 0
         n = len(desc.joints)
         for i, eff in enumerate(effects):
@@ -73,7 +80,7 @@ class EffectSet:
                 pos = model.site_pos[site] + np.asarray(eff.get("com_m", (0.0, 0.0, 0.0)))
                 mass = float(eff["mass_kg"])
                 require(mass > 0, where, "mass_kg must be > 0")
-                if "after_s" in eff or "after_onset_s" in eff:
+                if {"after_s", "after_onset_s", "after_motion_s"} & set(eff):
                     self.pending_payloads.append((eff, body, mass, pos))
                 else:
                     _add_point_mass(model, body, mass, pos)
@@ -121,9 +128,13 @@ class EffectSet:
     def _active(self, eff: dict[str, Any], t_s: float) -> bool:
         if "after_onset_s" in eff:
             return self.onset_s is not None and t_s - self.onset_s >= float(eff["after_onset_s"])
+        if "after_motion_s" in eff:
+            return self.motion_s >= float(eff["after_motion_s"])
         return t_s >= float(eff.get("after_s", 0.0))
 
     def advance(self, plant: Plant, dt: float) -> None:
+        if np.max(np.abs(plant.data.qvel[: plant.n])) > MOTION_RAD_S:
+            self.motion_s += dt
         for item in [p for p in self.pending_payloads if self._active(p[0], plant.t_s)]:
             self.pending_payloads.remove(item)
             _, body, mass, pos = item

@@ -54,10 +54,12 @@ class Plant:
         self.pressure_bar = np.array(cfg.cylinders.initial_bar, dtype=float)
         self.pressure_set_bar = self.pressure_bar.copy()
         self.current_a = np.zeros(self.n)
+        self._current_sum = np.zeros(self.n)
+        self._current_ticks = 0
         self.brakes = True
         self.hand_force_n = np.zeros(3)
-        #: position and velocity latched at the last servo tick, with the current computed
-        #: from them: a drive reports all three from one instant [rad], [rad/s]
+        #: position and velocity at the end of the last servo tick [rad], [rad/s]; the current
+        #: a drive reports is its mean over the communication cycle (PROTOCOL.md §2.1)
         self.sample_q_rad = self.data.qpos[: self.n].copy()
         self.sample_dq_rad_s = self.data.qvel[: self.n].copy()
         #: called each step with the plant, returns the hand force [N] (world frame)
@@ -89,8 +91,13 @@ class Plant:
         return self.pressure_bar + self.rng.normal(0.0, self.cfg.cylinders.noise_bar, 2)
 
     def measured_current_a(self) -> np.ndarray:
-        """The current of the last servo tick (latched with ``sample_q_rad``), plus noise [A]."""
-        return self.current_a + self.rng.normal(0.0, self.cfg.sensors.current_noise_a, self.n)
+        """The current averaged over the servo ticks since the last call, plus noise [A]; the
+        drive's current filter, as the feedback frame reports it (PROTOCOL.md §2.1). Resets
+        the average."""
+        mean = self._current_sum / max(self._current_ticks, 1)
+        self._current_sum = np.zeros(self.n)
+        self._current_ticks = 0
+        return mean + self.rng.normal(0.0, self.cfg.sensors.current_noise_a, self.n)
 
     def step(self, q_cmd_rad: np.ndarray | None, dq_cmd_rad_s: np.ndarray | None) -> None:
         """Advance one timestep. ``None`` commands mean servo off (brakes hold the joints)."""
@@ -103,6 +110,7 @@ class Plant:
             self.brakes = True
             self.hand_force_n = np.zeros(3)
             self.current_a[:] = 0.0
+            self._current_ticks += 1
             self.tau_motor_nm[:] = 0.0
             d.qvel[:] = 0.0
             self.sample_q_rad, self.sample_dq_rad_s = d.qpos[: self.n].copy(), np.zeros(self.n)
@@ -112,9 +120,10 @@ class Plant:
             return
         self.brakes = False
         q, dq = d.qpos[: self.n], d.qvel[: self.n]
-        self.sample_q_rad, self.sample_dq_rad_s = q.copy(), dq.copy()
         i_c = -self.kp * (dq - dq_cmd_rad_s) - self.ki * (q - q_cmd_rad)  # eq. (19)
         self.current_a = np.clip(i_c, -self.i_max_a, self.i_max_a)
+        self._current_sum += self.current_a
+        self._current_ticks += 1
         self.tau_motor_nm = self.k_nm_per_a * self.current_a
         tau_f = self.friction(q, dq)
         tau_cyl = cylinder_torque_nm(q, self.pressure_bar, self.desc)
@@ -127,4 +136,5 @@ class Plant:
             d.xfrc_applied[self.last_body, :3] = self.hand_force_n
             d.xfrc_applied[self.last_body, 3:] = np.cross(arm, self.hand_force_n)
         mujoco.mj_step(self.model, d)
+        self.sample_q_rad, self.sample_dq_rad_s = self.q_rad, self.dq_rad_s
         self.effects.advance(self, dt)

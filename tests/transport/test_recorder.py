@@ -1,5 +1,6 @@
 """Bus recording (MCAP) and its CSV export, over a real zenoh router."""
 
+import json
 import time
 
 import numpy as np
@@ -8,7 +9,13 @@ import pytest
 from control.identification.datafile import read_measurements
 from gateway.bus import BusConfig, open_client, open_router
 from gateway.errors import DataFileError
-from gateway.messages import ControllerState, IoState, encode_json, make_joint_state
+from gateway.messages import (
+    ControllerState,
+    IoState,
+    encode_json,
+    make_joint_command,
+    make_joint_state,
+)
 from gateway.recorder import BusRecorder, export_csv, iter_mcap
 
 
@@ -44,11 +51,55 @@ def test_records_every_message_and_exports_the_measurement_csv(router, tmp_path)
     assert topics.count(keys.joint_state) == 51 and keys.health("control") in topics
     gains = [46.21, 66.18, 39.0, 11.15, 11.15, 5.58]
     rows = export_csv(tmp_path / "run.mcap", tmp_path / "run.csv", gains, keys)
-    assert rows == 50  # the garbage message is skipped, not exported
+    assert rows == 49  # the garbage is skipped; the last row has no next cycle for its current
     m = read_measurements(tmp_path / "run.csv")  # gains come from the sidecar
-    np.testing.assert_allclose(m.t[-1], 49 * 0.004)
+    np.testing.assert_allclose(m.t[-1], 48 * 0.004)
     np.testing.assert_allclose(m.tau[0], gains)
     np.testing.assert_allclose(m.p[0], [6.0, 4.0])
+
+
+def test_export_leaves_out_the_cycles_after_a_hold_or_coast(router, tmp_path):
+    """The driver answered cycle 140 with a hold: the next JointState reports a sent command
+    that is not the control process's. The cycles settling after it are left out (a gap)."""
+    keys = router.keys
+    rec = BusRecorder(router, tmp_path / "run.mcap")
+    rec.start()
+    pub = open_client(router)
+    period = 0.004
+    try:
+        time.sleep(0.5)
+        pub.put(keys.io_state, IoState(1.0, 6.0, 4.0, 6.0, 4.0, True, True).to_bytes())
+        sent_q, sent_dq = np.zeros(6), np.zeros(6)
+        for cycle in range(100, 200):
+            q = np.full(6, 0.001 * cycle)
+            st = make_joint_state(cycle, 1.0, ControllerState.EXTERNAL, 2, q, q * 0 + 0.25,
+                                  np.ones(6), sent_q, sent_dq, period)  # fmt: skip
+            pub.put(keys.joint_state, st.to_bytes())
+            cmd = make_joint_command(cycle, 1.0, 1.0, q + 0.001, np.full(6, 0.25))
+            pub.put(keys.joint_command, cmd.to_bytes())
+            if cycle == 140:  # the command came late: the driver held
+                sent_q, sent_dq = q, np.zeros(6)
+            else:
+                sent_q, sent_dq = cmd.q_cmd_rad, cmd.dq_cmd_rad_s
+        time.sleep(0.5)
+    finally:
+        pub.close()
+        rec.stop()
+    gains = [46.21, 66.18, 39.0, 11.15, 11.15, 5.58]
+    rows = export_csv(tmp_path / "run.mcap", tmp_path / "run.csv", gains, keys)
+    # Cycle 140's row (its current is interpolated from cycle 141's, under the hold) and the
+    # 0.15 s after it are left out, and the last row, whose next cycle was not recorded.
+    settle = int(np.ceil(0.15 / period)) + 1
+    assert rows == 100 - settle - 1
+    m = read_measurements(tmp_path / "run.csv")
+    gap = np.flatnonzero(np.diff(m.t) > 1.5 * period)
+    assert gap.size == 1
+    np.testing.assert_allclose(m.t[gap[0] : gap[0] + 2], [39 * period, (40 + settle) * period])
+    sidecar = json.loads((tmp_path / "run.json").read_text())
+    assert sidecar["disturbed_cycles"] == [140]
+    rows = export_csv(tmp_path / "run.mcap", tmp_path / "all.csv", gains, keys, settle_s=0,
+                      current_lag_cycles=0.0)  # fmt: skip
+    assert rows == 99  # only the disturbed cycle's own row
 
 
 def test_missing_or_corrupt_recording_is_a_clear_error(tmp_path):
