@@ -196,6 +196,18 @@ class Stack:
         data = np.array(body, dtype=float) if body else np.zeros((0, len(header)))
         return {name: data[:, i] for i, name in enumerate(header)}
 
+    def wait_teaching(self, seconds: float, timeout_s: float) -> dict[str, np.ndarray]:
+        """Wait until the truth log holds ``seconds`` of teaching; returns the log."""
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            self.check_alive()
+            truth = self.truth()
+            rows = np.flatnonzero(truth["teaching"] > 0.5)
+            if rows.size and truth["t_s"][rows[-1]] - truth["t_s"][rows[0]] >= seconds:
+                return truth
+            time.sleep(0.25)
+        raise TimeoutError(f"no {seconds} s of teaching within {timeout_s} s")
+
     def __enter__(self) -> Stack:
         return self
 

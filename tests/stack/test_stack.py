@@ -28,25 +28,11 @@ def teaching_rows(truth: dict[str, np.ndarray]) -> np.ndarray:
     return rows
 
 
-def wait_teaching_time(stack: Stack, seconds: float, timeout_s: float) -> dict[str, np.ndarray]:
-    """Wait until the truth log holds ``seconds`` of teaching."""
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        stack.check_alive()
-        truth = stack.truth()
-        if truth["t_s"].size and np.any(truth["teaching"] > 0.5):
-            rows = np.flatnonzero(truth["teaching"] > 0.5)
-            if truth["t_s"][rows[-1]] - truth["t_s"][rows[0]] >= seconds:
-                return truth
-        time.sleep(0.25)
-    raise TimeoutError(f"no {seconds} s of teaching within {timeout_s} s")
-
-
 def test_weightless_arm_without_operator_drifts_less_than_1mm_in_5s(tmp_path):
     with Stack(tmp_path) as stack:
         stack.start()
         stack.start_teaching()
-        truth = wait_teaching_time(stack, 5.2, 30.0)
+        truth = stack.wait_teaching(5.2, 30.0)
         stack.request("stop")
     rows = teaching_rows(truth)
     t = truth["t_s"][rows]
@@ -64,7 +50,7 @@ def test_20N_push_along_x_moves_the_tool_along_x(tmp_path):
     with Stack(tmp_path, sim_overrides={"operator": operator}) as stack:
         stack.start()
         stack.start_teaching()
-        truth = wait_teaching_time(stack, 3.0, 30.0)
+        truth = stack.wait_teaching(3.0, 30.0)
         stack.request("stop")
     rows = teaching_rows(truth)
     t = truth["t_s"][rows] - truth["t_s"][rows[0]]
@@ -85,7 +71,7 @@ def test_killing_control_makes_the_driver_hold_and_the_arm_stop(tmp_path):
     with Stack(tmp_path, sim_overrides={"operator": operator}) as stack:
         stack.start()
         stack.start_teaching()
-        wait_teaching_time(stack, 2.0, 30.0)
+        stack.wait_teaching(2.0, 30.0)
         pid = stack.child_pid("control")
         t_kill = time.monotonic()
         os.kill(pid, signal.SIGKILL)
