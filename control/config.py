@@ -38,6 +38,10 @@ class ControlConfig:
     lifecycle_timeout_s: float = 0.25
     #: used when the controller does not report its cycle period [s]
     default_cycle_period_s: float = 0.004
+    #: static-load check before teaching (control/load_check.py): allowed difference between
+    #: the held arm's motor torque and the model's static load beyond the model's breakaway
+    #: friction, per joint [N·m]; empty: none beyond the friction
+    load_check_margin_nm: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
         n = len(self.omega_rad_s_per_nm)
@@ -49,6 +53,12 @@ class ControlConfig:
         ):
             require(len(getattr(self, name)) == n, f"[control].{name}", f"needs {n} values")
         require(all(v > 0 for v in self.omega_rad_s_per_nm), "[control].omega_rad_s_per_nm", "> 0")
+        require(
+            len(self.load_check_margin_nm) in (0, n)
+            and all(v >= 0 for v in self.load_check_margin_nm),
+            "[control].load_check_margin_nm",
+            f"needs {n} values >= 0 (or none)",
+        )
         require(all(v > 0 for v in self.upsilon_i_per_s), "[control].upsilon_i_per_s", "> 0")
         require(all(v > 0 for v in self.max_offset_rad), "[control].max_offset_rad", "> 0")
         require(

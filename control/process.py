@@ -4,7 +4,9 @@ For every JointState it computes the torque that makes the arm weightless and fr
 (gravity + friction − cylinder assist, eq. (1) without the operator), adds a little damping and
 soft joint limits, and turns it into a position/velocity command with eq. (21). It publishes a
 command only while the gateway says TEACHING and the cylinder pressures are fresh; otherwise it
-stays silent and the CAN driver holds position.
+stays silent and the CAN driver holds position. While the arm is held at rest it checks that the
+model carries the arm's static load (control/load_check.py) and reports the verdict in its
+health; the gateway starts teaching only on a passing one.
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ import numpy as np
 from control.config import ControlConfig
 from control.declared_model import DeclaredModel
 from control.experiments import build_plan
+from control.load_check import REST_RAD_S, LoadCheck, static_load_check
 from control.outer_loop import OuterLoop
 from gateway.bus import (
     BusConfig,
@@ -193,6 +196,9 @@ class ControlProcess:
         self.session = None
         self._subs: list = []
         self._pub_cmd = None
+        #: the latest static-load check and when it was made (monotonic [s])
+        self.load_check: LoadCheck | None = None
+        self.load_check_s = 0.0
 
     def open(self) -> None:
         self.session = open_peer(self.bus)
@@ -255,6 +261,8 @@ class ControlProcess:
         following = st.controller_state in (ControllerState.HOLD, ControllerState.EXTERNAL)
         if mode is None or not following:
             self.ctl.disengage()
+            if following and io is not None and now - io.stamp_s <= self.cfg.io_timeout_s:
+                self._check_load(st, io, now)
             return
         if mode == Lifecycle.IDENTIFYING:
             self.ctl.disengage()
@@ -282,6 +290,21 @@ class ControlProcess:
         self._pub_cmd.put(cmd.to_bytes())
         self.stats["commands"] += 1
 
+    def _check_load(self, st: JointState, io: IoState, now: float) -> None:
+        """Held by the driver, not commanded: check the static load if the arm is at rest."""
+        if float(np.max(np.abs(st.dq_rad_s))) > REST_RAD_S:
+            return
+        check = static_load_check(
+            self.ctl.model,
+            st.q_rad,
+            st.current_a,
+            np.array([io.p2_bar, io.p3_bar]),
+            self.cfg.load_check_margin_nm,
+        )
+        if not check.ok and (self.load_check is None or self.load_check.ok):
+            log.warning("static-load check failed: %s", check.message)
+        self.load_check, self.load_check_s = check, now
+
     # --- slow loop: pressure set-points, health, telemetry -------------------------------
     def run(self) -> None:
         s = self.session
@@ -296,6 +319,9 @@ class ControlProcess:
                 "stamp_s": now,
                 "engaged": self.ctl.engaged,
                 **self.stats,
+                "load_check": None
+                if self.load_check is None
+                else {**self.load_check.to_json(), "age_s": round(now - self.load_check_s, 3)},
             }
             s.put(self.keys.health("control"), encode_json(health))
             tele = {

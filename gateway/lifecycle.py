@@ -1,6 +1,6 @@
 """The gateway's lifecycle state machine (pure: no I/O, clock passed in).
 
-    STOPPED --start [links healthy]--> READY --enabling held, servo on--> TEACHING
+    STOPPED --start [links healthy]--> READY --enabling held, servo on, still, load ok--> TEACHING
        ^                                 ^  <--enabling released---------     |
        |---------------- stop -----------+-----------------------------------+
     any --fault condition--> FAULT --reset [cause gone]--> STOPPED
@@ -10,7 +10,9 @@
 STOPPED is the initial state and the state `stop` leads to from anywhere but FAULT. Every fault
 condition wins over every operator command. Like ros2_control's hardware lifecycle, READY means
 "link up, states readable, holding still": only TEACHING lets the control process's commands
-through (the CAN driver checks the same conditions again before forwarding a command).
+through (the CAN driver checks the same conditions again before forwarding a command). Teaching
+starts only when the control process reports that the model carries the arm's static load
+(``load_problem`` None): a load the model lacks would fall as soon as the arm is weightless.
 """
 
 from __future__ import annotations
@@ -33,6 +35,8 @@ class Observations:
     stale_processes: tuple[str, ...] = ()
     max_speed_rad_s: float | None = None  #: fastest joint in the latest joint state
     still_for_s: float = 0.0  #: how long every joint has been below the standstill speed
+    #: why the model does not match the arm's static load (control/load_check.py); None: it does
+    load_problem: str | None = None
 
 
 @dataclass(frozen=True)
@@ -91,7 +95,10 @@ class LifecycleMachine:
                 return self.state
             servo_on = obs.controller_state in (ControllerState.HOLD, ControllerState.EXTERNAL)
             if self.state == Lifecycle.READY and obs.enabling and servo_on and self._still(obs):
-                self._go(Lifecycle.TEACHING, "enabling device held")
+                if obs.load_problem is None:
+                    self._go(Lifecycle.TEACHING, "enabling device held")
+                else:
+                    self._go(Lifecycle.READY, f"teaching blocked: {obs.load_problem}")
             elif self.state == Lifecycle.TEACHING and not obs.enabling:
                 self._go(Lifecycle.READY, "enabling device released")
         elif self.state == Lifecycle.STOPPED and not obs.estop_ok and obs.io_age_s is not None:

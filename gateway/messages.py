@@ -113,6 +113,17 @@ def _vec(values: Any, n: int, name: str) -> np.ndarray:
     return _finite(name, arr)
 
 
+#: JointState.flags bits. The controller's e-stop and servo power, and how the driver answered
+#: the previous cycle (the one ``q_cmd_rad``/``dq_cmd_rad_s`` echo) when it was not with the
+#: control process's command: a hold (or no answer at all, which freezes the controller's
+#: reference), or a coast on the last command. The recorder's export leaves the cycles after
+#: those out of identification data.
+FLAG_ESTOP = 1
+FLAG_SERVO_POWER = 2
+FLAG_PREV_HOLD = 4
+FLAG_PREV_COAST = 8
+
+
 @dataclass(frozen=True)
 class JointState:
     """One controller cycle of joint feedback, as seen by the CAN driver.
@@ -127,7 +138,7 @@ class JointState:
     cycle: int  #: controller cycle counter (16 bit on the wire, widened by the driver)
     stamp_s: float  #: driver monotonic time when the full cycle had arrived [s]
     controller_state: ControllerState
-    flags: int  #: bit 0: e-stop active at the controller; bit 1: servo power on
+    flags: int  #: FLAG_* bits: e-stop, servo power, how the previous cycle was answered
     q_rad: np.ndarray
     dq_rad_s: np.ndarray
     current_a: np.ndarray

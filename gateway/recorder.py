@@ -34,7 +34,15 @@ from mcap.writer import CompressionType, Writer
 from gateway.bus import BusConfig, bus_config_from, open_client, undeclare_all
 from gateway.config import load_toml
 from gateway.errors import DataFileError, MessageError
-from gateway.messages import IoState, JointCommand, JointState, Keys, PressureSetpoint
+from gateway.messages import (
+    FLAG_PREV_COAST,
+    FLAG_PREV_HOLD,
+    IoState,
+    JointCommand,
+    JointState,
+    Keys,
+    PressureSetpoint,
+)
 
 log = logging.getLogger("leadthrough.recorder")
 
@@ -144,11 +152,11 @@ def export_csv(
 ) -> int:
     """Export joint states (+ latest pressures) to the measurement CSV; returns rows written.
 
-    ``cycle_range`` keeps only the controller cycles ``first..last`` (inclusive). When the
-    recording holds the control process's JointCommands, cycles answered with anything else
-    (the driver's hold or coast: the JointState of the next cycle reports what was sent) are
-    *disturbed*: the cycles up to ``settle_s`` after one are left out, which leaves a time gap
-    that the analysis treats as a segment boundary; the sidecar lists them.
+    ``cycle_range`` keeps only the controller cycles ``first..last`` (inclusive). Cycles the
+    CAN driver answered with a hold or a coast instead of the control process's command (the
+    next JointState's flags say so) are *disturbed*: they and the cycles up to ``settle_s``
+    after them are left out, which leaves a time gap that the analysis treats as a segment
+    boundary; the sidecar lists them.
 
     The reported current describes ``current_lag_cycles`` of a cycle before the kinematics
     (LTC-1 reports its mean over the cycle: 0.5, PROTOCOL.md §2.1); each row gets the current
@@ -158,7 +166,6 @@ def export_csv(
     """
     keys = keys or Keys()
     states: list[tuple[JointState, np.ndarray]] = []
-    commands: dict[int, JointCommand] = {}
     p = np.array([np.nan, np.nan])
     bad = 0
     n = None
@@ -167,9 +174,6 @@ def export_csv(
             if key == keys.io_state:
                 io = IoState.from_bytes(payload)
                 p = np.array([io.p2_bar, io.p3_bar])
-            elif key == keys.joint_command:
-                cmd = JointCommand.from_bytes(payload)
-                commands[cmd.cycle] = cmd
             elif key == keys.joint_state:
                 st = JointState.from_bytes(payload)
                 if n is None:
@@ -180,7 +184,7 @@ def export_csv(
         except MessageError as exc:
             bad += 1
             log.warning("skipped a malformed message on %s: %s", key, exc)
-    disturbed = _disturbed_cycles(states, commands, cycle_range) if commands else []
+    disturbed = _disturbed_cycles(states, cycle_range)
     excluded: set[int] = set()
     for cycle, period in disturbed:
         excluded.update(range(cycle, cycle + 1 + int(np.ceil(settle_s / period))))
@@ -233,28 +237,17 @@ def export_csv(
 
 
 def _disturbed_cycles(
-    states: list[tuple[JointState, np.ndarray]],
-    commands: dict[int, JointCommand],
-    cycle_range: tuple[int, int] | None,
+    states: list[tuple[JointState, np.ndarray]], cycle_range: tuple[int, int] | None
 ) -> list[tuple[int, float]]:
-    """(cycle, period) of the cycles in range whose answer was not the control process's
-    command: the next JointState's ``q_cmd``/``dq_cmd`` (what the driver sent last) differ
-    from it, or there was none."""
-    by_cycle = {st.cycle: st for st, _ in states}
+    """(cycle, period) of the cycles in range that the CAN driver answered with a hold or a
+    coast, or not at all: the next JointState's FLAG_PREV_HOLD / FLAG_PREV_COAST."""
     out = []
     for st, _ in states:
-        if cycle_range and not cycle_range[0] <= st.cycle <= cycle_range[1]:
+        cycle = st.cycle - 1
+        if cycle_range and not cycle_range[0] <= cycle <= cycle_range[1]:
             continue
-        nxt = by_cycle.get(st.cycle + 1)
-        if nxt is None:
-            continue
-        cmd = commands.get(st.cycle)
-        if (
-            cmd is None
-            or not np.array_equal(cmd.q_cmd_rad, nxt.q_cmd_rad)
-            or not np.array_equal(cmd.dq_cmd_rad_s, nxt.dq_cmd_rad_s)
-        ):
-            out.append((st.cycle, st.cycle_period_s))
+        if st.flags & (FLAG_PREV_HOLD | FLAG_PREV_COAST):
+            out.append((cycle, st.cycle_period_s))
     return out
 
 

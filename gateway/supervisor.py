@@ -34,6 +34,9 @@ from gateway.messages import (
     encode_json,
 )
 
+#: A static-load check older than this (at the control process's last health) does not count [s].
+LOAD_CHECK_MAX_AGE_S = 0.5
+
 log = logging.getLogger("leadthrough.gateway")
 
 SUPERVISED = ("can-driver", "modbus-driver", "control")
@@ -94,6 +97,8 @@ class Gateway:
         self.io: IoState | None = None
         self.io_rx_s: float | None = None
         self.health_rx_s: dict[str, float] = {}
+        #: the control process's static-load check (control/load_check.py) as last reported
+        self.load_check: dict | None = None
         self.children: dict[str, Child] = {}
         self.session = None
         self._decls: list = []
@@ -180,8 +185,18 @@ class Gateway:
 
     def _on_health(self, sample) -> None:
         name = str(sample.key_expr).rsplit("/", 1)[-1]
+        load_check = None
+        if name == "control":
+            try:
+                load_check = decode_json(sample.payload.to_bytes(), "control health").get(
+                    "load_check"
+                )
+            except MessageError as exc:
+                log.warning("control health unreadable: %s", exc)
         with self.lock:
             self.health_rx_s[name] = time.monotonic()
+            if name == "control":
+                self.load_check = load_check if isinstance(load_check, dict) else None
 
     def observations(self, now: float, dead: tuple[str, ...] = ()) -> Observations:
         st, io = self.joint_state, self.io
@@ -209,7 +224,20 @@ class Gateway:
             stale_processes=tuple(stale),
             max_speed_rad_s=None if st is None else float(abs(st.dq_rad_s).max()),
             still_for_s=0.0 if self._moving_s is None else now - self._moving_s,
+            load_problem=self._load_problem(),
         )
+
+    def _load_problem(self) -> str | None:
+        """Why the static-load check does not allow teaching (None: it passed, and recently)."""
+        check = self.load_check
+        if check is None:
+            return "no static-load check from the control process yet (servo on, arm at rest)"
+        age = check.get("age_s")
+        if not isinstance(age, int | float) or age > LOAD_CHECK_MAX_AGE_S:
+            return f"the control process's static-load check is {age} s old"
+        if check.get("ok") is not True:
+            return str(check.get("message", "static-load check failed"))
+        return None
 
     def status(self, now: float) -> dict:
         obs = self.observations(now, self._dead)
@@ -223,6 +251,7 @@ class Gateway:
             "controller_state": None if st is None else st.controller_state.name.lower(),
             "enabling": obs.enabling,
             "estop_ok": obs.estop_ok,
+            "load_problem": obs.load_problem,
             "joint_state_age_s": obs.joint_state_age_s,
             "io_age_s": obs.io_age_s,
             "processes": {

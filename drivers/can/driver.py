@@ -48,6 +48,10 @@ from gateway.config import require
 from gateway.errors import ConfigError, FrameError, LinkTimeoutError, MessageError
 from gateway.messages import (
     COMMANDING,
+    FLAG_ESTOP,
+    FLAG_PREV_COAST,
+    FLAG_PREV_HOLD,
+    FLAG_SERVO_POWER,
     HEALTH_RATE_HZ,
     ControllerState,
     IoState,
@@ -159,6 +163,8 @@ class _Cycle:
     answer_by_s: float  #: hold if still unanswered at this time [s]
     q_rad: np.ndarray  #: measured positions of the cycle [rad]
     answered: bool = False
+    #: how it was answered: "command" (forwarded), "coast" or "hold"
+    answer: str = ""
 
 
 class CanDriver:
@@ -442,7 +448,12 @@ class CanDriver:
             self._pending = pending
             q_cmd = fb.q_rad if self._last_sent_q is None else self._last_sent_q
             dq_cmd = self._zeros if self._last_sent_dq is None else self._last_sent_dq
-            flags = int(fb.estop_active) | (int(fb.servo_power) << 1)
+            flags = int(fb.estop_active) * FLAG_ESTOP | int(fb.servo_power) * FLAG_SERVO_POWER
+            if previous is not None and previous.cycle == cycle - 1:
+                if previous.answer == "coast":
+                    flags |= FLAG_PREV_COAST
+                elif previous.answer != "command":  # a hold, or none (the controller froze)
+                    flags |= FLAG_PREV_HOLD
             state = make_joint_state(
                 cycle,
                 now,
@@ -604,7 +615,7 @@ class CanDriver:
         except FrameError:
             return False
         if self._send_locked(frames):
-            pending.answered = True
+            pending.answered, pending.answer = True, "coast"
             self.coasted += 1
             self._last_sent_q, self._last_sent_dq = q_coast, dq
         return True
@@ -616,7 +627,7 @@ class CanDriver:
             self._rlog(logging.ERROR, "hold", "cannot build a hold set: %s", exc)
             return
         if self._send_locked(frames):
-            pending.answered = True
+            pending.answered, pending.answer = True, "hold"
             self.held += 1
             self._last_sent_q, self._last_sent_dq = self._hold_q, self._zeros
 
@@ -723,7 +734,7 @@ class CanDriver:
                 return
             assert pending is not None
             if self._send_locked(frames):
-                pending.answered = True
+                pending.answered, pending.answer = True, "command"
                 self.forwarded += 1
                 self._last_sent_q, self._last_sent_dq = cmd.q_cmd_rad, cmd.dq_cmd_rad_s
                 self._last_forwarded_q = cmd.q_cmd_rad

@@ -29,7 +29,15 @@ from drivers.can.driver import CanDriver, cli_main, configure_parser, run
 from drivers.can.ltc import FaultCode, HostRequest, crc8_sae_j1850
 from gateway.bus import BusConfig, open_client, open_router
 from gateway.errors import LinkTimeoutError
-from gateway.messages import ControllerState, JointCommand, JointState, Lifecycle
+from gateway.messages import (
+    FLAG_ESTOP,
+    FLAG_PREV_HOLD,
+    FLAG_SERVO_POWER,
+    ControllerState,
+    JointCommand,
+    JointState,
+    Lifecycle,
+)
 from sim_bridge.can_endpoint import SocketcandServerBus
 
 REPO = Path(__file__).resolve().parents[2]
@@ -155,10 +163,11 @@ def test_joint_state_published_every_cycle_with_the_feedback_values(make_cell):
         np.testing.assert_allclose(s.dq_rad_s, sent.dq_rad_s, atol=0.5e-4)
         np.testing.assert_allclose(s.current_a, sent.current_a, atol=0.5e-2)
         assert s.controller_state == ControllerState.BRAKED
-        assert s.flags == 0
+        assert s.flags & (FLAG_ESTOP | FLAG_SERVO_POWER) == 0
         np.testing.assert_allclose(s.q_cmd_rad, s.q_rad, atol=1e-6)  # nothing commanded yet
         np.testing.assert_array_equal(s.dq_cmd_rad_s, np.zeros(N))
     assert all(b.stamp_s > a.stamp_s for a, b in itertools.pairwise(states))
+    assert states[-1].flags & FLAG_PREV_HOLD  # braked: every cycle is answered with a hold
 
 
 # --- forwarding -----------------------------------------------------------------------------

@@ -88,3 +88,24 @@ def test_garbage_and_nan_messages_are_refused_and_counted(rig):
     settle()
     assert proc.stats["bad_messages"] == 3
     assert commands == [], "a command was published from a malformed message"
+
+
+def test_held_arm_at_rest_is_checked_against_the_models_static_load(rig):
+    """READY (not commanding), servo on, at rest: the process checks the static load (its
+    health reports the verdict); a held current far from the model's fails naming the joint."""
+    bus, client, proc, commands = rig
+    keys = bus.keys
+    model = proc.ctl.model
+    gains = np.array([j.drive_gain_nm_per_a for j in model.desc.joints])
+    p = np.array([6.0, 4.0])
+    held = (model.gravity_nm(Q0) - model.cylinder_nm(Q0, p)) / gains
+    for k, current in enumerate((held, held + np.array([0, 0, 100.0, 0, 0, 0]) / gains)):
+        client.put(keys.io_state, IoState(time.monotonic(), *p, *p, True, True).to_bytes())
+        time.sleep(0.05)
+        st = make_joint_state(10 + k, time.monotonic(), ControllerState.HOLD, 2, Q0, np.zeros(6),
+                              current, Q0, np.zeros(6), 0.008)  # fmt: skip
+        client.put(keys.joint_state, st.to_bytes())
+        settle()
+        assert proc.load_check is not None and proc.load_check.ok is (k == 0), proc.load_check
+    assert proc.load_check.joint == 3 and "joint 3" in proc.load_check.message
+    assert commands == []

@@ -10,10 +10,11 @@ from control.identification.datafile import read_measurements
 from gateway.bus import BusConfig, open_client, open_router
 from gateway.errors import DataFileError
 from gateway.messages import (
+    FLAG_PREV_HOLD,
+    FLAG_SERVO_POWER,
     ControllerState,
     IoState,
     encode_json,
-    make_joint_command,
     make_joint_state,
 )
 from gateway.recorder import BusRecorder, export_csv, iter_mcap
@@ -59,8 +60,8 @@ def test_records_every_message_and_exports_the_measurement_csv(router, tmp_path)
 
 
 def test_export_leaves_out_the_cycles_after_a_hold_or_coast(router, tmp_path):
-    """The driver answered cycle 140 with a hold: the next JointState reports a sent command
-    that is not the control process's. The cycles settling after it are left out (a gap)."""
+    """The driver answered cycle 140 with a hold: the JointState of cycle 141 says so. That
+    cycle and those settling after it are left out (a gap in t)."""
     keys = router.keys
     rec = BusRecorder(router, tmp_path / "run.mcap")
     rec.start()
@@ -69,18 +70,12 @@ def test_export_leaves_out_the_cycles_after_a_hold_or_coast(router, tmp_path):
     try:
         time.sleep(0.5)
         pub.put(keys.io_state, IoState(1.0, 6.0, 4.0, 6.0, 4.0, True, True).to_bytes())
-        sent_q, sent_dq = np.zeros(6), np.zeros(6)
         for cycle in range(100, 200):
             q = np.full(6, 0.001 * cycle)
-            st = make_joint_state(cycle, 1.0, ControllerState.EXTERNAL, 2, q, q * 0 + 0.25,
-                                  np.ones(6), sent_q, sent_dq, period)  # fmt: skip
+            flags = FLAG_SERVO_POWER | (FLAG_PREV_HOLD if cycle == 141 else 0)
+            st = make_joint_state(cycle, 1.0, ControllerState.EXTERNAL, flags, q, q * 0 + 0.25,
+                                  np.ones(6), q, q * 0 + 0.25, period)  # fmt: skip
             pub.put(keys.joint_state, st.to_bytes())
-            cmd = make_joint_command(cycle, 1.0, 1.0, q + 0.001, np.full(6, 0.25))
-            pub.put(keys.joint_command, cmd.to_bytes())
-            if cycle == 140:  # the command came late: the driver held
-                sent_q, sent_dq = q, np.zeros(6)
-            else:
-                sent_q, sent_dq = cmd.q_cmd_rad, cmd.dq_cmd_rad_s
         time.sleep(0.5)
     finally:
         pub.close()

@@ -26,6 +26,8 @@ from drivers.can.ltc import (
 )
 from gateway.bus import BusConfig
 from gateway.messages import (
+    FLAG_PREV_COAST,
+    FLAG_PREV_HOLD,
     ControllerState,
     IoState,
     JointCommand,
@@ -451,7 +453,8 @@ def test_a_late_answer_coasts_on_the_last_command_then_holds_after_the_deadline(
     [sent] = rig.command_sets()
     assert not any(f.hold for f in sent)
     rig.clock.advance(period_s)
-    rig.cycle(period_us=4000)  # control is late for this one
+    late = rig.cycle(period_us=4000)  # control is late for this one
+    assert late.flags & (FLAG_PREV_COAST | FLAG_PREV_HOLD) == 0  # the last was the command
     rig.clock.advance(0.5 * period_s + 1e-4)
     rig.driver.spin_once(0.0)
     [coast] = rig.command_sets()
@@ -460,9 +463,12 @@ def test_a_late_answer_coasts_on_the_last_command_then_holds_after_the_deadline(
     np.testing.assert_allclose([f.dq_cmd_rad_s for f in coast], 0.2, atol=1e-4)
     assert rig.driver.coasted == 1
     rig.clock.advance(period_s)
-    rig.cycle(period_us=4000)  # the last command is now older than deadline_s (10 ms)
+    after_coast = rig.cycle(period_us=4000)  # the last command is now older than deadline_s
+    assert after_coast.flags & FLAG_PREV_COAST  # the recorder leaves the next cycles out
     rig.clock.advance(0.5 * period_s + 1e-4)
     rig.driver.spin_once(0.0)
     [hold] = rig.command_sets()
     assert all(f.hold and f.dq_cmd_rad_s == 0.0 for f in hold)
     np.testing.assert_allclose([f.q_cmd_rad for f in hold], Q0 + 0.001, atol=2e-6)
+    rig.clock.advance(period_s)
+    assert rig.cycle(period_us=4000).flags & FLAG_PREV_HOLD

@@ -103,6 +103,18 @@ def test_teaching_waits_for_standstill_after_servo_on():
     assert m.update(healthy(enabling=True, max_speed_rad_s=1e-4)) == Lifecycle.TEACHING
 
 
+def test_teaching_is_blocked_while_the_model_lacks_the_arms_load_but_identify_is_not():
+    m = LifecycleMachine()
+    m.command("start", healthy())
+    problem = "joint 3 holds 700.0 N·m at rest but the model expects 600.0 N·m"
+    assert m.update(healthy(enabling=True, load_problem=problem)) == Lifecycle.READY
+    assert m.reason == f"teaching blocked: {problem}"
+    ok, _ = m.identify({"plan_id": "p"}, healthy(enabling=True, load_problem=problem))
+    assert ok and m.state == Lifecycle.IDENTIFYING
+    m.plan_finished("p", True, "done")
+    assert m.update(healthy(enabling=True)) == Lifecycle.TEACHING
+
+
 def test_identify_needs_enabling_and_ends_back_in_ready():
     m = LifecycleMachine()
     m.command("start", healthy())
