@@ -168,6 +168,7 @@ def cli_main(args: argparse.Namespace) -> int:
         rate_hz=ANALYSIS_RATE_HZ,
         position_cutoff_hz=ANALYSIS_CUTOFF_HZ,
         torque_cutoff_hz=ANALYSIS_CUTOFF_HZ,
+        skip_short_files=True,
     )
     summary = analyze(urdf, train, test, out, options)
     print(json.dumps({k: summary[k] for k in ("rms_before", "rms_after", "effects")}, indent=1))

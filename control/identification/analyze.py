@@ -41,6 +41,7 @@ from control.identification.preprocess import (
     DEFAULT_RATE_HZ,
     DEFAULT_TORQUE_CUTOFF_HZ,
     Prepared,
+    TooShortError,
     concatenate,
     prepare,
 )
@@ -67,6 +68,9 @@ class AnalyzeOptions:
     description_path: Path | None = None
     gravity_m_s2: tuple[float, float, float] = DEFAULT_GRAVITY_M_S2
     find_effects: bool = True
+    #: leave out (and report) a file with no stretch long enough to filter instead of failing;
+    #: `identify` sets it: cycles disturbed by holds can chop a short segment to pieces
+    skip_short_files: bool = False
     compare_friction: bool = True
     plots: bool = True
     search: fx.Options = field(default_factory=fx.Options)
@@ -144,13 +148,23 @@ def _gear_ratios(
     return np.ones(reg.n)
 
 
-def _prepare(ms: Sequence[Measurements], options: AnalyzeOptions) -> Prepared:
-    return concatenate(
-        [
-            prepare(m, options.rate_hz, options.position_cutoff_hz, options.torque_cutoff_hz)
-            for m in ms
-        ]
-    )
+def _prepare(
+    ms: Sequence[Measurements], options: AnalyzeOptions, clock: _Clock, skipped: list[str]
+) -> Prepared:
+    parts = []
+    for m in ms:
+        try:
+            parts.append(
+                prepare(m, options.rate_hz, options.position_cutoff_hz, options.torque_cutoff_hz)
+            )
+        except TooShortError as exc:
+            if not options.skip_short_files:
+                raise
+            clock.say(f"left out: {exc}")
+            skipped.append(str(exc))
+    if not parts:
+        raise DataFileError(f"no usable file among {[m.source for m in ms]}: {skipped[-1]}")
+    return concatenate(parts)
 
 
 def _rigid(ctx: Context, beta: np.ndarray) -> np.ndarray:
@@ -211,8 +225,9 @@ def _analyze(
     has_p = any(m.p is not None for m in [*train_m, *test_m])
     desc = _description(options, has_p)
     ratios = _gear_ratios(options, reg, desc, clock)
-    train = remove_cylinders(_prepare(train_m, options), reg, desc)
-    test = remove_cylinders(_prepare(test_m, options), reg, desc)
+    skipped: list[str] = []
+    train = remove_cylinders(_prepare(train_m, options, clock, skipped), reg, desc)
+    test = remove_cylinders(_prepare(test_m, options, clock, skipped), reg, desc)
     if test.p_joints != train.p_joints:
         raise DataFileError(
             f"{test.sources[0]}: pressure columns {list(test.p_joints)} differ from the training "
@@ -376,6 +391,7 @@ def _analyze(
         "plots": plots,
         "model_file": "model.json",
         "effects_searched": options.find_effects,
+        "files_left_out": skipped,
         "margin": options.search.margin,
     }
     clock.lap("report")

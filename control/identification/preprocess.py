@@ -55,6 +55,10 @@ MAX_STEP_RAD = 1.0
 MIN_SEGMENT_SAMPLES = 50
 
 
+class TooShortError(DataFileError):
+    """A file without a gap-free stretch long enough to filter."""
+
+
 @dataclass(frozen=True)
 class Prepared:
     """Filtered, differentiated, decimated samples of one or more files, ready to fit.
@@ -203,7 +207,7 @@ def prepare(
         parts.append(part)
         rates.append(fs / factor)
     if not parts:
-        raise DataFileError(
+        raise TooShortError(
             f"{m.source}: too short to analyse: no gap-free stretch longer than "
             f"{2 * EDGE_PERIODS / position_cutoff_hz:.2f} s plus {MIN_SEGMENT_SAMPLES} samples"
         )

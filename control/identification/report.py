@@ -59,6 +59,8 @@ def render_markdown(summary: dict[str, Any]) -> str:
         f"Held-out test files: {', '.join(f'`{p}`' for p in summary['files']['test'])} "
         f"({summary['n_samples']['test']} samples).",
     ]
+    for why in summary.get("files_left_out", []):
+        lines.append(f"Left out: {why}.")
     if summary.get("cylinders_removed"):
         lines.append(
             "Assist-cylinder torque (eqs. 10/12, from the measured pressures) was taken out of "

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from control.identification.analyze import AnalyzeOptions, analyze
 from control.identification.cli import cli_main, configure_parser
 from control.identification.datafile import Measurements, read_measurements, write_measurements
 from control.identification.dh_urdf import PANDA_DH_ROWS, urdf_from_dh
@@ -260,6 +261,29 @@ def test_too_short_file_is_refused():
     t = np.arange(0, 0.1, 1e-3)
     with pytest.raises(DataFileError, match="too short"):
         prepare(_sine_measurements(t))
+
+
+def test_identify_leaves_out_a_file_chopped_too_short_and_says_so(cylinder_run, tmp_path):
+    """`identify` exports segments with disturbed cycles cut out; one left with nothing long
+    enough to filter is reported and left out, where `analyze` alone refuses it."""
+    m = read_measurements(cylinder_run["paths"]["train"])
+    short = tmp_path / "short.csv"
+    write_measurements(short, Measurements(m.t[:60], m.q[:60], None, m.tau[:60], m.p[:60],
+                                           str(short), m.p_joints))  # fmt: skip
+    train = [cylinder_run["paths"]["train"], short]
+    opts = AnalyzeOptions(find_effects=False, plots=False, compare_friction=False)
+    with pytest.raises(DataFileError, match=r"short\.csv: too short"):
+        analyze(cylinder_run["urdf"], train, [cylinder_run["paths"]["test"]], tmp_path / "a", opts,
+                progress=lambda _: None)  # fmt: skip
+    opts = AnalyzeOptions(
+        find_effects=False, plots=False, compare_friction=False, skip_short_files=True
+    )
+    summary = analyze(cylinder_run["urdf"], train, [cylinder_run["paths"]["test"]],
+                      tmp_path / "b", opts, progress=lambda _: None)  # fmt: skip
+    assert len(summary["files_left_out"]) == 1 and "short.csv" in summary["files_left_out"][0]
+    assert "Left out:" in (tmp_path / "b" / "report.md").read_text()
+    reference = cylinder_run["summary"]["rms_after"]
+    np.testing.assert_allclose(summary["rms_after"], reference, rtol=0.05)
 
 
 def test_other_friction_families_give_loadable_models(cylinder_run, tmp_path):
