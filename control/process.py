@@ -37,6 +37,7 @@ from gateway.config import from_mapping, load_toml, resolve_path
 from gateway.errors import MessageError
 from gateway.messages import (
     COMMANDING,
+    FLAG_PREV_HOLD,
     HEALTH_RATE_HZ,
     ControllerState,
     IoState,
@@ -114,10 +115,20 @@ class ZeroMomentController:
 
 class PlanPlayer:
     """Plays an excitation plan (control/experiments.py) as position/velocity commands, one
-    sample per controller cycle, starting from the position the robot is holding."""
+    sample per controller cycle, starting from the position the robot is holding.
+
+    The plan waits for the robot: a sample the CAN driver answered with a hold (its command
+    came late or out of range; the next JointState's FLAG_PREV_HOLD says so) is sent again
+    instead of running ahead, which would leave the held arm ever further behind and every
+    later command out of range. A plan held for longer than :attr:`MAX_PAUSE_S` fails, with
+    the reason. A coast moves the arm on as the plan does, so the plan moves on too. Each
+    segment's cycle range is recorded as played, for the export.
+    """
 
     #: keep plans this far inside the joint range [rad]
     LIMIT_MARGIN_RAD = 0.05
+    #: the plan fails when its commands were held this long in a row [s]
+    MAX_PAUSE_S = 0.5
 
     def __init__(self, lower_rad: np.ndarray, upper_rad: np.ndarray) -> None:
         self.lower, self.upper = lower_rad, upper_rad
@@ -125,13 +136,18 @@ class PlanPlayer:
         self.state = "idle"  # idle | running | done | failed
         self.reason = ""
         self.start_cycle = 0
+        self.period_s = 0.0
         self.q = self.dq = np.zeros((0, len(lower_rad)))
         self.segments: list[dict] = []
-        self.k = 0
+        self._bounds: list[tuple[int, int]] = []  #: first and last sample of each segment
+        self.k = 0  #: the plan sample to play next
+        self._sent_cycle: int | None = None  #: cycle the last sample was sent for
+        self.held_s = 0.0  #: how long the plan's commands have been held in a row [s]
+        self.repeats = 0  #: samples sent again after a hold
 
     def start(self, plan: dict, st: JointState, period_s: float) -> None:
-        self.plan_id, self.k = str(plan.get("plan_id")), 0
-        self.start_cycle = st.cycle
+        self.plan_id, self.k, self._sent_cycle, self.held_s = str(plan.get("plan_id")), 0, None, 0.0
+        self.start_cycle, self.period_s, self.repeats = st.cycle, period_s, 0
         try:
             parts = build_plan(plan, st.q_cmd_rad.copy(), self.lower, self.upper, period_s,
                                self.LIMIT_MARGIN_RAD)  # fmt: skip
@@ -139,11 +155,11 @@ class PlanPlayer:
             self.state, self.reason = "failed", str(exc)
             log.error("excitation plan %s refused: %s", self.plan_id, exc)
             return
-        self.segments, offset = [], 0
+        self.segments, self._bounds, offset = [], [], 0
         for label, role, q, _dq in parts:
             self.segments.append({"label": label, "role": role,
-                                  "start_cycle": self.start_cycle + offset,
-                                  "end_cycle": self.start_cycle + offset + len(q) - 1})  # fmt: skip
+                                  "start_cycle": None, "end_cycle": None})  # fmt: skip
+            self._bounds.append((offset, offset + len(q) - 1))
             offset += len(q)
         self.q = np.vstack([p[2] for p in parts])
         self.dq = np.vstack([p[3] for p in parts])
@@ -151,14 +167,41 @@ class PlanPlayer:
         log.info("excitation plan %s: %d segments, %.1f s", self.plan_id, len(parts),
                  len(self.q) * period_s)  # fmt: skip
 
-    def command(self, st: JointState) -> tuple[np.ndarray, np.ndarray] | None:
-        if self.state not in ("running", "done"):
-            return None
-        k = st.cycle - self.start_cycle
-        if k >= len(self.q):
+    def _played(self, cycle: int) -> None:
+        """Sample ``self.k`` was carried out in ``cycle``: note segment bounds, move on."""
+        for seg, (first, last) in zip(self.segments, self._bounds, strict=True):
+            if self.k == first:
+                seg["start_cycle"] = cycle
+            if self.k == last:
+                seg["end_cycle"] = cycle
+        self.k += 1
+        if self.k >= len(self.q):
             self.state = "done"
+            log.info("excitation plan %s done (%d samples sent again after a hold)",
+                     self.plan_id, self.repeats)  # fmt: skip
+
+    def command(self, st: JointState) -> tuple[np.ndarray, np.ndarray] | None:
+        if self.state == "running" and self._sent_cycle is not None:
+            if st.flags & FLAG_PREV_HOLD:
+                self.repeats += 1
+                self.held_s += self.period_s * max(1, st.cycle - self._sent_cycle)
+                if self.held_s > self.MAX_PAUSE_S:
+                    self.state = "failed"
+                    self.reason = (
+                        f"the robot did not follow: the CAN driver held the plan's commands for "
+                        f"{self.held_s:.2f} s at sample {self.k} of {len(self.q)} (its log says "
+                        f"why: late or out-of-range commands)"
+                    )
+                    log.error("excitation plan %s failed: %s", self.plan_id, self.reason)
+                    return None
+            else:
+                self.held_s = 0.0
+                self._played(self._sent_cycle)
+        if self.state == "done":
             return self.q[-1], np.zeros_like(self.dq[-1])
-        self.k = max(k, 0)
+        if self.state != "running":
+            return None
+        self._sent_cycle = st.cycle
         return self.q[self.k], self.dq[self.k]
 
     def report(self) -> dict:
@@ -168,6 +211,7 @@ class PlanPlayer:
             "reason": self.reason,
             "progress": self.k / max(len(self.q), 1),
             "start_cycle": self.start_cycle,
+            "repeated_samples": self.repeats,
             "segments": self.segments,
         }
 

@@ -4,6 +4,15 @@ import numpy as np
 import pytest
 
 from control.experiments import build_plan, friction_runs, multisine, reciprocating
+from control.process import PlanPlayer
+from control.robot.description import load_description
+from gateway.messages import (
+    FLAG_PREV_HOLD,
+    FLAG_SERVO_POWER,
+    ControllerState,
+    JointState,
+    make_joint_state,
+)
 
 DT = 0.004
 Q0 = np.array([0.0, 0.1, 0.2, 0.0, -0.4, 0.0])
@@ -92,3 +101,71 @@ def test_build_plan_concatenates_segments_with_roles():
 def test_bad_plans_are_refused_with_a_reason(plan, match):
     with pytest.raises(ValueError, match=match):
         build_plan(plan, Q0, LOWER, UPPER, DT, 0.05)
+
+
+# --- the plan player of the control process -------------------------------------------------
+PLAYER_PLAN = {
+    "plan_id": "p",
+    "multisine": [
+        {"seed": 1, "duration_s": 0.4, "amplitude_rad": 0.01, "base_hz": 2.5, "harmonics": 2},
+        {"seed": 2, "duration_s": 0.4, "amplitude_rad": 0.01, "base_hz": 2.5, "harmonics": 2,
+         "role": "test"},
+    ],
+    "pause_s": 0.04,
+}  # fmt: skip
+PERIOD_S = 0.008
+
+
+def _state(cycle: int, flags: int = 0) -> JointState:
+    q = np.array([0.0, 0.15, 0.25, 0.0, -0.4, 0.0])
+    z = np.zeros(6)
+    return make_joint_state(cycle, 0.0, ControllerState.EXTERNAL, FLAG_SERVO_POWER | flags,
+                            q, z, z, q, z, PERIOD_S)  # fmt: skip
+
+
+def _player() -> PlanPlayer:
+    desc = load_description()
+    player = PlanPlayer(desc.lower_rad, desc.upper_rad)
+    player.start(PLAYER_PLAN, _state(100), PERIOD_S)
+    assert player.state == "running"
+    return player
+
+
+def play(player: PlanPlayer, held_cycles: set[int], last: int) -> list[np.ndarray]:
+    """Feed cycles 100..last; a cycle in ``held_cycles`` was answered by the driver's hold."""
+    sent = []
+    for cycle in range(100, last + 1):
+        out = player.command(_state(cycle, FLAG_PREV_HOLD if cycle - 1 in held_cycles else 0))
+        if out is not None and player.state == "running":
+            sent.append(out[0])
+    return sent
+
+
+def test_plan_plays_one_sample_per_cycle_and_records_segment_cycles():
+    player = _player()
+    n = len(player.q)
+    play(player, set(), 100 + n)
+    assert player.state == "done" and player.repeats == 0
+    first, second = player.segments
+    assert first["start_cycle"] == 100 and second["end_cycle"] == 100 + n - 1
+    assert second["start_cycle"] == first["end_cycle"] + 1
+
+
+def test_a_held_sample_is_sent_again_and_the_plan_waits():
+    player = _player()
+    n = len(player.q)
+    sent = play(player, {110, 111}, 100 + n + 2)
+    assert player.state == "done" and player.repeats == 2
+    np.testing.assert_array_equal(sent[10], sent[11])  # cycle 110's sample again in 111, 112
+    np.testing.assert_array_equal(sent[11], sent[12])
+    assert not np.array_equal(sent[12], sent[13])
+    assert player.segments[1]["end_cycle"] == 100 + n + 1  # two cycles later than unheld
+
+
+def test_a_plan_held_too_long_fails_with_the_reason():
+    player = _player()
+    held = set(range(105, 105 + round(0.6 / PERIOD_S)))
+    play(player, held, 105 + round(0.6 / PERIOD_S))
+    assert player.state == "failed" and "did not follow" in player.reason
+    report = player.report()
+    assert report["state"] == "failed" and report["repeated_samples"] > 0
