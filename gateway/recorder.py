@@ -9,9 +9,8 @@ CSV export (the measurement format of control/identification/datafile.py): one r
 JointState, ``t`` counted from the first exported cycle in controller time
 (cycle × cycle period, so lock-step recordings keep their true time base), ``q``, ``dq``, motor
 currents ``i`` (interpolated to the instant of ``q``), and the latest cylinder pressures ``p2``,
-``p3``; a sidecar ``<stem>.json``
-carries the drive gains that turn currents into torques. Cycles disturbed by a hold or coast
-of the CAN driver are left out (:func:`export_csv`).
+``p3``; a sidecar ``<stem>.json`` carries the drive gains that turn currents into torques.
+Cycles disturbed by a hold or coast of the CAN driver are left out (:func:`export_csv`).
 """
 
 from __future__ import annotations
