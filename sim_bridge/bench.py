@@ -25,27 +25,37 @@ def run_rate(rate_hz: float, cycles: int, workdir: Path) -> dict:
         "controller": {"cycle_period_s": period},
         "operator": {"enabling_after_s": 0.0, "mode": "none"},
     }
+    error = None
     with Stack(workdir, sim_overrides=overrides) as stack:
         stack.start()
-        stack.start_teaching()
-        t_end = time.monotonic() + cycles * period * 1.05 + 1.0
-        while time.monotonic() < t_end:
-            stack.check_alive()
-            time.sleep(0.5)
+        try:
+            stack.start_teaching()
+        except (TimeoutError, RuntimeError) as exc:  # the loop cannot even start at this rate
+            error = f"teaching did not start: {exc}"
+        else:
+            t_end = time.monotonic() + cycles * period * 1.05 + 1.0
+            while time.monotonic() < t_end:
+                stack.check_alive()
+                time.sleep(0.5)
         stack.request("stop")
     truth = stack.truth()
     summary = json.loads(stack.sim_summary.read_text())
     lat = truth["latency_s"]
     lat = lat[np.isfinite(lat)][:cycles] * 1e3
+
+    def pct(p: float) -> float | None:
+        return float(np.percentile(lat, p)) if lat.size else None
+
     return {
         "rate_hz": rate_hz,
         "cycles_measured": int(lat.size),
-        "p50_ms": float(np.percentile(lat, 50)),
-        "p99_ms": float(np.percentile(lat, 99)),
-        "max_ms": float(lat.max()),
+        "p50_ms": pct(50),
+        "p99_ms": pct(99),
+        "max_ms": pct(100),
         "missed_cycles": int(summary["teaching_missed_cycles"]),
         "teaching_cycles": int(summary["teaching_cycles"]),
         "faults": summary["faults"],
+        "error": error,
     }
 
 
@@ -66,10 +76,13 @@ def cli_main(args: argparse.Namespace) -> int:
         results.append(run_rate(rate, args.cycles, args.out / f"{rate:.0f}hz"))
     print(f"\n{'rate':>8} {'cycles':>8} {'p50 ms':>8} {'p99 ms':>8} {'max ms':>8} {'missed':>8}")
     for r in results:
-        print(
-            f"{r['rate_hz']:>6.0f}Hz {r['cycles_measured']:>8d} {r['p50_ms']:>8.3f} "
-            f"{r['p99_ms']:>8.3f} {r['max_ms']:>8.3f} {r['missed_cycles']:>8d}"
-        )
+        ms = [f"{r[k]:>8.3f}" if r[k] is not None else f"{'-':>8}" for k in ("p50_ms", "p99_ms",
+                                                                            "max_ms")]  # fmt: skip
+        print(f"{r['rate_hz']:>6.0f}Hz {r['cycles_measured']:>8d} {' '.join(ms)} "
+              f"{r['missed_cycles']:>8d}")  # fmt: skip
+    for r in results:
+        for problem in ([r["error"]] if r["error"] else []) + r["faults"]:
+            print(f"{r['rate_hz']:>6.0f}Hz: {problem}")
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "bench.json").write_text(json.dumps(results, indent=2))
     return 0
