@@ -51,6 +51,11 @@ class CanDriverConfig:
     #: An unanswered cycle is answered with a hold set at this age, or earlier if the
     #: controller's cycle period demands it (see driver.py).
     deadline_s: float = 0.010
+    #: An unanswered cycle is answered (coast or hold) this far into the controller's period
+    #: at the latest [1]: the rest is margin for the frames to reach the controller before its
+    #: next cycle. A lock-step virtual controller waits for the answer, so there the whole
+    #: period may be used.
+    answer_by_period_fraction: float = 0.5
     #: The gateway's lifecycle message counts as fresh for this long [s].
     lifecycle_timeout_s: float = 0.25
     #: The Modbus driver's IoState counts as fresh for this long [s].
@@ -83,6 +88,12 @@ class CanDriverConfig:
                 f"{where}.{name}",
                 f"{value!r} s outside ({lo}, {hi}]",
             )
+        require(
+            math.isfinite(self.answer_by_period_fraction)
+            and 0.0 < self.answer_by_period_fraction <= 1.0,
+            f"{where}.answer_by_period_fraction",
+            f"{self.answer_by_period_fraction!r} outside (0, 1]",
+        )
         for name in ("max_following_error_rad", "max_velocity_rad_s"):
             object.__setattr__(self, name, self._per_joint(name, getattr(self, name)))
 

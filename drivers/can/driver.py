@@ -10,10 +10,10 @@ JointState and answers the cycle exactly once, with either
 * a hold set (hold=1, zero velocity) at a position latched when holding began: at once when
   forwarding is not allowed, otherwise when the cycle's answer deadline passes.
 
-The answer deadline of a cycle is ``min(deadline_s, ANSWER_BY_PERIOD_FRACTION × period)`` after
+The answer deadline of a cycle is ``min(deadline_s, answer_by_period_fraction × period)`` after
 its JointState stamp: a command set must reach the controller before the next cycle begins or
-it is a missed cycle (PROTOCOL.md §3), so with the default 10 ms deadline and a 4 ms cycle the
-hold goes out 3 ms into the cycle. A command arriving after its cycle was answered is rejected
+it is a missed cycle (PROTOCOL.md §3), so with the defaults (10 ms, 0.5) and a 4 ms cycle the
+hold goes out 2 ms into the cycle. A command arriving after its cycle was answered is rejected
 as ``late_cycle``.
 
 Servo power is requested from the gateway's lifecycle (READY, TEACHING or IDENTIFYING, and
@@ -175,8 +175,6 @@ class CanDriver:
     ``config.transport`` and ``bus_config``.
     """
 
-    #: An unanswered cycle gets its hold set at this fraction of the controller's period [1].
-    ANSWER_BY_PERIOD_FRACTION = 0.5
     #: Longest wait in bus.recv before the loop checks deadlines and heartbeats [s].
     RECV_TIMEOUT_S = 0.001
     #: Longest a CAN send may block (socketcan tx queue full) [s].
@@ -443,7 +441,7 @@ class CanDriver:
                 self._last_forward = None
             budget_s = self.config.deadline_s
             if fb.cycle_period_s > 0:
-                budget_s = min(budget_s, self.ANSWER_BY_PERIOD_FRACTION * fb.cycle_period_s)
+                budget_s = min(budget_s, self.config.answer_by_period_fraction * fb.cycle_period_s)
             pending = _Cycle(cycle, fb.counter, now, now + budget_s, fb.q_rad)
             self._pending = pending
             q_cmd = fb.q_rad if self._last_sent_q is None else self._last_sent_q

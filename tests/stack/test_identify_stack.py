@@ -74,7 +74,10 @@ def identify(tmp_path, effects: list[dict]) -> dict:
         "operator": {"enabling_after_s": 0.0},
         "controller": {"cycle_period_s": CYCLE_S},
     }
-    with Stack(tmp_path / "cell", sim_overrides=sim, lockstep=True) as stack:
+    # Lock-step, the virtual controller waits for each answer: the driver may use the whole
+    # cycle before it coasts or holds (this VM's timers overshoot 1 ms sleeps by up to 11 ms).
+    can = {"can": {"answer_by_period_fraction": 1.0, "deadline_s": 0.1}}
+    with Stack(tmp_path / "cell", sim_overrides=sim, cell_overrides=can, lockstep=True) as stack:
         stack.start()
         stack.start_teaching()
         out = subprocess.run(

@@ -65,6 +65,7 @@ def test_from_toml_table_with_per_joint_lists():
         ({"transport": {**SOCKETCAND, "host": ""}}, "server's host"),
         ({"transport": {**SOCKETCAND, "bitrate": [1]}}, "transport.bitrate"),
         ({"deadline": 0.01}, "unknown key"),
+        ({"answer_by_period_fraction": 1.5}, r"answer_by_period_fraction: 1.5 outside \(0, 1\]"),
     ],
 )
 def test_bad_values_are_refused_with_field_and_reason(table, message):
