@@ -12,8 +12,10 @@ the machine, so a stamp taken in the CAN driver can be aged in the control proce
 
 from __future__ import annotations
 
+import functools
 import json
 import struct
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from enum import IntEnum
 from typing import Any, ClassVar
@@ -95,15 +97,17 @@ def _finite(name: str, values: np.ndarray) -> np.ndarray:
     return values
 
 
-def _check_header(data: bytes, magic: bytes, what: str, min_len: int) -> None:
+def _check_header(
+    data: bytes, magic: bytes, what: str, min_len: int, version: int = LAYOUT_VERSION
+) -> None:
     if not isinstance(data, bytes | bytearray | memoryview):
         raise MessageError(f"{what}: payload must be bytes, got {type(data).__name__}")
     if len(data) < min_len:
         raise MessageError(f"{what}: payload is {len(data)} bytes, shorter than its header")
     if bytes(data[:4]) != magic:
         raise MessageError(f"{what}: magic {bytes(data[:4])!r} is not {magic!r}")
-    if data[4] != LAYOUT_VERSION:
-        raise MessageError(f"{what}: layout version {data[4]} unsupported (want {LAYOUT_VERSION})")
+    if data[4] != version:
+        raise MessageError(f"{what}: layout version {data[4]} unsupported (want {version})")
 
 
 def _vec(values: Any, n: int, name: str) -> np.ndarray:
@@ -151,6 +155,45 @@ class JointState:
     def n(self) -> int:
         return int(self.q_rad.shape[0])
 
+    @staticmethod
+    @functools.cache
+    def _layout(n: int) -> struct.Struct:
+        return struct.Struct(f"<4sBBIdBBd{5 * n}d")
+
+    @classmethod
+    def pack(
+        cls,
+        cycle: int,
+        stamp_s: float,
+        controller_state: int,
+        flags: int,
+        cycle_period_s: float,
+        q_rad: Sequence[float],
+        dq_rad_s: Sequence[float],
+        current_a: Sequence[float],
+        q_cmd_rad: Sequence[float],
+        dq_cmd_rad_s: Sequence[float],
+    ) -> bytes:
+        """The wire bytes of a JointState, straight from float sequences (the CAN driver's hot
+        path: one precompiled struct, no intermediate arrays). The caller guarantees finite
+        values of equal length (they come from decoded CAN frames and sent commands)."""
+        n = len(q_rad)
+        return cls._layout(n).pack(
+            cls.MAGIC,
+            LAYOUT_VERSION,
+            n,
+            cycle & 0xFFFFFFFF,
+            stamp_s,
+            controller_state,
+            flags,
+            cycle_period_s,
+            *q_rad,
+            *dq_rad_s,
+            *current_a,
+            *q_cmd_rad,
+            *dq_cmd_rad_s,
+        )
+
     def to_bytes(self) -> bytes:
         head = self._HEAD.pack(
             self.MAGIC,
@@ -190,16 +233,24 @@ class JointState:
 
 @dataclass(frozen=True)
 class JointCommand:
-    """Position/velocity command computed from one JointState (eq. (21) of the paper)."""
+    """Position/velocity command computed from one JointState (eq. (21) of the paper).
+
+    Its three stamps time the loop's stages (every process reads the same CLOCK_MONOTONIC):
+    the JointState's driver stamp, the control process's receipt of it, and publication.
+    """
 
     MAGIC: ClassVar[bytes] = b"LTJC"
-    _HEAD: ClassVar[struct.Struct] = struct.Struct("<4sBBIdd")
+    #: layout 2 added ``state_rx_stamp_s``
+    VERSION: ClassVar[int] = 2
+    _HEAD: ClassVar[struct.Struct] = struct.Struct("<4sBBIddd")
 
     cycle: int  #: the JointState.cycle this command answers
     state_stamp_s: float  #: JointState.stamp_s it was computed from: ages the command [s]
     sent_stamp_s: float  #: control-process monotonic time at publication [s]
     q_cmd_rad: np.ndarray
     dq_cmd_rad_s: np.ndarray
+    #: control-process monotonic time the JointState arrived [s]; 0 = not reported
+    state_rx_stamp_s: float = 0.0
 
     @property
     def n(self) -> int:
@@ -208,29 +259,30 @@ class JointCommand:
     def to_bytes(self) -> bytes:
         head = self._HEAD.pack(
             self.MAGIC,
-            LAYOUT_VERSION,
+            self.VERSION,
             self.n,
             self.cycle & 0xFFFFFFFF,
             self.state_stamp_s,
             self.sent_stamp_s,
+            self.state_rx_stamp_s,
         )
         return head + np.concatenate([self.q_cmd_rad, self.dq_cmd_rad_s]).astype("<f8").tobytes()
 
     @classmethod
     def from_bytes(cls, data: bytes) -> JointCommand:
-        _check_header(data, cls.MAGIC, "JointCommand", cls._HEAD.size)
-        _, _, n, cycle, state_stamp, sent_stamp = cls._HEAD.unpack_from(data)
+        _check_header(data, cls.MAGIC, "JointCommand", cls._HEAD.size, cls.VERSION)
+        _, _, n, cycle, state_stamp, sent_stamp, rx_stamp = cls._HEAD.unpack_from(data)
         if not 1 <= n <= 16:
             raise MessageError(f"JointCommand: joint count {n} outside 1..16")
         want = cls._HEAD.size + 2 * n * 8
         if len(data) != want:
             raise MessageError(f"JointCommand: {len(data)} bytes, expected {want} for {n} joints")
-        if not (np.isfinite(state_stamp) and np.isfinite(sent_stamp)):
+        if not (np.isfinite(state_stamp) and np.isfinite(sent_stamp) and np.isfinite(rx_stamp)):
             raise MessageError("JointCommand: stamps must be finite")
         body = np.frombuffer(data, dtype="<f8", offset=cls._HEAD.size).reshape(2, n)
         q = _finite("JointCommand.q_cmd_rad", body[0].copy())
         dq = _finite("JointCommand.dq_cmd_rad_s", body[1].copy())
-        return cls(cycle, state_stamp, sent_stamp, q, dq)
+        return cls(cycle, state_stamp, sent_stamp, q, dq, rx_stamp)
 
 
 @dataclass(frozen=True)
@@ -390,7 +442,12 @@ def make_joint_state(
 
 
 def make_joint_command(
-    cycle: int, state_stamp_s: float, sent_stamp_s: float, q_cmd_rad: Any, dq_cmd_rad_s: Any
+    cycle: int,
+    state_stamp_s: float,
+    sent_stamp_s: float,
+    q_cmd_rad: Any,
+    dq_cmd_rad_s: Any,
+    state_rx_stamp_s: float = 0.0,
 ) -> JointCommand:
     """Build a validated JointCommand (raises MessageError on NaN or mismatched sizes)."""
     n = len(q_cmd_rad)
@@ -400,4 +457,5 @@ def make_joint_command(
         sent_stamp_s,
         _vec(q_cmd_rad, n, "q_cmd_rad"),
         _vec(dq_cmd_rad_s, n, "dq_cmd_rad_s"),
+        float(state_rx_stamp_s),
     )

@@ -1,27 +1,15 @@
 """The CAN driver process: the robot controller's CAN link on one side, the zenoh bus on the other.
 
-Every control cycle the controller sends its joint feedback; the driver publishes it as a
-JointState and answers the cycle exactly once, with either
+The decisions of every control cycle — which frames complete a cycle, whether and how it is
+answered (forwarded command, coast, hold), servo requests and heartbeats — live in the pure
+:class:`drivers.can.core.HostCore` (read its docstring for the rules). This module is the shell
+around it: it owns the CAN bus and the zenoh session, feeds the core what arrives, sends and
+publishes what the core returns, and times the loop's stages.
 
-* the control process's JointCommand for that cycle, forwarded only if every check passes
-  (lifecycle TEACHING or IDENTIFYING, enabling device held and e-stop chain closed, controller
-  servoing, the command fresh, for this very cycle, within the following-error and velocity
-  limits), or
-* a hold set (hold=1, zero velocity) at a position latched when holding began: at once when
-  forwarding is not allowed, otherwise when the cycle's answer deadline passes.
-
-The answer deadline of a cycle is ``min(deadline_s, answer_by_period_fraction × period)`` after
-its JointState stamp: a command set must reach the controller before the next cycle begins or
-it is a missed cycle (PROTOCOL.md §3), so with the defaults (10 ms, 0.5) and a 4 ms cycle the
-hold goes out 2 ms into the cycle. A command arriving after its cycle was answered is rejected
-as ``late_cycle``.
-
-Servo power is requested from the gateway's lifecycle (READY, TEACHING or IDENTIFYING, and
-fresh: SERVO_ON; anything else, including silence: BRAKE), repeated with every host heartbeat.
-The default, the ``except`` path and the exit path all lead to BRAKE.
-
-Threads: the main loop owns the CAN receive side and the adapter's cycle assembly; zenoh
-callbacks decode, check and send under one lock and never wait for anything but that lock.
+Threads: the loop thread blocks in ``bus.recv`` until a frame arrives or the core's next
+deadline (an answer, a heartbeat) is due — no polling; zenoh callbacks decode, decide and send
+under one lock and never wait for anything but that lock. A zenoh callback that answers a cycle
+sends its frames itself, so the answer leaves as soon as the command arrives.
 """
 
 from __future__ import annotations
@@ -33,57 +21,36 @@ import socket
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import can
-import numpy as np
 
-from drivers.can.adapter import ADAPTER_GROUP, CanAdapter, CycleFeedback, HostRequest
+from drivers.can.adapter import ADAPTER_GROUP, CanAdapter
 from drivers.can.config import CanDriverConfig, load_can_config
+from drivers.can.core import COMMAND, REJECT_REASONS, HostCore
 from drivers.registry import load_adapter
 from gateway.bus import BusConfig, declare_loop_publisher, open_peer, undeclare_all
 from gateway.config import require
-from gateway.errors import ConfigError, FrameError, LinkTimeoutError, MessageError
-from gateway.messages import (
-    COMMANDING,
-    FLAG_ESTOP,
-    FLAG_PREV_COAST,
-    FLAG_PREV_HOLD,
-    FLAG_SERVO_POWER,
-    HEALTH_RATE_HZ,
-    ControllerState,
-    IoState,
-    JointCommand,
-    Lifecycle,
-    LifecycleMsg,
-    encode_json,
-    make_joint_state,
-)
+from gateway.errors import ConfigError, LinkTimeoutError
+from gateway.latency import Histogram
+from gateway.messages import HEALTH_RATE_HZ, encode_json
+from gateway.ratelog import RateLimitedLog
 
 log = logging.getLogger(__name__)
 
 PROCESS_NAME = "can_driver"
 
-#: Why a JointCommand was not forwarded (the keys of the health message's "rejected").
-REJECT_REASONS = (
-    "stale",  # older than deadline_s
-    "blocked_lifecycle",  # lifecycle not TEACHING/IDENTIFYING, or silent
-    "blocked_enabling",  # enabling device released, e-stop chain open, or I/O silent
-    "blocked_controller",  # controller not servoing (BRAKED/FAULT) or its link is down
-    "bad_message",  # undecodable payload, NaN, wrong joint count
-    "out_of_range",  # following error, velocity, or a value the protocol cannot carry
-    "late_cycle",  # not for the current cycle, or that cycle was already answered
-)
+__all__ = ["PROCESS_NAME", "REJECT_REASONS", "STAGES", "CanDriver", "run"]
 
-_SERVOING = (ControllerState.HOLD, ControllerState.EXTERNAL)
-_BRAKED = (ControllerState.BRAKED, ControllerState.FAULT)
-
-
-def _fresh(stamp_s: float, received_s: float, now_s: float, timeout_s: float) -> bool:
-    """Both the sender's stamp and our receipt are recent (a future stamp never keeps it fresh)."""
-    return (now_s - received_s) < timeout_s and -timeout_s < (now_s - stamp_s) < timeout_s
+#: Stages of one loop cycle the driver times (health "stages"), all on CLOCK_MONOTONIC:
+#: decode — the cycle's last frame received → its JointState handed to zenoh;
+#: zenoh_out — handed to zenoh → received by the control process;
+#: control — received by the control process → its JointCommand handed to zenoh;
+#: zenoh_back — handed to zenoh → received here;
+#: encode — received here → the answer's frames handed to the CAN bus (checks included);
+#: answer — the cycle's last frame received → its computed answer handed to the CAN bus.
+STAGES = ("decode", "zenoh_out", "control", "zenoh_back", "encode", "answer")
 
 
 class _DropPartialReadNotes(logging.Filter):
@@ -124,49 +91,6 @@ def _await_socketcand_server(transport: dict[str, Any], timeout_s: float) -> Non
             time.sleep(0.1)
 
 
-def _next_tick(previous_s: float, period_s: float, now_s: float) -> float:
-    """Next time of a periodic action: on the grid, or one period from now if behind."""
-    following = previous_s + period_s
-    return following if following > now_s else now_s + period_s
-
-
-class _RateLimitedLog:
-    """At most one record per key and period; says how many were suppressed in between."""
-
-    def __init__(self, logger: logging.Logger, period_s: float, clock: Callable[[], float]):
-        self._log, self._period_s, self._clock = logger, period_s, clock
-        self._last: dict[str, float] = {}
-        self._suppressed: dict[str, int] = {}
-        self._lock = threading.Lock()
-
-    def __call__(self, level: int, key: str, msg: str, *args: Any) -> None:
-        now = self._clock()
-        with self._lock:
-            last = self._last.get(key)
-            if last is not None and now - last < self._period_s:
-                self._suppressed[key] = self._suppressed.get(key, 0) + 1
-                return
-            self._last[key] = now
-            suppressed = self._suppressed.pop(key, 0)
-        if suppressed:
-            msg += f" (+{suppressed} similar in the last {self._period_s:g} s)"
-        self._log.log(level, msg, *args)
-
-
-@dataclass
-class _Cycle:
-    """The newest complete controller cycle, waiting for (or given) its answer."""
-
-    cycle: int  #: widened cycle counter (JointState.cycle)
-    counter: int  #: the counter as on the wire
-    stamp_s: float  #: JointState.stamp_s [s]
-    answer_by_s: float  #: hold if still unanswered at this time [s]
-    q_rad: np.ndarray  #: measured positions of the cycle [rad]
-    answered: bool = False
-    #: how it was answered: "command" (forwarded), "coast" or "hold"
-    answer: str = ""
-
-
 class CanDriver:
     """The CAN driver. ``start()`` opens the links and runs the loop thread; ``close()`` brakes.
 
@@ -175,8 +99,9 @@ class CanDriver:
     ``config.transport`` and ``bus_config``.
     """
 
-    #: Longest wait in bus.recv before the loop checks deadlines and heartbeats [s].
-    RECV_TIMEOUT_S = 0.001
+    #: Longest the loop sleeps in bus.recv with nothing due: a lifecycle change or an operator
+    #: reset (which arrive through callbacks) turns into a request frame within this [s].
+    MAX_WAIT_S = 0.005
     #: Longest a CAN send may block (socketcan tx queue full) [s].
     SEND_TIMEOUT_S = 0.005
     #: Period of health messages [s].
@@ -218,9 +143,13 @@ class CanDriver:
             f"{adapter.host_heartbeat_timeout_s} s without a heartbeat, so send at least twice "
             "within that",
         )
-        self._max_fe = np.array(config.max_following_error_rad, dtype=float)
-        self._max_dq = np.array(config.max_velocity_rad_s, dtype=float)
-        self._zeros = np.zeros(config.joints)
+        self._rlog = RateLimitedLog(log, self.LOG_PERIOD_S, clock)
+        self.core = HostCore(
+            config,
+            adapter,
+            note=lambda level, key, msg: self._rlog(level, key, "%s", msg),
+            health_period_s=self.HEALTH_PERIOD_S,
+        )
 
         self._bus = can_bus
         self._owns_bus = can_bus is None
@@ -229,47 +158,46 @@ class CanDriver:
         self._subscribers: list[Any] = []
         self._publisher: Any = None
 
-        self._lock = threading.Lock()  # guards everything below and every CAN send
+        self._lock = threading.Lock()  # guards the core, the stage timers and every CAN send
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._closing = False
         self._closed = False
         self.failed: BaseException | None = None  #: the error that ended the loop, if any
-        self._rlog = _RateLimitedLog(log, self.LOG_PERIOD_S, clock)
-
-        # inputs from zenoh
-        self._lifecycle: LifecycleMsg | None = None
-        self._lifecycle_rx_s = -np.inf
-        self._io: IoState | None = None
-        self._io_rx_s = -np.inf
-        self._reset_wanted = False
-        # controller
-        self._feedback: CycleFeedback | None = None
-        self._last_cycle_rx_s = -np.inf
-        self._last_counter: int | None = None
-        self._cycle = 0
-        self._pending: _Cycle | None = None
-        # what we asked for and sent
-        self._request_sent: HostRequest | None = None
-        self._next_heartbeat_s = -np.inf
-        self._next_health_s = -np.inf
-        self._last_sent_q: np.ndarray | None = None
-        self._last_sent_dq: np.ndarray | None = None
-        self._last_forwarded_q: np.ndarray | None = None  #: since servo-on
-        #: (state stamp, cycle, q_cmd, dq_cmd, period) of the last forwarded command: coasting
-        self._last_forward: tuple[float, int, np.ndarray, np.ndarray, float] | None = None
-        self.coasted = 0  #: late cycles answered by coasting on the last command
-        self._hold_q: np.ndarray | None = None
-        self._holding = False
-        # counters
-        self.rejected = dict.fromkeys(REJECT_REASONS, 0)
-        self.cycles = 0
-        self.forwarded = 0
-        self.held = 0
-        self.unanswered = 0
+        self.stages = {name: Histogram() for name in STAGES}
+        #: (cycle, its stamp, when its JointState was handed to zenoh) of the newest cycle
+        self._published: tuple[int, float, float] = (-1, 0.0, 0.0)
         self.send_errors = 0
-        self.bad_inputs = 0
         self.recv_errors = 0
+
+    # --- counters (the core keeps them; health reports them) --------------------------------
+    @property
+    def rejected(self) -> dict[str, int]:
+        return self.core.rejected
+
+    @property
+    def forwarded(self) -> int:
+        return self.core.forwarded
+
+    @property
+    def coasted(self) -> int:
+        return self.core.coasted
+
+    @property
+    def held(self) -> int:
+        return self.core.held
+
+    @property
+    def cycles(self) -> int:
+        return self.core.cycles
+
+    @property
+    def unanswered(self) -> int:
+        return self.core.unanswered
+
+    @property
+    def bad_inputs(self) -> int:
+        return self.core.bad_inputs
 
     # --- lifecycle --------------------------------------------------------------------------
     def start(self) -> None:
@@ -332,15 +260,12 @@ class CanDriver:
             self._closed = True
             if self._bus is not None:
                 try:
-                    self._send_locked([self.adapter.request_frame(HostRequest.BRAKE)])
-                    self._request_sent = HostRequest.BRAKE
+                    frames = self.core.closing_frames()
                 except Exception:
-                    log.exception("could not send the BRAKE request on exit")
-                try:
-                    if self._pending is not None:
-                        self._send_locked(self._hold_frames_locked(self._pending))
-                except Exception:
-                    log.exception("could not send the hold set on exit")
+                    log.exception("could not build the BRAKE request and hold set on exit")
+                    frames = []
+                if frames and not self._send_locked(frames):
+                    log.error("could not send the BRAKE request and hold set on exit")
         undeclare_all([*self._subscribers, self._publisher])
         self._subscribers, self._publisher = [], None
         if self._owns_session and self._session is not None:
@@ -368,6 +293,10 @@ class CanDriver:
         thread = self._thread
         return thread is not None and thread.is_alive()
 
+    def link_ok(self) -> bool:
+        with self._lock:
+            return self.core.link_ok(self._clock())
+
     # --- main loop --------------------------------------------------------------------------
     def _loop(self) -> None:
         try:
@@ -379,14 +308,18 @@ class CanDriver:
             self._stop.set()
 
     def spin_once(self, recv_timeout_s: float | None = None) -> None:
-        """Receive at most one frame, then run the deadline, request, heartbeat and health
-        checks. The loop thread calls this; tests without the thread may call it directly."""
+        """Receive at most one frame (waiting until the core's next deadline at most), then run
+        the deadline, request, heartbeat and health checks. The loop thread calls this; tests
+        without the thread call it directly with a timeout (0: do not wait)."""
         bus = self._bus
         if bus is None:
             raise RuntimeError("CanDriver is not open")
-        timeout = self.RECV_TIMEOUT_S if recv_timeout_s is None else recv_timeout_s
+        if recv_timeout_s is None:
+            with self._lock:
+                due = self.core.next_tick_s()
+            recv_timeout_s = min(max(due - self._clock(), 0.0), self.MAX_WAIT_S)
         try:
-            msg = bus.recv(timeout=timeout)
+            msg = bus.recv(timeout=recv_timeout_s)
         except can.CanError as exc:
             self.recv_errors += 1
             self._rlog(logging.ERROR, "recv", "CAN receive failed: %s", exc)
@@ -394,83 +327,27 @@ class CanDriver:
             msg = None
         now = self._clock()
         if msg is not None:
-            stats = self.adapter.stats
-            dropped = stats.bad_frames + stats.incomplete_cycles + stats.corrupt_cycles
-            feedback = self.adapter.feed(msg)
-            if feedback is not None:
-                self._on_cycle(feedback, now)
-            elif stats.bad_frames + stats.incomplete_cycles + stats.corrupt_cycles != dropped:
-                self._rlog(logging.WARNING, "frame", "CAN: %s", stats.last_error)
-        self._periodic(now)
+            self._on_frame(msg, now)
+        self._periodic(self._clock() if msg is not None else now)
 
-    def _widen(self, counter: int) -> int | None:
-        """Wire counter → monotonically increasing cycle number; None for a repeated counter."""
-        if self._last_counter is None:
-            self._cycle = counter
-        else:
-            delta = (counter - self._last_counter) % self.adapter.counter_modulus
-            if delta == 0:
-                return None
-            self._cycle += delta
-        self._last_counter = counter
-        return self._cycle
-
-    def _on_cycle(self, fb: CycleFeedback, now: float) -> None:
+    def _on_frame(self, msg: can.Message, now: float) -> None:
         with self._lock:
             if self._closing:
                 return
-            cycle = self._widen(fb.counter)
-            if cycle is None:
-                self._rlog(logging.WARNING, "dup", "controller repeated cycle %d", fb.counter)
+            result = self.core.on_frame(msg, now)
+            if result.frames:
+                self._send_locked(result.frames)
+            if result.state is None:
                 return
-            previous = self._pending
-            if previous is not None and not previous.answered:
-                self.unanswered += 1
-                self._rlog(
-                    logging.WARNING,
-                    "unanswered",
-                    "cycle %d got no answer before cycle %d arrived",
-                    previous.cycle,
-                    cycle,
-                )
-            self.cycles += 1
-            self._feedback, self._last_cycle_rx_s = fb, now
-            if fb.controller_state in _BRAKED:
-                # On its brakes the arm is where it is: the next hold starts from there.
-                self._holding, self._last_forwarded_q = False, None
-                self._last_forward = None
-            budget_s = self.config.deadline_s
-            if fb.cycle_period_s > 0:
-                budget_s = min(budget_s, self.config.answer_by_period_fraction * fb.cycle_period_s)
-            pending = _Cycle(cycle, fb.counter, now, now + budget_s, fb.q_rad)
-            self._pending = pending
-            q_cmd = fb.q_rad if self._last_sent_q is None else self._last_sent_q
-            dq_cmd = self._zeros if self._last_sent_dq is None else self._last_sent_dq
-            flags = int(fb.estop_active) * FLAG_ESTOP | int(fb.servo_power) * FLAG_SERVO_POWER
-            if previous is not None and previous.cycle == cycle - 1:
-                if previous.answer == "coast":
-                    flags |= FLAG_PREV_COAST
-                elif previous.answer != "command":  # a hold, or none (the controller froze)
-                    flags |= FLAG_PREV_HOLD
-            state = make_joint_state(
-                cycle,
-                now,
-                fb.controller_state,
-                flags,
-                fb.q_rad,
-                fb.dq_rad_s,
-                fb.current_a,
-                q_cmd,
-                dq_cmd,
-                fb.cycle_period_s,
-            )
-            blocked = self._blocked_locked(now)
-            if blocked is not None:
-                self._send_hold_locked(pending)
-        publisher = self._publisher
+            pending = self.core.pending
+            assert pending is not None
+            publisher = self._publisher
+            handed_s = self._clock()
+            self._published = (pending.cycle, now, handed_s)
+            self.stages["decode"].add(handed_s - now)
         if publisher is not None:
             try:
-                publisher.put(state.to_bytes())
+                publisher.put(result.state)
             except Exception as exc:  # zenoh; the controller is still answered (hold)
                 self._rlog(logging.ERROR, "put", "cannot publish the joint state: %s", exc)
 
@@ -479,38 +356,10 @@ class CanDriver:
         with self._lock:
             if self._closing:
                 return
-            pending = self._pending
-            late = pending is not None and not pending.answered and now >= pending.answer_by_s
-            if late and not self._send_coast_locked(pending, now):
-                self._send_hold_locked(pending)
-            desired = self._desired_request(now)
-            heartbeat_due = now >= self._next_heartbeat_s
-            frames: list[can.Message] = []
-            if heartbeat_due:
-                frames.append(self.adapter.heartbeat_frame())
-                self._next_heartbeat_s = _next_tick(
-                    self._next_heartbeat_s, self.config.heartbeat_period_s, now
-                )
-            if desired != self._request_sent or heartbeat_due:
-                if desired == HostRequest.SERVO_ON and self._request_sent != desired:
-                    # A new servo-on period: nothing forwarded in it yet.
-                    self._holding, self._last_forwarded_q = False, None
-                    self._last_forward = None
-                if desired != self._request_sent:
-                    log.info("requesting %s from the controller", desired.name)
-                frames.append(self.adapter.request_frame(desired))
-                self._request_sent = desired
-            if self._reset_wanted:
-                self._reset_wanted = False
-                fb = self._feedback
-                if fb is not None and fb.controller_state == ControllerState.FAULT:
-                    log.info("operator reset: asking the controller to leave FAULT (%s)", fb.fault)
-                    frames.append(self.adapter.request_frame(HostRequest.RESET_FAULT))
-                    self._request_sent = HostRequest.RESET_FAULT  # BRAKE follows next pass
+            frames = self.core.on_tick(now)
             if frames:
                 self._send_locked(frames)
-            if now >= self._next_health_s:
-                self._next_health_s = _next_tick(self._next_health_s, self.HEALTH_PERIOD_S, now)
+            if self.core.health_due(now):
                 health = self._health_locked(now)
         session = self._session
         if health is not None and session is not None:
@@ -518,116 +367,6 @@ class CanDriver:
                 session.put(self.keys.health(PROCESS_NAME), encode_json(health))
             except Exception as exc:
                 self._rlog(logging.ERROR, "health", "cannot publish health: %s", exc)
-
-    # --- decisions (call with the lock held) ------------------------------------------------
-    def _desired_request(self, now: float) -> HostRequest:
-        lc = self._lifecycle
-        if lc is None or not _fresh(
-            lc.stamp_s, self._lifecycle_rx_s, now, self.config.lifecycle_timeout_s
-        ):
-            return HostRequest.BRAKE
-        if lc.state in (Lifecycle.READY, *COMMANDING):
-            return HostRequest.SERVO_ON
-        return HostRequest.BRAKE
-
-    def _link_ok(self, now: float) -> bool:
-        return (now - self._last_cycle_rx_s) < self.config.controller_timeout_s
-
-    def _blocked_locked(self, now: float) -> str | None:
-        """The reason forwarding is not allowed right now, or None if it is."""
-        lc = self._lifecycle
-        if (
-            lc is None
-            or lc.state not in COMMANDING
-            or not _fresh(lc.stamp_s, self._lifecycle_rx_s, now, self.config.lifecycle_timeout_s)
-        ):
-            return "blocked_lifecycle"
-        io = self._io
-        if (
-            io is None
-            or not io.enabling
-            or not io.estop_ok
-            or not _fresh(io.stamp_s, self._io_rx_s, now, self.config.io_timeout_s)
-        ):
-            return "blocked_enabling"
-        fb = self._feedback
-        if fb is None or fb.controller_state not in _SERVOING or not self._link_ok(now):
-            return "blocked_controller"
-        return None
-
-    def _check_command(self, cmd: JointCommand, now: float) -> tuple[str, str] | None:
-        """(reason, detail) if ``cmd`` must not be forwarded, else None."""
-        n = self.config.joints
-        if cmd.n != n:
-            return "bad_message", f"{cmd.n} joints, expected {n}"
-        blocked = self._blocked_locked(now)
-        if blocked is not None:
-            return blocked, f"cycle {cmd.cycle}"
-        pending = self._pending
-        if pending is None or cmd.cycle != (pending.cycle & 0xFFFFFFFF):
-            current = None if pending is None else pending.cycle
-            return "late_cycle", f"for cycle {cmd.cycle}, current cycle is {current}"
-        if pending.answered:
-            return "late_cycle", f"cycle {cmd.cycle} was already answered"
-        age_s = now - min(cmd.state_stamp_s, pending.stamp_s)
-        if age_s > self.config.deadline_s:
-            return "stale", f"cycle {cmd.cycle} is {age_s * 1e3:.1f} ms old"
-        error = np.abs(cmd.q_cmd_rad - pending.q_rad)
-        if np.any(error > self._max_fe):
-            k = int(np.argmax(error - self._max_fe))
-            return "out_of_range", (
-                f"joint {k + 1}: |q_cmd - q| = {error[k]:.4f} rad > {self._max_fe[k]:g} rad"
-            )
-        speed = np.abs(cmd.dq_cmd_rad_s)
-        if np.any(speed > self._max_dq):
-            k = int(np.argmax(speed - self._max_dq))
-            return "out_of_range", (
-                f"joint {k + 1}: |dq_cmd| = {speed[k]:.4f} rad/s > {self._max_dq[k]:g} rad/s"
-            )
-        return None
-
-    def _hold_frames_locked(self, pending: _Cycle) -> list[can.Message]:
-        if not self._holding:
-            q_meas = pending.q_rad
-            last = self._last_forwarded_q
-            if last is not None and np.all(np.abs(last - q_meas) <= self._max_fe):
-                self._hold_q = last.copy()
-            else:
-                self._hold_q = q_meas.copy()
-            self._holding = True
-        assert self._hold_q is not None
-        return self.adapter.command_frames(pending.counter, self._hold_q, self._zeros, True)
-
-    def _send_coast_locked(self, pending: _Cycle, now: float) -> bool:
-        """Answer a cycle whose command is late with the last forwarded command, moved on by its
-        own velocity (what the controller's interpolation does within a cycle), as long as that
-        command is not older than ``deadline_s``; True if sent. One late answer then costs
-        nothing, where a hold would jerk the operator's arm."""
-        last = self._last_forward
-        if last is None or self._holding or now - last[0] > self.config.deadline_s:
-            return False
-        _stamp, cycle, q, dq, period = last
-        q_coast = q + dq * (pending.cycle - cycle) * period
-        try:
-            frames = self.adapter.command_frames(pending.counter, q_coast, dq, False)
-        except FrameError:
-            return False
-        if self._send_locked(frames):
-            pending.answered, pending.answer = True, "coast"
-            self.coasted += 1
-            self._last_sent_q, self._last_sent_dq = q_coast, dq
-        return True
-
-    def _send_hold_locked(self, pending: _Cycle) -> None:
-        try:
-            frames = self._hold_frames_locked(pending)
-        except FrameError as exc:  # measured q the protocol cannot carry: nothing to hold
-            self._rlog(logging.ERROR, "hold", "cannot build a hold set: %s", exc)
-            return
-        if self._send_locked(frames):
-            pending.answered, pending.answer = True, "hold"
-            self.held += 1
-            self._last_sent_q, self._last_sent_dq = self._hold_q, self._zeros
 
     def _send_locked(self, frames: list[can.Message]) -> bool:
         bus = self._bus
@@ -642,109 +381,52 @@ class CanDriver:
             return False
         return True
 
-    def _reject_locked(self, reason: str, detail: str) -> None:
-        self.rejected[reason] += 1
-        level = logging.INFO if reason.startswith("blocked_") else logging.WARNING
-        self._rlog(level, reason, "JointCommand not forwarded (%s): %s", reason, detail)
-
     def _health_locked(self, now: float) -> dict[str, Any]:
-        fb, stats = self._feedback, self.adapter.stats
         return {
             "process": PROCESS_NAME,
             "stamp_s": now,
-            "controller_state": None if fb is None else fb.controller_state.name,
-            "controller_fault": None if fb is None else fb.fault,
-            "link_ok": self._link_ok(now),
-            "servo_request": None if self._request_sent is None else self._request_sent.name,
-            "cycles": self.cycles,
-            "forwarded": self.forwarded,
-            "held": self.held,
-            "coasted": self.coasted,
-            "unanswered": self.unanswered,
-            "rejected": dict(self.rejected),
-            "bad_frames": stats.bad_frames,
-            "incomplete_cycles": stats.incomplete_cycles,
-            "corrupt_cycles": stats.corrupt_cycles,
+            **self.core.health(now),
             "send_errors": self.send_errors,
             "recv_errors": self.recv_errors,
-            "bad_inputs": self.bad_inputs,
+            "stages": {name: h.summary() for name, h in self.stages.items()},
         }
 
     # --- zenoh callbacks (never block, never sleep) ------------------------------------------
     def _on_lifecycle(self, sample: Any) -> None:
         now = self._clock()
-        try:
-            msg = LifecycleMsg.from_bytes(sample.payload.to_bytes())
-        except MessageError as exc:
-            with self._lock:
-                self.bad_inputs += 1
-            self._rlog(logging.WARNING, "lifecycle", "bad lifecycle message: %s", exc)
-            return
+        payload = sample.payload.to_bytes()
         with self._lock:
-            previous = self._lifecycle
-            if (
-                previous is not None
-                and previous.state == Lifecycle.FAULT
-                and msg.state == Lifecycle.STOPPED
-            ):
-                self._reset_wanted = True  # the operator's reset reached the gateway
-            self._lifecycle, self._lifecycle_rx_s = msg, now
+            self.core.on_lifecycle(payload, now)
 
     def _on_io_state(self, sample: Any) -> None:
         now = self._clock()
-        try:
-            msg = IoState.from_bytes(sample.payload.to_bytes())
-        except MessageError as exc:
-            with self._lock:
-                self.bad_inputs += 1
-            self._rlog(logging.WARNING, "io", "bad IoState message: %s", exc)
-            return
+        payload = sample.payload.to_bytes()
         with self._lock:
-            self._io, self._io_rx_s = msg, now
+            self.core.on_io(payload, now)
 
     def _on_joint_command(self, sample: Any) -> None:
         now = self._clock()
-        try:
-            cmd = JointCommand.from_bytes(sample.payload.to_bytes())
-        except MessageError as exc:
-            with self._lock:
-                self._reject_locked("bad_message", str(exc))
-            return
+        payload = sample.payload.to_bytes()
         with self._lock:
             if self._closing:
                 return
-            problem = self._check_command(cmd, now)
-            pending = self._pending
-            frames: list[can.Message] = []
-            if problem is None:
-                assert pending is not None
-                try:
-                    frames = self.adapter.command_frames(
-                        pending.counter, cmd.q_cmd_rad, cmd.dq_cmd_rad_s, False
-                    )
-                except FrameError as exc:
-                    problem = ("out_of_range", str(exc))
-            if problem is not None:
-                self._reject_locked(*problem)
-                mine = pending is not None and cmd.cycle == (pending.cycle & 0xFFFFFFFF)
-                if mine and not pending.answered and problem[0] in ("stale", "out_of_range"):
-                    self._send_hold_locked(pending)  # no better answer will come for it
+            result = self.core.on_command(payload, now)
+            if not result.frames:
                 return
-            assert pending is not None
-            if self._send_locked(frames):
-                pending.answered, pending.answer = True, "command"
-                self.forwarded += 1
-                self._last_sent_q, self._last_sent_dq = cmd.q_cmd_rad, cmd.dq_cmd_rad_s
-                self._last_forwarded_q = cmd.q_cmd_rad
-                period = self._feedback.cycle_period_s if self._feedback is not None else 0.0
-                self._last_forward = (
-                    min(cmd.state_stamp_s, pending.stamp_s),
-                    pending.cycle,
-                    cmd.q_cmd_rad,
-                    cmd.dq_cmd_rad_s,
-                    period,
-                )
-                self._holding = False
+            sent = self._send_locked(result.frames)
+            if sent and result.answer == COMMAND and result.command is not None:
+                self._time_stages(result.command, now, self._clock())
+
+    def _time_stages(self, cmd: Any, rx_s: float, sent_s: float) -> None:
+        cycle, _stamp_s, handed_s = self._published
+        st = self.stages
+        st["encode"].add(sent_s - rx_s)
+        st["zenoh_back"].add(rx_s - cmd.sent_stamp_s)
+        st["answer"].add(sent_s - cmd.state_stamp_s)
+        if cmd.state_rx_stamp_s > 0.0:
+            st["control"].add(cmd.sent_stamp_s - cmd.state_rx_stamp_s)
+            if cycle == cmd.cycle:
+                st["zenoh_out"].add(cmd.state_rx_stamp_s - handed_s)
 
 
 # --- process entry points -------------------------------------------------------------------

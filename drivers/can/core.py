@@ -1,0 +1,520 @@
+"""The CAN host's per-cycle decisions, free of I/O: decode → decide → encode.
+
+:class:`HostCore` is what the CAN driver process (:mod:`drivers.can.driver`) does each control
+cycle, with the sockets taken out, so every decision can be tested cycle by cycle with an
+injected clock and profiled alone. Its inputs are received CAN frames, zenoh payloads and the
+time; its outputs are the frames to send and the JointState payload to publish. It never
+blocks, sleeps, sends or publishes; the driver does, around it, under one lock.
+
+Every cycle the controller sends its joint feedback; the core turns it into a JointState and
+answers the cycle exactly once (PROTOCOL.md §3), with either
+
+* ``command``: the control process's JointCommand for that cycle, forwarded only if every
+  check passes (lifecycle TEACHING or IDENTIFYING, enabling device held and e-stop chain
+  closed, controller servoing, the command fresh, for this very cycle, within the
+  following-error and velocity limits);
+* ``coast``: when the command is late, the last forwarded command moved on by its own
+  velocity (what the controller's interpolation does within a cycle, §5), as long as that
+  command is not older than ``deadline_s``; one late answer then costs the operator nothing;
+* ``hold``: a hold set (hold=1, zero velocity) at a position latched when holding began — at
+  once when forwarding is not allowed, otherwise when the cycle's answer deadline passes.
+
+The answer deadline of a cycle is ``min(deadline_s, answer_by_period_fraction × period)`` after
+its JointState stamp: a command set must reach the controller before the next cycle begins or
+it is a missed cycle (§3). A command arriving after its cycle was answered is rejected as
+``late_cycle``.
+
+Servo power is requested from the gateway's lifecycle (READY, TEACHING or IDENTIFYING, and
+fresh: SERVO_ON; anything else, including silence: BRAKE), repeated with every host heartbeat.
+The default and :meth:`HostCore.closing_frames` lead to BRAKE.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, NamedTuple
+
+import can
+import numpy as np
+
+from drivers.can.adapter import CanAdapter, CycleFeedback, HostRequest
+from drivers.can.config import CanDriverConfig
+from gateway.errors import FrameError, MessageError
+from gateway.messages import (
+    COMMANDING,
+    FLAG_ESTOP,
+    FLAG_PREV_COAST,
+    FLAG_PREV_HOLD,
+    FLAG_SERVO_POWER,
+    ControllerState,
+    IoState,
+    JointCommand,
+    JointState,
+    Lifecycle,
+    LifecycleMsg,
+)
+
+log = logging.getLogger("drivers.can.driver")
+
+#: Why a JointCommand was not forwarded (the keys of the health message's "rejected").
+REJECT_REASONS = (
+    "stale",  # older than deadline_s
+    "blocked_lifecycle",  # lifecycle not TEACHING/IDENTIFYING, or silent
+    "blocked_enabling",  # enabling device released, e-stop chain open, or I/O silent
+    "blocked_controller",  # controller not servoing (BRAKED/FAULT) or its link is down
+    "bad_message",  # undecodable payload, NaN, wrong joint count
+    "out_of_range",  # following error, velocity, or a value the protocol cannot carry
+    "late_cycle",  # not for the current cycle, or that cycle was already answered
+)
+
+#: How a cycle was answered.
+COMMAND, COAST, HOLD = "command", "coast", "hold"
+
+_SERVOING = (ControllerState.HOLD, ControllerState.EXTERNAL)
+_BRAKED = (ControllerState.BRAKED, ControllerState.FAULT)
+
+#: note(level, key, message): a rate-limited log (key groups repeats)
+Note = Callable[[int, str, str], None]
+
+
+def _fresh(stamp_s: float, received_s: float, now_s: float, timeout_s: float) -> bool:
+    """Both the sender's stamp and our receipt are recent (a future stamp never keeps it fresh)."""
+    return (now_s - received_s) < timeout_s and -timeout_s < (now_s - stamp_s) < timeout_s
+
+
+def _next_tick(previous_s: float, period_s: float, now_s: float) -> float:
+    """Next time of a periodic action: on the grid, or one period from now if behind."""
+    following = previous_s + period_s
+    return following if following > now_s else now_s + period_s
+
+
+def _log_note(level: int, key: str, message: str) -> None:
+    log.log(level, "%s", message)
+
+
+@dataclass(slots=True)
+class Cycle:
+    """The newest complete controller cycle, waiting for (or given) its answer."""
+
+    cycle: int  #: widened cycle counter (JointState.cycle)
+    counter: int  #: the counter as on the wire
+    stamp_s: float  #: JointState.stamp_s: when its last frame arrived [s]
+    answer_by_s: float  #: coast or hold if still unanswered at this time [s]
+    q_rad: np.ndarray  #: measured positions of the cycle [rad]
+    answer: str = ""  #: COMMAND, COAST or HOLD once answered
+
+    @property
+    def answered(self) -> bool:
+        return bool(self.answer)
+
+
+class FrameResult(NamedTuple):
+    """What one received CAN frame asks of the driver."""
+
+    state: bytes | None  #: a JointState payload to publish (the frame completed a cycle)
+    frames: list[can.Message]  #: frames to send now (a blocked cycle is held at once)
+
+
+class CommandResult(NamedTuple):
+    """What one JointCommand asks of the driver."""
+
+    frames: list[can.Message]  #: the answer to send (forwarded command or hold), maybe none
+    answer: str  #: COMMAND, HOLD, or "" (rejected without an answer)
+    command: JointCommand | None  #: the decoded command (None if undecodable)
+
+
+class HostCore:
+    """The CAN host's decisions. Not thread-safe: the driver calls it under one lock.
+
+    ``note`` receives (level, key, message) for conditions worth a log line; the driver passes
+    a rate-limited logger (repeats share a key).
+    """
+
+    def __init__(
+        self,
+        config: CanDriverConfig,
+        adapter: CanAdapter,
+        note: Note | None = None,
+        health_period_s: float = 0.1,
+    ) -> None:
+        self.config = config
+        self.adapter = adapter
+        self._note = note or _log_note
+        self.health_period_s = health_period_s
+        n = config.joints
+        self._max_fe = np.array(config.max_following_error_rad, dtype=float)
+        self._max_dq = np.array(config.max_velocity_rad_s, dtype=float)
+        self._zeros = np.zeros(n)
+        self._zeros_list = [0.0] * n
+
+        # inputs from zenoh
+        self._lifecycle: LifecycleMsg | None = None
+        self._lifecycle_rx_s = -np.inf
+        self._io: IoState | None = None
+        self._io_rx_s = -np.inf
+        self._reset_wanted = False
+        # controller
+        self.feedback: CycleFeedback | None = None
+        self._last_cycle_rx_s = -np.inf
+        self._last_counter: int | None = None
+        self._cycle = 0
+        self.pending: Cycle | None = None
+        # what we asked for and sent
+        self.request_sent: HostRequest | None = None
+        self._next_heartbeat_s = -np.inf
+        self._next_health_s = -np.inf
+        self._last_sent_q: list[float] | None = None
+        self._last_sent_dq: list[float] | None = None
+        self._last_forwarded_q: np.ndarray | None = None  #: since servo-on
+        #: (state stamp, cycle, q_cmd, dq_cmd, period) of the last forwarded command: coasting
+        self._last_forward: tuple[float, int, np.ndarray, np.ndarray, float] | None = None
+        self._hold_q: np.ndarray | None = None
+        self._holding = False
+        # counters (monotonic, reported in health)
+        self.rejected = dict.fromkeys(REJECT_REASONS, 0)
+        self.cycles = 0
+        self.forwarded = 0
+        self.coasted = 0
+        self.held = 0
+        self.unanswered = 0
+        self.bad_inputs = 0
+
+    # --- inputs from zenoh ----------------------------------------------------------------
+    def on_lifecycle(self, payload: bytes, now: float) -> None:
+        try:
+            msg = LifecycleMsg.from_bytes(payload)
+        except MessageError as exc:
+            self.bad_inputs += 1
+            self._note(logging.WARNING, "lifecycle", f"bad lifecycle message: {exc}")
+            return
+        previous = self._lifecycle
+        if (
+            previous is not None
+            and previous.state == Lifecycle.FAULT
+            and msg.state == Lifecycle.STOPPED
+        ):
+            self._reset_wanted = True  # the operator's reset reached the gateway
+        self._lifecycle, self._lifecycle_rx_s = msg, now
+
+    def on_io(self, payload: bytes, now: float) -> None:
+        try:
+            msg = IoState.from_bytes(payload)
+        except MessageError as exc:
+            self.bad_inputs += 1
+            self._note(logging.WARNING, "io", f"bad IoState message: {exc}")
+            return
+        self._io, self._io_rx_s = msg, now
+
+    def on_command(self, payload: bytes, now: float) -> CommandResult:
+        """Decide on one JointCommand: forward it, hold the cycle it was for, or neither."""
+        try:
+            cmd = JointCommand.from_bytes(payload)
+        except MessageError as exc:
+            self._reject("bad_message", str(exc))
+            return CommandResult([], "", None)
+        problem = self._check_command(cmd, now)
+        pending = self.pending
+        frames: list[can.Message] = []
+        if problem is None:
+            assert pending is not None
+            try:
+                frames = self.adapter.command_frames(
+                    pending.counter, cmd.q_cmd_rad, cmd.dq_cmd_rad_s, False
+                )
+            except FrameError as exc:
+                problem = ("out_of_range", str(exc))
+        if problem is not None:
+            self._reject(*problem)
+            mine = pending is not None and cmd.cycle == (pending.cycle & 0xFFFFFFFF)
+            if mine and not pending.answered and problem[0] in ("stale", "out_of_range"):
+                return CommandResult(self._hold(pending), HOLD, cmd)  # no better answer comes
+            return CommandResult([], "", cmd)
+        assert pending is not None
+        pending.answer = COMMAND
+        self.forwarded += 1
+        self._last_sent_q, self._last_sent_dq = cmd.q_cmd_rad.tolist(), cmd.dq_cmd_rad_s.tolist()
+        self._last_forwarded_q = cmd.q_cmd_rad
+        period = self.feedback.cycle_period_s if self.feedback is not None else 0.0
+        self._last_forward = (
+            min(cmd.state_stamp_s, pending.stamp_s),
+            pending.cycle,
+            cmd.q_cmd_rad,
+            cmd.dq_cmd_rad_s,
+            period,
+        )
+        self._holding = False
+        return CommandResult(frames, COMMAND, cmd)
+
+    # --- input from CAN -------------------------------------------------------------------
+    def on_frame(self, msg: can.Message, now: float) -> FrameResult:
+        """Take one received frame; a frame that completes a cycle yields its JointState."""
+        stats = self.adapter.stats
+        dropped = stats.bad_frames + stats.incomplete_cycles + stats.corrupt_cycles
+        feedback = self.adapter.feed(msg)
+        if feedback is None:
+            if stats.bad_frames + stats.incomplete_cycles + stats.corrupt_cycles != dropped:
+                self._note(logging.WARNING, "frame", f"CAN: {stats.last_error}")
+            return FrameResult(None, [])
+        return self._on_cycle(feedback, now)
+
+    def _widen(self, counter: int) -> int | None:
+        """Wire counter → monotonically increasing cycle number; None for a repeated counter."""
+        if self._last_counter is None:
+            self._cycle = counter
+        else:
+            delta = (counter - self._last_counter) % self.adapter.counter_modulus
+            if delta == 0:
+                return None
+            self._cycle += delta
+        self._last_counter = counter
+        return self._cycle
+
+    def _on_cycle(self, fb: CycleFeedback, now: float) -> FrameResult:
+        cycle = self._widen(fb.counter)
+        if cycle is None:
+            self._note(logging.WARNING, "dup", f"controller repeated cycle {fb.counter}")
+            return FrameResult(None, [])
+        previous = self.pending
+        if previous is not None and not previous.answered:
+            self.unanswered += 1
+            self._note(
+                logging.WARNING,
+                "unanswered",
+                f"cycle {previous.cycle} got no answer before cycle {cycle} arrived",
+            )
+        self.cycles += 1
+        self.feedback, self._last_cycle_rx_s = fb, now
+        if fb.controller_state in _BRAKED:
+            # On its brakes the arm is where it is: the next hold starts from there.
+            self._holding, self._last_forwarded_q = False, None
+            self._last_forward = None
+        budget_s = self.config.deadline_s
+        if fb.cycle_period_s > 0:
+            budget_s = min(budget_s, self.config.answer_by_period_fraction * fb.cycle_period_s)
+        pending = Cycle(cycle, fb.counter, now, now + budget_s, fb.q_rad)
+        self.pending = pending
+        q_list = fb.q_rad.tolist()
+        q_cmd = q_list if self._last_sent_q is None else self._last_sent_q
+        dq_cmd = self._zeros_list if self._last_sent_dq is None else self._last_sent_dq
+        flags = int(fb.estop_active) * FLAG_ESTOP | int(fb.servo_power) * FLAG_SERVO_POWER
+        if previous is not None and previous.cycle == cycle - 1:
+            if previous.answer == COAST:
+                flags |= FLAG_PREV_COAST
+            elif previous.answer != COMMAND:  # a hold, or none (the controller froze)
+                flags |= FLAG_PREV_HOLD
+        state = JointState.pack(
+            cycle,
+            now,
+            int(fb.controller_state),
+            flags,
+            fb.cycle_period_s,
+            q_list,
+            fb.dq_rad_s.tolist(),
+            fb.current_a.tolist(),
+            q_cmd,
+            dq_cmd,
+        )
+        frames: list[can.Message] = []
+        if self.blocked(now) is not None:
+            frames = self._hold(pending)
+        return FrameResult(state, frames)
+
+    # --- time -----------------------------------------------------------------------------
+    def on_tick(self, now: float) -> list[can.Message]:
+        """Deadline answers, servo requests and heartbeats due at ``now``."""
+        frames: list[can.Message] = []
+        pending = self.pending
+        if pending is not None and not pending.answered and now >= pending.answer_by_s:
+            frames += self._coast(pending, now) or self._hold(pending)
+        desired = self.desired_request(now)
+        heartbeat_due = now >= self._next_heartbeat_s
+        if heartbeat_due:
+            frames.append(self.adapter.heartbeat_frame())
+            self._next_heartbeat_s = _next_tick(
+                self._next_heartbeat_s, self.config.heartbeat_period_s, now
+            )
+        if desired != self.request_sent or heartbeat_due:
+            if desired == HostRequest.SERVO_ON and self.request_sent != desired:
+                # A new servo-on period: nothing forwarded in it yet.
+                self._holding, self._last_forwarded_q = False, None
+                self._last_forward = None
+            if desired != self.request_sent:
+                log.info("requesting %s from the controller", desired.name)
+            frames.append(self.adapter.request_frame(desired))
+            self.request_sent = desired
+        if self._reset_wanted:
+            self._reset_wanted = False
+            fb = self.feedback
+            if fb is not None and fb.controller_state == ControllerState.FAULT:
+                log.info("operator reset: asking the controller to leave FAULT (%s)", fb.fault)
+                frames.append(self.adapter.request_frame(HostRequest.RESET_FAULT))
+                self.request_sent = HostRequest.RESET_FAULT  # BRAKE follows next pass
+        return frames
+
+    def next_tick_s(self) -> float:
+        """The earliest time :meth:`on_tick` has something due (an answer or a heartbeat) [s].
+
+        A change of request (a lifecycle message, a reset) arrives through a callback; the
+        driver also wakes for those at least every few milliseconds.
+        """
+        due = self._next_heartbeat_s
+        pending = self.pending
+        if pending is not None and not pending.answered:
+            due = min(due, pending.answer_by_s)
+        if self._reset_wanted:
+            return -np.inf
+        return due
+
+    def health_due(self, now: float) -> bool:
+        """True once per health period (and then schedules the next)."""
+        if now < self._next_health_s:
+            return False
+        self._next_health_s = _next_tick(self._next_health_s, self.health_period_s, now)
+        return True
+
+    def closing_frames(self) -> list[can.Message]:
+        """BRAKE, then a hold for the cycle still waiting for its answer (on exit)."""
+        frames = [self.adapter.request_frame(HostRequest.BRAKE)]
+        self.request_sent = HostRequest.BRAKE
+        if self.pending is not None:
+            try:
+                frames += self._hold_frames(self.pending)
+            except FrameError as exc:
+                self._note(logging.ERROR, "hold", f"cannot build a hold set on exit: {exc}")
+        return frames
+
+    # --- decisions ------------------------------------------------------------------------
+    def desired_request(self, now: float) -> HostRequest:
+        lc = self._lifecycle
+        if lc is None or not _fresh(
+            lc.stamp_s, self._lifecycle_rx_s, now, self.config.lifecycle_timeout_s
+        ):
+            return HostRequest.BRAKE
+        if lc.state in (Lifecycle.READY, *COMMANDING):
+            return HostRequest.SERVO_ON
+        return HostRequest.BRAKE
+
+    def link_ok(self, now: float) -> bool:
+        return (now - self._last_cycle_rx_s) < self.config.controller_timeout_s
+
+    def blocked(self, now: float) -> str | None:
+        """The reason forwarding is not allowed right now, or None if it is."""
+        lc = self._lifecycle
+        if (
+            lc is None
+            or lc.state not in COMMANDING
+            or not _fresh(lc.stamp_s, self._lifecycle_rx_s, now, self.config.lifecycle_timeout_s)
+        ):
+            return "blocked_lifecycle"
+        io = self._io
+        if (
+            io is None
+            or not io.enabling
+            or not io.estop_ok
+            or not _fresh(io.stamp_s, self._io_rx_s, now, self.config.io_timeout_s)
+        ):
+            return "blocked_enabling"
+        fb = self.feedback
+        if fb is None or fb.controller_state not in _SERVOING or not self.link_ok(now):
+            return "blocked_controller"
+        return None
+
+    def _check_command(self, cmd: JointCommand, now: float) -> tuple[str, str] | None:
+        """(reason, detail) if ``cmd`` must not be forwarded, else None."""
+        n = self.config.joints
+        if cmd.n != n:
+            return "bad_message", f"{cmd.n} joints, expected {n}"
+        blocked = self.blocked(now)
+        if blocked is not None:
+            return blocked, f"cycle {cmd.cycle}"
+        pending = self.pending
+        if pending is None or cmd.cycle != (pending.cycle & 0xFFFFFFFF):
+            current = None if pending is None else pending.cycle
+            return "late_cycle", f"for cycle {cmd.cycle}, current cycle is {current}"
+        if pending.answered:
+            return "late_cycle", f"cycle {cmd.cycle} was already answered"
+        age_s = now - min(cmd.state_stamp_s, pending.stamp_s)
+        if age_s > self.config.deadline_s:
+            return "stale", f"cycle {cmd.cycle} is {age_s * 1e3:.1f} ms old"
+        error = np.abs(cmd.q_cmd_rad - pending.q_rad)
+        if np.any(error > self._max_fe):
+            k = int(np.argmax(error - self._max_fe))
+            return "out_of_range", (
+                f"joint {k + 1}: |q_cmd - q| = {error[k]:.4f} rad > {self._max_fe[k]:g} rad"
+            )
+        speed = np.abs(cmd.dq_cmd_rad_s)
+        if np.any(speed > self._max_dq):
+            k = int(np.argmax(speed - self._max_dq))
+            return "out_of_range", (
+                f"joint {k + 1}: |dq_cmd| = {speed[k]:.4f} rad/s > {self._max_dq[k]:g} rad/s"
+            )
+        return None
+
+    def _hold_frames(self, pending: Cycle) -> list[can.Message]:
+        if not self._holding:
+            q_meas = pending.q_rad
+            last = self._last_forwarded_q
+            if last is not None and np.all(np.abs(last - q_meas) <= self._max_fe):
+                self._hold_q = last.copy()
+            else:
+                self._hold_q = q_meas.copy()
+            self._holding = True
+        assert self._hold_q is not None
+        return self.adapter.command_frames(pending.counter, self._hold_q, self._zeros, True)
+
+    def _hold(self, pending: Cycle) -> list[can.Message]:
+        """Answer ``pending`` with a hold set (none if the position cannot be encoded)."""
+        try:
+            frames = self._hold_frames(pending)
+        except FrameError as exc:  # measured q the protocol cannot carry: nothing to hold
+            self._note(logging.ERROR, "hold", f"cannot build a hold set: {exc}")
+            return []
+        pending.answer = HOLD
+        self.held += 1
+        assert self._hold_q is not None
+        self._last_sent_q, self._last_sent_dq = self._hold_q.tolist(), self._zeros_list
+        return frames
+
+    def _coast(self, pending: Cycle, now: float) -> list[can.Message]:
+        """Answer a cycle whose command is late with the last forwarded command, moved on by
+        its own velocity, as long as that command is not older than ``deadline_s``; [] if
+        coasting is not allowed."""
+        last = self._last_forward
+        if last is None or self._holding or now - last[0] > self.config.deadline_s:
+            return []
+        _stamp, cycle, q, dq, period = last
+        q_coast = q + dq * (pending.cycle - cycle) * period
+        try:
+            frames = self.adapter.command_frames(pending.counter, q_coast, dq, False)
+        except FrameError:
+            return []
+        pending.answer = COAST
+        self.coasted += 1
+        self._last_sent_q, self._last_sent_dq = q_coast.tolist(), dq.tolist()
+        return frames
+
+    def _reject(self, reason: str, detail: str) -> None:
+        self.rejected[reason] += 1
+        level = logging.INFO if reason.startswith("blocked_") else logging.WARNING
+        self._note(level, reason, f"JointCommand not forwarded ({reason}): {detail}")
+
+    def health(self, now: float) -> dict[str, Any]:
+        fb, stats = self.feedback, self.adapter.stats
+        return {
+            "controller_state": None if fb is None else fb.controller_state.name,
+            "controller_fault": None if fb is None else fb.fault,
+            "link_ok": self.link_ok(now),
+            "servo_request": None if self.request_sent is None else self.request_sent.name,
+            "cycles": self.cycles,
+            "forwarded": self.forwarded,
+            "held": self.held,
+            "coasted": self.coasted,
+            "unanswered": self.unanswered,
+            "rejected": dict(self.rejected),
+            "bad_frames": stats.bad_frames,
+            "incomplete_cycles": stats.incomplete_cycles,
+            "corrupt_cycles": stats.corrupt_cycles,
+            "bad_inputs": self.bad_inputs,
+        }

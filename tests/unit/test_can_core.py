@@ -1,0 +1,214 @@
+"""The CAN host's pure core, cycle by cycle: frames and payloads in, frames and payloads out,
+no bus, no zenoh, no thread, an explicit clock."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from drivers.can.config import CanDriverConfig
+from drivers.can.core import COAST, COMMAND, HOLD, HostCore
+from drivers.can.ltc import (
+    ControllerStatus,
+    FaultCode,
+    HostRequest,
+    HostRequestFrame,
+    JointCommandFrame,
+    LtcAdapter,
+    LtcProtocol,
+)
+from gateway.latency import Histogram
+from gateway.messages import (
+    FLAG_PREV_COAST,
+    FLAG_PREV_HOLD,
+    FLAG_SERVO_POWER,
+    ControllerState,
+    IoState,
+    JointCommand,
+    JointState,
+    Lifecycle,
+    LifecycleMsg,
+)
+
+N = 6
+Q0 = np.array([0.1, -0.2, 0.3, -0.4, 0.5, -0.6])
+PERIOD_US = 4000
+T0 = 500.0
+
+
+class Cell:
+    """The core and a scripted controller; ``t`` is the injected clock [s]."""
+
+    def __init__(self, **overrides: object) -> None:
+        values: dict = {"transport": {"interface": "virtual", "channel": "unused"}}
+        values.update(overrides)
+        self.config = CanDriverConfig(**values)
+        self.core = HostCore(self.config, LtcAdapter(N))
+        self.proto = LtcProtocol(N)
+        self.t = T0
+        self.counter = 0
+
+    def gateway(self, state: Lifecycle, enabling: bool = True) -> None:
+        self.core.on_lifecycle(LifecycleMsg(state, 1, self.t).to_bytes(), self.t)
+        self.core.on_io(IoState(self.t, 6.0, 4.0, 6.0, 4.0, enabling, True).to_bytes(), self.t)
+
+    def cycle(self, q=Q0, state=ControllerState.EXTERNAL) -> tuple[JointState, list]:
+        """Feed one controller cycle; returns its JointState and the frames sent at once."""
+        self.counter = (self.counter + 1) & 0xFFFF
+        frames = [
+            self.proto.encode_feedback(k + 1, float(q[k]), 0.01 * k, 1.5, self.counter & 0xFF)
+            for k in range(N)
+        ]
+        status = ControllerStatus(self.counter, state, FaultCode.NONE, 0, False, True, PERIOD_US)
+        frames.append(self.proto.encode_status(status))
+        out, payload = [], None
+        for msg in frames:
+            result = self.core.on_frame(msg, self.t)
+            out += result.frames
+            if result.state is not None:
+                assert payload is None, "one JointState per cycle"
+                payload = result.state
+        assert payload is not None, "the cycle's last frame completes it"
+        return JointState.from_bytes(payload), [self.proto.decode(m) for m in out]
+
+    def tick(self) -> list:
+        return [self.proto.decode(m) for m in self.core.on_tick(self.t)]
+
+    def command(self, js: JointState, q, dq=0.0):
+        cmd = JointCommand(js.cycle, js.stamp_s, self.t, np.asarray(q, float), np.full(N, dq))
+        result = self.core.on_command(cmd.to_bytes(), self.t)
+        return result.answer, [self.proto.decode(m) for m in result.frames]
+
+
+def commands(frames: list) -> list[JointCommandFrame]:
+    return [f for f in frames if isinstance(f, JointCommandFrame)]
+
+
+def test_a_cycle_becomes_one_joint_state_with_the_feedback_and_the_echo():
+    cell = Cell()
+    js, _ = cell.cycle()
+    assert js.cycle == cell.counter and js.stamp_s == T0 and js.cycle_period_s == 0.004
+    np.testing.assert_allclose(js.q_rad, Q0, atol=1e-6)
+    np.testing.assert_allclose(js.dq_rad_s, 0.01 * np.arange(N), atol=1e-4)
+    np.testing.assert_allclose(js.current_a, 1.5)
+    np.testing.assert_allclose(js.q_cmd_rad, js.q_rad)  # nothing sent yet: the measurement
+    assert js.flags & FLAG_SERVO_POWER
+
+
+def test_a_blocked_cycle_is_held_at_once_and_flagged_in_the_next_state():
+    cell = Cell()  # no lifecycle: blocked
+    _, sent = cell.cycle()
+    hold = commands(sent)
+    assert len(hold) == N and all(f.hold and f.counter == cell.counter for f in hold)
+    assert cell.core.pending.answer == HOLD
+    js, _ = cell.cycle()
+    assert js.flags & FLAG_PREV_HOLD
+
+
+def test_a_fresh_command_is_forwarded_once_and_echoed():
+    cell = Cell()
+    cell.gateway(Lifecycle.TEACHING)
+    js, sent = cell.cycle()
+    assert commands(sent) == []
+    cell.t += 0.001
+    answer, frames = cell.command(js, Q0 + 0.01, 0.2)
+    assert answer == COMMAND
+    assert [f.counter for f in frames] == [cell.counter] * N and not any(f.hold for f in frames)
+    np.testing.assert_allclose([f.q_cmd_rad for f in frames], Q0 + 0.01, atol=1e-6)
+    again, frames = cell.command(js, Q0, 0.0)
+    assert (again, frames) == ("", []) and cell.core.rejected["late_cycle"] == 1
+    nxt, _ = cell.cycle()
+    np.testing.assert_allclose(nxt.q_cmd_rad, Q0 + 0.01)
+    assert not nxt.flags & (FLAG_PREV_HOLD | FLAG_PREV_COAST)
+
+
+def test_the_next_deadline_is_the_answer_time_of_an_unanswered_cycle():
+    cell = Cell(deadline_s=0.010, answer_by_period_fraction=0.5)
+    cell.gateway(Lifecycle.TEACHING)
+    cell.tick()  # first heartbeat and request go out
+    cell.cycle()
+    assert cell.core.next_tick_s() == pytest.approx(T0 + 0.002)  # 0.5 × 4 ms < 10 ms
+    cell.t += 0.0019
+    assert commands(cell.tick()) == []
+    cell.t += 0.0002
+    hold = commands(cell.tick())
+    assert len(hold) == N and all(f.hold for f in hold)
+    assert cell.core.next_tick_s() == pytest.approx(T0 + 0.1)  # next heartbeat
+
+
+def test_a_late_command_coasts_then_holds_once_the_last_command_is_too_old():
+    cell = Cell(deadline_s=0.010)
+    cell.gateway(Lifecycle.TEACHING)
+    cell.tick()  # servo on requested: a new servo-on period begins
+    js, _ = cell.cycle()
+    assert cell.command(js, Q0 + 0.001, 0.2)[0] == COMMAND
+    cell.t += 0.004
+    cell.gateway(Lifecycle.TEACHING)
+    cell.cycle()
+    cell.t += 0.0021
+    coast = commands(cell.tick())
+    assert cell.core.pending.answer == COAST and not any(f.hold for f in coast)
+    np.testing.assert_allclose([f.q_cmd_rad for f in coast], Q0 + 0.001 + 0.2 * 0.004, atol=2e-6)
+    cell.t += 0.010  # the forwarded command is now older than deadline_s
+    cell.gateway(Lifecycle.TEACHING)
+    js, _ = cell.cycle()
+    assert js.flags & FLAG_PREV_COAST
+    cell.t += 0.0021
+    hold = commands(cell.tick())
+    assert all(f.hold for f in hold) and cell.core.pending.answer == HOLD
+    np.testing.assert_allclose([f.q_cmd_rad for f in hold], Q0 + 0.001, atol=2e-6)
+
+
+@pytest.mark.parametrize(
+    ("q_offset", "dq", "reason"),
+    [(0.06, 0.0, "out_of_range"), (0.0, 1.01, "out_of_range")],
+)
+def test_an_implausible_command_is_refused_and_its_cycle_held(q_offset, dq, reason):
+    cell = Cell(max_following_error_rad=0.05, max_velocity_rad_s=1.0)
+    cell.gateway(Lifecycle.TEACHING)
+    js, _ = cell.cycle()
+    answer, frames = cell.command(js, Q0 + q_offset, dq)
+    assert answer == HOLD and all(f.hold for f in frames)
+    assert cell.core.rejected[reason] == 1
+
+
+def test_a_garbled_command_is_counted_and_answers_nothing():
+    cell = Cell()
+    cell.gateway(Lifecycle.TEACHING)
+    cell.cycle()
+    result = cell.core.on_command(b"LTJC\x02garbage", cell.t)
+    assert result.frames == [] and result.command is None
+    assert cell.core.rejected["bad_message"] == 1
+
+
+def test_closing_frames_brake_first_then_hold_the_waiting_cycle():
+    cell = Cell()
+    cell.gateway(Lifecycle.TEACHING)
+    cell.cycle()
+    frames = [cell.proto.decode(m) for m in cell.core.closing_frames()]
+    assert frames[0] == HostRequestFrame(HostRequest.BRAKE, frames[0].counter)
+    assert all(f.hold for f in frames[1:]) and len(frames) == 1 + N
+
+
+def test_joint_state_pack_equals_the_dataclass_encoding():
+    rng = np.random.default_rng(3)
+    q, dq, i, qc, dqc = rng.normal(size=(5, N))
+    ref = JointState(70001, 12.5, ControllerState.EXTERNAL, 6, q, dq, i, qc, dqc, 0.004)
+    fast = JointState.pack(70001, 12.5, 2, 6, 0.004, *(v.tolist() for v in (q, dq, i, qc, dqc)))
+    assert fast == ref.to_bytes()
+
+
+def test_histogram_percentiles_are_within_one_bin_of_numpy():
+    rng = np.random.default_rng(7)
+    samples = rng.gamma(4.0, 100e-6, size=20000)
+    h = Histogram(bin_s=5e-6, span_s=0.02)
+    for s in samples:
+        h.add(float(s))
+    h.add(float("nan"))  # not a sample
+    h.add(-1e-6)  # clock skew: not a sample
+    assert h.n == samples.size
+    for p in (50, 99, 99.9):
+        nearest_rank = np.percentile(samples, p, method="inverted_cdf")
+        assert 0.0 <= h.percentile_s(p) - nearest_rank <= 5e-6 + 1e-12  # its bin's upper edge
+    assert h.summary()["max_us"] == pytest.approx(samples.max() * 1e6, abs=0.1)
+    assert Histogram().summary()["p50_us"] is None
