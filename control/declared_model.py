@@ -15,12 +15,14 @@ fitted friction and accepted effect terms): see :class:`IdentifiedControlModel`.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import pinocchio as pin
 
-from control.model.cylinders import cylinder_torque_nm
+from control.model.cylinders import CylinderTorques, cylinder_torque_nm
 from control.model.dynamics import RigidBodyModel
 from control.model.friction import Eq15Friction, FrictionParams
 from control.robot.description import RobotDescription, load_description
@@ -49,6 +51,7 @@ class DeclaredModel:
         self.n = len(desc.joints)
         self.rigid = RigidBodyModel.from_description(desc)
         self.friction = Eq15Friction(friction)
+        self.cylinders = CylinderTorques(desc, self.n)
 
     @classmethod
     def load(cls, path: str | Path) -> DeclaredModel:
@@ -84,6 +87,23 @@ class DeclaredModel:
     def cylinder_nm(self, q_rad: np.ndarray, p_bar: np.ndarray) -> np.ndarray:
         return np.asarray(cylinder_torque_nm(q_rad, p_bar, self.desc))
 
+    def cycle_torques_nm(
+        self, q_rad: np.ndarray, dq_rad_s: Sequence[float], p_bar: Sequence[float]
+    ) -> tuple[list[float], list[float]]:
+        """``(gravity_nm(q) - cylinder_nm(q, p), friction_nm(q, dq))`` of one sample as plain
+        floats [N·m]: the per-cycle form of those three methods, equal to them to rounding.
+
+        ``q_rad`` is a float64 array of shape (n,) (not checked: the caller did); ``dq_rad_s``
+        [rad/s] and ``p_bar`` [bar] are plain floats. Raises ``ValueError`` or
+        ``ArithmeticError`` where the array methods would return NaN or inf.
+        """
+        rigid = self.rigid
+        g = pin.computeGeneralizedGravity(rigid.model, rigid.data, q_rad).tolist()
+        q = q_rad.tolist()
+        cyl = self.cylinders.joint_torques_nm(q, p_bar)
+        static = [gj - cj for gj, cj in zip(g, cyl, strict=True)]
+        return static, self.friction.joint_torques_nm(q, dq_rad_s)
+
 
 class IdentifiedControlModel(DeclaredModel):
     """An identified model (control/identification/fit.py) behind the DeclaredModel methods.
@@ -103,9 +123,21 @@ class IdentifiedControlModel(DeclaredModel):
         if self.identified.n != self.n:
             raise ConfigError(f"{path}: model has {self.identified.n} joints, robot {self.n}")
         self._zeros = np.zeros(self.n)
+        self.cylinders = CylinderTorques(self.desc, self.n)
 
     def gravity_nm(self, q_rad: np.ndarray) -> np.ndarray:
         return self.identified.torque_nm(q_rad, self._zeros, self._zeros)
+
+    def cycle_torques_nm(
+        self, q_rad: np.ndarray, dq_rad_s: Sequence[float], p_bar: Sequence[float]
+    ) -> tuple[list[float], list[float]]:
+        # The torque at rest is both the static part and what friction_nm subtracts: once.
+        im, zeros = self.identified, self._zeros
+        at_rest = im.torque_nm(q_rad, zeros, zeros)
+        moving = im.torque_nm(q_rad, np.asarray(dq_rad_s, dtype=float), zeros)
+        cyl = self.cylinders.joint_torques_nm(q_rad.tolist(), p_bar)
+        static = [gj - cj for gj, cj in zip(at_rest.tolist(), cyl, strict=True)]
+        return static, (moving - at_rest).tolist()
 
     def friction_nm(self, q_rad: np.ndarray, dq_rad_s: np.ndarray) -> np.ndarray:
         im = self.identified

@@ -18,9 +18,16 @@ configuration.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
+
+
+def _constant(values: np.ndarray) -> np.ndarray:
+    arr = np.array(values, dtype=float)
+    arr.flags.writeable = False
+    return arr
 
 
 @dataclass(frozen=True)
@@ -35,6 +42,8 @@ class OuterLoop:
     """Discrete eq. (21) with per-joint limits on the offset and the velocity command.
 
     ``omega`` is ω = 1/(K K_p) per joint [rad/s per N·m]; ``upsilon_i`` is Υ_I = K_I/K_p [1/s].
+    They and the limits are fixed at construction (read-only arrays): :meth:`step_floats` keeps
+    a copy as plain floats.
     """
 
     def __init__(
@@ -44,17 +53,37 @@ class OuterLoop:
         max_offset_rad: np.ndarray,
         max_velocity_rad_s: np.ndarray,
     ) -> None:
-        self.omega = np.asarray(omega, dtype=float)
-        self.upsilon_i = np.asarray(upsilon_i, dtype=float)
-        self.max_offset_rad = np.asarray(max_offset_rad, dtype=float)
-        self.max_velocity_rad_s = np.asarray(max_velocity_rad_s, dtype=float)
+        self.omega = _constant(omega)
+        self.upsilon_i = _constant(upsilon_i)
+        self.max_offset_rad = _constant(max_offset_rad)
+        self.max_velocity_rad_s = _constant(max_velocity_rad_s)
         n = self.omega.shape[0]
         for name in ("upsilon_i", "max_offset_rad", "max_velocity_rad_s"):
             if getattr(self, name).shape != (n,):
                 raise ValueError(f"{name} must have {n} values")
         if np.any(self.omega <= 0) or np.any(self.upsilon_i <= 0):
             raise ValueError("omega and upsilon_i must be positive (eq. 21)")
-        self.offset_rad = np.zeros(n)
+        #: per joint: ω, Υ_I, offset limit, velocity limit
+        self._joints = list(
+            zip(
+                self.omega.tolist(),
+                self.upsilon_i.tolist(),
+                self.max_offset_rad.tolist(),
+                self.max_velocity_rad_s.tolist(),
+                strict=True,
+            )
+        )
+        self._decay: tuple[float, list[float]] = (math.nan, [])  #: (dt, exp(-Υ_I dt)) cached
+        self._offset: list[float] = [0.0] * n
+
+    @property
+    def offset_rad(self) -> np.ndarray:
+        """e = q_cmd - q that the next command carries [rad] (a copy)."""
+        return np.array(self._offset)
+
+    @offset_rad.setter
+    def offset_rad(self, value: np.ndarray) -> None:
+        self._offset = np.asarray(value, dtype=float).tolist()
 
     def reset(self, offset_rad: np.ndarray) -> None:
         """Take over from the command the robot currently follows (bumpless transfer)."""
@@ -79,3 +108,24 @@ class OuterLoop:
         q_cmd = q_rad + e
         self.offset_rad = e_next
         return OuterLoopCommand(q_cmd, dq_cmd, e.copy(), sat | vsat)
+
+    def step_floats(
+        self, q_rad: list[float], dq_rad_s: list[float], tau_d_nm: list[float], dt_s: float
+    ) -> tuple[list[float], list[float]]:
+        """:meth:`step` on plain floats, the per-cycle form: returns ``(q_cmd, dq_cmd)`` only
+        (no saturation flags) and is equal to :meth:`step` to rounding. NaN passes through the
+        limits, as in :meth:`step`, for the message layer to refuse."""
+        if self._decay[0] != dt_s:
+            self._decay = (dt_s, np.exp(-self.upsilon_i * dt_s).tolist())
+        q_cmd, dq_cmd, offset = [], [], []
+        for e, q, dq, tau, dec, (omega, ups, max_e, max_v) in zip(
+            self._offset, q_rad, dq_rad_s, tau_d_nm, self._decay[1], self._joints, strict=True
+        ):
+            target = omega * tau / ups
+            e_next = target + (e - target) * dec
+            dq_c = dq + (-ups * e + omega * tau)
+            offset.append(max_e if e_next > max_e else -max_e if e_next < -max_e else e_next)
+            dq_cmd.append(max_v if dq_c > max_v else -max_v if dq_c < -max_v else dq_c)
+            q_cmd.append(q + e)
+        self._offset = offset
+        return q_cmd, dq_cmd

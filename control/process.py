@@ -16,7 +16,7 @@ import logging
 import signal
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -41,6 +41,7 @@ from gateway.messages import (
     HEALTH_RATE_HZ,
     ControllerState,
     IoState,
+    JointCommand,
     JointState,
     Lifecycle,
     LifecycleMsg,
@@ -65,7 +66,13 @@ def load_control_config(cell_path: str | Path) -> tuple[ControlConfig, BusConfig
 
 
 class ZeroMomentController:
-    """The computation, free of I/O: JointState (+ pressures) → JointCommand."""
+    """The computation, free of I/O: JointState (+ pressures) → JointCommand.
+
+    :meth:`desired_torque` and :meth:`OuterLoop.step` state the physics on arrays; every
+    controller cycle computes the same on plain floats (:meth:`answer` → :meth:`cycle_command`),
+    several times faster for six joints. tests/unit/test_zero_moment_cycle.py pins one to the
+    other.
+    """
 
     def __init__(self, cfg: ControlConfig, model: DeclaredModel) -> None:
         self.cfg = cfg
@@ -80,12 +87,22 @@ class ZeroMomentController:
         self.damping = np.array(cfg.damping_nm_s_per_rad)
         self.lower = np.array([j.lower_rad for j in model.desc.joints]) + cfg.soft_limit_margin_rad
         self.upper = np.array([j.upper_rad for j in model.desc.joints]) - cfg.soft_limit_margin_rad
+        self._damping = self.damping.tolist()
+        self._lower, self._upper = self.lower.tolist(), self.upper.tolist()
         self.engaged = False
         self.last_cycle: int | None = None
-        self.tau_d_nm = np.zeros(n)
+        self._tau_d_nm: list[float] = [0.0] * n
+
+    @property
+    def tau_d_nm(self) -> np.ndarray:
+        """The desired torque of the last cycle [N·m]."""
+        return np.array(self._tau_d_nm)
 
     def desired_torque(self, q: np.ndarray, dq: np.ndarray, p_bar: np.ndarray) -> np.ndarray:
-        """Zero-moment torque: what the motors must give so the operator feels no load."""
+        """Zero-moment torque: what the motors must give so the operator feels no load.
+
+        The reference form of the physics; each cycle computes it in :meth:`cycle_command`.
+        """
         m = self.model
         tau = m.gravity_nm(q) - m.cylinder_nm(q, p_bar)
         dead = self.cfg.friction_deadband_rad_s
@@ -99,8 +116,20 @@ class ZeroMomentController:
     def disengage(self) -> None:
         self.engaged = False
 
-    def update(self, st: JointState, p_bar: np.ndarray, now_s: float):
-        """Return the JointCommand answering ``st``."""
+    def update(
+        self, st: JointState, p_bar: Sequence[float], now_s: float, state_rx_s: float = 0.0
+    ) -> JointCommand:
+        """Return the JointCommand answering ``st``, sent at ``now_s``, ``st`` received at
+        ``state_rx_s`` (monotonic [s])."""
+        q_cmd, dq_cmd = self.answer(st, p_bar)
+        return make_joint_command(st.cycle, st.stamp_s, now_s, q_cmd, dq_cmd, state_rx_s)
+
+    def answer(self, st: JointState, p_bar: Sequence[float]) -> tuple[list[float], list[float]]:
+        """``(q_cmd, dq_cmd)`` answering ``st`` with cylinder pressures ``p_bar`` [bar].
+
+        Raises MessageError if the model cannot be evaluated at ``st``; a NaN in the result is
+        left for :func:`make_joint_command` to refuse.
+        """
         period = st.cycle_period_s or self.cfg.default_cycle_period_s
         if not self.engaged:
             # Bumpless: start from the command the robot follows now (the driver's hold).
@@ -110,9 +139,41 @@ class ZeroMomentController:
         gap = st.cycle - (self.last_cycle if self.last_cycle is not None else st.cycle - 1)
         dt = period * max(1, min(gap, 50))
         self.last_cycle = st.cycle
-        self.tau_d_nm = self.desired_torque(st.q_rad, st.dq_rad_s, p_bar)
-        out = self.loop.step(st.q_rad, st.dq_rad_s, self.tau_d_nm, dt)
-        return make_joint_command(st.cycle, st.stamp_s, now_s, out.q_cmd_rad, out.dq_cmd_rad_s)
+        try:
+            q_cmd, dq_cmd = self.cycle_command(st.q_rad, st.dq_rad_s, p_bar, dt)
+        except (ValueError, ArithmeticError) as exc:  # where numpy would have given NaN
+            raise MessageError(f"cycle {st.cycle}: model torque undefined ({exc})") from None
+        return q_cmd, dq_cmd
+
+    def cycle_command(
+        self, q_rad: np.ndarray, dq_rad_s: np.ndarray, p_bar: Sequence[float], dt_s: float
+    ) -> tuple[list[float], list[float]]:
+        """:meth:`desired_torque`, then eq. (21) over ``dt_s``: ``(q_cmd, dq_cmd)``.
+
+        The same formulas as :meth:`desired_torque` and :meth:`OuterLoop.step`, on plain
+        floats (numpy's per-call overhead dominates on six joints). Raises ``ValueError`` or
+        ``ArithmeticError`` where those would return NaN or inf.
+        """
+        q, dq = q_rad.tolist(), dq_rad_s.tolist()
+        dead = self.cfg.friction_deadband_rad_s
+        # sign(dq) · max(|dq| - deadband, 0)
+        dq_f = [v - dead if v > dead else v + dead if v < -dead else 0.0 for v in dq]
+        p = [float(v) for v in p_bar]
+        static, friction = self.model.cycle_torques_nm(q_rad, dq_f, p)
+        gain = self.cfg.friction_compensation
+        k = self.cfg.wall_stiffness_nm_per_rad
+        tau = []
+        for qj, dqj, s, f, c, lo, up in zip(
+            q, dq, static, friction, self._damping, self._lower, self._upper, strict=True
+        ):
+            t = s + gain * f - c * dqj
+            if qj > up:  # soft joint limits: a spring pushes back inside
+                t -= k * (qj - up)
+            if qj < lo:
+                t += k * (lo - qj)
+            tau.append(t)
+        self._tau_d_nm = tau
+        return self.loop.step_floats(q, dq, tau, dt_s)
 
 
 class PlanPlayer:
@@ -293,10 +354,10 @@ class ControlProcess:
         return lc.state if lc.state in COMMANDING else None
 
     def _on_state(self, sample) -> None:
+        now = self.clock()  # receipt: the command's state_rx_stamp_s
         st = self._decode(JointState, sample)
         if st is None:
             return
-        now = self.clock()
         self.stats["states"] += 1
         with self._lock:
             io, mode, lc = self.io, self._mode(now), self.lifecycle
@@ -318,7 +379,7 @@ class ControlProcess:
                 self.player.start(plan, st, period)
             qd = self.player.command(st)
             if qd is not None:
-                cmd = make_joint_command(st.cycle, st.stamp_s, self.clock(), qd[0], qd[1])
+                cmd = make_joint_command(st.cycle, st.stamp_s, self.clock(), qd[0], qd[1], now)
                 self._pub_cmd.put(cmd.to_bytes())
                 self.stats["commands"] += 1
             return
@@ -327,13 +388,14 @@ class ControlProcess:
             self.ctl.disengage()  # no pressures, no cylinder torque: let the driver hold
             return
         try:
-            cmd = self.ctl.update(st, np.array([io.p2_bar, io.p3_bar]), self.clock())
+            q_cmd, dq_cmd = self.ctl.answer(st, (io.p2_bar, io.p3_bar))
+            payload = JointCommand.pack(st.cycle, st.stamp_s, self.clock(), q_cmd, dq_cmd, now)
         except MessageError as exc:  # NaN from the model: never send it
             self.stats["bad_messages"] += 1
             self.ctl.disengage()
             log.error("command not sent: %s", exc)
             return
-        self._pub_cmd.put(cmd.to_bytes())
+        self._pub_cmd.put(payload)
         self.stats["commands"] += 1
 
     def _check_load(self, st: JointState, io: IoState, now: float) -> None:

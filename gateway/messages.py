@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import functools
 import json
+import math
 import struct
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -85,6 +86,8 @@ class Lifecycle(IntEnum):
     FAULT = 3  #: an error stopped the robot; `reset` once the cause is gone
     IDENTIFYING = 4  #: enabling device held; the control process plays an excitation plan
 
+
+_CONTROLLER_STATES = tuple(ControllerState)
 
 #: Lifecycle states in which the control process's commands may reach the robot.
 COMMANDING = (Lifecycle.TEACHING, Lifecycle.IDENTIFYING)
@@ -219,16 +222,20 @@ class JointState:
         want = cls._HEAD.size + 5 * n * 8
         if len(data) != want:
             raise MessageError(f"JointState: {len(data)} bytes, expected {want} for {n} joints")
-        if not (np.isfinite(stamp) and np.isfinite(period) and period >= 0):
+        if not (math.isfinite(stamp) and math.isfinite(period) and period >= 0):
             raise MessageError(f"JointState: stamp_s {stamp} / cycle_period_s {period} invalid")
-        try:
-            state = ControllerState(cstate)
-        except ValueError:
-            raise MessageError(f"JointState: controller_state {cstate} unknown") from None
-        body = np.frombuffer(data, dtype="<f8", offset=cls._HEAD.size).reshape(5, n)
-        names = ("q_rad", "dq_rad_s", "current_a", "q_cmd_rad", "dq_cmd_rad_s")
-        vecs = [_finite(f"JointState.{nm}", body[i].copy()) for i, nm in enumerate(names)]
-        return cls(cycle, stamp, state, flags, *vecs, cycle_period_s=period)
+        if not 0 <= cstate < len(_CONTROLLER_STATES):
+            raise MessageError(f"JointState: controller_state {cstate} unknown")
+        # One copy and one finiteness check for the whole block (the hot path of every
+        # subscriber); the offending field is looked for only when there is one.
+        body = np.frombuffer(data, dtype="<f8", offset=cls._HEAD.size).reshape(5, n).copy()
+        if not np.isfinite(body).all():
+            names = ("q_rad", "dq_rad_s", "current_a", "q_cmd_rad", "dq_cmd_rad_s")
+            for i, nm in enumerate(names):
+                _finite(f"JointState.{nm}", body[i])
+        q, dq, i_a, q_cmd, dq_cmd = body
+        state = _CONTROLLER_STATES[cstate]
+        return cls(cycle, stamp, state, flags, q, dq, i_a, q_cmd, dq_cmd, cycle_period_s=period)
 
 
 @dataclass(frozen=True)
@@ -267,6 +274,44 @@ class JointCommand:
             self.state_rx_stamp_s,
         )
         return head + np.concatenate([self.q_cmd_rad, self.dq_cmd_rad_s]).astype("<f8").tobytes()
+
+    @staticmethod
+    @functools.cache
+    def _layout(n: int) -> struct.Struct:
+        return struct.Struct(f"<4sBBIddd{2 * n}d")
+
+    @classmethod
+    def pack(
+        cls,
+        cycle: int,
+        state_stamp_s: float,
+        sent_stamp_s: float,
+        q_cmd_rad: Sequence[float],
+        dq_cmd_rad_s: Sequence[float],
+        state_rx_stamp_s: float = 0.0,
+    ) -> bytes:
+        """The wire bytes of a JointCommand from float sequences (the control process's hot
+        path). Raises MessageError, naming the field, on a NaN or infinity or a length
+        mismatch: a command that is not finite is never sent."""
+        n = len(q_cmd_rad)
+        if len(dq_cmd_rad_s) != n or not 1 <= n <= 16:
+            raise MessageError(f"JointCommand: {n} positions and {len(dq_cmd_rad_s)} velocities")
+        for name, values in (("q_cmd_rad", q_cmd_rad), ("dq_cmd_rad_s", dq_cmd_rad_s)):
+            for k, v in enumerate(values):
+                if not math.isfinite(v):
+                    raise MessageError(f"JointCommand.{name}[{k}] is {v!r}; must be finite")
+        stamps = (state_stamp_s, sent_stamp_s, state_rx_stamp_s)
+        if not all(math.isfinite(v) for v in stamps):
+            raise MessageError("JointCommand: stamps must be finite")
+        return cls._layout(n).pack(
+            cls.MAGIC,
+            cls.VERSION,
+            n,
+            cycle & 0xFFFFFFFF,
+            *stamps,
+            *q_cmd_rad,
+            *dq_cmd_rad_s,
+        )
 
     @classmethod
     def from_bytes(cls, data: bytes) -> JointCommand:

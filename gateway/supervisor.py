@@ -12,20 +12,27 @@ import argparse
 import ctypes
 import json
 import logging
+import math
 import signal
 import subprocess
 import sys
 import threading
 import time
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
+
+import numpy as np
+import zenoh
 
 from gateway.bus import BusConfig, bus_config_from, open_router, undeclare_all
 from gateway.config import from_mapping, load_toml, require
 from gateway.errors import MessageError
 from gateway.lifecycle import LifecycleMachine, Limits, Observations
 from gateway.messages import (
+    LAYOUT_VERSION,
     LIFECYCLE_RATE_HZ,
+    ControllerState,
     IoState,
     JointState,
     Lifecycle,
@@ -44,6 +51,101 @@ TICK_S = 0.01
 STOP_GRACE_S = 0.3  #: after announcing STOPPED on exit, before children are terminated
 TERMINATE_TIMEOUT_S = 3.0
 PR_SET_PDEATHSIG = 1
+#: Joint states the bus keeps for the gateway's next tick (a zenoh ring channel, oldest dropped
+#: first): far more than arrive in one tick at 1 kHz; only a tick stalled that long loses some.
+JOINT_STATE_QUEUE = 64
+
+_STATE_HEAD = JointState._HEAD  #: magic, version, n, cycle, stamp, state, flags, period
+_CONTROLLER_STATES = {int(s): s for s in ControllerState}
+
+
+def joint_state_summary(data: bytes) -> tuple[ControllerState, float, float]:
+    """Controller state, driver stamp [s] and fastest joint speed max|dq| [rad/s] of a JointState
+    payload, checked as :meth:`JointState.from_bytes` checks it (layout, every value finite)
+    but without building one. Raises MessageError naming what is wrong."""
+    if len(data) < _STATE_HEAD.size:
+        raise MessageError(f"JointState: payload is {len(data)} bytes, shorter than its header")
+    magic, version, n, _, stamp_s, state, _, period_s = _STATE_HEAD.unpack_from(data)
+    if magic != JointState.MAGIC or version != LAYOUT_VERSION:
+        raise MessageError(f"JointState: magic {magic!r} / layout version {version} unsupported")
+    if not 1 <= n <= 16 or len(data) != _STATE_HEAD.size + 5 * n * 8:
+        raise MessageError(f"JointState: {len(data)} bytes do not hold {n} joints")
+    if not (math.isfinite(stamp_s) and math.isfinite(period_s) and period_s >= 0):
+        raise MessageError(f"JointState: stamp_s {stamp_s} / cycle_period_s {period_s} invalid")
+    controller_state = _CONTROLLER_STATES.get(state)
+    if controller_state is None:
+        raise MessageError(f"JointState: controller_state {state} unknown")
+    body = np.frombuffer(data, dtype="<f8", count=5 * n, offset=_STATE_HEAD.size)
+    if not np.isfinite(body).all():
+        raise MessageError("JointState: a value is not finite")
+    return controller_state, stamp_s, float(np.abs(body[n : 2 * n]).max())
+
+
+class JointStateWatch:
+    """What the lifecycle needs from the joint-state stream, taken in once per gateway tick.
+
+    The CAN driver publishes a JointState every controller cycle (250–500 Hz). The gateway
+    receives them into a zenoh ring channel, so no Python runs per state, and folds the batch
+    in at its tick: every state is checked and its speed read (:func:`joint_state_summary`);
+    the newest valid one is kept as bytes and decoded only when the status asks for it.
+
+    Arrival times are not known exactly, so each is bounded on the safe side:
+
+    * ``rx_s``, when the newest valid state arrived, is a lower bound: the later of the
+      previous fold (the state was not there yet) and the state's own stamp (the CAN driver
+      stamps it before publishing, on the same CLOCK_MONOTONIC). The joint-state age is
+      never under-reported, so a stream that stops is seen at the first tick more than
+      ``joint_state_timeout_s`` after its last state, as when each state was stamped on arrival.
+    * ``moving_s``, the last time a joint moved faster than ``standstill_rad_s`` (or the first
+      state), is an upper bound: the time of the fold that saw it. Every received state counts,
+      so standstill is never over-reported.
+    """
+
+    def __init__(self, standstill_rad_s: float, start_s: float) -> None:
+        self.standstill_rad_s = standstill_rad_s
+        self.rx_s: float | None = None
+        self.moving_s: float | None = None
+        self.controller_state: ControllerState | None = None
+        self.max_speed_rad_s: float | None = None  #: fastest joint in the newest state
+        self._fold_s = start_s
+        self._raw: bytes | None = None
+        self._state: JointState | None = None
+
+    def fold(
+        self, payloads: Iterable[bytes], start_s: float, end_s: float | None = None
+    ) -> list[str]:
+        """Take in the states received since the previous fold, oldest first, taken from the
+        channel after ``start_s`` and before ``end_s`` (default: ``start_s``) [s]. Returns why
+        states were ignored, one line per bad state."""
+        now_s = start_s if end_s is None else end_s
+        since_s, self._fold_s = self._fold_s, max(self._fold_s, start_s)
+        problems, newest, moved = [], None, False
+        for data in payloads:
+            try:
+                summary = joint_state_summary(data)
+            except MessageError as exc:
+                problems.append(str(exc))
+                continue
+            newest = data, summary
+            moved = moved or summary[2] > self.standstill_rad_s
+        if newest is None:
+            return problems
+        self._raw, (self.controller_state, stamp_s, self.max_speed_rad_s) = newest
+        self._state = None
+        self.rx_s = max(since_s, min(stamp_s, now_s))
+        if moved or self.moving_s is None:
+            self.moving_s = now_s
+        return problems
+
+    @property
+    def state(self) -> JointState | None:
+        """The newest valid state, decoded (None before the first)."""
+        if self._state is None and self._raw is not None:
+            try:
+                self._state = JointState.from_bytes(self._raw)
+            except MessageError:  # summary and decoder disagree: report no state
+                return None
+        return self._state
 
 
 @dataclass(frozen=True)
@@ -90,10 +192,8 @@ class Gateway:
         self.lock = threading.Lock()
         self.stop_event = threading.Event()
         self.spawn = spawn
-        self.joint_state: JointState | None = None
-        self._joint_state_raw: tuple[bytes, float] | None = None
-        self._moving_s: float | None = None  #: last time a joint moved faster than standstill
-        self.joint_state_rx_s: float | None = None
+        self.watch = JointStateWatch(cfg.standstill_rad_s, time.monotonic())
+        self._state_sub = None  #: joint states, in a ring channel the tick drains
         self.io: IoState | None = None
         self.io_rx_s: float | None = None
         self.health_rx_s: dict[str, float] = {}
@@ -154,25 +254,15 @@ class Gateway:
                 child.proc.wait()
 
     # --- bus ------------------------------------------------------------------------------
-    def _on_state(self, sample) -> None:
-        # Arrives every controller cycle: keep the bytes; the 100 Hz tick decodes the latest.
-        raw = sample.payload.to_bytes()
-        with self.lock:
-            self._joint_state_raw = (raw, time.monotonic())
-
-    def _decode_latest_state(self) -> None:
-        """Decode the newest joint state (call with the lock held)."""
-        item, self._joint_state_raw = self._joint_state_raw, None
-        if item is None:
-            return
-        try:
-            st = JointState.from_bytes(item[0])
-        except MessageError as exc:
-            log.warning("ignored joint state: %s", exc)
-            return
-        self.joint_state, self.joint_state_rx_s = st, item[1]
-        if float(abs(st.dq_rad_s).max()) > self.cfg.standstill_rad_s or self._moving_s is None:
-            self._moving_s = item[1]
+    def _take_states(self) -> None:
+        """Fold the joint states received since the last call (call with the lock held)."""
+        payloads, start_s = [], time.monotonic()
+        if self._state_sub is not None:
+            while (sample := self._state_sub.try_recv()) is not None:
+                payloads.append(sample.payload.to_bytes())
+        problems = self.watch.fold(payloads, start_s, time.monotonic())
+        if problems:
+            log.warning("ignored %d joint state(s): %s", len(problems), problems[-1])
 
     def _on_io(self, sample) -> None:
         try:
@@ -198,8 +288,13 @@ class Gateway:
             if name == "control":
                 self.load_check = load_check if isinstance(load_check, dict) else None
 
+    @property
+    def joint_state(self) -> JointState | None:
+        """The newest valid joint state."""
+        return self.watch.state
+
     def observations(self, now: float, dead: tuple[str, ...] = ()) -> Observations:
-        st, io = self.joint_state, self.io
+        w, io = self.watch, self.io
         stale = []
         for name in self.children:
             key = name.replace("-", "_")
@@ -213,17 +308,15 @@ class Gateway:
             ):
                 stale.append(name)
         return Observations(
-            joint_state_age_s=None
-            if self.joint_state_rx_s is None
-            else now - self.joint_state_rx_s,
+            joint_state_age_s=None if w.rx_s is None else now - w.rx_s,
             io_age_s=None if self.io_rx_s is None else now - self.io_rx_s,
-            controller_state=None if st is None else st.controller_state,
+            controller_state=w.controller_state,
             enabling=bool(io and io.enabling),
             estop_ok=bool(io.estop_ok) if io else True,
             dead_processes=dead,
             stale_processes=tuple(stale),
-            max_speed_rad_s=None if st is None else float(abs(st.dq_rad_s).max()),
-            still_for_s=0.0 if self._moving_s is None else now - self._moving_s,
+            max_speed_rad_s=w.max_speed_rad_s,
+            still_for_s=0.0 if w.moving_s is None else now - w.moving_s,
             load_problem=self._load_problem(),
         )
 
@@ -288,7 +381,7 @@ class Gateway:
             reply = {"ok": False, "message": str(exc)}
         else:
             with self.lock:
-                self._decode_latest_state()
+                self._take_states()
                 obs = self.observations(now, self._dead)
                 if command == "identify":
                     ok, message = self.machine.identify(plan, obs)
@@ -312,8 +405,11 @@ class Gateway:
     def open(self) -> None:
         self.session = open_router(self.bus)
         s = self.session
+        self._state_sub = s.declare_subscriber(
+            self.keys.joint_state, zenoh.handlers.RingChannel(JOINT_STATE_QUEUE)
+        )
         self._decls = [
-            s.declare_subscriber(self.keys.joint_state, self._on_state),
+            self._state_sub,
             s.declare_subscriber(self.keys.io_state, self._on_io),
             s.declare_subscriber(self.keys.health_all, self._on_health),
             s.declare_subscriber(self.keys.experiment, self._on_experiment),
@@ -330,7 +426,7 @@ class Gateway:
             now = time.monotonic()
             dead = tuple(self._poll_children(now))
             with self.lock:
-                self._decode_latest_state()
+                self._take_states()
                 self._dead = dead
                 before = self.machine.state
                 self.machine.update(self.observations(now, dead))
@@ -349,7 +445,7 @@ class Gateway:
         finally:
             self._stop_children()
             undeclare_all(self._decls)
-            self._decls = []
+            self._decls, self._state_sub = [], None
             if self.session is not None:
                 self.session.close()
                 self.session = None

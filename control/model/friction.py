@@ -30,6 +30,7 @@ Units: q [rad], dq [rad/s], torques [N·m] on the joint side.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import astuple, dataclass
 from typing import Any
@@ -153,6 +154,16 @@ class Eq15Friction:
         self._half_inv_qe = 1.0 / (2.0 * p["q_e_rad_s"])
         self._inv_qe = 1.0 / p["q_e_rad_s"]
         self._inv_r = 1.0 / p["gear_ratio"]
+        #: per joint, for :meth:`joint_torques_nm`: the ten coefficients, 1/(2 q_e), 1/q_e, 1/R
+        self._rows = list(
+            zip(
+                *(p[name].tolist() for name in EQ15_PARAM_NAMES),
+                self._half_inv_qe.tolist(),
+                self._inv_qe.tolist(),
+                self._inv_r.tolist(),
+                strict=True,
+            )
+        )
 
     def __call__(self, q_rad: np.ndarray, dq_rad_s: np.ndarray) -> np.ndarray:
         """Friction torque [N·m]; ``q``, ``dq`` of shape (n,) or (T, n)."""
@@ -174,6 +185,29 @@ class Eq15Friction:
         )
         viscous = p["tau_v1_nm_s_per_rad"] * dq + p["tau_v2_nm_s2_per_rad2"] * dq * np.abs(dq)
         return coulomb_like * s + viscous
+
+    def joint_torques_nm(self, q_rad: Sequence[float], dq_rad_s: Sequence[float]) -> list[float]:
+        """Friction torque [N·m] of one sample, ``n`` floats: :meth:`__call__` on plain floats,
+        the per-cycle form (for six joints about four times faster than numpy on (n,) arrays,
+        and equal to it to rounding). ``math`` raises where numpy would return NaN."""
+        out = []
+        for (ts, tc, f1, f2, f3, f4, f5, f6, v1, v2, half_inv_qe, inv_qe, inv_r), q, dq in zip(
+            self._rows, q_rad, dq_rad_s, strict=True
+        ):
+            s = math.tanh(dq * half_inv_qe)  # smooth_sign
+            qr = q * inv_r
+            coulomb_like = (
+                ts * math.exp(-abs(dq) * inv_qe)
+                + tc
+                + f1 * math.sin(qr)
+                + f2 * math.cos(qr)
+                + f3 * math.sin(2.0 * qr)
+                + f4 * math.cos(2.0 * qr)
+                + f5 * math.sin(q)
+                + f6 * math.cos(q)
+            )
+            out.append(coulomb_like * s + (v1 * dq + v2 * dq * abs(dq)))
+        return out
 
 
 def friction_eq15(

@@ -88,3 +88,14 @@ def test_keys_refuse_wildcards():
     with pytest.raises(MessageError):
         Keys("lt/*")
     assert Keys("cell7").joint_state == "cell7/state/joints"
+
+
+def test_joint_command_pack_equals_the_dataclass_encoding_and_refuses_nan():
+    q, dq = [0.1, -0.2, 0.3], [0.01, 0.0, -0.5]
+    ref = JointCommand(9, 1.5, 1.6, np.array(q), np.array(dq), 1.55).to_bytes()
+    assert JointCommand.pack(9, 1.5, 1.6, q, dq, 1.55) == ref
+    assert JointCommand.from_bytes(ref).state_rx_stamp_s == 1.55
+    with pytest.raises(MessageError, match=r"dq_cmd_rad_s\[1\] is nan"):
+        JointCommand.pack(9, 1.5, 1.6, q, [0.0, float("nan"), 0.0])
+    with pytest.raises(MessageError, match="stamps"):
+        JointCommand.pack(9, float("inf"), 1.6, q, dq)

@@ -1,0 +1,235 @@
+"""The gateway takes joint states in once per tick, in a batch, and still sees every one of them:
+a lost stream is found within joint_state_timeout_s (plus one tick), a motion between two ticks
+still restarts the standstill clock, and a malformed state is refused as the decoder refuses it."""
+
+from __future__ import annotations
+
+import math
+import struct
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from gateway.bus import BusConfig
+from gateway.errors import MessageError
+from gateway.lifecycle import LifecycleMachine, Limits
+from gateway.messages import ControllerState, JointState, Lifecycle, make_joint_state
+from gateway.supervisor import (
+    TICK_S,
+    Gateway,
+    GatewayConfig,
+    JointStateWatch,
+    joint_state_summary,
+)
+
+STILL = 5e-4  #: standstill speed [rad/s]
+PERIOD_S = 0.004
+TRANSIT_S = 2e-4  #: CAN driver stamp → arrival at the gateway
+
+
+def payload(
+    cycle: int,
+    stamp_s: float,
+    speed: float = 0.0,
+    dq: np.ndarray | None = None,
+    q: np.ndarray | None = None,
+    controller_state: ControllerState = ControllerState.HOLD,
+) -> bytes:
+    """A JointState's bytes; joint 4 moves at ``speed`` [rad/s] unless ``dq`` is given."""
+    q = np.linspace(-0.5, 0.5, 6) if q is None else q
+    if dq is None:
+        dq = np.full(6, 1e-5)
+        dq[3] = speed
+    st = make_joint_state(cycle, stamp_s, controller_state, 2, q, dq, np.zeros(6), q,
+                          np.zeros(6), PERIOD_S)  # fmt: skip
+    return st.to_bytes()
+
+
+def test_summary_reads_what_the_decoder_reads():
+    rng = np.random.default_rng(1)
+    for k in range(50):
+        dq = rng.normal(0.0, 0.3, 6)
+        data = payload(k, 10.0 + k, q=rng.normal(0, 1, 6), dq=dq,
+                       controller_state=ControllerState(k % 4))  # fmt: skip
+        st = JointState.from_bytes(data)
+        state, stamp, speed = joint_state_summary(data)
+        assert (state, stamp, speed) == (st.controller_state, st.stamp_s, np.abs(dq).max())
+
+
+def _corruptions(good: bytes) -> dict[str, bytes]:
+    head = JointState._HEAD.size
+    bad = {
+        "short": good[:10],
+        "magic": b"XXXX" + good[4:],
+        "version": good[:4] + b"\x09" + good[5:],
+        "truncated body": good[:-8],
+        "extra byte": good + b"\x00",
+        "joint count 0": good[:5] + b"\x00" + good[6:],
+        "controller state 9": good[: head - 10] + b"\x09" + good[head - 9 :],
+        "negative period": good[: head - 8] + struct.pack("<d", -0.004),
+        "NaN stamp": good[:10] + struct.pack("<d", math.nan) + good[18:],
+    }
+    for i, name in enumerate(("q", "dq", "current", "q_cmd", "dq_cmd")):
+        at = head + (6 * i + 2) * 8
+        for v in (math.nan, math.inf):
+            bad[f"{v} in {name}"] = good[:at] + struct.pack("<d", v) + good[at + 8 :]
+    return bad
+
+
+def test_summary_refuses_every_payload_the_decoder_refuses():
+    good = payload(1, 5.0)
+    JointState.from_bytes(good)
+    joint_state_summary(good)
+    for what, data in _corruptions(good).items():
+        with pytest.raises(MessageError):
+            JointState.from_bytes(data)
+        with pytest.raises(MessageError):
+            joint_state_summary(data)
+        assert what
+
+
+class Cell:
+    """States arriving at 250 Hz, folded at each gateway tick, observed by the lifecycle."""
+
+    def __init__(self, limits: Limits) -> None:
+        self.watch = JointStateWatch(limits.standstill_rad_s, 0.0)
+        self.machine = LifecycleMachine(limits)
+        self.pending: list[bytes] = []
+        self.cycle = 0
+
+    def arrive(self, t_s: float, speed: float = 0.0) -> None:
+        self.cycle += 1
+        self.pending.append(payload(self.cycle, t_s - TRANSIT_S, speed))
+
+    def tick(self, now_s: float) -> Lifecycle:
+        batch, self.pending = self.pending, []
+        assert self.watch.fold(batch, now_s) == []
+        w = self.watch
+        from gateway.lifecycle import Observations
+
+        obs = Observations(
+            joint_state_age_s=None if w.rx_s is None else now_s - w.rx_s,
+            io_age_s=0.01,
+            controller_state=w.controller_state,
+            enabling=True,
+            estop_ok=True,
+            max_speed_rad_s=w.max_speed_rad_s,
+            still_for_s=0.0 if w.moving_s is None else now_s - w.moving_s,
+        )
+        if self.machine.state == Lifecycle.STOPPED:
+            self.machine.command("start", obs)
+        return self.machine.update(obs)
+
+    def run(self, t0: float, t1: float, moving: set[int] = frozenset(), stream: bool = True):
+        """Simulate [t0, t1): states every PERIOD_S (those in ``moving`` fast), ticks every
+        TICK_S; returns (tick time, lifecycle) pairs."""
+        out, k, t = [], round(t0 / PERIOD_S), t0
+        next_tick = math.ceil(t0 / TICK_S) * TICK_S
+        while t < t1:
+            t = k * PERIOD_S
+            while next_tick <= t and next_tick < t1:
+                out.append((next_tick, self.tick(next_tick)))
+                next_tick += TICK_S
+            if stream and t < t1:
+                self.arrive(t, 0.05 if k in moving else 0.0)
+            k += 1
+        return out
+
+
+def test_a_motion_between_two_ticks_restarts_the_standstill_clock():
+    limits = Limits(joint_state_timeout_s=0.1, standstill_rad_s=STILL, standstill_s=0.3)
+    cell = Cell(limits)
+    spike = 26  # one state (t = 0.104 s) moves; the newest state at every tick is still
+    history = cell.run(0.0, 1.0, moving={spike})
+    teaching = [t for t, s in history if s == Lifecycle.TEACHING]
+    assert teaching, "never started teaching"
+    assert teaching[0] >= spike * PERIOD_S + limits.standstill_s - 1e-9
+    assert teaching[0] <= spike * PERIOD_S + limits.standstill_s + TICK_S + 1e-9
+
+
+def test_a_stream_that_stops_faults_within_the_timeout_plus_one_tick():
+    limits = Limits(joint_state_timeout_s=0.1, standstill_rad_s=STILL, standstill_s=0.05)
+    cell = Cell(limits)
+    history = cell.run(0.0, 0.5)
+    assert history[-1][1] == Lifecycle.TEACHING
+    last_arrival = (round(0.5 / PERIOD_S) - 1) * PERIOD_S
+    history = cell.run(0.5, 0.8, stream=False)
+    faulted = [t for t, s in history if s == Lifecycle.FAULT]
+    assert faulted, "a lost joint-state stream was not detected"
+    assert limits.joint_state_timeout_s < faulted[0] - last_arrival
+    assert faulted[0] - last_arrival <= limits.joint_state_timeout_s + TICK_S + 1e-9
+
+
+def test_arrival_time_is_a_lower_bound_and_never_ahead_of_the_fold():
+    w = JointStateWatch(STILL, start_s=1.0)
+    w.fold([payload(1, 1.004)], 1.010)
+    assert w.rx_s == 1.004  # the driver's stamp: later than the previous fold
+    w.fold([payload(2, 0.5)], 1.020)  # a stamp from long ago: the previous fold bounds
+    assert w.rx_s == 1.010
+    w.fold([payload(3, 9.0)], 1.030)  # a stamp in the future: not beyond the fold
+    assert w.rx_s == 1.030
+    w.fold([], 1.040)
+    assert w.rx_s == 1.030
+
+
+def test_a_fold_bounds_arrivals_by_when_the_channel_was_drained():
+    """States taken between start_s and end_s: a motion counts from end_s (it may have
+    arrived just before the drain ended); the next batch arrived after start_s."""
+    w = JointStateWatch(STILL, start_s=0.0)
+    w.fold([payload(1, 0.5, speed=0.1)], 2.000, 2.003)
+    assert (w.rx_s, w.moving_s) == (0.5, 2.003)
+    w.fold([payload(2, 0.6)], 2.010, 2.011)
+    assert w.rx_s == 2.000 and w.moving_s == 2.003
+
+
+def test_malformed_states_are_reported_and_do_not_count_as_fresh():
+    w = JointStateWatch(STILL, start_s=0.0)
+    w.fold([payload(1, 0.001)], 0.01)
+    nan = bytearray(payload(2, 0.011))
+    nan[-8:] = struct.pack("<d", math.nan)
+    problems = w.fold([bytes(nan), b"garbage"], 0.02)
+    assert len(problems) == 2 and "finite" in problems[0]
+    assert w.rx_s == 0.001 and w.state is not None and w.state.cycle == 1
+
+
+class _Sample:
+    def __init__(self, data: bytes) -> None:
+        self.payload = self
+
+        def to_bytes() -> bytes:
+            return data
+
+        self.to_bytes = to_bytes
+
+
+class _Ring:
+    """Stands in for the zenoh ring channel the gateway drains."""
+
+    def __init__(self) -> None:
+        self.samples: list[_Sample] = []
+
+    def try_recv(self):
+        return self.samples.pop(0) if self.samples else None
+
+
+def test_gateway_observes_and_reports_the_newest_state_of_each_tick():
+    gw = Gateway(Path("cell.toml"), BusConfig(), GatewayConfig(processes=()), spawn=False)
+    ring = _Ring()
+    gw._state_sub = ring
+    time.sleep(0.03)
+    t0 = time.monotonic() - 0.025  # stamps after the gateway started
+    ring.samples = [_Sample(payload(k, t0 + k * PERIOD_S, speed=0.2 if k == 1 else 0.0))
+                    for k in (1, 2, 3)]  # fmt: skip
+    before = time.monotonic()
+    gw._take_states()
+    after = time.monotonic()
+    obs = gw.observations(after + 0.005)
+    assert ring.samples == []
+    assert obs.controller_state == ControllerState.HOLD
+    assert obs.max_speed_rad_s == pytest.approx(1e-5)  # the newest state's
+    assert 0.005 <= obs.still_for_s <= 0.005 + after - before  # the batch held a motion
+    assert obs.joint_state_age_s == pytest.approx(after + 0.005 - (t0 + 3 * PERIOD_S))
+    status = gw.status(after)
+    assert status["controller_state"] == "hold" and len(status["q_rad"]) == 6

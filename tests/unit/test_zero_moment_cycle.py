@@ -1,0 +1,196 @@
+"""The per-cycle form of the control law computes the physics its reference form states.
+
+Each controller cycle runs :meth:`ZeroMomentController.cycle_command` (plain floats, for
+speed); :meth:`ZeroMomentController.desired_torque` and :meth:`OuterLoop.step` state the same
+physics on arrays. These tests pin one to the other on random states, piece by piece and for
+whole runs, so a later optimisation cannot change what the loop computes without failing here.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+
+import numpy as np
+import pytest
+
+from control.declared_model import DeclaredModel
+from control.model.cylinders import CylinderTorques, cylinder_torque_nm
+from control.process import ZeroMomentController, load_control_config
+from gateway.errors import MessageError
+from gateway.messages import ControllerState, JointCommand, make_joint_state
+from sim_bridge.harness import SIM_CELL
+
+#: equal to rounding: a few ulps of torques up to ~1e4 N·m, commands of ~1 rad
+RTOL, ATOL = 1e-12, 1e-9
+
+
+@pytest.fixture(scope="module")
+def cfg():
+    return load_control_config(SIM_CELL)[0]
+
+
+@pytest.fixture(scope="module")
+def model(cfg) -> DeclaredModel:
+    return DeclaredModel.load(cfg.model)
+
+
+def random_states(model: DeclaredModel, rng: np.random.Generator, count: int):
+    """(q, dq, p) of ``count`` samples: q across the whole range and a little beyond (the soft
+    limits' walls), dq from rest through the friction deadband to fast, pressures 0–10 bar."""
+    lower, upper = model.desc.lower_rad, model.desc.upper_rad
+    for k in range(count):
+        q = rng.uniform(lower - 0.05, upper + 0.05)
+        scale = (1e-4, 1e-3, 0.05, 1.0)[k % 4]
+        dq = rng.normal(0.0, scale, model.n)
+        if k % 7 == 0:
+            dq[rng.integers(model.n)] = 0.0
+        yield q, dq, rng.uniform(0.0, 10.0, 2)
+
+
+def test_friction_per_cycle_equals_eq15_on_arrays(model):
+    rng = np.random.default_rng(1)
+    for q, dq, _ in random_states(model, rng, 500):
+        got = model.friction.joint_torques_nm(q.tolist(), dq.tolist())
+        np.testing.assert_allclose(got, model.friction(q, dq), rtol=RTOL, atol=ATOL)
+
+
+def test_cylinders_per_cycle_equal_eqs_10_and_12_on_arrays(model):
+    rng = np.random.default_rng(2)
+    cyl = CylinderTorques(model.desc, model.n)
+    for q, _, p in random_states(model, rng, 500):
+        got = cyl.joint_torques_nm(q.tolist(), p.tolist())
+        want = cylinder_torque_nm(q, p, model.desc)
+        np.testing.assert_allclose(got, want, rtol=RTOL, atol=ATOL)
+        assert [j for j, t in enumerate(got) if t != 0.0] == [1, 2]  # J2 and J3 only
+
+
+def test_model_cycle_torques_equal_the_array_methods(model):
+    rng = np.random.default_rng(3)
+    for q, dq, p in random_states(model, rng, 300):
+        static, friction = model.cycle_torques_nm(q, dq.tolist(), p.tolist())
+        want = model.gravity_nm(q) - model.cylinder_nm(q, p)
+        np.testing.assert_allclose(static, want, rtol=RTOL, atol=ATOL)
+        np.testing.assert_allclose(friction, model.friction_nm(q, dq), rtol=RTOL, atol=ATOL)
+
+
+def test_outer_loop_per_cycle_equals_eq21_step(cfg, model):
+    ctl = ZeroMomentController(cfg, model)
+    ref = copy.deepcopy(ctl.loop)
+    rng = np.random.default_rng(4)
+    for k, (q, dq, _) in enumerate(random_states(model, rng, 500)):
+        tau = rng.normal(0.0, (50.0, 300.0, 3000.0)[k % 3], model.n)  # to beyond the limits
+        dt = (0.002, 0.004, 0.008, 0.2)[k % 4]
+        q_cmd, dq_cmd = ctl.loop.step_floats(q.tolist(), dq.tolist(), tau.tolist(), dt)
+        want = ref.step(q, dq, tau, dt)
+        np.testing.assert_allclose(q_cmd, want.q_cmd_rad, rtol=RTOL, atol=ATOL)
+        np.testing.assert_allclose(dq_cmd, want.dq_cmd_rad_s, rtol=RTOL, atol=ATOL)
+        np.testing.assert_allclose(ctl.loop.offset_rad, ref.offset_rad, rtol=RTOL, atol=ATOL)
+    assert np.any(np.abs(ref.offset_rad) == ref.max_offset_rad), "limits never reached"
+
+
+def test_cycle_command_equals_desired_torque_then_eq21_over_a_run(cfg, model):
+    """Whole cycles, the outer loop's state carried along: the per-cycle path and the
+    reference (desired_torque, then OuterLoop.step) give the same torque and commands."""
+    ctl = ZeroMomentController(cfg, model)
+    ref = copy.deepcopy(ctl.loop)
+    rng = np.random.default_rng(5)
+    walls = 0
+    for q, dq, p in random_states(model, rng, 2000):
+        q_cmd, dq_cmd = ctl.cycle_command(q, dq, p.tolist(), 0.004)
+        tau = ctl.desired_torque(q, dq, p)
+        want = ref.step(q, dq, tau, 0.004)
+        np.testing.assert_allclose(ctl.tau_d_nm, tau, rtol=RTOL, atol=ATOL)
+        np.testing.assert_allclose(q_cmd, want.q_cmd_rad, rtol=RTOL, atol=ATOL)
+        np.testing.assert_allclose(dq_cmd, want.dq_cmd_rad_s, rtol=RTOL, atol=ATOL)
+        walls += bool(np.any((q > ctl.upper) | (q < ctl.lower)))
+    assert walls > 100, "the soft limits were hardly exercised"
+
+
+def test_update_answers_with_the_reference_command(cfg, model):
+    ctl = ZeroMomentController(cfg, model)
+    ref = ZeroMomentController(cfg, model)
+    rng = np.random.default_rng(6)
+    for cycle, (q, dq, p) in enumerate(random_states(model, rng, 200), start=100):
+        st = make_joint_state(cycle, 1.0, ControllerState.EXTERNAL, 2, q, dq, np.zeros(6),
+                              q + 0.001, dq, 0.004)  # fmt: skip
+        cmd = ctl.update(st, tuple(p), 2.0)
+        if not ref.engaged:
+            ref.loop.reset(st.q_cmd_rad - st.q_rad)
+            ref.engaged = True
+        want = ref.loop.step(q, dq, ref.desired_torque(q, dq, p), 0.004)
+        assert (cmd.cycle, cmd.state_stamp_s, cmd.sent_stamp_s) == (cycle, 1.0, 2.0)
+        np.testing.assert_allclose(cmd.q_cmd_rad, want.q_cmd_rad, rtol=RTOL, atol=ATOL)
+        np.testing.assert_allclose(cmd.dq_cmd_rad_s, want.dq_cmd_rad_s, rtol=RTOL, atol=ATOL)
+
+
+def test_identified_model_cycle_torques_equal_its_array_methods(tmp_path):
+    from control.identification.fit import IdentifiedModel
+    from control.identification.rigid import RobotRegressor
+    from control.identification.terms import FrictionTerm
+    from control.robot.description import load_description
+    from control.robot.urdf import to_urdf
+
+    declared = DeclaredModel.load(load_control_config(SIM_CELL)[0].model)
+    desc = load_description()
+    xml = to_urdf(desc)
+    reg = RobotRegressor(xml, tuple(desc.gravity_m_s2))
+    terms = [FrictionTerm(j, "eq15", 0.01, desc.gear_ratios[j]) for j in range(6)]
+    coefs = [np.array([20.0, 30.0, 1.0, 0.5, 0.2, 0.1, 1.0, 0.5, 60.0, 2.0])] * 6
+    meta = {"urdf_xml": xml, "cylinders_removed": True}
+    IdentifiedModel(reg, reg.base.base_values(reg.parameters()), "eq15", terms, coefs,
+                    metadata=meta).save(tmp_path / "model.json")  # fmt: skip
+    model = DeclaredModel.load(tmp_path / "model.json")
+    rng = np.random.default_rng(7)
+    for q, dq, p in random_states(declared, rng, 50):
+        static, friction = model.cycle_torques_nm(q, dq.tolist(), p.tolist())
+        want = model.gravity_nm(q) - model.cylinder_nm(q, p)
+        np.testing.assert_allclose(static, want, rtol=RTOL, atol=ATOL)
+        np.testing.assert_allclose(friction, model.friction_nm(q, dq), rtol=RTOL, atol=ATOL)
+
+
+def test_non_finite_torque_is_refused_not_sent(cfg, model):
+    """A state the model cannot evaluate raises MessageError (the process then sends nothing
+    and disengages), whether the float path produces NaN or math refuses the input."""
+    ctl = ZeroMomentController(cfg, model)
+    q = np.array([1e308, 0.1, 0.2, 0.0, 0.0, 0.0])  # finite, but the wall spring overflows
+    states = [make_joint_state(cycle, 0.0, ControllerState.EXTERNAL, 2, q, np.zeros(6),
+                               np.zeros(6), q, np.zeros(6), 0.004) for cycle in (1, 2)]  # fmt: skip
+    ctl.update(states[0], (6.0, 4.0), 0.0)  # -inf torque: velocity clipped, offset now NaN
+    with pytest.raises(MessageError, match="q_cmd_rad"):
+        ctl.update(states[1], (6.0, 4.0), 0.0)
+
+    class Degenerate(DeclaredModel):
+        def cycle_torques_nm(self, q_rad, dq_rad_s, p_bar):
+            return [math.sqrt(-1.0)] * 6, [0.0] * 6  # as a cylinder at zero lever would
+
+    bad = ZeroMomentController(cfg, Degenerate.load(cfg.model))
+    st = make_joint_state(1, 0.0, ControllerState.EXTERNAL, 2, np.zeros(6), np.zeros(6),
+                          np.zeros(6), np.zeros(6), np.zeros(6), 0.004)  # fmt: skip
+    with pytest.raises(MessageError, match="model torque undefined"):
+        bad.update(st, (6.0, 4.0), 0.0)
+
+
+def test_process_answers_each_state_stamped_at_receipt_and_at_sending():
+    """The control process's callback, as the benchmark drives it (no bus): one command per
+    state, carrying when the state arrived and, later, when the command was sent."""
+    from control import bench_loop
+
+    ticks = iter(range(1_000_000, 2_000_000))
+    proc, pub = bench_loop.make_process()
+    proc.clock = lambda: next(ticks) * 1e-3  # 1 ms per reading
+    sent = []
+    pub.put = sent.append
+    for payload in bench_loop.joint_states(proc, 5):
+        bench_loop._refresh(proc)
+        proc._on_state(bench_loop._Sample(bench_loop._Payload(payload)))
+    cmds = [JointCommand.from_bytes(b) for b in sent]
+    assert [c.cycle for c in cmds] == [0, 1, 2, 3, 4]
+    assert all(0 < c.state_rx_stamp_s < c.sent_stamp_s for c in cmds)
+
+
+def test_benchmark_runs_and_every_call_commands():
+    from control import bench_loop
+
+    result = bench_loop.run(calls=300, warmup=30)
+    assert result["calls"] == 300 and result["on_state"]["median_us"] > 0
