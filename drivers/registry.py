@@ -20,7 +20,10 @@ from gateway.errors import ConfigError
 
 #: group -> name -> "module:attribute", for adapters shipped with this package.
 BUILTINS: dict[str, dict[str, str]] = {
-    "leadthrough.can_adapters": {"ltc_dbc": "drivers.can.ltc:LtcAdapter"},
+    "leadthrough.can_adapters": {
+        "ltc_dbc": "drivers.can.ltc:LtcAdapter",  # LTC-1, classic CAN (PROTOCOL.md §2)
+        "ltc_fd": "drivers.can.ltc_fd:LtcFdAdapter",  # LTC-1F, CAN FD (PROTOCOL.md §10)
+    },
 }
 
 
