@@ -1,10 +1,26 @@
-"""`leadthrough bench`: wire-to-wire latency of the control loop on the virtual cell.
+"""`leadthrough bench`: the control loop's real-time behaviour on the virtual cell, per rate.
 
-Latency is measured by the virtual controller itself: from the moment it starts sending the
-feedback frames of cycle k to the moment the complete command set answering cycle k (computed by
-the control process, not a driver hold) has arrived back on its CAN endpoint. The path covers
-CAN transport → CAN driver → zenoh → control → zenoh → CAN driver → CAN transport.
-A cycle is missed when no computed command set for it arrived before the next cycle began.
+For each rate the whole product runs as separate processes (virtual controller, gateway, CAN
+driver, Modbus driver, control process reached through zenoh) with the operator holding the
+enabling device and teaching, for ``--cycles`` controller cycles. Reported per rate:
+
+* ``cycles``: controller cycles in the measured window (CAN driver's count);
+* ``computed``: answered with a fresh command from the control law, in time;
+* ``coasted``: answered by the CAN driver moving the last command on by its velocity (the
+  control law was late);
+* ``held``: answered with a hold set (the command was late past ``deadline_s``, refused, or
+  teaching was blocked);
+* ``missed``: cycles the controller began without a complete set for the previous one (its
+  own count, PROTOCOL.md §6.1: a missed cycle freezes the reference);
+* wire-to-wire latency ``p50_ms``/``p99_ms``/``p999_ms``/``max_ms``, measured by the virtual
+  controller: its last feedback frame of cycle k leaving → the last frame of the computed or
+  coasted set answering k arriving;
+* ``stages``: the CAN driver's per-stage latency (decode, zenoh out, control law, zenoh back,
+  encode, and the whole answer) at p50/p99/p99.9, so the next bottleneck is visible;
+* ``cpu_ms_per_cycle``: CPU time of each process per controller cycle.
+
+A rate at which teaching cannot even start is reported with the reason and the controller's
+faults, not a traceback.
 """
 
 from __future__ import annotations
@@ -13,76 +29,144 @@ import argparse
 import json
 import time
 from pathlib import Path
-
-import numpy as np
+from typing import Any
 
 from sim_bridge.harness import Stack
 
+#: the counters of the CAN driver's health that classify its answers
+_COUNTS = ("cycles", "forwarded", "coasted", "held", "unanswered")
 
-def run_rate(rate_hz: float, cycles: int, workdir: Path) -> dict:
+
+def driver_health(stack: Stack, timeout_s: float = 3.0) -> dict[str, Any]:
+    """The CAN driver's next health message (it publishes at 10 Hz)."""
+    from gateway.bus import open_client
+    from gateway.messages import decode_json
+
+    session = open_client(stack.bus)
+    try:
+        sub = session.declare_subscriber(stack.bus.keys.health("can_driver"))
+        try:
+            deadline = time.monotonic() + timeout_s
+            while time.monotonic() < deadline:
+                sample = sub.try_recv()
+                if sample is not None:
+                    return decode_json(sample.payload.to_bytes(), "can_driver health")
+                time.sleep(0.01)
+        finally:
+            sub.undeclare()
+    finally:
+        session.close()
+    raise TimeoutError(f"no CAN driver health on {stack.bus.endpoint} within {timeout_s} s")
+
+
+def _cpu(stack: Stack, seconds: float) -> dict[str, float] | None:
+    try:
+        from sim_bridge.cpu import process_cpu_per_cycle
+    except ImportError:
+        return None
+    return process_cpu_per_cycle(stack, seconds)
+
+
+def run_rate(rate_hz: float, cycles: int, workdir: Path) -> dict[str, Any]:
     period = 1.0 / rate_hz
     overrides = {
         "controller": {"cycle_period_s": period},
         "operator": {"enabling_after_s": 0.0, "mode": "none"},
     }
-    error = None
+    result: dict[str, Any] = {"hz": rate_hz, "cycles": 0, "error": None}
     with Stack(workdir, sim_overrides=overrides) as stack:
         stack.start()
         try:
             stack.start_teaching()
         except (TimeoutError, RuntimeError) as exc:  # the loop cannot even start at this rate
-            error = f"teaching did not start: {exc}"
+            result["error"] = f"teaching did not start: {exc}"
         else:
-            t_end = time.monotonic() + cycles * period * 1.05 + 1.0
+            before = driver_health(stack)
+            t_end = time.monotonic() + cycles * period
+            cpu = _cpu(stack, min(10.0, cycles * period / 2))
             while time.monotonic() < t_end:
                 stack.check_alive()
-                time.sleep(0.5)
+                time.sleep(min(0.5, max(t_end - time.monotonic(), 0.0)))
+            after = driver_health(stack)
+            delta = {k: int(after[k]) - int(before[k]) for k in _COUNTS}
+            result.update(
+                cycles=delta["cycles"],
+                computed=delta["forwarded"],
+                coasted=delta["coasted"],
+                held=delta["held"],
+                unanswered_by_driver=delta["unanswered"],
+                stages=after.get("stages", {}),
+                cpu_ms_per_cycle=cpu,
+                driver_state=after.get("controller_state"),
+            )
         stack.request("stop")
-    truth = stack.truth()
     summary = json.loads(stack.sim_summary.read_text())
-    lat = truth["latency_s"]
-    lat = lat[np.isfinite(lat)][:cycles] * 1e3
+    result["missed"] = int(summary["controller_missed_cycles"])
+    result["faults"] = summary["faults"]
+    result["sim_overruns"] = summary.get("overruns")
+    for key, name in (("p50_ms", "latency_p50_s"), ("p99_ms", "latency_p99_s"),
+                      ("p999_ms", "latency_p999_s"), ("max_ms", "latency_max_s")):  # fmt: skip
+        value = summary.get(name)
+        result[key] = None if value is None else round(value * 1e3, 3)
+    if result["cycles"]:
+        bad = result["missed"] + result.get("coasted", 0) + result.get("held", 0)
+        result["not_computed_pct"] = round(100.0 * bad / result["cycles"], 3)
+    return result
 
-    def pct(p: float) -> float | None:
-        return float(np.percentile(lat, p)) if lat.size else None
 
-    return {
-        "rate_hz": rate_hz,
-        "cycles_measured": int(lat.size),
-        "p50_ms": pct(50),
-        "p99_ms": pct(99),
-        "max_ms": pct(100),
-        "missed_cycles": int(summary["teaching_missed_cycles"]),
-        "teaching_cycles": int(summary["teaching_cycles"]),
-        "faults": summary["faults"],
-        "error": error,
-    }
+def _table(results: list[dict[str, Any]]) -> str:
+    cols = ("hz", "cycles", "computed", "coasted", "held", "missed", "p50_ms", "p99_ms",
+            "p999_ms", "max_ms")  # fmt: skip
+    lines = [" ".join(f"{c:>9}" for c in cols)]
+    for r in results:
+        cells = []
+        for c in cols:
+            v = r.get(c)
+            cells.append(f"{'-':>9}" if v is None else f"{v:>9.3f}" if isinstance(v, float)
+                         else f"{v:>9}")  # fmt: skip
+        lines.append(" ".join(cells))
+    for r in results:
+        stages = r.get("stages") or {}
+        if stages:
+            parts = [f"{name} {s.get('p50_us')}/{s.get('p99_us')}" for name, s in stages.items()]
+            lines.append(f"{r['hz']:>7.0f}Hz stages p50/p99 [µs]: " + ", ".join(parts))
+        cpu = r.get("cpu_ms_per_cycle")
+        if cpu:
+            parts = [f"{name} {v:.3f}" for name, v in cpu.items()]
+            lines.append(f"{r['hz']:>7.0f}Hz CPU per cycle [ms]: " + ", ".join(parts))
+        for problem in ([r["error"]] if r.get("error") else []) + list(r.get("faults") or []):
+            lines.append(f"{r['hz']:>7.0f}Hz: {problem}")
+    return "\n".join(lines)
 
 
 def configure_parser(p: argparse.ArgumentParser) -> None:
     p.description = (
-        "Benchmark the loop's wire-to-wire latency (feedback frame leaving the virtual "
-        "controller → command frame computed from it arriving back) at each rate."
+        "Benchmark the control loop on the virtual cell at each rate: how many cycles were "
+        "answered by the control law in time (computed), by the CAN driver coasting or "
+        "holding, or missed; the wire-to-wire latency (last feedback frame leaving the "
+        "virtual controller → last command frame arriving back); the latency of each stage; "
+        "the CPU per cycle of every process."
     )
     p.add_argument("--rates", type=float, nargs="+", default=[250.0, 500.0], help="[Hz]")
-    p.add_argument("--cycles", type=int, default=10000, help="cycles per rate (≥ 10000)")
-    p.add_argument("--out", type=Path, default=Path("bench_out"), help="output folder")
+    p.add_argument("--cycles", type=int, default=10000, help="cycles per rate")
+    p.add_argument("--out", type=Path, default=Path("bench_out"), help="working folder (logs)")
+    p.add_argument("--json", type=Path, default=None, help="write the results here as JSON")
 
 
 def cli_main(args: argparse.Namespace) -> int:
+    if args.cycles < 100:
+        print("--cycles must be at least 100")
+        return 2
     results = []
     for rate in args.rates:
         print(f"running {args.cycles} cycles at {rate:.0f} Hz ...", flush=True)
         results.append(run_rate(rate, args.cycles, args.out / f"{rate:.0f}hz"))
-    print(f"\n{'rate':>8} {'cycles':>8} {'p50 ms':>8} {'p99 ms':>8} {'max ms':>8} {'missed':>8}")
-    for r in results:
-        ms = [f"{r[k]:>8.3f}" if r[k] is not None else f"{'-':>8}" for k in ("p50_ms", "p99_ms",
-                                                                            "max_ms")]  # fmt: skip
-        print(f"{r['rate_hz']:>6.0f}Hz {r['cycles_measured']:>8d} {' '.join(ms)} "
-              f"{r['missed_cycles']:>8d}")  # fmt: skip
-    for r in results:
-        for problem in ([r["error"]] if r["error"] else []) + r["faults"]:
-            print(f"{r['rate_hz']:>6.0f}Hz: {problem}")
+    print()
+    print(_table(results))
+    doc = {"rates": results}
     args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "bench.json").write_text(json.dumps(results, indent=2))
-    return 0
+    (args.out / "bench.json").write_text(json.dumps(doc, indent=2))
+    if args.json is not None:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(doc, indent=2))
+    return 0 if all(r.get("cycles") for r in results) else 1

@@ -1,8 +1,15 @@
-"""The virtual controller's CAN endpoint: a socketcand-protocol TCP server that is a python-can bus.
+"""The virtual controller's CAN endpoint for a host on another machine (HIL): socketcand over TCP.
 
-The machine has no SocketCAN, so the virtual CAN bus is a TCP server speaking the socketcand
-protocol (https://github.com/linux-can/socketcand, ``doc/protocol.md``), raw mode only. Any
-number of python-can clients connect with::
+On one machine the virtual controller serves CAN on a Unix SOCK_SEQPACKET socket
+(:mod:`sim_bridge.can_hub`, ``[endpoints] can_interface = "seqpacket"``, the default): binary
+frames, CAN FD, no thread. This server is for ``can_interface = "socketcand"``, when the host
+under test runs elsewhere and reaches the virtual controller over the network. It is slower
+(ASCII lines parsed on both sides, one TCP write per frame) and carries classic data frames
+only. It keeps its own I/O thread, which accepts, reads and flushes while the controller loop
+computes; received frames wait in a queue for :meth:`SocketcandServerBus.recv`.
+
+It speaks the socketcand protocol (https://github.com/linux-can/socketcand,
+``doc/protocol.md``), raw mode only. Any number of python-can clients connect with::
 
     can.Bus(interface="socketcand", channel="vcan0", host=HOST, port=PORT, tcp_tune=True)
 

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from drivers.can.seqpacket import address_problem
 from gateway.config import from_mapping, load_toml, require
 
 DEFAULT_TRUTH = Path(__file__).with_name("gr630st_truth.toml")
@@ -80,6 +81,10 @@ class ControllerSpec:
     max_missed_cycles: int = 25  #: consecutive cycles without commands before FAULT
     host_heartbeat_timeout_s: float = 0.5
     max_following_error_rad: float = 0.05  #: |q_cmd - q| beyond this → FAULT
+    #: CAN profile of LTC-1 the controller speaks (drivers/can/PROTOCOL.md): "classic" (§2,
+    #: JOINT_FB/JOINT_CMD per joint, host adapter "ltc_dbc") or "fd" (§10, one CAN FD frame
+    #: each way per cycle, host adapter "ltc_fd")
+    can_profile: str = "classic"
 
     def __post_init__(self) -> None:
         require(
@@ -87,14 +92,80 @@ class ControllerSpec:
             "[controller].cycle_period_s",
             f"{self.cycle_period_s} outside 0.0005..0.05 s",
         )
+        require(
+            self.can_profile in ("classic", "fd"),
+            "[controller].can_profile",
+            f"{self.can_profile!r} is neither 'classic' nor 'fd'",
+        )
+
+
+#: How the virtual controller can serve its CAN segment (``[endpoints].can_interface``).
+CAN_ENDPOINT_INTERFACES = (
+    # Unix SOCK_SEQPACKET hub (sim_bridge/can_hub.py): this machine only; lossless, ordered,
+    # binary SocketCAN frames, CAN FD; serviced by the controller loop itself (no thread).
+    "seqpacket",
+    # socketcand-protocol TCP server (sim_bridge/can_endpoint.py): for a host on another
+    # machine (HIL); classic frames only, ASCII, its own I/O thread.
+    "socketcand",
+)
 
 
 @dataclass(frozen=True)
 class Endpoints:
-    can_host: str = "127.0.0.1"
-    can_port: int = 29536  #: socketcand-protocol TCP server of the virtual controller
+    """Where the virtual controller serves CAN and Modbus. The cell config's ``[can.transport]``
+    and ``[modbus]`` must point at the same places."""
+
+    can_interface: str = "seqpacket"  #: one of CAN_ENDPOINT_INTERFACES
+    #: seqpacket: socket address, "@name" (Linux abstract namespace) or a file path
+    can_channel: str = "@leadthrough-vcan0"
+    can_fd: bool = False  #: seqpacket: the controller also takes and sends CAN FD frames
+    can_host: str = "127.0.0.1"  #: socketcand: TCP address to listen on (channel "vcan0")
+    can_port: int = 29536  #: socketcand: TCP port
     modbus_host: str = "127.0.0.1"
     modbus_port: int = 15020
+
+    def __post_init__(self) -> None:
+        where = "[endpoints]"
+        require(
+            self.can_interface in CAN_ENDPOINT_INTERFACES,
+            f"{where}.can_interface",
+            f"{self.can_interface!r} not one of {CAN_ENDPOINT_INTERFACES}",
+        )
+        if self.can_interface == "seqpacket":
+            problem = address_problem(self.can_channel)
+            require(not problem, f"{where}.can_channel", problem)
+        else:
+            require(not self.can_fd, f"{where}.can_fd", "socketcand carries classic frames only")
+            require(0 <= self.can_port < 65536, f"{where}.can_port", f"{self.can_port} not a port")
+        require(
+            0 <= self.modbus_port < 65536, f"{where}.modbus_port", f"{self.modbus_port} not a port"
+        )
+
+
+@dataclass(frozen=True)
+class Scheduling:
+    """OS scheduling of the controller loop's thread (real-time runs). Applied when the OS
+    permits it; when it does not, the loop runs anyway and the log and summary say so."""
+
+    #: SCHED_FIFO priority 1..99 of the loop thread (needs CAP_SYS_NICE or an rtprio limit);
+    #: 0: normal scheduling
+    sched_fifo_priority: int = 0
+    #: CPUs the loop thread may run on; empty: any
+    cpu_affinity: tuple[int, ...] = ()
+
+    def __post_init__(self) -> None:
+        where = "[scheduling]"
+        require(
+            0 <= self.sched_fifo_priority <= 99,
+            f"{where}.sched_fifo_priority",
+            f"{self.sched_fifo_priority} outside 0..99 (0 = off)",
+        )
+        require(
+            all(c >= 0 for c in self.cpu_affinity)
+            and len(set(self.cpu_affinity)) == len(self.cpu_affinity),
+            f"{where}.cpu_affinity",
+            f"{list(self.cpu_affinity)}: CPU numbers must be >= 0 and distinct",
+        )
 
 
 @dataclass(frozen=True)
@@ -136,6 +207,8 @@ class SimConfig:
     sensors: SensorTruth = field(default_factory=SensorTruth)
     controller: ControllerSpec = field(default_factory=ControllerSpec)
     endpoints: Endpoints = field(default_factory=Endpoints)
+    #: not ``[realtime]``: ``realtime`` above already chooses real time or lock-step
+    scheduling: Scheduling = field(default_factory=Scheduling)
     operator: OperatorScript = field(default_factory=OperatorScript)
     effects: tuple[dict[str, Any], ...] = ()
 

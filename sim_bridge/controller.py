@@ -1,7 +1,10 @@
 """The closed vendor controller of the virtual robot, as its manual (drivers/can/PROTOCOL.md)
 describes it: state machine, command validation, watchdogs and command interpolation.
 
-It sees only CAN frames and the e-stop chain; it never sees zenoh or the gateway.
+It sees only CAN frames and the e-stop chain; it never sees zenoh or the gateway. It speaks
+either profile of the protocol, ``[controller].can_profile``: LTC-1 on classic CAN (§2) or
+LTC-1F on CAN FD (§10), through the controller-side API both protocol classes share
+(``feedback_frames``, ``joint_commands``); :func:`controller_protocol` builds the right one.
 """
 
 from __future__ import annotations
@@ -20,12 +23,22 @@ from drivers.can.ltc import (
     HostRequestFrame,
     JointCommandFrame,
     LtcProtocol,
+    LtcProtocolBase,
 )
-from gateway.errors import FrameError
+from drivers.can.ltc_fd import LtcFdProtocol
+from gateway.errors import ConfigError, FrameError
 from gateway.messages import ControllerState
 from sim_bridge.config import ControllerSpec
 
 log = logging.getLogger(__name__)
+
+
+def controller_protocol(spec: ControllerSpec, n_joints: int) -> LtcProtocolBase:
+    """The protocol ``[controller].can_profile`` names: LtcProtocol ("classic", §2) or
+    LtcFdProtocol ("fd", §10), for ``n_joints`` joints."""
+    if spec.can_profile == "fd":
+        return LtcFdProtocol(n_joints=n_joints)
+    return LtcProtocol(n_joints=n_joints)
 
 
 @dataclass
@@ -33,7 +46,7 @@ class ControllerStats:
     command_sets: int = 0  #: complete valid command sets accepted
     hold_sets: int = 0  #: of which carried the hold flag
     missed_cycles: int = 0  #: EXTERNAL cycles without a complete set (total)
-    late_frames: int = 0  #: command frames whose counter was not the current cycle
+    late_frames: int = 0  #: command frames (JOINT_CMD or CYCLE_CMD) not for the current cycle
     bad_frames: int = 0  #: frames that failed to decode (CRC, DLC, range)
     faults: list[str] = field(default_factory=list)
 
@@ -44,10 +57,16 @@ class VirtualController:
     def __init__(
         self,
         spec: ControllerSpec,
-        protocol: LtcProtocol,
+        protocol: LtcProtocolBase,
         lower_rad: np.ndarray,
         upper_rad: np.ndarray,
     ) -> None:
+        if protocol.profile != spec.can_profile:
+            raise ConfigError(
+                f"[controller].can_profile is {spec.can_profile!r} but the controller was given "
+                f"a {protocol.profile!r} protocol ({type(protocol).__name__}); build it with "
+                "controller_protocol()"
+            )
         self.spec = spec
         self.proto = protocol
         self.n = protocol.n_joints
@@ -84,8 +103,8 @@ class VirtualController:
             self.last_heartbeat_s = wall_s
         elif isinstance(frame, HostRequestFrame):
             self._on_request(frame.request)
-        elif isinstance(frame, JointCommandFrame):
-            self._on_command(frame)
+        elif commands := self.proto.joint_commands(frame):
+            self._on_commands(commands)
 
     def _on_request(self, request: HostRequest) -> None:
         if request == HostRequest.BRAKE:
@@ -102,11 +121,15 @@ class VirtualController:
             self.state, self.fault = ControllerState.BRAKED, FaultCode.NONE
             self.servo_requested = False
 
-    def _on_command(self, frame: JointCommandFrame) -> None:
-        if frame.counter != (self.cycle & 0xFF):
+    def _on_commands(self, commands: tuple[JointCommandFrame, ...]) -> None:
+        """The joint commands of one frame: one JOINT_CMD_Jk (LTC-1) or a whole CYCLE_CMD
+        (LTC-1F). §3 item 3: only the current cycle's count, the latest per joint wins, and
+        the set is complete when every joint has one."""
+        if commands[0].counter != self.cycle % self.proto.command_counter_modulus:
             self.stats.late_frames += 1
             return
-        self._pending[frame.joint] = frame
+        for frame in commands:
+            self._pending[frame.joint] = frame
         if len(self._pending) == self.n:
             frames = [self._pending[j + 1] for j in range(self.n)]
             self._pending.clear()

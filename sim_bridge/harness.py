@@ -1,7 +1,8 @@
 """Run the whole product on the virtual cell as separate processes, as a user would.
 
 Used by `leadthrough demo`, `leadthrough bench` and the stack tests: it writes a cell config and
-a simulator truth file for free loopback ports, starts ``leadthrough sim`` and
+a simulator truth file for free loopback ports and a CAN socket address of its own (so stacks run
+side by side), starts ``leadthrough sim`` and
 ``leadthrough gateway`` (which starts the drivers and the control process), talks to the gateway
 like an operator, and tears everything down, child processes included.
 """
@@ -11,6 +12,7 @@ from __future__ import annotations
 import copy
 import csv
 import os
+import secrets
 import signal
 import socket
 import subprocess
@@ -23,6 +25,7 @@ from typing import Any
 import numpy as np
 import tomli_w
 
+from drivers.can.seqpacket import socket_address
 from gateway.bus import BusConfig
 from gateway.config import load_toml
 from gateway.supervisor import operator_request
@@ -48,6 +51,25 @@ def deep_merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
         else:
             out[k] = copy.deepcopy(v)
     return out
+
+
+def unique_can_address() -> str:
+    """An abstract-namespace seqpacket address no other stack uses (no file to clean up)."""
+    return f"@leadthrough-{os.getpid()}-{secrets.token_hex(4)}"
+
+
+def _wait_seqpacket(address: str, timeout_s: float, proc: subprocess.Popen) -> None:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if proc.poll() is not None:
+            raise RuntimeError(f"process exited with {proc.returncode} before opening {address}")
+        try:
+            with socket.socket(socket.AF_UNIX, socket.SOCK_SEQPACKET) as s:
+                s.connect(socket_address(address))
+                return
+        except OSError:
+            time.sleep(0.05)
+    raise TimeoutError(f"nothing listening on {address} after {timeout_s} s")
 
 
 def _wait_port(host: str, port: int, timeout_s: float, proc: subprocess.Popen) -> None:
@@ -78,7 +100,8 @@ class Stack:
         self.workdir.mkdir(parents=True, exist_ok=True)
         self.lockstep = lockstep
         self.quiet = quiet
-        self.ports = {"bus": free_port(), "can": free_port(), "modbus": free_port()}
+        self.ports = {"bus": free_port(), "modbus": free_port()}
+        self.can_address = unique_can_address()
         self.bus = BusConfig(endpoint=f"tcp/127.0.0.1:{self.ports['bus']}")
         cell = load_toml(SIM_CELL)
         cell["control"]["model"] = str(DECLARED)
@@ -86,7 +109,7 @@ class Stack:
             cell,
             {
                 "bus": {"endpoint": self.bus.endpoint},
-                "can": {"transport": {"port": self.ports["can"]}},
+                "can": {"transport": {"interface": "seqpacket", "channel": self.can_address}},
                 "modbus": {"port": self.ports["modbus"]},
             },
         )
@@ -94,7 +117,13 @@ class Stack:
         truth = load_toml(TRUTH)
         truth = deep_merge(
             truth,
-            {"endpoints": {"can_port": self.ports["can"], "modbus_port": self.ports["modbus"]}},
+            {
+                "endpoints": {
+                    "can_interface": "seqpacket",
+                    "can_channel": self.can_address,
+                    "modbus_port": self.ports["modbus"],
+                }
+            },
         )
         self.truth_cfg = deep_merge(truth, sim_overrides or {})
         self.cell_path = self.workdir / "cell.toml"
@@ -128,7 +157,7 @@ class Stack:
         if duration_s is not None:
             sim_args += ["--duration", str(duration_s)]
         self.sim = self._spawn("sim", sim_args)
-        _wait_port("127.0.0.1", self.ports["can"], timeout_s, self.sim)
+        _wait_seqpacket(self.can_address, timeout_s, self.sim)
         _wait_port("127.0.0.1", self.ports["modbus"], timeout_s, self.sim)
         self.gateway = self._spawn("gateway", ["gateway", "--config", str(self.cell_path)])
 

@@ -10,13 +10,13 @@ Example (virtual controller)::
     max_velocity_rad_s = 1.0          # one number applies to every joint
 
     [can.transport]                   # keyword arguments of can.Bus()
-    interface = "socketcand"
-    channel = "vcan0"
-    host = "127.0.0.1"
-    port = 29536
-    tcp_tune = true
+    interface = "seqpacket"           # drivers/can/seqpacket.py
+    channel = "@leadthrough-vcan0"
+    connect_timeout_s = 5.0
 
 Production differs only in the transport: ``interface = "socketcan"``, ``channel = "can0"``.
+A virtual controller on another machine serves socketcand instead: ``interface = "socketcand"``,
+``channel = "vcan0"``, ``host``, ``port``, ``tcp_tune = true``.
 """
 
 from __future__ import annotations
@@ -26,10 +26,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from drivers.can.seqpacket import address_problem
 from gateway.bus import BusConfig, bus_config_from
 from gateway.config import from_mapping, load_toml, require
 
 _TRANSPORT_SCALARS = (str, int, float, bool)
+#: Keyword arguments SeqpacketBus takes; anything else would be silently ignored, so refuse it.
+_SEQPACKET_KEYS = ("interface", "channel", "fd", "connect_timeout_s")
 
 
 def _production_transport() -> dict[str, Any]:
@@ -45,7 +48,7 @@ class CanDriverConfig:
     #: Number of robot joints the driver reports and commands.
     joints: int = 6
     #: Keyword arguments of ``can.Bus(**transport)``. Only this differs between the virtual
-    #: controller (interface "socketcand") and the cell (interface "socketcan", channel "can0").
+    #: controller (interface "seqpacket") and the cell (interface "socketcan", channel "can0").
     transport: dict[str, Any] = field(default_factory=_production_transport)
     #: A JointCommand older than this (driver clock − its state_stamp_s) is never forwarded [s].
     #: An unanswered cycle is answered with a hold set at this age, or earlier if the
@@ -120,7 +123,7 @@ class CanDriverConfig:
         require(
             isinstance(interface, str) and bool(interface),
             f"{where}.interface",
-            f"{interface!r}: name a python-can interface, e.g. 'socketcan' or 'socketcand'",
+            f"{interface!r}: name a python-can interface, e.g. 'socketcan' or 'seqpacket'",
         )
         for key, value in t.items():
             require(
@@ -133,6 +136,26 @@ class CanDriverConfig:
             f"{where}.channel",
             f"{t.get('channel')!r}: name the CAN channel, e.g. 'can0' or 'vcan0'",
         )
+        if interface == "seqpacket":
+            unknown = sorted(set(t) - set(_SEQPACKET_KEYS))
+            require(
+                not unknown, where, f"seqpacket takes only {list(_SEQPACKET_KEYS)}, not {unknown}"
+            )
+            problem = address_problem(t["channel"])
+            require(not problem, f"{where}.channel", problem)
+            require(
+                isinstance(t.get("fd", False), bool),
+                f"{where}.fd",
+                f"{t.get('fd')!r}: true or false",
+            )
+            timeout = t.get("connect_timeout_s", 0.0)
+            require(
+                isinstance(timeout, int | float)
+                and not isinstance(timeout, bool)
+                and 0.0 <= timeout <= 60.0,
+                f"{where}.connect_timeout_s",
+                f"{timeout!r} s outside 0..60",
+            )
         if interface == "socketcand":
             require(
                 isinstance(t.get("host"), str) and bool(t.get("host")),

@@ -75,7 +75,7 @@ def test_bad_values_are_refused_with_field_and_reason(table, message):
 
 def test_the_virtual_cell_config_loads():
     can_cfg, bus_cfg = load_can_config(REPO / "deploy" / "config" / "sim_cell.toml")
-    assert can_cfg.transport["interface"] == "socketcand"
+    assert can_cfg.transport["interface"] == "seqpacket"
     assert bus_cfg.key_prefix == "lt"
 
 
