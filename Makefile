@@ -20,7 +20,9 @@ test: $(STAMP)
 	$(BIN)/pytest -q
 
 bench: $(STAMP)
-	$(BIN)/leadthrough bench --rates 250 500 --cycles 10000
+	$(BIN)/leadthrough bench --rates 250 500 --cycles 10000 --json bench_out/bench.json
+	$(BIN)/python -m gateway.zenoh_bench --n 3000
+	$(BIN)/python -m drivers.can.codec_bench
 	$(BIN)/python -m control.identification.bench
 
 lint: $(STAMP)
