@@ -28,8 +28,21 @@ def teaching_rows(truth: dict[str, np.ndarray]) -> np.ndarray:
     return rows
 
 
-def test_weightless_arm_without_operator_drifts_less_than_1mm_in_5s(tmp_path):
-    with Stack(tmp_path) as stack:
+#: The two CAN profiles of the protocol (drivers/can/PROTOCOL.md §2 and §10): the virtual
+#: controller's truth file and the cell config each select one.
+PROFILES = {
+    "classic": ({}, {}),
+    "fd": (
+        {"controller": {"can_profile": "fd"}},
+        {"can": {"adapter": "ltc_fd", "transport": {"fd": True}}},
+    ),
+}
+
+
+@pytest.mark.parametrize("profile", sorted(PROFILES))
+def test_weightless_arm_without_operator_drifts_less_than_1mm_in_5s(tmp_path, profile):
+    sim_overrides, cell_overrides = PROFILES[profile]
+    with Stack(tmp_path, sim_overrides=sim_overrides, cell_overrides=cell_overrides) as stack:
         stack.start()
         stack.start_teaching()
         truth = stack.wait_teaching(5.2, 30.0)
@@ -39,7 +52,7 @@ def test_weightless_arm_without_operator_drifts_less_than_1mm_in_5s(tmp_path):
     window = rows[t - t[0] <= 5.0]
     xyz = tool_xyz(truth, window)
     drift_m = np.linalg.norm(xyz - xyz[0], axis=1).max()
-    print(f"tool drift in 5 s without operator force: {drift_m * 1e3:.3f} mm")
+    print(f"{profile}: tool drift in 5 s without operator force: {drift_m * 1e3:.3f} mm")
     assert drift_m < 1e-3, f"tool drifted {drift_m * 1e3:.3f} mm in 5 s"
     # and it really was the control process holding it (weightless), not brakes
     assert np.all(truth["ctrl_state"][window] == 2)
