@@ -694,6 +694,42 @@ def _joint_command(
     return JointCommandFrame(joint, q, dq, bool(hold), counter)
 
 
+def cycle_feedback(
+    status: ControllerStatus,
+    q_rad: Sequence[float],
+    dq_rad_s: Sequence[float],
+    current_a: Sequence[float],
+) -> CycleFeedback:
+    """The adapter contract's CycleFeedback from a decoded status and the joints' values (both
+    profiles)."""
+    return CycleFeedback(
+        counter=status.cycle_counter,
+        q_rad=np.array(q_rad),
+        dq_rad_s=np.array(dq_rad_s),
+        current_a=np.array(current_a),
+        controller_state=status.state,
+        estop_active=status.estop_active,
+        servo_power=status.servo_power,
+        fault=status.fault_code.name,
+        cycle_period_s=status.cycle_period_us * 1e-6,
+        status=status,
+    )
+
+
+def command_arrays(
+    q_cmd_rad: Any, dq_cmd_rad_s: Any, n_joints: int, what: str
+) -> tuple[np.ndarray, np.ndarray]:
+    """Position and velocity commands as flat float arrays of ``n_joints`` each, or FrameError
+    naming ``what`` (the frame or set being built)."""
+    q = np.asarray(q_cmd_rad, dtype=float).reshape(-1)
+    dq = np.asarray(dq_cmd_rad_s, dtype=float).reshape(-1)
+    if q.shape != (n_joints,) or dq.shape != (n_joints,):
+        raise FrameError(
+            f"{what} needs {n_joints} positions and velocities, got {q.size} and {dq.size}"
+        )
+    return q, dq
+
+
 class LtcAdapter(CanAdapter):
     """LTC-1 seen from the host: cycle assembly, command sets, requests and heartbeats.
 
@@ -760,29 +796,17 @@ class LtcAdapter(CanAdapter):
             return None
         stats.cycles += 1
         frames: list[JointFeedback] = fb  # type: ignore[assignment]  # none missing
-        return CycleFeedback(
-            counter=status.cycle_counter,
-            q_rad=np.array([f.q_rad for f in frames]),
-            dq_rad_s=np.array([f.dq_rad_s for f in frames]),
-            current_a=np.array([f.current_a for f in frames]),
-            controller_state=status.state,
-            estop_active=status.estop_active,
-            servo_power=status.servo_power,
-            fault=status.fault_code.name,
-            cycle_period_s=status.cycle_period_us * 1e-6,
-            status=status,
+        return cycle_feedback(
+            status,
+            [f.q_rad for f in frames],
+            [f.dq_rad_s for f in frames],
+            [f.current_a for f in frames],
         )
 
     def command_frames(
         self, counter: int, q_cmd_rad: np.ndarray, dq_cmd_rad_s: np.ndarray, hold: bool
     ) -> list[can.Message]:
-        q = np.asarray(q_cmd_rad, dtype=float).reshape(-1)
-        dq = np.asarray(dq_cmd_rad_s, dtype=float).reshape(-1)
-        if q.shape != (self.n_joints,) or dq.shape != (self.n_joints,):
-            raise FrameError(
-                f"JOINT_CMD set needs {self.n_joints} positions and velocities, "
-                f"got {q.size} and {dq.size}"
-            )
+        q, dq = command_arrays(q_cmd_rad, dq_cmd_rad_s, self.n_joints, "JOINT_CMD set")
         low = int(counter) & 0xFF
         hold_bit = bool(hold)
         q_list, dq_list = q.tolist(), dq.tolist()

@@ -40,6 +40,8 @@ from drivers.can.ltc import (
     LtcProtocolBase,
     NmtState,
     check_enum_against_dbc,
+    command_arrays,
+    cycle_feedback,
     id_bytes,
 )
 from gateway.errors import ConfigError, FrameError
@@ -341,29 +343,12 @@ class LtcFdAdapter(CanAdapter):
             return None  # heartbeats; another host's commands and requests
         stats.cycles += 1
         status = frame.status
-        return CycleFeedback(
-            counter=status.cycle_counter,
-            q_rad=np.array(frame.q_rad),
-            dq_rad_s=np.array(frame.dq_rad_s),
-            current_a=np.array(frame.current_a),
-            controller_state=status.state,
-            estop_active=status.estop_active,
-            servo_power=status.servo_power,
-            fault=status.fault_code.name,
-            cycle_period_s=status.cycle_period_us * 1e-6,
-            status=status,
-        )
+        return cycle_feedback(status, frame.q_rad, frame.dq_rad_s, frame.current_a)
 
     def command_frames(
         self, counter: int, q_cmd_rad: np.ndarray, dq_cmd_rad_s: np.ndarray, hold: bool
     ) -> list[can.Message]:
-        q = np.asarray(q_cmd_rad, dtype=float).reshape(-1)
-        dq = np.asarray(dq_cmd_rad_s, dtype=float).reshape(-1)
-        if q.shape != (self.n_joints,) or dq.shape != (self.n_joints,):
-            raise FrameError(
-                f"CYCLE_CMD needs {self.n_joints} positions and velocities, "
-                f"got {q.size} and {dq.size}"
-            )
+        q, dq = command_arrays(q_cmd_rad, dq_cmd_rad_s, self.n_joints, "CYCLE_CMD")
         return [self.protocol.encode_command_set(int(counter) & 0xFFFF, q, dq, bool(hold))]
 
     def request_frame(self, request: HostRequest) -> can.Message:
