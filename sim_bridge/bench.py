@@ -31,7 +31,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from sim_bridge.harness import Stack
+from sim_bridge.harness import CAN_PROFILES, Stack, deep_merge
 
 #: the counters of the CAN driver's health that classify its answers
 _COUNTS = ("cycles", "forwarded", "coasted", "held", "unanswered")
@@ -67,14 +67,20 @@ def _cpu(stack: Stack, seconds: float) -> dict[str, float] | None:
     return process_cpu_per_cycle(stack, seconds)
 
 
-def run_rate(rate_hz: float, cycles: int, workdir: Path) -> dict[str, Any]:
+def run_rate(
+    rate_hz: float, cycles: int, workdir: Path, profile: str = "classic"
+) -> dict[str, Any]:
     period = 1.0 / rate_hz
-    overrides = {
-        "controller": {"cycle_period_s": period},
-        "operator": {"enabling_after_s": 0.0, "mode": "none"},
-    }
-    result: dict[str, Any] = {"hz": rate_hz, "cycles": 0, "error": None}
-    with Stack(workdir, sim_overrides=overrides) as stack:
+    sim_profile, cell_overrides = CAN_PROFILES[profile]
+    overrides = deep_merge(
+        sim_profile,
+        {
+            "controller": {"cycle_period_s": period},
+            "operator": {"enabling_after_s": 0.0, "mode": "none"},
+        },
+    )
+    result: dict[str, Any] = {"hz": rate_hz, "profile": profile, "cycles": 0, "error": None}
+    with Stack(workdir, sim_overrides=overrides, cell_overrides=cell_overrides) as stack:
         stack.start()
         try:
             stack.start_teaching()
@@ -150,6 +156,12 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     p.add_argument("--rates", type=float, nargs="+", default=[250.0, 500.0], help="[Hz]")
     p.add_argument("--cycles", type=int, default=10000, help="cycles per rate")
     p.add_argument("--out", type=Path, default=Path("bench_out"), help="working folder (logs)")
+    p.add_argument(
+        "--profile",
+        choices=sorted(CAN_PROFILES),
+        default="classic",
+        help="CAN profile: classic (LTC-1, 13 frames per cycle) or fd (LTC-1F, 2 frames)",
+    )
     p.add_argument("--json", type=Path, default=None, help="write the results here as JSON")
 
 
@@ -159,8 +171,9 @@ def cli_main(args: argparse.Namespace) -> int:
         return 2
     results = []
     for rate in args.rates:
-        print(f"running {args.cycles} cycles at {rate:.0f} Hz ...", flush=True)
-        results.append(run_rate(rate, args.cycles, args.out / f"{rate:.0f}hz"))
+        print(f"running {args.cycles} cycles at {rate:.0f} Hz ({args.profile}) ...", flush=True)
+        workdir = args.out / f"{rate:.0f}hz_{args.profile}"
+        results.append(run_rate(rate, args.cycles, workdir, args.profile))
     print()
     print(_table(results))
     doc = {"rates": results}

@@ -36,6 +36,16 @@ SIM_CELL = REPO / "deploy" / "config" / "sim_cell.toml"
 TRUTH = Path(__file__).with_name("gr630st_truth.toml")
 DECLARED = REPO / "deploy" / "config" / "gr630st_declared.toml"
 
+#: The CAN profiles of the protocol (drivers/can/PROTOCOL.md §2 and §10) as (virtual
+#: controller overrides, cell config overrides): both ends must speak the same one.
+CAN_PROFILES: dict[str, tuple[dict[str, Any], dict[str, Any]]] = {
+    "classic": ({}, {}),
+    "fd": (
+        {"controller": {"can_profile": "fd"}},
+        {"can": {"adapter": "ltc_fd", "transport": {"fd": True}}},
+    ),
+}
+
 
 def free_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:

@@ -13,7 +13,7 @@ import time
 import numpy as np
 import pytest
 
-from sim_bridge.harness import Stack
+from sim_bridge.harness import CAN_PROFILES, Stack
 
 pytestmark = pytest.mark.stack
 
@@ -28,15 +28,7 @@ def teaching_rows(truth: dict[str, np.ndarray]) -> np.ndarray:
     return rows
 
 
-#: The two CAN profiles of the protocol (drivers/can/PROTOCOL.md §2 and §10): the virtual
-#: controller's truth file and the cell config each select one.
-PROFILES = {
-    "classic": ({}, {}),
-    "fd": (
-        {"controller": {"can_profile": "fd"}},
-        {"can": {"adapter": "ltc_fd", "transport": {"fd": True}}},
-    ),
-}
+PROFILES = CAN_PROFILES
 
 
 @pytest.mark.parametrize("profile", sorted(PROFILES))
