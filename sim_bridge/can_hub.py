@@ -328,16 +328,8 @@ class SeqpacketHubBus(can.BusABC):
         if backlog:  # behind it, in order; it may have room again (the owner only sends)
             self._flush(client)
         if not backlog:
-            try:
-                client.sock.send(data, _MSG_NOSIGNAL)
-                return
-            except (BlockingIOError, InterruptedError):
-                pass
-            except (BrokenPipeError, ConnectionResetError):
-                self._drop(client, "disconnected")
-                return
-            except OSError as exc:
-                self._drop(client, f"send failed: {exc}")
+            sent = self._send(client, data)
+            if sent is not False:  # sent, or the client was dropped
                 return
         backlog.append(data)
         if len(backlog) > self.MAX_BACKLOG_FRAMES:
@@ -348,22 +340,28 @@ class SeqpacketHubBus(can.BusABC):
             self._epoll.modify(client.fd, _WRITE_EVENTS)
 
     def _flush(self, client: _Client) -> None:
-        backlog, sock = client.backlog, client.sock
+        backlog = client.backlog
         while backlog:
-            try:
-                sock.send(backlog[0], _MSG_NOSIGNAL)
-            except (BlockingIOError, InterruptedError):
-                return
-            except (BrokenPipeError, ConnectionResetError):
-                self._drop(client, "disconnected")
-                return
-            except OSError as exc:
-                self._drop(client, f"send failed: {exc}")
+            if not self._send(client, backlog[0]):  # full, or the client was dropped
                 return
             backlog.popleft()
         if client.want_write:
             client.want_write = False
             self._epoll.modify(client.fd, _READ_EVENTS)
+
+    def _send(self, client: _Client, data: bytes) -> bool | None:
+        """One datagram to ``client``: True sent, False its socket is full (try later), None
+        it is gone (dropped, with the reason logged)."""
+        try:
+            client.sock.send(data, _MSG_NOSIGNAL)
+            return True
+        except (BlockingIOError, InterruptedError):
+            return False
+        except (BrokenPipeError, ConnectionResetError):
+            self._drop(client, "disconnected")
+        except OSError as exc:
+            self._drop(client, f"send failed: {exc}")
+        return None
 
     def _drop(self, client: _Client, why: str) -> None:
         if self._clients.pop(client.fd, None) is None:
