@@ -95,6 +95,10 @@ def _wait_port(host: str, port: int, timeout_s: float, proc: subprocess.Popen) -
     raise TimeoutError(f"nothing listening on {host}:{port} after {timeout_s} s")
 
 
+#: the gateway's joint-state watchdog in lock-step runs [s]: twice the controller's wait
+LOCKSTEP_STATE_TIMEOUT_S = 0.5
+
+
 class Stack:
     """The product + virtual cell, each a separate process."""
 
@@ -123,6 +127,15 @@ class Stack:
                 "modbus": {"port": self.ports["modbus"]},
             },
         )
+        if lockstep:
+            # Lock-step, the product paces the joint-state stream: the virtual controller waits
+            # up to ``lockstep_timeout_s`` (0.25 s) for each answer, so a product process that
+            # stalls (a cold start compiling its imports on a loaded machine) pauses the stream
+            # that long without anything being wrong with the link. The gateway's watchdog
+            # must outlast that wait, or it faults the cell on the test's own pacing.
+            cell = deep_merge(
+                cell, {"gateway": {"joint_state_timeout_s": LOCKSTEP_STATE_TIMEOUT_S}}
+            )
         self.cell = deep_merge(cell, cell_overrides or {})
         truth = load_toml(TRUTH)
         truth = deep_merge(
