@@ -3,15 +3,25 @@
 Stages (each timed in ``summary.json``'s ``timing_s``):
 
 1. read the ``--train`` and ``--test`` CSVs (:mod:`.datafile`);
-2. preprocess each file (:mod:`.preprocess`); take assist-cylinder torque out (:mod:`.fit`);
-3. base regressor of the URDF on every sample (:mod:`.rigid`);
+2. preprocess each file (:mod:`.preprocess`: filtering, and the measured noise floor); take
+   assist-cylinder torque out (:mod:`.fit`);
+3. base regressor of the URDF on every sample (:mod:`.rigid`), filtered like the torque;
 4. fit rigid body + friction on the training files; the eq. (14), eq. (15) and simple friction
-   families are all fitted so the report can compare them (Fig. 7 of the paper), the one of
-   ``--friction`` is kept;
-5. effects: case (A) on the training files, then case (B) on the test residual
+   families are fitted and, with ``--friction auto`` (the default), the one with the lowest
+   held-out (contiguous K-fold) error on the *training* files is kept — never chosen on the
+   test files;
+5. effects: case (A) on the training files, then case (B) on the first part of the test run
    (:mod:`.effects`);
-6. validate on the test files and plot (:mod:`.validate`);
-7. write ``model.json``, ``summary.json`` and ``report.md`` (:mod:`.report`).
+6. never worse than plain least squares: per joint, the plain fit of :func:`.fit.plain_columns`
+   replaces the model where its held-out error on the training files is lower;
+7. validate on the test files and plot (:mod:`.validate`);
+8. write ``model.json``, ``summary.json`` and ``report.md`` (:mod:`.report`).
+
+Every figure is held out. The measured torque is low-passed and every model's torque is
+passed through the same filter, so all figures (model, plain least squares, noise floor) are
+on one target. With no effect accepted in case (B), ``rms_before``/``rms_after`` are on the
+whole test run; with one, both are on the rest of the test run after the part case (B) used
+(:data:`TEST_FIT_FRACTION`), and ``summary["figures"]`` says so.
 """
 
 from __future__ import annotations
@@ -30,9 +40,12 @@ from control.identification.datafile import Measurements, read_measurements
 from control.identification.fit import (
     FrictionFit,
     IdentifiedModel,
+    PlainJoint,
     fit_rigid_friction,
     make_context,
     model_from_solution,
+    plain_columns,
+    plain_key,
     remove_cylinders,
 )
 from control.identification.lsq import BlockLS, contiguous_folds
@@ -40,6 +53,7 @@ from control.identification.preprocess import (
     DEFAULT_POSITION_CUTOFF_HZ,
     DEFAULT_RATE_HZ,
     DEFAULT_TORQUE_CUTOFF_HZ,
+    FILTER_ORDER,
     Prepared,
     TooShortError,
     concatenate,
@@ -47,19 +61,30 @@ from control.identification.preprocess import (
 )
 from control.identification.report import write_report
 from control.identification.rigid import DEFAULT_GRAVITY_M_S2, RobotRegressor
-from control.identification.terms import FRICTION_MODELS, Context, shift_signal
+from control.identification.terms import (
+    FRICTION_MODELS,
+    Context,
+    EffectTerm,
+    Envelope,
+    shift_signal,
+)
 from control.identification.validate import plot_friction, plot_torques, relative_error, rms
 from control.robot.description import RobotDescription, load_description
 from gateway.errors import ConfigError, DataFileError
 
 Progress = Callable[[str], None]
+#: ``--friction`` value that picks the family by held-out error on the training files.
+AUTO = "auto"
+#: Leading share of the test run on which case (B) chooses and fits effects; the rest scores.
+#: Half: the search needs enough data to see an effect, the score enough to be a figure.
+TEST_FIT_FRACTION = 0.5
 
 
 @dataclass(frozen=True)
 class AnalyzeOptions:
     """Settings of one analysis; every field has its command-line option in :mod:`.cli`."""
 
-    friction: str = "eq15"
+    friction: str = AUTO
     rate_hz: float = DEFAULT_RATE_HZ
     position_cutoff_hz: float = DEFAULT_POSITION_CUTOFF_HZ
     torque_cutoff_hz: float = DEFAULT_TORQUE_CUTOFF_HZ
@@ -76,9 +101,9 @@ class AnalyzeOptions:
     search: fx.Options = field(default_factory=fx.Options)
 
     def __post_init__(self) -> None:
-        if self.friction not in FRICTION_MODELS:
+        if self.friction not in (AUTO, *FRICTION_MODELS):
             raise ConfigError(
-                f"--friction: {self.friction!r} is not one of {list(FRICTION_MODELS)}"
+                f"--friction: {self.friction!r} is not one of {[AUTO, *FRICTION_MODELS]}"
             )
         if not 0 < self.search.margin < 1:
             raise ConfigError(f"--margin: {self.search.margin!r} must be in (0, 1)")
@@ -179,6 +204,95 @@ def _predict(
     return model, model.torque_from_context(ctx)
 
 
+def _fit_families(
+    ls: BlockLS, run: _Run, kinds: Sequence[str], ratios: np.ndarray
+) -> tuple[dict[str, FrictionFit], dict[str, Any]]:
+    """Each friction family fitted on ``ls`` (groups left there) and its figures."""
+    fits: dict[str, FrictionFit] = {}
+    comparison: dict[str, Any] = {}
+    for kind in kinds:
+        fit = fit_rigid_friction(ls, run.ctx_train, kind, ratios, progress=run.clock.say)
+        fits[kind] = fit
+        _, pred = _predict(run.reg, run.ctx_test, fit, str(run.urdf), run.meta)
+        comparison[kind] = {
+            "rms_train": fit.evaluation.fit_rms.tolist(),
+            "rms_train_cv": fit.evaluation.cv_rms.tolist(),
+            "rms_test": rms(run.test.tau - pred).tolist(),
+            "q_e_rad_s": [t.q_e_rad_s for t in fit.terms],
+        }
+    return fits, comparison
+
+
+def _keep_family(ls: BlockLS, fits: dict[str, FrictionFit], friction: str, clock: _Clock) -> str:
+    """The family kept (``--friction``, or :func:`choose_family` for auto); the others' groups
+    leave ``ls``."""
+    kind = choose_family(fits) if friction == AUTO else friction
+    if friction == AUTO:
+        clock.say(f"friction family {kind}: lowest held-out error on the training files")
+    for other, fit in fits.items():
+        if other != kind:
+            for term in fit.terms:
+                ls.remove(term.key)
+    return kind
+
+
+def choose_family(fits: dict[str, FrictionFit]) -> str:
+    """The friction family with the lowest held-out error on the training files.
+
+    Joints carry torques of very different size, so each joint's held-out MSE is divided by
+    the best family's on that joint before summing: a family is judged by how much worse than
+    the best it does, joint by joint, not by the largest joint alone.
+    """
+    mse = {k: f.evaluation.cv_sse / f.evaluation.n_rows for k, f in fits.items()}
+    best = np.min(np.array(list(mse.values())), axis=0)
+    scale = np.where(best > 0, best, 1.0)
+    return min(mse, key=lambda k: float(np.sum(mse[k] / scale)))
+
+
+def plain_least_squares(ctx: Context, y: np.ndarray, folds: Sequence[slice]) -> Any:
+    """Plain LS of every joint alone (:func:`.fit.plain_columns`) on targets ``y`` (T, n):
+    the :class:`.lsq.Evaluation` (held-out SSE per joint over ``folds``) and its groups."""
+    ls = BlockLS(y, folds)
+    names = []
+    for j in range(y.shape[1]):
+        ls.add(plain_key(j), plain_columns(ctx, j))
+        names.append(plain_key(j))
+    return ls.evaluate(names, np.ones(y.shape[1]))
+
+
+def _plain_prediction(ctx: Context, sol_coef: dict[str, np.ndarray]) -> np.ndarray:
+    out = np.zeros_like(ctx.q)
+    for j in range(ctx.q.shape[1]):
+        out[:, j] = plain_columns(ctx, j)[j] @ sol_coef[plain_key(j)]
+    return out
+
+
+def _restricted(effects: Sequence[fx.Accepted], plain: set[int]) -> list[tuple[Any, Any, str]]:
+    """Training-fitted effects without the joints kept on plain least squares (their columns
+    were fitted with the full model's parameters, which those joints no longer use)."""
+    out = []
+    for a in effects:
+        joints = tuple(j for j in a.term.joints if j not in plain)
+        if not a.term.is_linear:
+            out.append((a.term, a.coef, a.appeared))
+        elif joints:
+            term = EffectTerm(a.term.name, joints, dict(a.term.setting))
+            out.append((term, a.coef, a.appeared))
+    return out
+
+
+def _outside_share(env: Envelope, data: Any) -> dict[str, Any]:
+    out = env.outside(data.q, data.dq)
+    return {
+        "any_joint": float(np.mean(out.any(axis=1))) if out.size else 0.0,
+        "per_joint": np.mean(out, axis=0).tolist() if out.size else [],
+    }
+
+
+def _floats(x: np.ndarray | None) -> list[float] | None:
+    return None if x is None else [float(v) for v in x]
+
+
 def analyze(
     urdf_path: str | Path,
     train_paths: Sequence[str | Path],
@@ -196,18 +310,30 @@ def analyze(
         return _analyze(urdf_path, train_paths, test_paths, out_dir, options, progress)
 
 
-def _analyze(
+@dataclass
+class _Run:
+    """What the stages of one analysis hand each other."""
+
+    reg: RobotRegressor
+    urdf: Path
+    meta: dict[str, Any]
+    train: Prepared
+    test: Prepared
+    ctx_train: Context
+    ctx_test: Context
+    envelope: Envelope
+    clock: _Clock
+
+
+def _load(
     urdf_path: str | Path,
     train_paths: Sequence[str | Path],
     test_paths: Sequence[str | Path],
-    out_dir: str | Path,
-    options: AnalyzeOptions | None,
-    progress: Progress | None,
-) -> dict[str, Any]:
-    options = options or AnalyzeOptions()
-    clock = _Clock(progress or (lambda s: print(s, flush=True)))
+    options: AnalyzeOptions,
+    clock: _Clock,
+    skipped: list[str],
+) -> tuple[_Run, np.ndarray]:
     urdf = Path(urdf_path)
-    out = Path(out_dir)
     if not train_paths or not test_paths:
         raise ConfigError("need at least one --train and one --test file")
     try:
@@ -225,7 +351,6 @@ def _analyze(
     has_p = any(m.p is not None for m in [*train_m, *test_m])
     desc = _description(options, has_p)
     ratios = _gear_ratios(options, reg, desc, clock)
-    skipped: list[str] = []
     train = remove_cylinders(_prepare(train_m, options, clock, skipped), reg, desc)
     test = remove_cylinders(_prepare(test_m, options, clock, skipped), reg, desc)
     if test.p_joints != train.p_joints:
@@ -235,15 +360,16 @@ def _analyze(
         )
     clock.say(
         f"preprocessed: {train.n_samples} training and {test.n_samples} test samples at "
-        f"{train.rate_hz:.0f} Hz{'; cylinder torque taken out' if has_p else ''}"
+        f"{train.rate_hz:.0f} Hz{'; cylinder torque taken out' if has_p else ''}; measured "
+        f"noise floor {np.array2string(np.asarray(train.noise_nm), precision=3)} N·m"
     )
     clock.lap("preprocess")
 
-    ctx_train = make_context(reg, train, clock.say)
-    ctx_test = make_context(reg, test, clock.say)
+    envelope = Envelope.of(train.q, train.dq)
+    ctx_train = make_context(reg, train, clock.say, envelope=envelope)
+    ctx_test = make_context(reg, test, clock.say, envelope=envelope)
     clock.say("regressor done")
     clock.lap("regressor")
-
     meta = {
         "rate_hz": train.rate_hz,
         "position_cutoff_hz": options.position_cutoff_hz,
@@ -253,118 +379,172 @@ def _analyze(
         "urdf_xml": urdf_xml,
         "cylinders_removed": has_p,
     }
-    ls = BlockLS(train.tau, contiguous_folds(train.n_samples, options.search.folds))
-    kinds = list(FRICTION_MODELS) if options.compare_friction else [options.friction]
-    kinds.sort(key=lambda k: k != options.friction)
-    fits: dict[str, FrictionFit] = {}
-    comparison: dict[str, Any] = {}
-    for kind in kinds:
-        fit = fit_rigid_friction(ls, ctx_train, kind, ratios, progress=clock.say)
-        fits[kind] = fit
-        _, pred = _predict(reg, ctx_test, fit, str(urdf), meta)
-        comparison[kind] = {
-            "rms_train": fit.evaluation.fit_rms.tolist(),
-            "rms_train_cv": fit.evaluation.cv_rms.tolist(),
-            "rms_test": rms(test.tau - pred).tolist(),
-            "q_e_rad_s": [t.q_e_rad_s for t in fit.terms],
-        }
-    for kind in kinds[1:]:
-        for term in fits[kind].terms:
-            ls.remove(term.key)
-    base_fit = fits[options.friction]
-    baseline, pred_before = _predict(reg, ctx_test, base_fit, str(urdf), meta)
-    rms_before = rms(test.tau - pred_before)
-    clock.say(f"held-out RMS before effects: {np.array2string(rms_before, precision=3)} N·m")
+    run = _Run(reg, urdf, meta, train, test, ctx_train, ctx_test, envelope, clock)
+    return run, ratios
+
+
+def _analyze(
+    urdf_path: str | Path,
+    train_paths: Sequence[str | Path],
+    test_paths: Sequence[str | Path],
+    out_dir: str | Path,
+    options: AnalyzeOptions | None,
+    progress: Progress | None,
+) -> dict[str, Any]:
+    options = options or AnalyzeOptions()
+    clock = _Clock(progress or (lambda s: print(s, flush=True)))
+    out = Path(out_dir)
+    skipped: list[str] = []
+    run, ratios = _load(urdf_path, train_paths, test_paths, options, clock, skipped)
+    reg, train, test, meta = run.reg, run.train, run.test, run.meta
+    ctx_train, ctx_test, urdf = run.ctx_train, run.ctx_test, str(run.urdf)
+
+    folds = contiguous_folds(train.n_samples, options.search.folds)
+    ls = BlockLS(train.tau, folds)
+    auto = options.friction == AUTO
+    kinds = list(FRICTION_MODELS) if (auto or options.compare_friction) else [options.friction]
+    fits, comparison = _fit_families(ls, run, kinds, ratios)
+    kind = _keep_family(ls, fits, options.friction, clock)
+    base_fit = fits[kind]
+    _, pred_before = _predict(reg, ctx_test, base_fit, urdf, meta)
     clock.lap("fit")
 
-    model = baseline
-    pred_after = pred_before
-    accepted: list[fx.Accepted] = []
+    accepted_a: list[fx.Accepted] = []
+    delay_a = 0.0
     train_eval = base_fit.evaluation
+    names = base_fit.names
     if options.find_effects:
+        refit: list[FrictionFit] = []
+
+        def refit_friction() -> list[str]:
+            for term in base_fit.terms:
+                ls.remove(term.key)
+            clock.say("delay accepted: friction family and q_e chosen again on the shifted torque")
+            again, _ = _fit_families(ls, run, kinds, ratios)
+            refit.append(again[_keep_family(ls, again, options.friction, clock)])
+            return [t.key for t in refit[-1].terms]
+
         state = fx.search_all_along(
-            ls, ctx_train, train, base_fit.names, base_fit.weights, options.search, clock.say
-        )
+            ls, ctx_train, train, base_fit.names, base_fit.weights, options.search, clock.say,
+            refit_friction,
+        )  # fmt: skip
+        base_fit = refit[-1] if refit else base_fit
+        kind = base_fit.kind
         assert state.evaluation is not None
-        train_eval = state.evaluation
-        a_effects = [(a.term, a.coef, a.appeared) for a in state.accepted]
-        model_a = model_from_solution(
-            reg, base_fit, state.evaluation.solution, a_effects, str(urdf), meta
+        train_eval, accepted_a, delay_a, names = (
+            state.evaluation, state.accepted, state.delay_s, state.names
+        )  # fmt: skip
+    clock.lap("effects")
+
+    # Never worse than plain least squares, judged on the training files' held-out folds on
+    # the same target as the model (the delay of case A included).
+    plain_eval = plain_least_squares(ctx_train, ls.y, folds)
+    worse = train_eval.cv_sse > plain_eval.cv_sse
+    plain = {
+        j: PlainJoint.from_coef(j, plain_eval.solution.coef[plain_key(j)])
+        for j in np.flatnonzero(worse).tolist()
+    }
+    if plain:
+        clock.say(
+            f"joints {[j + 1 for j in plain]}: plain least squares has the lower held-out error "
+            "on the training files; kept there"
         )
-        pred_a = model_a.torque_from_context(ctx_test)
-        if state.delay_s:
-            pred_a = shift_signal(test.t, test.segment, pred_a, -state.delay_s)
-        gain = fx.training_gain_fn(
-            ls, ctx_train, train, state.names, base_fit.weights, state.delay_s
-        )
+    effects_a = _restricted(accepted_a, set(plain))
+    model_a = model_from_solution(
+        reg, base_fit, train_eval.solution, effects_a, urdf, meta, run.envelope, plain
+    )
+    pred_a = model_a.torque_from_context(ctx_test)
+    if delay_a:
+        pred_a = shift_signal(test.t, test.segment, pred_a, -delay_a)
+    plain_ref = plain_least_squares(ctx_train, train.tau, folds)
+    pred_plain = _plain_prediction(ctx_test, plain_ref.solution.coef)
+
+    split = round(TEST_FIT_FRACTION * test.n_samples)
+    fit_rows = slice(0, split)
+    accepted_b: list[fx.Accepted] = []
+    pred_after = pred_a
+    if options.find_effects:
+        gain = fx.training_gain_fn(ls, ctx_train, train, names, base_fit.weights, delay_a)
+        done = [a.term for a in accepted_a]
         between = fx.search_between(
-            ctx_test, test, pred_a, base_fit.weights, state.effects, options.search, clock.say, gain
-        )
-        accepted = [*state.accepted, *between.accepted]
-        if accepted:
-            model = model_from_solution(
-                reg,
-                base_fit,
-                state.evaluation.solution,
-                [*a_effects, *((a.term, a.coef, a.appeared) for a in between.accepted)],
-                str(urdf),
-                meta,
-            )
-            pred_after = between.model_prediction + between.cv_prediction
-        if not accepted:
-            clock.say("no further effect found")
-    rms_after = rms(test.tau - pred_after)
+            ctx_test, test, pred_a, base_fit.weights, done, options.search, fit_rows,
+            clock.say, gain,
+        )  # fmt: skip
+        accepted_b = between.accepted
+        pred_after = between.prediction
+    accepted = [*accepted_a, *accepted_b]
+    effects_b = [(a.term, a.coef, a.appeared) for a in accepted_b]
+    model = model_from_solution(
+        reg, base_fit, train_eval.solution, [*effects_a, *effects_b], urdf, meta,
+        run.envelope, plain,
+    )  # fmt: skip
+    scored = slice(split, test.n_samples) if accepted_b else slice(0, test.n_samples)
+    rms_before = rms((test.tau - pred_before)[scored])
+    rms_after = rms((test.tau - pred_after)[scored])
+    rms_plain = rms((test.tau - pred_plain)[scored])
+    if options.find_effects and not accepted:
+        clock.say("no further effect found")
+    clock.say(f"held-out RMS before effects: {np.array2string(rms_before, precision=3)} N·m")
     clock.say(f"held-out RMS after effects:  {np.array2string(rms_after, precision=3)} N·m")
+    clock.say(f"held-out RMS plain LS:       {np.array2string(rms_plain, precision=3)} N·m")
     clock.lap("effects")
 
     out.mkdir(parents=True, exist_ok=True)
-    plots: list[str] = []
-    if options.plots:
-        curves = {"model before effects": pred_before}
-        if accepted:
-            curves["model after effects"] = pred_after
-        plots.append(
-            plot_torques(
-                out / "torque_test.png",
-                test.tau,
-                curves,
-                reg.joint_names,
-                test.rate_hz,
-                "Held-out test files: measured vs model torque",
-            ).name
-        )
-        # Each family's fit has its own β; plot each as what it predicts for τ - τ_rigid of the
-        # kept model, so measured and model points share one reference.
-        rigid_ref = _rigid(ctx_train, base_fit.evaluation.solution.coef["rigid"])
-        friction_curves = {}
-        for kind, fit in fits.items():
-            sol = fit.evaluation.solution
-            fr = _rigid(ctx_train, sol.coef["rigid"]) - rigid_ref
-            for term in fit.terms:
-                fr[:, term.joint] += term.columns(ctx_train)[term.joint] @ sol.coef[term.key]
-            friction_curves[kind] = fr
-        plots.append(
-            plot_friction(
-                out / "friction_train.png",
-                train.dq,
-                train.tau - rigid_ref,
-                friction_curves,
-                reg.joint_names,
-            ).name
-        )
+    plots = _plots(out, options, run, fits, base_fit, pred_before, pred_after, bool(accepted))
     clock.lap("validate")
 
     model.save(out / "model.json")
+    where = (
+        f"test rows {scored.start}..{scored.stop - 1} of {test.n_samples}: the rest of the test "
+        f"run after the first {split} rows used by case (B)"
+        if accepted_b
+        else f"all {test.n_samples} test rows"
+    )
     summary: dict[str, Any] = {
         "joints": list(reg.joint_names),
-        "friction_model": options.friction,
+        "friction_model": kind,
+        "friction_chosen_by": (
+            "held-out (contiguous K-fold) error on the training files" if auto else "--friction"
+        ),
         "rms_before": rms_before.tolist(),
         "rms_after": rms_after.tolist(),
-        "relative_before": relative_error(test.tau, pred_before).tolist(),
-        "relative_after": relative_error(test.tau, pred_after).tolist(),
+        "rms_plain_ls": rms_plain.tolist(),
+        "after_le_plain_ls": (rms_after <= rms_plain).tolist(),
+        "plain_ls_joints": sorted(j + 1 for j in plain),
+        "relative_before": relative_error(test.tau[scored], pred_before[scored]).tolist(),
+        "relative_after": relative_error(test.tau[scored], pred_after[scored]).tolist(),
         "rms_train": train_eval.fit_rms.tolist(),
+        "rms_train_cv": train_eval.cv_rms.tolist(),
+        "rms_train_cv_plain_ls": plain_eval.cv_rms.tolist(),
         "rms_train_before": base_fit.evaluation.fit_rms.tolist(),
-        "rms_measured_test": rms(test.tau).tolist(),
+        "rms_measured_test": rms(test.tau[scored]).tolist(),
+        "noise_floor_nm": {"train": _floats(train.noise_nm), "test": _floats(test.noise_nm)},
+        "raw_noise_std_nm": {
+            "train": _floats(train.raw_noise_nm),
+            "test": _floats(test.raw_noise_nm),
+        },
+        "figures": {
+            "rms_before": f"{where}; rigid body + friction family fitted on the training files",
+            "rms_after": f"{where}; the final model (effects, plain joints)",
+            "rms_plain_ls": f"{where}; plain least squares per joint fitted on the training "
+            "files (fit.plain_columns)",
+            "rms_train_cv": "training files, held out by contiguous K-fold cross-validation",
+            "rms_train": "training files, in-sample (for reference only)",
+            "noise_floor_nm": "std of the measured noise left in the filtered torque",
+            "target": "measured torque low-passed at the torque cutoff; every model's torque "
+            "through the same filter",
+            "effects": "case (A) fitted on the training files; case (B) chosen and fitted on "
+            f"the first {split} test rows",
+        },
+        "test_rows_scored": [scored.start, scored.stop],
+        "test_time_scored_s": [float(test.t[scored.start]), float(test.t[scored.stop - 1])],
+        "target_filter": {
+            "kind": "Butterworth, zero-phase (forward and backward)",
+            "order": FILTER_ORDER,
+            "cutoff_hz": sorted({float(v) for v in np.unique(np.asarray(test.filter_hz))}),
+        },
+        "training_envelope": run.envelope.to_json(),
+        "test_outside_envelope": _outside_share(run.envelope, test),
         "effects": [
             {
                 "name": a.term.name,
@@ -382,9 +562,9 @@ def _analyze(
         "base_parameters": reg.base.n_base,
         "n_samples": {"train": train.n_samples, "test": test.n_samples},
         "rate_hz": train.rate_hz,
-        "cylinders_removed": has_p,
+        "cylinders_removed": meta["cylinders_removed"],
         "files": {
-            "urdf": str(urdf),
+            "urdf": urdf,
             "train": [str(p) for p in train_paths],
             "test": [str(p) for p in test_paths],
         },
@@ -393,9 +573,58 @@ def _analyze(
         "effects_searched": options.find_effects,
         "files_left_out": skipped,
         "margin": options.search.margin,
+        "alpha": options.search.alpha,
     }
     clock.lap("report")
     summary["timing_s"] = dict(clock.timing, total=round(time.perf_counter() - clock.start, 3))
     write_report(out, summary)
     clock.say(f"wrote {out / 'model.json'}, {out / 'summary.json'}, {out / 'report.md'}")
     return summary
+
+
+def _plots(
+    out: Path,
+    options: AnalyzeOptions,
+    run: _Run,
+    fits: dict[str, FrictionFit],
+    base_fit: FrictionFit,
+    pred_before: np.ndarray,
+    pred_after: np.ndarray,
+    any_effect: bool,
+) -> list[str]:
+    if not options.plots:
+        return []
+    test, train, ctx_train = run.test, run.train, run.ctx_train
+    curves = {"model before effects": pred_before}
+    if any_effect:
+        curves["model after effects"] = pred_after
+    plots = [
+        plot_torques(
+            out / "torque_test.png",
+            test.tau,
+            curves,
+            run.reg.joint_names,
+            test.rate_hz,
+            "Held-out test files: measured vs model torque",
+        ).name
+    ]
+    # Each family's fit has its own β; plot each as what it predicts for τ - τ_rigid of the
+    # kept model, so measured and model points share one reference.
+    rigid_ref = _rigid(ctx_train, base_fit.evaluation.solution.coef["rigid"])
+    friction_curves = {}
+    for kind, fit in fits.items():
+        sol = fit.evaluation.solution
+        fr = _rigid(ctx_train, sol.coef["rigid"]) - rigid_ref
+        for term in fit.terms:
+            fr[:, term.joint] += term.columns(ctx_train)[term.joint] @ sol.coef[term.key]
+        friction_curves[kind] = fr
+    plots.append(
+        plot_friction(
+            out / "friction_train.png",
+            train.dq,
+            train.tau - rigid_ref,
+            friction_curves,
+            run.reg.joint_names,
+        ).name
+    )
+    return plots

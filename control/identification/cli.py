@@ -17,7 +17,7 @@ import sys
 from pathlib import Path
 
 from control.identification import effects as fx
-from control.identification.analyze import AnalyzeOptions, analyze
+from control.identification.analyze import AUTO, AnalyzeOptions, analyze
 from control.identification.preprocess import (
     DEFAULT_POSITION_CUTOFF_HZ,
     DEFAULT_RATE_HZ,
@@ -56,10 +56,10 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder (created)")
     p.add_argument(
         "--friction",
-        choices=FRICTION_MODELS,
-        default="eq15",
-        help="friction model kept in model.json (default: eq15, the paper's; all three are "
-        "compared in the report)",
+        choices=(AUTO, *FRICTION_MODELS),
+        default=AUTO,
+        help="friction model kept in model.json (default: auto, the family with the lowest "
+        "held-out error on the training files; all three are compared in the report)",
     )
     p.add_argument(
         "--drive-gains",
@@ -179,6 +179,8 @@ def cli_main(args: argparse.Namespace) -> int:
             )
     elif summary["effects_searched"]:
         print("no further effect found")
+    if summary["plain_ls_joints"]:
+        print(f"joints {summary['plain_ls_joints']} kept on plain least squares (lower error)")
     print(f"report: {Path(args.out) / 'report.md'}")
     return 0
 

@@ -19,20 +19,28 @@ contiguous blocks, never random samples (samples 5 ms apart are anything but ind
     blocks of the training data. Accepted effects are then judged on the test files by the
     caller (``rms_after`` there is a plain held-out number).
 (B) *Between training and test* (e.g. a spray gun mounted after the identification run): the
-    training model is kept fixed and the candidate's parameters are fitted to the *test*
-    residual with blocked K-fold cross-validation on the test data, so the reported
-    ``rms_after`` is still held-out. Runs after (A), on what (A) left.
+    training model is kept fixed and the candidate's parameters are fitted to the test
+    residual of the *first part* of the test run only (``fit_rows``; the search itself
+    cross-validates over contiguous blocks of that part); the caller scores the result on the
+    rest of the test run, which neither the choice nor the fit has seen. Runs after (A).
 
-A candidate is accepted only if (i) the held-out RMS of its joint (for the all-joint
-``payload`` and ``time_delay``: of some joint) falls by at least ``margin`` (default
-:data:`MARGIN` = 10 %) and by at least ``min_gain_nm`` (default :data:`MIN_GAIN_NM`: a
-relative gain on a joint that carries almost no torque is noise, not an effect), (ii) no
-joint's held-out RMS grows by more than :data:`WORSEN_TOLERANCE`, and (iii) BIC falls,
-computed with the sample count of data decimated to :data:`BIC_RATE_HZ` (the residual is
-strongly autocorrelated, so the nominal count would make every extra column look
-significant). Among the acceptable ones the largest drop of the
-weighted held-out error wins. With no effect in the data nothing passes: the margin and the
-BIC penalty are far above what fitting two columns to noise buys (tested on synthetic data).
+A candidate is accepted only if
+
+(i) *effect size*: the held-out RMS of its joint (for the all-joint ``payload`` and
+    ``time_delay``: of some joint) falls by at least ``margin`` (default :data:`MARGIN` =
+    10 %, ``--margin``);
+(ii) *significance against the measured noise floor*: the drop of the held-out sum of squares
+    exceeds what fitting the candidate's ``p`` columns to noise alone could give, at
+    family-wise level :data:`ALPHA` over the candidates tried in the round (Bonferroni).
+    With the noise floor measured by :mod:`.preprocess` (``noise_dof_nm2``, the noise one
+    column takes out on average), a column fitted to pure noise lowers the *in-sample* sum of
+    squares by ``noise_dof_nm2 · χ²_p`` and raises the held-out one; requiring the held-out
+    drop to beat the ``1 - ALPHA/m`` quantile of ``noise_dof_nm2 · χ²_p`` is therefore a
+    conservative test. It replaces BIC on the residual's own MSE, which grew the penalty with
+    the model's mismatch instead of with the noise;
+(iii) no joint's held-out RMS grows by more than :data:`WORSEN_TOLERANCE`.
+
+Among the acceptable ones the largest drop of the weighted held-out error wins.
 """
 
 from __future__ import annotations
@@ -41,16 +49,16 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.stats import chi2
 
 from control.identification.lsq import BlockLS, Evaluation, Solution, contiguous_folds
 from control.identification.preprocess import Prepared
 from control.identification.terms import Context, EffectTerm, shift_signal
 
 MARGIN = 0.10
-#: smallest held-out RMS drop that counts as an effect on a joint [N·m]
-MIN_GAIN_NM = 0.1
+#: Family-wise probability, per search round, of accepting a candidate that only fits noise.
+ALPHA = 0.01
 WORSEN_TOLERANCE = 0.05
-BIC_RATE_HZ = 10.0
 MAX_EFFECTS = 6
 DEFAULT_FOLDS = 5
 RIPPLE_CYCLES = (1, 200)
@@ -71,10 +79,9 @@ class Options:
     """Search settings (see the module docstring)."""
 
     margin: float = MARGIN
-    min_gain_nm: float = MIN_GAIN_NM
+    alpha: float = ALPHA
     max_effects: int = MAX_EFFECTS
     folds: int = DEFAULT_FOLDS
-    bic_rate_hz: float = BIC_RATE_HZ
     ripple_cycles: tuple[int, int] = RIPPLE_CYCLES
     delay_max_s: float = DELAY_MAX_S
     delay_step_s: float = DELAY_STEP_S
@@ -102,7 +109,8 @@ class Verdict:
     score: float
     rel: np.ndarray
     improved: tuple[int, ...]
-    dbic: float
+    chi2: float
+    chi2_threshold: float
     delay_s: float = 0.0
 
 
@@ -121,12 +129,30 @@ def _quiet(_: str) -> None:
     pass
 
 
-def bic(ev: Evaluation, weights: np.ndarray, rate_hz: float, bic_rate_hz: float) -> float:
-    """BIC of a fit on data decimated to ``bic_rate_hz``: ``N ln(MSE_w) + p ln N``."""
-    n_joints = ev.fit_sse.size
-    n_eff = max(1.0, ev.n_rows * min(1.0, bic_rate_hz / rate_hz)) * n_joints
-    mse = float(np.sum(weights**2 * ev.fit_sse)) / (n_joints * ev.n_rows)
-    return n_eff * np.log(max(mse, 1e-300)) + ev.rank * np.log(n_eff)
+@dataclass(frozen=True)
+class NoiseFloor:
+    """Measured noise of one data set (see :class:`.preprocess.Prepared`): ``std_nm`` (n,)
+    the noise std left in the filtered torque [N·m], ``dof_nm2`` (n,) the sum of squares one
+    fitted column takes out of pure noise on average [N²·m²]."""
+
+    std_nm: np.ndarray
+    dof_nm2: np.ndarray
+
+    @classmethod
+    def of(cls, data: Prepared) -> NoiseFloor:
+        """From ``data``; where the data cannot tell (no estimate), a tiny floor, so that the
+        significance test (ii) is left to the other two."""
+        n = data.n_joints
+        std = data.noise_nm if data.noise_nm is not None else np.zeros(n)
+        dof = data.noise_dof_nm2 if data.noise_dof_nm2 is not None else np.zeros(n)
+        std = np.where(np.isfinite(std), std, 0.0)
+        dof = np.where(np.isfinite(dof), dof, 0.0)
+        return cls(std, np.maximum(dof, 1e-300))
+
+
+def chi2_threshold(p: int, tried: int, alpha: float) -> float:
+    """``1 - alpha/tried`` quantile of χ² with ``p`` degrees of freedom (Bonferroni)."""
+    return float(chi2.isf(alpha / max(tried, 1), max(p, 1)))
 
 
 def judge(
@@ -134,29 +160,45 @@ def judge(
     current: Evaluation,
     new: Evaluation,
     weights: np.ndarray,
-    rate_hz: float,
+    noise: NoiseFloor,
+    tried: int,
     options: Options,
     extra_params: int = 0,
 ) -> Verdict:
-    """Accept/reject ``term`` (module docstring); ``extra_params`` counts non-linear settings."""
+    """Accept/reject ``term`` (rules (i)-(iii) of the module docstring); ``tried`` is the
+    number of candidate settings of the round, ``extra_params`` counts non-linear settings."""
     cur = np.maximum(current.cv_sse, 1e-300)
-    rel = 1.0 - np.sqrt(new.cv_sse / cur)
-    rows = max(current.n_rows, 1)
-    gain_nm = np.sqrt(cur / rows) - np.sqrt(np.maximum(new.cv_sse, 0.0) / rows)
-    good = (rel >= options.margin) & (gain_nm >= options.min_gain_nm)
+    rel = 1.0 - np.sqrt(np.maximum(new.cv_sse, 0.0) / cur)
+    drop = current.cv_sse - new.cv_sse
+    joints = list(term.joints)
+    p = max(new.rank - current.rank, 0) + extra_params
+    stat = float(np.sum(drop[joints] / noise.dof_nm2[joints]))
+    threshold = chi2_threshold(p, tried, options.alpha)
+    big = rel >= options.margin
     if len(term.joints) == 1:
-        improved = tuple(j for j in term.joints if good[j])
-        target_ok = bool(improved)
+        improved = tuple(j for j in term.joints if big[j])
     else:
-        improved = tuple(int(j) for j in np.flatnonzero(good))
-        target_ok = bool(improved)
+        improved = tuple(int(j) for j in np.flatnonzero(big))
     no_worse = bool(np.all(rel >= -WORSEN_TOLERANCE))
-    new_bic = bic(new, weights, rate_hz, options.bic_rate_hz) + extra_params * np.log(
-        max(1.0, new.n_rows * min(1.0, options.bic_rate_hz / rate_hz)) * new.fit_sse.size
-    )
-    dbic = new_bic - bic(current, weights, rate_hz, options.bic_rate_hz)
-    score = float(np.sum(weights**2 * (current.cv_sse - new.cv_sse)))
-    return Verdict(term, new, target_ok and no_worse and dbic < 0, score, rel, improved, dbic)
+    ok = bool(improved) and no_worse and stat >= threshold
+    score = float(np.sum(weights**2 * drop))
+    return Verdict(term, new, ok, score, rel, improved, stat, threshold)
+
+
+def scanned_settings(terms: Sequence[EffectTerm], options: Options, delay: bool) -> int:
+    """Candidate settings tried in a round, for the Bonferroni count of rule (ii): each ripple
+    peak was picked among the scanned cycle counts, each Stribeck velocity among
+    :data:`STRIBECK_VELOCITIES_RAD_S`, the delay among the scanned shifts."""
+    lo, hi = options.ripple_cycles
+    count = 0
+    for t in terms:
+        if t.name == "position_ripple":
+            count += hi - lo + 1
+        elif t.name == "stribeck":
+            count += len(STRIBECK_VELOCITIES_RAD_S)
+        else:
+            count += 1
+    return count + (_delays(options).size if delay else 0)
 
 
 # --------------------------------------------------------------------------------------------
@@ -286,12 +328,19 @@ def search_all_along(
     weights: np.ndarray,
     options: Options,
     progress: Progress | None = None,
+    refit_friction: Callable[[], list[str]] | None = None,
 ) -> SearchState:
     """Case (A) greedy search on the training data in ``ls`` (groups ``names`` fitted there).
 
     ``ls`` must use contiguous folds; accepted effects stay in ``ls`` (and a delay in its y).
+    ``refit_friction()`` re-chooses the friction family and its nonlinear settings (q_e) on
+    ``ls``, replaces the friction groups there and returns their names: it is called once a
+    delay is accepted, since the friction chosen on the unshifted torque stood in for part of
+    the delay (a late sign change looks like a slow one), and left alone would hand the rest
+    of the mismatch to spurious Stribeck terms.
     """
     progress = progress or _quiet
+    noise = NoiseFloor.of(data)
     state = SearchState(names=list(names))
     friction_keys = [k for k in names if k.startswith("friction")]
     y0 = ls.y.copy()
@@ -300,22 +349,18 @@ def search_all_along(
         sol = current.solution
         residual = ls.y - ls.predict(sol)
         _refresh_model_columns(ctx, ls, sol, friction_keys)
+        terms = candidates(ctx, residual, state.effects, options)
+        tried = scanned_settings(terms, options, state.delay_s == 0.0)
         verdicts: list[Verdict] = []
-        for term in candidates(ctx, residual, state.effects, options):
+        for term in terms:
             ls.add(term.key, term.columns(ctx))
-            verdicts.append(
-                judge(
-                    term,
-                    current,
-                    ls.evaluate([*state.names, term.key], weights),
-                    weights,
-                    data.rate_hz,
-                    options,
-                )
-            )
+            new = ls.evaluate([*state.names, term.key], weights)
+            verdicts.append(judge(term, current, new, weights, noise, tried, options))
             ls.remove(term.key)
         if state.delay_s == 0.0:
-            verdicts.append(_delay_all_along(ls, y0, data, state.names, weights, current, options))
+            verdicts.append(
+                _delay_all_along(ls, y0, data, state.names, weights, current, noise, tried, options)
+            )
             ls.set_y(y0)
         ok = [v for v in verdicts if v.accepted]
         _log_round(progress, "train", verdicts)
@@ -326,6 +371,10 @@ def search_all_along(
         if term.name == "time_delay":
             state.delay_s = best.delay_s
             ls.set_y(shift_signal(data.t, data.segment, y0, state.delay_s))
+            if refit_friction is not None:
+                keys = refit_friction()
+                state.names = [k for k in state.names if k not in friction_keys] + keys
+                friction_keys = keys
         else:
             ls.add(term.key, term.columns(ctx))
             state.names.append(term.key)
@@ -351,6 +400,8 @@ def _delay_all_along(
     names: list[str],
     weights: np.ndarray,
     current: Evaluation,
+    noise: NoiseFloor,
+    tried: int,
     options: Options,
 ) -> Verdict:
     deltas = _delays(options)
@@ -362,7 +413,7 @@ def _delay_all_along(
     ls.set_y(shift_signal(data.t, data.segment, y0, delta))
     ev = ls.evaluate(names, weights)
     term = EffectTerm("time_delay", tuple(range(ls.n)), {"delay_s": round(delta, 6)})
-    verdict = judge(term, current, ev, weights, data.rate_hz, options, extra_params=1)
+    verdict = judge(term, current, ev, weights, noise, tried, options, extra_params=1)
     verdict.delay_s = round(delta, 6)
     return verdict
 
@@ -395,13 +446,19 @@ def training_gain_fn(
 
 @dataclass
 class TestSearch:
-    """Result of case (B): accepted effects with coefficients from all test data, and the
-    held-out (blocked K-fold) prediction of their sum on the test samples, (T, n) [N·m]."""
+    """Result of case (B): accepted effects with coefficients fitted on the ``fit_rows`` of
+    the test data, the delay, and the prediction of the fixed model shifted by that delay plus
+    the accepted effects on *all* test samples, (T, n) [N·m]; only the rows after
+    ``fit_rows`` are held out."""
 
     accepted: list[Accepted]
     delay_s: float
-    cv_prediction: np.ndarray
-    model_prediction: np.ndarray
+    prediction: np.ndarray
+    fit_rows: slice
+
+
+def _rows(cols: dict[int, np.ndarray], rows: slice) -> dict[int, np.ndarray]:
+    return {j: c[rows] for j, c in cols.items()}
 
 
 def search_between(
@@ -411,53 +468,59 @@ def search_between(
     weights: np.ndarray,
     done: Sequence[EffectTerm],
     options: Options,
+    fit_rows: slice,
     progress: Progress | None = None,
     training_gain: Callable[[EffectTerm], np.ndarray] | None = None,
 ) -> TestSearch:
     """Case (B) on the test data: ``model_prediction`` (T, n) is the fixed training model's
     torque on ``data`` (delay of case A included); ``ctx`` carries its rigid/friction parts.
+    Candidates are chosen and fitted on ``fit_rows`` (a leading slice of the samples) only.
 
     ``training_gain(term)`` gives the relative held-out gain per joint the term brings on the
     *training* data; an accepted effect whose joints gain ``margin`` there too was present all
-    along (case A turned it down for another reason, e.g. BIC) and is labelled so, although
-    its parameters come from the test residual.
+    along (case A turned it down for another reason) and is labelled so, although its
+    parameters come from the test residual.
     """
     progress = progress or _quiet
+    part = data.select(np.arange(data.n_samples)[fit_rows])
+    noise = NoiseFloor.of(part)
     tau = data.tau
     allow_delay = not any(t.name == "time_delay" for t in done)
-    ls = BlockLS(tau - model_prediction, contiguous_folds(data.n_samples, options.folds))
+    n_fit = part.n_samples
+    ls = BlockLS((tau - model_prediction)[fit_rows], contiguous_folds(n_fit, options.folds))
+    screen = ctx.rows(fit_rows)
     names: list[str] = []
     effects: list[EffectTerm] = []
     accepted: list[Accepted] = []
     delay = 0.0
     current = ls.evaluate(names, weights)
+
+    def shifted(d: float) -> np.ndarray:
+        return shift_signal(data.t, data.segment, model_prediction, -d) if d else model_prediction
+
     while len(accepted) + len(done) < options.max_effects:
         residual = ls.y - ls.predict(current.solution) if names else ls.y
+        terms = candidates(screen, residual, [*done, *effects], options)
+        with_delay = allow_delay and delay == 0.0
+        tried = scanned_settings(terms, options, with_delay)
         verdicts = []
-        for term in candidates(ctx, residual, [*done, *effects], options):
-            ls.add(term.key, term.columns(ctx))
-            verdicts.append(
-                judge(
-                    term,
-                    current,
-                    ls.evaluate([*names, term.key], weights),
-                    weights,
-                    data.rate_hz,
-                    options,
-                )
-            )
+        for term in terms:
+            ls.add(term.key, _rows(term.columns(ctx), fit_rows))
+            new = ls.evaluate([*names, term.key], weights)
+            verdicts.append(judge(term, current, new, weights, noise, tried, options))
             ls.remove(term.key)
         base_y = ls.y.copy()
-        if allow_delay and delay == 0.0:
+        if with_delay:
             deltas = _delays(options)
             errors = []
             for d in deltas:
-                ls.set_y(tau - shift_signal(data.t, data.segment, model_prediction, -float(d)))
+                ls.set_y((tau - shifted(float(d)))[fit_rows])
                 errors.append(float(np.sum(weights**2 * ls.evaluate(names, weights).fit_sse)))
             d_best = round(_refine(deltas, np.array(errors)), 6)
-            ls.set_y(tau - shift_signal(data.t, data.segment, model_prediction, -d_best))
+            ls.set_y((tau - shifted(d_best))[fit_rows])
             term = EffectTerm("time_delay", tuple(range(ls.n)), {"delay_s": d_best})
-            v = judge(term, current, ls.evaluate(names, weights), weights, data.rate_hz, options, 1)
+            new = ls.evaluate(names, weights)
+            v = judge(term, current, new, weights, noise, tried, options, extra_params=1)
             v.delay_s = d_best
             verdicts.append(v)
             ls.set_y(base_y)
@@ -469,9 +532,9 @@ def search_between(
         term = best.term
         if term.name == "time_delay":
             delay = best.delay_s
-            ls.set_y(tau - shift_signal(data.t, data.segment, model_prediction, -delay))
+            ls.set_y((tau - shifted(delay))[fit_rows])
         else:
-            ls.add(term.key, term.columns(ctx))
+            ls.add(term.key, _rows(term.columns(ctx), fit_rows))
             names.append(term.key)
         effects.append(term)
         new = ls.evaluate(names, weights)
@@ -484,14 +547,15 @@ def search_between(
             Accepted(term, np.zeros(0), appeared, best.improved, current.cv_rms, new.cv_rms, "test")
         )
         case = appeared.replace("_", " ")
-        progress(f"accepted ({case}, fitted on the test residual) {_describe(best)}")
+        progress(f"accepted ({case}, fitted on the first part of the test run) {_describe(best)}")
         current = new
+    prediction = shifted(delay).copy()
     for acc in accepted:
         acc.coef = current.solution.coef.get(acc.term.key, np.zeros(0))
-    shifted = (
-        shift_signal(data.t, data.segment, model_prediction, -delay) if delay else model_prediction
-    )
-    return TestSearch(accepted, delay, ls.cv_predict(names, weights), shifted)
+        if acc.term.is_linear:
+            for j, cols in acc.term.columns(ctx).items():
+                prediction[:, j] += cols @ acc.coef
+    return TestSearch(accepted, delay, prediction, fit_rows)
 
 
 # --------------------------------------------------------------------------------------------
@@ -503,7 +567,8 @@ def _describe(v: Verdict) -> str:
     joints = [j + 1 for j in (v.improved or t.joints)]
     return (
         f"{t.name} joints {joints}{setting}: held-out RMS -"
-        f"{100 * float(np.max(v.rel[list(v.improved or t.joints)])):.0f} %, ΔBIC {v.dbic:.0f}"
+        f"{100 * float(np.max(v.rel[list(v.improved or t.joints)])):.0f} %, held-out drop "
+        f"{v.chi2:.0f} noise dof (threshold {v.chi2_threshold:.0f})"
     )
 
 

@@ -44,7 +44,7 @@ from typing import Any
 
 import numpy as np
 
-from control.identification.lsq import BlockLS, Evaluation, Solution
+from control.identification.lsq import BlockLS, Evaluation, Solution, contiguous_folds
 from control.identification.preprocess import Prepared
 from control.identification.rigid import BaseParameters, RobotRegressor
 from control.identification.terms import (
@@ -52,6 +52,7 @@ from control.identification.terms import (
     FRICTION_PARAM_NAMES,
     Context,
     EffectTerm,
+    Envelope,
     FrictionTerm,
     RigidTerm,
     shift_signal,
@@ -61,7 +62,9 @@ from control.robot.description import BAR_TO_PA, CylinderSpec, RobotDescription
 from gateway.errors import ConfigError, DataFileError
 
 MODEL_FORMAT = "leadthrough-model"
-MODEL_VERSION = 2
+MODEL_VERSION = 3
+#: Versions :meth:`IdentifiedModel.load` reads: 2 lacks the envelope and the plain joints.
+READABLE_VERSIONS = (2, 3)
 #: Candidate transition velocities q_e [rad/s] of eqs. (16)-(17) for the grid search.
 Q_E_GRID_RAD_S = (0.002, 0.005, 0.01, 0.02, 0.05, 0.1, 0.2)
 Q_E_SWEEPS = 2
@@ -78,12 +81,23 @@ def _quiet(_: str) -> None:
 
 
 def make_context(
-    reg: RobotRegressor, data: Prepared, progress: Progress | None = None, payload: bool = True
+    reg: RobotRegressor,
+    data: Prepared,
+    progress: Progress | None = None,
+    payload: bool = True,
+    envelope: Envelope | None = None,
 ) -> Context:
-    """Context of ``data`` with the base regressor (and the payload columns) computed."""
+    """Context of ``data`` with the base regressor (and the payload columns) computed.
+
+    The regressor columns are passed through the torque's low-pass
+    (:meth:`.preprocess.Prepared.lowpass`) and the context keeps that filter for the friction
+    and effect columns, so every column is filtered like the measured torque; ``envelope``
+    (the training data's, :class:`.terms.Envelope`) bounds the friction and effect terms.
+    """
     nb = reg.base.n_base
     cols = np.concatenate([reg.base.independent, reg.payload_indices if payload else []])
     y = reg.regressor_columns(data.q, data.dq, data.ddq, cols.astype(int), progress)
+    y = np.ascontiguousarray(np.moveaxis(data.lowpass(np.moveaxis(y, 1, 0)), 0, 1))
     return Context(
         q=data.q,
         dq=data.dq,
@@ -91,6 +105,8 @@ def make_context(
         t=data.t,
         y_base=y[:, :, :nb],
         y_payload=y[:, :, nb:] if payload else None,
+        envelope=envelope,
+        lowpass=data.lowpass if data.filter_hz is not None else None,
     )
 
 
@@ -139,15 +155,8 @@ def _rms(x: np.ndarray) -> np.ndarray:
     return np.sqrt(np.mean(np.square(x), axis=0))
 
 
-def _thinned(ctx: Context, y: np.ndarray, max_rows: int) -> tuple[Context, np.ndarray]:
-    step = max(1, int(np.ceil(ctx.n_rows / max_rows)))
-    if step == 1:
-        return ctx, y
-    assert ctx.y_base is not None
-    return (
-        Context(ctx.q[::step], ctx.dq[::step], ctx.ddq[::step], None, ctx.y_base[:, ::step]),
-        y[::step],
-    )
+def _thin(cols: dict[int, np.ndarray], step: int) -> dict[int, np.ndarray]:
+    return {j: c[::step] for j, c in cols.items()}
 
 
 @dataclass
@@ -174,8 +183,10 @@ def fit_rigid_friction(
 ) -> FrictionFit:
     """Rigid body + friction ``kind`` on ``ls`` (whose group "rigid" is already added).
 
-    q_e per joint by grid search (on at most :data:`Q_E_SEARCH_MAX_ROWS` rows), then the
-    two-step weighted LS on all rows; the friction groups are left in ``ls``.
+    q_e per joint by grid search on the held-out (contiguous K-fold) error of the joint, on at
+    most :data:`Q_E_SEARCH_MAX_ROWS` rows: q_e is a model choice, so it is chosen on data the
+    fit did not see. Then the two-step weighted LS on all rows; the friction groups are left
+    in ``ls``.
     """
     if kind not in FRICTION_MODELS:
         raise ConfigError(f"--friction: {kind!r} is not one of {list(FRICTION_MODELS)}")
@@ -184,28 +195,30 @@ def fit_rigid_friction(
     if "rigid" not in ls.cols:
         ls.add("rigid", RigidTerm().columns(ctx))
     w0 = 1.0 / np.maximum(_rms(ls.y), _SIGMA_FLOOR_NM)
-    sctx, sy = _thinned(ctx, ls.y, Q_E_SEARCH_MAX_ROWS)
-    search = BlockLS(sy, [slice(0, sy.shape[0])]) if sctx is not ctx else None
-    target = search if search is not None else ls
-    if search is not None:
-        search.add("rigid", RigidTerm().columns(sctx))
+    step = max(1, int(np.ceil(ctx.n_rows / Q_E_SEARCH_MAX_ROWS)))
+    if step > 1:
+        rows = ls.y[::step].shape[0]
+        target = BlockLS(ls.y[::step], contiguous_folds(rows, len(ls.folds)))
+        target.add("rigid", _thin(RigidTerm().columns(ctx), step))
+    else:
+        target = ls
     grid = sorted(float(v) for v in q_e_grid)
     q_e = [grid[len(grid) // 2]] * n
     terms = [FrictionTerm(j, kind, q_e[j], float(gear_ratios[j])) for j in range(n)]
     for term in terms:
-        target.add(term.key, term.columns(sctx))
+        target.add(term.key, _thin(term.columns(ctx), step))
     names = ["rigid", *(t.key for t in terms)]
     for _sweep in range(Q_E_SWEEPS if len(grid) > 1 else 0):
         for j in range(n):
             best = (np.inf, terms[j])
             for value in grid:
                 cand = FrictionTerm(j, kind, value, float(gear_ratios[j]))
-                target.add(cand.key, cand.columns(sctx))
-                sse = target.fold_sse(target.solve(names, w0)).sum(axis=0)[j]
+                target.add(cand.key, _thin(cand.columns(ctx), step))
+                sse = target.evaluate(names, w0).cv_sse[j]
                 if sse < best[0]:
                     best = (sse, cand)
             terms[j] = best[1]
-            target.add(terms[j].key, terms[j].columns(sctx))
+            target.add(terms[j].key, _thin(terms[j].columns(ctx), step))
     if target is not ls:
         for term in terms:
             ls.add(term.key, term.columns(ctx))
@@ -215,13 +228,54 @@ def fit_rigid_friction(
     evaluation = ls.evaluate(names, weights)
     progress(
         f"friction {kind}: q_e = {[t.q_e_rad_s for t in terms]} rad/s, training RMS "
-        f"{np.array2string(evaluation.fit_rms, precision=3)} N·m"
+        f"{np.array2string(evaluation.fit_rms, precision=3)} N·m, held-out (K-fold) "
+        f"{np.array2string(evaluation.cv_rms, precision=3)} N·m"
     )
     return FrictionFit(kind, terms, weights, evaluation)
 
 
 # --------------------------------------------------------------------------------------------
 # The identified model: file format and evaluation
+
+
+@dataclass(frozen=True)
+class PlainJoint:
+    """A joint kept on plain least squares (:func:`plain_columns`) because the full model's
+    held-out error was worse there: its own base-parameter vector ``beta`` (nb,) over its row
+    of the base regressor, Coulomb ``coulomb_nm`` [N·m] times sgn(dq) and viscous
+    ``viscous_nm_s_per_rad`` [N·m·s/rad]."""
+
+    joint: int
+    beta: np.ndarray
+    coulomb_nm: float
+    viscous_nm_s_per_rad: float
+
+    @property
+    def coef(self) -> np.ndarray:
+        return np.r_[self.beta, self.coulomb_nm, self.viscous_nm_s_per_rad]
+
+    @classmethod
+    def from_coef(cls, joint: int, coef: np.ndarray) -> PlainJoint:
+        c = np.asarray(coef, dtype=float)
+        return cls(joint, c[:-2].copy(), float(c[-2]), float(c[-1]))
+
+    def friction(self, ctx: Context) -> np.ndarray:
+        dq = ctx.dq_of(self.joint)
+        return ctx.filtered(self.coulomb_nm * np.sign(dq) + self.viscous_nm_s_per_rad * dq)
+
+
+def plain_key(j: int) -> str:
+    return f"plain:{j}"
+
+
+def plain_columns(ctx: Context, j: int) -> dict[int, np.ndarray]:
+    """Plain least squares of joint j alone: its row of the base regressor with coefficients of
+    its own, Coulomb ``sgn(dq_j)`` and viscous ``dq_j`` (velocity clipped to the envelope,
+    columns filtered like the torque): the textbook fit the model must never do worse than."""
+    assert ctx.y_base is not None
+    dq = ctx.dq_of(j)
+    friction = ctx.filtered(np.column_stack([np.sign(dq), dq]))
+    return {j: np.column_stack([ctx.y_base[j], friction])}
 
 
 @dataclass
@@ -232,6 +286,10 @@ class IdentifiedModel:
     measured torque): the motor torque is ``torque_nm(...) - T_cyl(q, p)``. A ``time_delay``
     effect is a property of the measurement chain: it is reported as :attr:`delay_s` and not
     applied by :meth:`torque_nm`; a ``thermal_drift`` effect needs ``t_s``.
+
+    ``envelope`` bounds the friction and effect terms to the training range (see
+    :mod:`.terms`); joints in ``plain_joints`` (0-based index → :class:`PlainJoint`) use their
+    plain least-squares model instead of ``beta``, the friction family and the effects.
     """
 
     regressor: RobotRegressor
@@ -242,6 +300,8 @@ class IdentifiedModel:
     effects: list[tuple[EffectTerm, np.ndarray, str]] = field(default_factory=list)
     urdf_path: str = ""
     metadata: dict[str, Any] = field(default_factory=dict)
+    envelope: Envelope | None = None
+    plain_joints: dict[int, PlainJoint] = field(default_factory=dict)
 
     @property
     def joint_names(self) -> tuple[str, ...]:
@@ -276,26 +336,37 @@ class IdentifiedModel:
         nb = reg.base.n_base
         cols = np.concatenate([reg.base.independent, reg.payload_indices if payload else []])
         y = reg.regressor_columns(q, dq, ddq, cols.astype(int))
-        return Context(q, dq, ddq, t_s, y[:, :, :nb], y[:, :, nb:] if payload else None)
+        return Context(
+            q, dq, ddq, t_s, y[:, :, :nb], y[:, :, nb:] if payload else None, None, None,
+            self.envelope,
+        )  # fmt: skip
 
-    def _friction(self, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
-        out = np.zeros_like(q)
+    def _rigid(self, y_base: np.ndarray) -> np.ndarray:
+        """``Y_b β`` per joint, (T, n); a plain joint uses its own β."""
+        out = np.einsum("jtb,b->tj", y_base, self.beta)
+        for j, pj in self.plain_joints.items():
+            out[:, j] = y_base[j] @ pj.beta
+        return out
+
+    def _friction(self, ctx: Context) -> np.ndarray:
+        out = np.zeros_like(ctx.q)
         for term, coef in zip(self.friction_terms, self.friction_coef, strict=True):
-            out[:, term.joint] = term.columns(Context(q, dq, dq))[term.joint] @ coef
+            out[:, term.joint] = term.columns(ctx)[term.joint] @ coef
+        for j, pj in self.plain_joints.items():
+            out[:, j] = pj.friction(ctx)
         return out
 
     def gravity_nm(self, q_rad: np.ndarray) -> np.ndarray:
         """Rigid-body torque at rest, g(q) of eq. (1) [N·m]; q (n,) or (T, n)."""
         single, (q,) = self._arrays(q_rad)
         zeros = np.zeros_like(q)
-        y = self.regressor.base_regressor(q, zeros, zeros)
-        out = np.einsum("jtb,b->tj", y, self.beta)
+        out = self._rigid(self.regressor.base_regressor(q, zeros, zeros))
         return out[0] if single else out
 
     def friction_nm(self, q_rad: np.ndarray, dq_rad_s: np.ndarray) -> np.ndarray:
         """Friction torque of the identified friction model [N·m]; (n,) or (T, n)."""
         single, (q, dq) = self._arrays(q_rad, dq_rad_s)
-        out = self._friction(q, dq)
+        out = self._friction(Context(q, dq, dq, envelope=self.envelope))
         return out[0] if single else out
 
     def rigid_nm(
@@ -303,7 +374,7 @@ class IdentifiedModel:
     ) -> np.ndarray:
         """``Y_b(q, dq, ddq) β`` [N·m]: identified rigid-body inverse dynamics."""
         single, (q, dq, ddq) = self._arrays(q_rad, dq_rad_s, ddq_rad_s2)
-        out = np.einsum("jtb,b->tj", self.regressor.base_regressor(q, dq, ddq), self.beta)
+        out = self._rigid(self.regressor.base_regressor(q, dq, ddq))
         return out[0] if single else out
 
     def torque_nm(
@@ -326,20 +397,23 @@ class IdentifiedModel:
         """:meth:`torque_nm` on a :class:`Context` whose regressor columns are computed (the
         analysis reuses its own); sets ``ctx.rigid`` and ``ctx.friction``. (T, n) [N·m]."""
         assert ctx.y_base is not None
-        ctx.rigid = np.einsum("jtb,b->tj", ctx.y_base, self.beta)
-        ctx.friction = self._friction(ctx.q, ctx.dq)
+        ctx.rigid = self._rigid(ctx.y_base)
+        ctx.friction = self._friction(ctx)
         out = ctx.rigid + ctx.friction
         for term, coef, _ in self.effects:
             if not term.is_linear or (term.name == "thermal_drift" and ctx.t is None):
                 continue
             for j, cols in term.columns(ctx).items():
-                out[:, j] += cols @ coef
+                if j not in self.plain_joints:
+                    out[:, j] += cols @ coef
         return out
 
     def predict_measured(self, data: Prepared) -> np.ndarray:
-        """What the torque sensor/drive should read on ``data`` (T, n): :meth:`torque_nm` at
-        the sample times, delayed by :attr:`delay_s` when a time_delay effect was accepted."""
-        tau = self.torque_nm(data.q, data.dq, data.ddq, data.t)
+        """What the torque sensor/drive should read on ``data`` (T, n), on the same target as
+        ``data.tau``: :meth:`torque_nm` at the sample times, through the torque's low-pass
+        (:meth:`.preprocess.Prepared.lowpass`), delayed by :attr:`delay_s` when a time_delay
+        effect was accepted."""
+        tau = data.lowpass(self.torque_nm(data.q, data.dq, data.ddq, data.t))
         return shift_signal(data.t, data.segment, tau, -self.delay_s) if self.delay_s else tau
 
     # -- file format -------------------------------------------------------------------------
@@ -376,6 +450,17 @@ class IdentifiedModel:
                 ],
             },
             "effects": [term.to_json(coef, appeared) for term, coef, appeared in self.effects],
+            "training_envelope": None if self.envelope is None else self.envelope.to_json(),
+            "plain_joints": [
+                {
+                    "joint": reg.joint_names[j],
+                    "index": j + 1,
+                    "base_parameter_values": pj.beta.tolist(),
+                    "coulomb_nm": pj.coulomb_nm,
+                    "viscous_nm_s_per_rad": pj.viscous_nm_s_per_rad,
+                }
+                for j, pj in sorted(self.plain_joints.items())
+            ],
             "cylinders_removed_from_torque": bool(self.metadata.get("cylinders_removed", False)),
             "analysis": {k: v for k, v in self.metadata.items() if k not in ("urdf_xml",)},
         }
@@ -402,9 +487,9 @@ class IdentifiedModel:
     def from_json(cls, doc: dict[str, Any], where: str = "model") -> IdentifiedModel:
         if doc.get("format") != MODEL_FORMAT:
             raise DataFileError(f"{where}: format {doc.get('format')!r} is not {MODEL_FORMAT!r}")
-        if doc.get("version") != MODEL_VERSION:
+        if doc.get("version") not in READABLE_VERSIONS:
             raise DataFileError(
-                f"{where}: version {doc.get('version')!r}, expected {MODEL_VERSION}"
+                f"{where}: version {doc.get('version')!r}, expected one of {READABLE_VERSIONS}"
             )
         urdf = doc["urdf"]
         xml = urdf["xml"]
@@ -447,7 +532,23 @@ class IdentifiedModel:
         meta = dict(doc.get("analysis", {}))
         meta["urdf_xml"] = xml
         meta["cylinders_removed"] = bool(doc.get("cylinders_removed_from_torque", False))
-        return cls(reg, beta, kind, terms, coefs, effects, str(urdf.get("path", "")), meta)
+        env = doc.get("training_envelope")
+        plain = {}
+        for e in doc.get("plain_joints", []):
+            j = int(e["index"]) - 1
+            pj = PlainJoint(
+                j,
+                np.asarray(e["base_parameter_values"], dtype=float),
+                float(e["coulomb_nm"]),
+                float(e["viscous_nm_s_per_rad"]),
+            )
+            if not 0 <= j < reg.n or pj.beta.shape != (base.n_base,):
+                raise DataFileError(f"{where}: plain joint {e['index']} malformed")
+            plain[j] = pj
+        return cls(
+            reg, beta, kind, terms, coefs, effects, str(urdf.get("path", "")), meta,
+            None if env is None else Envelope.from_json(env), plain,
+        )  # fmt: skip
 
 
 def model_from_solution(
@@ -457,6 +558,8 @@ def model_from_solution(
     effects: Sequence[tuple[EffectTerm, np.ndarray, str]],
     urdf_path: str,
     metadata: dict[str, Any],
+    envelope: Envelope | None = None,
+    plain_joints: dict[int, PlainJoint] | None = None,
 ) -> IdentifiedModel:
     """Assemble an :class:`IdentifiedModel` from a fit's solution and accepted effects."""
     return IdentifiedModel(
@@ -468,4 +571,6 @@ def model_from_solution(
         effects=list(effects),
         urdf_path=urdf_path,
         metadata=dict(metadata),
+        envelope=envelope,
+        plain_joints=dict(plain_joints or {}),
     )

@@ -21,9 +21,13 @@ Per recorded file (and per gap-free segment of it):
 4. **Derivatives.** Velocity is the measured one when the file has ``dq`` (filtered), else the
    central difference of the filtered position; acceleration is the central difference of
    that velocity.
-5. **Edges.** :data:`EDGE_PERIODS` / ``position_cutoff_hz`` seconds are dropped at both ends of
+5. **Noise floor.** Per segment, the white torque noise std is estimated from the raw samples
+   (:func:`white_noise_std`, robust to the few friction reversals) and carried through the
+   torque filter (:func:`filter_noise_gain`): ``noise_nm`` is the std of the noise left in the
+   filtered torque, the floor no model of q, dq, ddq can go below (see its docstring).
+6. **Edges.** :data:`EDGE_PERIODS` / ``position_cutoff_hz`` seconds are dropped at both ends of
    each segment (filter start-up and one-sided differences).
-6. **Decimation** to ``rate_hz`` (default :data:`DEFAULT_RATE_HZ` = 200 Hz) by keeping every
+7. **Decimation** to ``rate_hz`` (default :data:`DEFAULT_RATE_HZ` = 200 Hz) by keeping every
    k-th sample, k = round(f_s / rate_hz); the low-pass above is its anti-alias filter. Ten
    minutes at 1 kHz become 120,000 samples.
 
@@ -33,7 +37,7 @@ Units: t [s], q [rad], dq [rad/s], ddq [rad/s²], tau [N·m], p [bar].
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from itertools import pairwise
 
 import numpy as np
@@ -67,6 +71,15 @@ class Prepared:
     ``tau`` (T, n) [N·m] measured joint torque, ``p`` (T, k) [bar] or None for ``p_joints``
     (1-based), ``segment`` (T,) id of the contiguous segment each sample belongs to,
     ``sources`` the files, ``rate_hz`` the analysis rate [Hz].
+
+    ``filter_hz`` (T,) is the torque low-pass cutoff [Hz] and ``sample_hz`` (T,) the sample
+    rate [Hz] of each sample's segment after decimation: what :meth:`lowpass` needs to pass a
+    model's torque through the same filter as the measured one. ``noise_nm`` (n,) is the
+    measured noise floor of ``tau`` [N·m] (module docstring, step 5), ``raw_noise_nm`` (n,)
+    the white noise std of the raw recording [N·m]; ``noise_dof_nm2`` (n,) the share of the
+    noise one fitted column takes out on average [N²·m²] (one χ² degree of freedom): the raw
+    variance over the decimation factor, ``σ_raw² / k`` — the low-frequency noise level a
+    smooth column sees, whatever the filter (see :func:`filter_noise_gain`). None where unknown.
     """
 
     t: np.ndarray
@@ -79,6 +92,11 @@ class Prepared:
     segment: np.ndarray
     sources: tuple[str, ...]
     rate_hz: float
+    filter_hz: np.ndarray | None = None
+    sample_hz: np.ndarray | None = None
+    noise_nm: np.ndarray | None = None
+    raw_noise_nm: np.ndarray | None = None
+    noise_dof_nm2: np.ndarray | None = None
 
     @property
     def n_samples(self) -> int:
@@ -90,33 +108,34 @@ class Prepared:
 
     def with_tau(self, tau: np.ndarray) -> Prepared:
         """Copy with another torque array (e.g. cylinder torque taken out)."""
-        return Prepared(
-            self.t,
-            self.q,
-            self.dq,
-            self.ddq,
-            np.asarray(tau, dtype=float),
-            self.p,
-            self.p_joints,
-            self.segment,
-            self.sources,
-            self.rate_hz,
-        )
+        return replace(self, tau=np.asarray(tau, dtype=float))
 
     def select(self, mask: np.ndarray) -> Prepared:
-        """The samples where ``mask`` (T,) is true."""
-        return Prepared(
-            self.t[mask],
-            self.q[mask],
-            self.dq[mask],
-            self.ddq[mask],
-            self.tau[mask],
-            None if self.p is None else self.p[mask],
-            self.p_joints,
-            self.segment[mask],
-            self.sources,
-            self.rate_hz,
-        )
+        """The samples where ``mask`` (T,) is true (a boolean array or index array)."""
+        per_sample = ("t", "q", "dq", "ddq", "tau", "segment")
+        changes = {k: getattr(self, k)[mask] for k in per_sample}
+        for k in ("p", "filter_hz", "sample_hz"):
+            v = getattr(self, k)
+            changes[k] = None if v is None else v[mask]
+        return replace(self, **changes)
+
+    def lowpass(self, x: np.ndarray) -> np.ndarray:
+        """``x`` (T, ...) through the torque's zero-phase low-pass, segment by segment.
+
+        The measured torque was filtered before decimation; a model's torque computed on the
+        samples is passed through the same Butterworth filter here (at the decimated rate), so
+        measurement and model are compared on one target: a sharp friction reversal, smeared
+        by the filter in the measurement, is smeared the same way in the model. Without filter
+        information (``filter_hz`` None) ``x`` is returned unchanged.
+        """
+        arr = np.asarray(x, dtype=float)
+        if self.filter_hz is None or self.sample_hz is None or arr.shape[0] == 0:
+            return arr
+        out = np.empty_like(arr)
+        bounds = np.flatnonzero(np.diff(self.segment) != 0) + 1
+        for a, b in pairwise(np.r_[0, bounds, arr.shape[0]]):
+            out[a:b] = _lowpass_padded(arr[a:b], float(self.filter_hz[a]), float(self.sample_hz[a]))
+        return out
 
 
 def _check_cutoffs(rate_hz: float, position_cutoff_hz: float, torque_cutoff_hz: float) -> None:
@@ -143,6 +162,43 @@ def _lowpass(x: np.ndarray, cutoff_hz: float, fs_hz: float) -> np.ndarray:
     return signal.sosfiltfilt(sos, x, axis=0)
 
 
+def _lowpass_padded(x: np.ndarray, cutoff_hz: float, fs_hz: float) -> np.ndarray:
+    """:func:`_lowpass` that leaves a stretch too short for the filter's padding unchanged."""
+    if x.shape[0] <= 3 * (2 * FILTER_ORDER + 1) or cutoff_hz >= 0.5 * fs_hz:
+        return x.copy()
+    return _lowpass(x, cutoff_hz, fs_hz)
+
+
+def white_noise_std(x: np.ndarray) -> np.ndarray:
+    """Std of white noise on the raw samples ``x`` (T, n), per column [units of x].
+
+    From second differences: white noise of std σ gives ``x[k+1] - 2x[k] + x[k-1]`` of std
+    ``sqrt(6) σ``, while a trajectory sampled far above its bandwidth contributes next to
+    nothing. A friction reversal is a step and spoils a few differences, so the spread is
+    taken robustly (1.4826 × the median absolute deviation). Coloured (already filtered)
+    noise reads lower than its total std: what is measured is its high-frequency level.
+    """
+    d2 = np.diff(np.asarray(x, dtype=float), n=2, axis=0)
+    if d2.shape[0] < 3:
+        return np.full(np.shape(x)[1], np.nan)
+    mad = np.median(np.abs(d2 - np.median(d2, axis=0)), axis=0)
+    return 1.4826 * mad / np.sqrt(6.0)
+
+
+def filter_noise_gain(cutoff_hz: float, fs_hz: float) -> float:
+    """Variance gain of the torque filter on white noise: sum of its squared impulse response.
+
+    White noise of std σ leaves the zero-phase Butterworth of :func:`_lowpass` with std
+    ``σ sqrt(gain)`` (about ``σ sqrt(2 · 0.9 f_c / f_s)`` for order 4 run forward and back).
+    """
+    if cutoff_hz >= 0.5 * fs_hz:
+        return 1.0
+    length = int(40 * fs_hz / cutoff_hz) + 101
+    impulse = np.zeros(length)
+    impulse[length // 2] = 1.0
+    return float(np.sum(_lowpass(impulse, cutoff_hz, fs_hz) ** 2))
+
+
 def prepare(
     m: Measurements,
     rate_hz: float = DEFAULT_RATE_HZ,
@@ -158,6 +214,7 @@ def prepare(
     jumps = np.abs(np.diff(m.q, axis=0)) > MAX_STEP_RAD
     parts: list[dict[str, np.ndarray]] = []
     rates = []
+    noise: list[tuple[int, np.ndarray, np.ndarray, np.ndarray]] = []
     for seg_id, (a, b) in enumerate(_segments(m.t)):
         seg_jumps = np.flatnonzero(jumps[a : b - 1].any(axis=1))
         if seg_jumps.size:
@@ -173,6 +230,7 @@ def prepare(
             continue
         step = float(np.median(np.diff(t)))
         fs = 1.0 / step
+        raw_noise = white_noise_std(m.tau[a:b])
         signals = {"q": m.q[a:b], "tau": m.tau[a:b]}
         if m.dq is not None:
             signals["dq"] = m.dq[a:b]
@@ -204,8 +262,12 @@ def prepare(
         if p is not None:
             part["p"] = p[keep]
         part["segment"] = np.full(part["t"].size, seg_id)
+        part["filter_hz"] = np.full(part["t"].size, tau_cut)
+        part["sample_hz"] = np.full(part["t"].size, fs / factor)
         parts.append(part)
         rates.append(fs / factor)
+        floor = raw_noise * np.sqrt(filter_noise_gain(tau_cut, fs))
+        noise.append((part["t"].size, raw_noise, floor, raw_noise / np.sqrt(factor)))
     if not parts:
         raise TooShortError(
             f"{m.source}: too short to analyse: no gap-free stretch longer than "
@@ -223,7 +285,25 @@ def prepare(
         segment=cat["segment"],
         sources=(m.source,),
         rate_hz=float(np.median(rates)),
+        filter_hz=cat["filter_hz"],
+        sample_hz=cat["sample_hz"],
+        noise_nm=_pooled([(k, f) for k, _, f, _ in noise]),
+        raw_noise_nm=_pooled([(k, r) for k, r, _, _ in noise]),
+        noise_dof_nm2=_squared(_pooled([(k, d) for k, _, _, d in noise])),
     )
+
+
+def _squared(x: np.ndarray | None) -> np.ndarray | None:
+    return None if x is None else x**2
+
+
+def _pooled(parts: Sequence[tuple[int, np.ndarray | None]]) -> np.ndarray | None:
+    """Sample-weighted RMS of per-part stds ``(samples, std (n,))``; None if any is unknown."""
+    if not parts or any(v is None for _, v in parts):
+        return None
+    w = np.array([k for k, _ in parts], dtype=float)
+    v = np.array([np.asarray(x, dtype=float) for _, x in parts])
+    return np.sqrt(np.einsum("k,kj->j", w, v**2) / w.sum())
 
 
 def concatenate(parts: Sequence[Prepared]) -> Prepared:
@@ -262,4 +342,19 @@ def concatenate(parts: Sequence[Prepared]) -> Prepared:
         segment=np.concatenate(segments),
         sources=tuple(s for p in parts for s in p.sources),
         rate_hz=float(np.median([p.rate_hz for p in parts])),
+        filter_hz=_cat_optional([p.filter_hz for p in parts]),
+        sample_hz=_cat_optional([p.sample_hz for p in parts]),
+        noise_nm=_pooled([(p.n_samples, p.noise_nm) for p in parts]),
+        raw_noise_nm=_pooled([(p.n_samples, p.raw_noise_nm) for p in parts]),
+        noise_dof_nm2=_squared(_pooled([(p.n_samples, _sqrt(p.noise_dof_nm2)) for p in parts])),
     )
+
+
+def _sqrt(x: np.ndarray | None) -> np.ndarray | None:
+    return None if x is None else np.sqrt(x)
+
+
+def _cat_optional(arrays: Sequence[np.ndarray | None]) -> np.ndarray | None:
+    if any(a is None for a in arrays):
+        return None
+    return np.concatenate(arrays)  # type: ignore[arg-type]

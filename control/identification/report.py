@@ -24,8 +24,8 @@ _CASES = {
 }
 _FITTED = {
     "train": "refitted with the model on the training files, judged on the test files",
-    "test": "estimated on the test residual of the fixed training model, judged by blocked "
-    "K-fold cross-validation on the test files",
+    "test": "chosen and estimated on the first part of the test run (residual of the fixed "
+    "training model), scored on the rest of the test run",
 }
 
 
@@ -89,7 +89,8 @@ def render_markdown(summary: dict[str, Any]) -> str:
     elif not summary["effects"]:
         lines.append(
             "No further effect found: no candidate of the effect vocabulary cut a joint's "
-            f"held-out RMS by {100 * summary['margin']:.0f} % and lowered BIC."
+            f"held-out RMS by {100 * summary['margin']:.0f} % with a held-out gain significant "
+            f"against the measured noise floor (family-wise level {summary['alpha']:g})."
         )
     for e in summary["effects"]:
         case = _CASES[e["appeared"]] + "; " + _FITTED[e["estimated_on"]]

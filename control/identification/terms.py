@@ -8,9 +8,24 @@ columns for fitting (:mod:`.fit`, :mod:`.effects`) and evaluate the loaded model
 Effect vocabulary (names are part of the model and report formats; joints are 1-based there,
 0-based in code). Each adds ``columns @ coefficients`` to the joint torque:
 
+Bounded extrapolation: every friction and effect column that is not bounded by construction
+sees its input clipped to the training envelope (:class:`Envelope`, carried in the
+:class:`Context` and the model file), so no fitted term grows beyond what it was fitted on:
+outside the envelope it holds its value at the envelope's edge. That is every velocity input
+(viscous ``dq``, eq. (15)'s ``dq |dq|``) and the spring's position. Periodic functions of the
+position (``sin(c q)``, the friction families' Fourier terms) are bounded by their amplitude
+everywhere and stay periodic — clipping them would cut a gear ripple off wherever the test
+motion leaves the training range. The rigid-body and payload columns are physics and are not
+clipped; ``thermal_drift`` is linear in time by definition.
+
+Filtering: when the :class:`Context` carries the measured torque's low-pass (``lowpass``),
+every column is passed through it, so the model is fitted to and judged on the filtered
+torque with the same filter on both sides (:meth:`.preprocess.Prepared.lowpass`).
+
 - ``position_ripple`` on joint j: ``sin(c q_j)``, ``cos(c q_j)``, c scanned; parameters
   ``cycles_per_rev`` c, ``amplitude_nm`` A, ``phase_rad`` φ (``A sin(c q_j + φ)``).
-- ``payload``, all joints: the last link's ten regressor columns [m, mcx, mcy, mcz, Ixx, Ixy,
+- ``payload``, all joints (or those listed: a joint kept on plain least squares drops out):
+  the last link's ten regressor columns [m, mcx, mcy, mcz, Ixx, Ixy,
   Iyy, Ixz, Iyz, Izz]; parameters ``mass_kg``, ``com_m`` (in the last link's frame, as the
   URDF/pinocchio defines it) and ``inertia_at_origin_kgm2`` (about that frame's origin).
 - ``spring`` on joint j: ``q_j``, ``1``; parameters ``k_nm_per_rad``, ``q0_rad`` and
@@ -22,7 +37,13 @@ Effect vocabulary (names are part of the model and report formats; joints are 1-
   rigid-body torque; parameter ``coefficient``.
 - ``time_delay``, all joints: no columns; the measured torque lags the kinematics by δ,
   ``τ_meas(t) = τ_model(t - δ)``, δ scanned; parameter ``delay_s``.
-- ``thermal_drift`` on joint j: ``t`` (each file's own clock [s]); parameter ``rate_nm_per_s``.
+- ``thermal_drift`` on joint j: friction that changes as the gear warms, ``t sgn(dq_j)`` and
+  ``t dq_j`` (t each file's own clock [s]): the Coulomb and viscous levels drift linearly in
+  time; parameters ``rate_nm_per_s`` (Coulomb level change per second, negative when the
+  friction drops) and ``viscous_rate_nm_per_rad`` (viscous coefficient change per second,
+  [N·m·s/rad per s]). A drift of the friction *level* multiplies the sign of the velocity: a
+  plain ``t`` column (a torque offset growing in time) is not what a warming gear does, and
+  left the drift to be half-absorbed by spurious negative Stribeck terms.
 - ``wrist_coupling`` on joint j from joint k (k ≠ j, both among the last three): joint k's
   model torque (rigid + friction, ``source = "torque"``) or its friction torque
   (``source = "friction"``); parameters ``from_joint`` k, ``coefficient``, ``source``.
@@ -31,6 +52,7 @@ Effect vocabulary (names are part of the model and report formats; joints are 1-
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -65,14 +87,60 @@ FRICTION_PARAM_NAMES = {
 COUPLING_SOURCES = ("torque", "friction")
 
 
+@dataclass(frozen=True)
+class Envelope:
+    """Range of positions [rad] and velocities [rad/s] per joint that a model was fitted on;
+    arrays (n,). Friction and effect terms clip their inputs to it (module docstring)."""
+
+    q_min: np.ndarray
+    q_max: np.ndarray
+    dq_min: np.ndarray
+    dq_max: np.ndarray
+
+    @classmethod
+    def of(cls, q: np.ndarray, dq: np.ndarray) -> Envelope:
+        """The envelope of samples ``q``, ``dq`` (T, n); the velocity range always holds 0."""
+        return cls(
+            q.min(axis=0),
+            q.max(axis=0),
+            np.minimum(dq.min(axis=0), 0.0),
+            np.maximum(dq.max(axis=0), 0.0),
+        )
+
+    def clip_q(self, j: int, q: np.ndarray) -> np.ndarray:
+        return np.clip(q, self.q_min[j], self.q_max[j])
+
+    def clip_dq(self, j: int, dq: np.ndarray) -> np.ndarray:
+        return np.clip(dq, self.dq_min[j], self.dq_max[j])
+
+    def outside(self, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
+        """(T, n) True where a sample's position or velocity lies outside the envelope."""
+        return (q < self.q_min) | (q > self.q_max) | (dq < self.dq_min) | (dq > self.dq_max)
+
+    def to_json(self) -> dict[str, list[float]]:
+        return {
+            "q_min_rad": self.q_min.tolist(),
+            "q_max_rad": self.q_max.tolist(),
+            "dq_min_rad_s": self.dq_min.tolist(),
+            "dq_max_rad_s": self.dq_max.tolist(),
+        }
+
+    @classmethod
+    def from_json(cls, doc: dict[str, list[float]]) -> Envelope:
+        keys = ("q_min_rad", "q_max_rad", "dq_min_rad_s", "dq_max_rad_s")
+        return cls(*(np.asarray(doc[k], dtype=float) for k in keys))
+
+
 @dataclass
 class Context:
     """Samples a term needs; arrays (T, n) unless noted.
 
     ``y_base`` (n, T, nb) base regressor per joint and ``y_payload`` (n, T, 10) the last link's
-    regressor columns (None until computed); ``rigid`` and ``friction`` [N·m] are the
-    current model's rigid-body and friction torques, needed by terms built on the model
-    itself (load-dependent friction, wrist coupling).
+    regressor columns (None until computed; already filtered when ``lowpass`` is set);
+    ``rigid`` and ``friction`` [N·m] are the current model's rigid-body and friction torques,
+    needed by terms built on the model itself (load-dependent friction, wrist coupling).
+    ``envelope`` clips the inputs of friction and effect terms, ``lowpass`` filters every
+    column like the measured torque (module docstring); both None at run time.
     """
 
     q: np.ndarray
@@ -83,10 +151,48 @@ class Context:
     y_payload: np.ndarray | None = None
     rigid: np.ndarray | None = None
     friction: np.ndarray | None = None
+    envelope: Envelope | None = None
+    lowpass: Callable[[np.ndarray], np.ndarray] | None = None
 
     @property
     def n_rows(self) -> int:
         return int(self.q.shape[0])
+
+    def q_of(self, j: int) -> np.ndarray:
+        """Joint j's positions [rad], clipped to the envelope."""
+        q = self.q[:, j]
+        return q if self.envelope is None else self.envelope.clip_q(j, q)
+
+    def dq_of(self, j: int) -> np.ndarray:
+        """Joint j's velocities [rad/s], clipped to the envelope."""
+        dq = self.dq[:, j]
+        return dq if self.envelope is None else self.envelope.clip_dq(j, dq)
+
+    def filtered(self, cols: np.ndarray) -> np.ndarray:
+        """Columns (T, m) through :attr:`lowpass` (unchanged without one)."""
+        return cols if self.lowpass is None else self.lowpass(cols)
+
+    def rows(self, index: np.ndarray | slice) -> Context:
+        """The samples ``index`` (rows) of this context; the filter is kept only for a slice,
+        which keeps segments contiguous."""
+
+        def take(a: np.ndarray | None, axis: int = 0) -> np.ndarray | None:
+            if a is None:
+                return None
+            return a[index] if axis == 0 else a[:, index]
+
+        return Context(
+            self.q[index],
+            self.dq[index],
+            self.ddq[index],
+            take(self.t),
+            take(self.y_base, 1),
+            take(self.y_payload, 1),
+            take(self.rigid),
+            take(self.friction),
+            self.envelope,
+            None,
+        )
 
 
 def friction_basis(
@@ -132,9 +238,10 @@ class FrictionTerm:
 
     def columns(self, ctx: Context) -> dict[int, np.ndarray]:
         j = self.joint
-        return {
-            j: friction_basis(self.kind, ctx.q[:, j], ctx.dq[:, j], self.q_e_rad_s, self.gear_ratio)
-        }
+        basis = friction_basis(
+            self.kind, ctx.q_of(j), ctx.dq_of(j), self.q_e_rad_s, self.gear_ratio
+        )
+        return {j: ctx.filtered(basis)}
 
     def parameters(self, coef: np.ndarray) -> dict[str, float]:
         out = {
@@ -169,27 +276,36 @@ class EffectTerm:
         return self.name != "time_delay"
 
     def columns(self, ctx: Context) -> dict[int, np.ndarray]:
-        name, s = self.name, self.setting
-        if name == "payload":
+        """Columns per joint acted on, clipped to the envelope and filtered (module docstring)."""
+        if self.name == "payload":
             assert ctx.y_payload is not None
-            return {j: ctx.y_payload[j] for j in range(ctx.y_payload.shape[0])}
+            return {j: ctx.y_payload[j] for j in self.joints}
         (j,) = self.joints
-        q, dq = ctx.q[:, j], ctx.dq[:, j]
+        cols = self._raw_columns(ctx, j)
+        # A coupling copies the model's torques, which are already as filtered as the measurement.
+        return {j: cols if self.name == "wrist_coupling" else ctx.filtered(cols)}
+
+    def _raw_columns(self, ctx: Context, j: int) -> np.ndarray:
+        name, s = self.name, self.setting
+        dq = ctx.dq_of(j)
         if name == "position_ripple":
             c = float(s["cycles_per_rev"])
-            return {j: np.column_stack([np.sin(c * q), np.cos(c * q)])}
+            q = ctx.q[:, j]  # periodic: bounded without clipping (module docstring)
+            return np.column_stack([np.sin(c * q), np.cos(c * q)])
         if name == "spring":
-            return {j: np.column_stack([q, np.ones_like(q)])}
+            q = ctx.q_of(j)
+            return np.column_stack([q, np.ones_like(q)])
         if name == "stribeck":
             v = float(s["velocity_rad_s"])
-            return {j: (np.exp(-((dq / v) ** 2)) * np.sign(dq))[:, None]}
+            return (np.exp(-((dq / v) ** 2)) * np.sign(dq))[:, None]
         if name == "load_dependent_friction":
             assert ctx.rigid is not None
-            return {j: (np.abs(ctx.rigid[:, j]) * np.sign(dq))[:, None]}
+            return (np.abs(ctx.rigid[:, j]) * np.sign(dq))[:, None]
         if name == "thermal_drift":
             if ctx.t is None:
-                return {j: np.zeros((ctx.n_rows, 1))}
-            return {j: np.asarray(ctx.t, dtype=float)[:, None]}
+                return np.zeros((ctx.n_rows, 2))
+            t = np.asarray(ctx.t, dtype=float)
+            return np.column_stack([t * np.sign(dq), t * dq])
         if name == "wrist_coupling":
             assert ctx.friction is not None and ctx.rigid is not None
             k = int(s["from_joint"])
@@ -198,7 +314,7 @@ class EffectTerm:
                 if s["source"] == "friction"
                 else ctx.rigid[:, k] + ctx.friction[:, k]
             )
-            return {j: src[:, None]}
+            return src[:, None]
         raise ValueError(f"effect {name!r} has no columns")
 
     def parameters(self, coef: np.ndarray) -> dict[str, Any]:
@@ -226,7 +342,7 @@ class EffectTerm:
         if name == "time_delay":
             return {"delay_s": float(s["delay_s"])}
         if name == "thermal_drift":
-            return {"rate_nm_per_s": c[0]}
+            return {"rate_nm_per_s": c[0], "viscous_rate_nm_per_rad": c[1] if len(c) > 1 else 0.0}
         if name == "wrist_coupling":
             return {
                 "from_joint": int(s["from_joint"]) + 1,

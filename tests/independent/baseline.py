@@ -56,14 +56,16 @@ def base_columns(model, n_states: int = 400, seed: int = 5) -> list[np.ndarray]:
 @dataclass(frozen=True)
 class PlainLS:
     """Result: held-out RMS ``rms_test`` and in-sample ``rms_train`` [N·m] per joint, the
-    number of base columns per joint ``n_base``, and the fitted Coulomb [N·m] and viscous
-    [N·m·s/rad] coefficients per joint."""
+    number of base columns per joint ``n_base``, the fitted Coulomb [N·m] and viscous
+    [N·m·s/rad] coefficients per joint, and the held-out residual ``residual_test`` (T, n)
+    [N·m] (measured minus predicted test torque)."""
 
     rms_test: np.ndarray
     rms_train: np.ndarray
     n_base: np.ndarray
     coulomb: np.ndarray
     viscous: np.ndarray
+    residual_test: np.ndarray
 
 
 def _columns(y: np.ndarray, dq: np.ndarray, j: int, cols: np.ndarray) -> np.ndarray:
@@ -84,6 +86,7 @@ def plain_ls(urdf_xml: str, train: dict[str, np.ndarray], test: dict[str, np.nda
     n = model.nv
     rms_test, rms_train = np.zeros(n), np.zeros(n)
     coulomb, viscous = np.zeros(n), np.zeros(n)
+    residual = np.zeros_like(tau_te)
     for j in range(n):
         a = _columns(y_tr, dq_tr, j, cols[j])
         scale = np.linalg.norm(a, axis=0)
@@ -91,9 +94,11 @@ def plain_ls(urdf_xml: str, train: dict[str, np.ndarray], test: dict[str, np.nda
         theta = np.linalg.lstsq(a / scale, tau_tr[:, j], rcond=None)[0] / scale
         rms_train[j] = np.sqrt(np.mean((tau_tr[:, j] - a @ theta) ** 2))
         pred = _columns(y_te, dq_te, j, cols[j]) @ theta
-        rms_test[j] = np.sqrt(np.mean((tau_te[:, j] - pred) ** 2))
+        residual[:, j] = tau_te[:, j] - pred
+        rms_test[j] = np.sqrt(np.mean(residual[:, j] ** 2))
         coulomb[j], viscous[j] = theta[-2], theta[-1]
-    return PlainLS(rms_test, rms_train, np.array([c.size for c in cols]), coulomb, viscous)
+    n_base = np.array([c.size for c in cols])
+    return PlainLS(rms_test, rms_train, n_base, coulomb, viscous, residual)
 
 
 def run_arrays(run) -> dict[str, np.ndarray]:

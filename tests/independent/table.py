@@ -1,23 +1,32 @@
-"""How ``leadthrough analyze`` fares on independent data: one table per case.
+"""How ``leadthrough analyze`` fares on independent data and on the real Panda run: one table.
 
 Usage::
 
     python -m tests.independent.table [--out DIR] [--cases null hose_spring ...] [--seed N]
+                                      [--no-panda]
 
-For each case: write ``DIR/CASE/{train.csv, test.csv, robot.urdf, truth.json}``
+For each generator case: write ``DIR/CASE/{train.csv, test.csv, robot.urdf, truth.json}``
 (:func:`.generator.write_case`), run the product's CLI as a user would::
 
     python -m gateway.cli analyze --urdf robot.urdf --train train.csv --test test.csv --out analyze
 
 (log in ``DIR/CASE/analyze.log``), read ``DIR/CASE/analyze/summary.json``, fit the plain
-least-squares baseline (:mod:`.baseline`) on the same files, and print per joint: noise std,
-plain-LS held-out RMS, analyze's held-out RMS before/after its effects [N·m], then the effects
-analyze reports against the truth. The whole table goes to ``DIR/table.json`` (rewritten after
-every case). Whatever analyze does (crash, timeout, missing keys, unknown effects) is reported,
-never raised.
+least-squares baseline (:mod:`.baseline`) on the same files, and print per joint the noise
+floor, plain-LS and analyze's held-out RMS [N·m], then the effects analyze reports against the
+truth. The Panda recording (:mod:`.panda`) gets the same rows, with the dataset README's plain
+fit beside them. The whole table goes to ``DIR/table.json`` (rewritten after every case), and
+the last lines give PASS/FAIL per acceptance criterion of issue 8. Whatever analyze does
+(crash, timeout, missing keys, unknown effects) is reported, never raised.
 
-Note: analyze computes its RMS against its own low-passed torque (``--torque-cutoff-hz``), so
-its figures can fall below the white-noise std of the files; plain LS uses the raw files.
+One target for every figure: analyze low-passes the measured torque and compares every model
+on it (``summary["target_filter"]``), so its figures fall below the white noise of the files.
+The table therefore passes the plain-LS residual (computed on the raw files) through the same
+filter — a zero-phase Butterworth of that order and cutoff, implemented here with scipy — and
+takes its RMS over the test samples analyze scored (``summary["test_time_scored_s"]``). The
+noise floor of a generator case is the generator's own noise (measured torque minus its
+noise-free truth) through the same filter over the same samples: what the true model would
+score. Columns: ``floor`` that floor, ``plainLS`` the filtered plain-LS RMS, ``plainLS_raw``
+the plain-LS RMS on the raw files, ``ana_before`` / ``ana_after`` analyze's figures.
 """
 
 from __future__ import annotations
@@ -33,10 +42,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from scipy import signal
 
+from . import panda
 from .arm import ARM
 from .baseline import plain_ls
-from .generator import CASES, read_csv, write_case
+from .generator import CASES, make_case, read_csv, write_case
 
 #: The parameter shown for each effect name of the product's vocabulary.
 MAIN_PARAMETER = {
@@ -52,6 +63,12 @@ MAIN_PARAMETER = {
 #: Further parameters shown when present.
 SECONDARY = ("amplitude_nm", "from_joint", "q0_rad", "velocity_rad_s", "com_m")
 DEFAULT_TIMEOUT_S = 1800.0
+#: Acceptance of issue 8: main parameter within this relative error of the truth.
+PARAMETER_TOLERANCE = 0.20
+#: Acceptance of issue 8: held-out RMS after effects on affected joints within this × floor.
+FLOOR_FACTOR = 2.0
+#: Round-off allowed when comparing two RMS figures for "at or below" [relative].
+RMS_TOLERANCE = 1e-3
 
 
 def _num(v: Any) -> str:
@@ -112,10 +129,30 @@ def compare(truth_effects: list[dict[str, Any]], found: list[Any]) -> dict[str, 
                 break
             if hit is None:
                 verdict, hit = "wrong_joints", i
-        if hit is not None:
-            used.add(hit)
+        indices = [] if hit is None else [hit]
+        if verdict != "found" and len(te["joints"]) > 1:
+            # one effect per joint for a truth effect on several joints (e.g. thermal drift)
+            parts = [
+                i
+                for i, fe in enumerate(found)
+                if isinstance(fe, dict)
+                and fe.get("name") == te["name"]
+                and i not in used
+                and _joints(fe) <= frozenset(te["joints"])
+            ]
+            if parts and frozenset().union(*(_joints(found[i]) for i in parts)) == frozenset(
+                te["joints"]
+            ):
+                verdict, hit, indices = "found", parts[0], parts
+        used.update(indices)
         verdicts.append(
-            {"truth": te["name"], "joints": te["joints"], "verdict": verdict, "analyze_index": hit}
+            {
+                "truth": te["name"],
+                "joints": te["joints"],
+                "verdict": verdict,
+                "analyze_index": hit,
+                "analyze_indices": indices,
+            }
         )
     extra = [i for i in range(len(found)) if i not in used]
     return {"truth": verdicts, "extra": extra}
@@ -179,6 +216,69 @@ def _per_joint(summary: Any, key: str, n: int) -> tuple[list[float | None], str 
     return vals, None
 
 
+def filtered_rms(
+    t: np.ndarray, x: np.ndarray, summary: dict[str, Any], window: tuple[float, float] | None
+) -> np.ndarray:
+    """RMS per joint of ``x`` (T, n) on times ``t`` [s] after the zero-phase Butterworth the
+    summary declares (``target_filter``: order, cutoff), over the samples within ``window``
+    [s] (analyze's scored test samples). Jittered time is first put on a uniform grid at the
+    median step (linear interpolation), as a filter needs."""
+    spec = summary["target_filter"]
+    step = float(np.median(np.diff(t)))
+    grid = t[0] + step * np.arange(int(np.floor((t[-1] - t[0]) / step + 1e-9)) + 1)
+    if np.max(np.abs(np.diff(t) - step)) > 0.01 * step:
+        x = np.column_stack([np.interp(grid, t, x[:, j]) for j in range(x.shape[1])])
+        t = grid
+    cutoff = float(min(spec["cutoff_hz"]))
+    sos = signal.butter(int(spec["order"]), cutoff, fs=1.0 / step, output="sos")
+    y = signal.sosfiltfilt(sos, x, axis=0)
+    keep = np.ones(t.size, dtype=bool) if window is None else (t >= window[0]) & (t <= window[1])
+    return np.sqrt(np.mean(y[keep] ** 2, axis=0))
+
+
+def _window(summary: Any) -> tuple[float, float] | None:
+    try:
+        a, b = summary["test_time_scored_s"]
+        return float(a), float(b)
+    except (KeyError, TypeError, ValueError):
+        return None
+
+
+def main_parameter_check(te: dict[str, Any], found: list[Any], indices: list[int]) -> list:
+    """Per analyze effect matching truth effect ``te``: ``{"name", "truth", "analyze",
+    "relative_error", "ok"}`` for the main parameter (within :data:`PARAMETER_TOLERANCE`).
+
+    Thermal drift: the truth names the fractional drop; analyze reports the Coulomb level's
+    rate per joint, compared with the truth's ``coulomb_rate_nm_per_s`` of that joint."""
+    out = []
+    for i in indices:
+        fe = found[i]
+        params = fe.get("parameters") or {}
+        if te["name"] == "thermal_drift":
+            (joint,) = sorted(_joints(fe))
+            truth = te["parameters"]["coulomb_rate_nm_per_s"][te["joints"].index(joint)]
+            key = "rate_nm_per_s"
+        else:
+            key = te["main_parameter"]
+            truth = te["parameters"][key]
+        got = params.get(key)
+        try:
+            rel = abs(float(got) - truth) / abs(truth)
+        except (TypeError, ValueError, ZeroDivisionError):
+            rel = math.inf
+        out.append(
+            {
+                "name": key,
+                "joints": sorted(_joints(fe)),
+                "truth": truth,
+                "analyze": got,
+                "relative_error": rel,
+                "ok": rel <= PARAMETER_TOLERANCE,
+            }
+        )
+    return out
+
+
 def table_case(name: str, root: Path, seed: int, timeout_s: float) -> dict[str, Any]:
     """Generate, analyze and baseline one case; the JSON-able record of its table."""
     case_dir = root / name
@@ -193,15 +293,54 @@ def table_case(name: str, root: Path, seed: int, timeout_s: float) -> dict[str, 
         "problems": [],
     }
     t0 = time.perf_counter()
-    base = plain_ls(paths["urdf"].read_text(), read_csv(paths["train"]), read_csv(paths["test"]))
-    record["plain_ls"] = {
-        "rms_test": base.rms_test.tolist(),
-        "rms_train": base.rms_train.tolist(),
-        "n_base": base.n_base.tolist(),
-        "seconds": round(time.perf_counter() - t0, 1),
-    }
+    test = read_csv(paths["test"])
+    base = plain_ls(paths["urdf"].read_text(), read_csv(paths["train"]), test)
     ana = run_analyze(case_dir, paths, timeout_s)
     summary = ana.pop("summary")
+    _, test_run, _ = make_case(name, seed)
+    _fill(record, summary, ana, base, test["t"], test_run.tau - test_run.tau_clean, n, t0)
+    found = record["analyze_effects"]
+    record["comparison"] = compare(truth["effects"], found)
+    record["parameters"] = [
+        main_parameter_check(te, found, v["analyze_indices"])
+        for te, v in zip(truth["effects"], record["comparison"]["truth"], strict=True)
+        if v["verdict"] == "found"
+    ]
+    record["criteria"] = criteria(record)
+    return record
+
+
+def _fill(
+    record: dict[str, Any],
+    summary: Any,
+    ana: dict[str, Any],
+    base: Any,
+    t_test: np.ndarray,
+    noise: np.ndarray | None,
+    n: int,
+    t0: float,
+) -> None:
+    """The analyze and plain-LS figures of ``record`` on one target (module docstring)."""
+    window = _window(summary)
+    have_filter = isinstance(summary, dict) and "target_filter" in summary
+    if not have_filter and summary is not None:
+        record["problems"].append("summary has no target_filter: plain LS left on raw files")
+    record["plain_ls"] = {
+        "rms_test_raw": base.rms_test.tolist(),
+        "rms_test": (
+            filtered_rms(t_test, base.residual_test, summary, window).tolist()
+            if have_filter
+            else base.rms_test.tolist()
+        ),
+        "rms_train": base.rms_train.tolist(),
+        "n_base": base.n_base.tolist(),
+        "seconds": round(time.perf_counter() - t0 - ana.get("seconds", 0.0), 1),
+    }
+    record["floor_nm"] = (
+        filtered_rms(t_test, noise, summary, window).tolist()
+        if noise is not None and have_filter
+        else None
+    )
     record["analyze"] = ana
     if ana["error"]:
         record["problems"].append(ana["error"])
@@ -218,53 +357,207 @@ def table_case(name: str, root: Path, seed: int, timeout_s: float) -> dict[str, 
     record["analyze_rms_before"] = before
     record["analyze_rms_after"] = after
     record["analyze_effects"] = found
-    record["comparison"] = compare(truth["effects"], found)
+    s = summary if isinstance(summary, dict) else {}
+    record["analyze_floor_nm"] = (s.get("noise_floor_nm") or {}).get("test")
+    record["plain_ls_joints"] = s.get("plain_ls_joints")
+    record["friction_model"] = s.get("friction_model")
+    record["test_outside_envelope"] = s.get("test_outside_envelope")
+
+
+def _le(a: float | None, b: float | None) -> bool:
+    return a is not None and b is not None and a <= b * (1.0 + RMS_TOLERANCE)
+
+
+def criteria(rec: dict[str, Any]) -> dict[str, Any]:
+    """Verdicts of the acceptance criteria on one generator case (None: does not apply)."""
+    after = rec["analyze_rms_after"]
+    out: dict[str, Any] = {
+        "beats_plain_ls": [
+            _le(a, p) for a, p in zip(after, rec["plain_ls"]["rms_test"], strict=True)
+        ],
+    }
+    truth = rec["truth"]
+    found = rec["analyze_effects"]
+    if not truth:
+        out["null_accepts_nothing"] = not found
+        return out
+    cmp_ = rec["comparison"]
+    named = True
+    for te, v in zip(truth, cmp_["truth"], strict=True):
+        if te.get("separable_from_rigid_model") is False:
+            named = named and v["verdict"] == "missed"  # absorbed, as it must be
+        else:
+            named = named and v["verdict"] == "found"
+    params_ok = all(p["ok"] for group in rec.get("parameters", []) for p in group)
+    out["effect_named"] = named and not cmp_["extra"]
+    out["parameter_within_20pct"] = named and params_ok
+    affected = sorted({j for te in truth for j in te["joints"]})
+    floor = rec["floor_nm"]
+    out["affected_joints"] = affected
+    out["after_within_2x_floor"] = (
+        None
+        if floor is None
+        else [_le(after[j - 1], FLOOR_FACTOR * floor[j - 1]) for j in affected]
+    )
+    return out
+
+
+def table_panda(root: Path, timeout_s: float) -> dict[str, Any]:
+    """The Panda recording as one more case: analyze vs plain LS (same target) vs README."""
+    case_dir = root / "panda"
+    paths = panda.write(case_dir)
+    n = 7
+    record: dict[str, Any] = {
+        "case": "panda",
+        "dir": str(case_dir),
+        "truth": [],
+        "problems": [],
+        "readme_plain_fit_nm": panda.README_PLAIN_FIT_RMS_NM.tolist(),
+    }
+    t0 = time.perf_counter()
+    train, test = panda.runs()
+    base = plain_ls(paths["urdf"].read_text(), train, test)
+    ana = run_analyze(case_dir, paths, timeout_s)
+    summary = ana.pop("summary")
+    _fill(record, summary, ana, base, test["t"], None, n, t0)
+    after = record["analyze_rms_after"]
+    record["criteria"] = {
+        "beats_plain_ls": [
+            _le(a, p) for a, p in zip(after, record["plain_ls"]["rms_test"], strict=True)
+        ],
+        "at_or_below_readme": [
+            _le(a, float(r)) for a, r in zip(after, panda.README_PLAIN_FIT_RMS_NM, strict=True)
+        ],
+    }
     return record
 
 
 def _cell(v: float | None) -> str:
-    return f"{v:12.4g}" if v is not None else f"{'-':>12}"
+    return f"{v:11.4g}" if v is not None else f"{'-':>11}"
+
+
+def _mark(v: bool | None) -> str:
+    return "-" if v is None else ("yes" if v else "NO")
 
 
 def format_case(rec: dict[str, Any]) -> str:
     """The printed table of one case."""
     truth = rec["truth"]
     head = "; ".join(describe_effect(e) for e in truth) if truth else "no effect"
+    if rec["case"] == "panda":
+        head = "real data, README plain fit in the last column"
+    n = len(rec["analyze_rms_after"])
+    floor = rec.get("floor_nm") or [None] * n
+    last = rec.get("readme_plain_fit_nm")
     lines = [
         f"=== case {rec['case']}  (truth: {head})",
-        f"{'joint':<6}{'noise_std':>12}{'plainLS_test':>14}{'ana_before':>12}"
-        f"{'ana_after':>12}   [N·m, held-out test run]",
+        f"{'joint':<6}{'floor':>11}{'ana_floor':>11}{'plainLS_raw':>12}{'plainLS':>11}"
+        f"{'ana_before':>11}{'ana_after':>11}{' ≤plain':>8}"
+        + (f"{'README':>9}{' ≤README':>9}" if last else "")
+        + "   [N·m, held-out, filtered target]",
     ]
-    for j in range(len(rec["noise_std_nm"])):
-        lines.append(
-            f"{ARM.joints[j].name:<6}{_cell(rec['noise_std_nm'][j])}  "
+    crit = rec.get("criteria", {})
+    ana_floor = rec.get("analyze_floor_nm") or [None] * n
+    beats = crit.get("beats_plain_ls", [None] * n)
+    for j in range(n):
+        row = (
+            f"{'a' + str(j + 1) if rec['case'] != 'panda' else 'j' + str(j + 1):<6}"
+            f"{_cell(floor[j])}{_cell(ana_floor[j])} {_cell(rec['plain_ls']['rms_test_raw'][j])}"
             f"{_cell(rec['plain_ls']['rms_test'][j])}{_cell(rec['analyze_rms_before'][j])}"
-            f"{_cell(rec['analyze_rms_after'][j])}"
+            f"{_cell(rec['analyze_rms_after'][j])}{_mark(beats[j]):>8}"
         )
-    cmp_ = rec["comparison"]
-    found = rec["analyze_effects"]
-    lines.append("effects  truth:")
+        if last:
+            row += f"{last[j]:9.3g}{_mark(crit['at_or_below_readme'][j]):>9}"
+        lines.append(row)
+    if rec["case"] != "panda":
+        lines += _effect_lines(rec)
+    ana = rec["analyze"]
+    lines.append(
+        f"analyze: exit {ana.get('exit_code')} in {ana.get('seconds')} s; friction "
+        f"{rec.get('friction_model')}; joints kept on plain LS {rec.get('plain_ls_joints')}; "
+        f"test samples outside the training envelope "
+        f"{_share(rec.get('test_outside_envelope'))}"
+    )
+    for k, v in crit.items():
+        if k not in ("beats_plain_ls", "at_or_below_readme", "affected_joints"):
+            lines.append(f"criterion {k}: {v}")
+    lines += [f"PROBLEM: {p}" for p in rec["problems"]]
+    return "\n".join(lines)
+
+
+def _share(x: Any) -> str:
+    try:
+        return f"{100 * float(x['any_joint']):.1f} %"
+    except (TypeError, KeyError, ValueError):
+        return "?"
+
+
+def _effect_lines(rec: dict[str, Any]) -> list[str]:
+    truth, cmp_, found = rec["truth"], rec["comparison"], rec["analyze_effects"]
+    lines = ["effects  truth:"]
     if not truth:
         lines.append("    (none)")
     for te, v in zip(truth, cmp_["truth"], strict=True):
         lines.append(f"    {describe_effect(te)}")
-        idx = v["analyze_index"]
-        got = f" -> analyze: {describe_effect(found[idx])}" if idx is not None else ""
+        got = "".join(f" -> analyze: {describe_effect(found[i])}" for i in v["analyze_indices"])
         note = ""
         if te.get("separable_from_rigid_model") is False:
             note = " (expected: inside the rigid-body model's span, absorbed by its parameters)"
         lines.append(f"    verdict: {v['verdict'].upper()}{got}{note}")
+    for group in rec.get("parameters", []):
+        for p in group:
+            lines.append(
+                f"    main parameter {p['name']} joints {p['joints']}: truth {_num(p['truth'])}, "
+                f"analyze {_num(p['analyze'])} ({100 * p['relative_error']:.1f} %)"
+            )
     lines.append("effects  analyze reported:" + ("" if found else " (none)"))
     for i, fe in enumerate(found):
         tag = "EXTRA" if i in cmp_["extra"] else "match"
         lines.append(f"    [{tag}] {describe_effect(fe)}")
-    ana = rec["analyze"]
-    lines.append(
-        f"analyze: exit {ana.get('exit_code')} in {ana.get('seconds')} s; "
-        f"plain LS {rec['plain_ls']['seconds']} s"
-    )
-    lines += [f"PROBLEM: {p}" for p in rec["problems"]]
-    return "\n".join(lines)
+    return lines
+
+
+def verdicts(records: list[dict[str, Any]]) -> list[tuple[str, bool, str]]:
+    """(criterion, passed, detail) over all records: issue 8's acceptance, one line each."""
+    ok = [r for r in records if "criteria" in r]
+    broken = [r["case"] for r in records if "criteria" not in r]
+    gen = [r for r in ok if r["case"] != "panda"]
+    null = [r for r in gen if not r["truth"]]
+    effect = [r for r in gen if r["truth"]]
+
+    def failing(rs: list[dict[str, Any]], key: str) -> list[str]:
+        bad = []
+        for r in rs:
+            v = r["criteria"].get(key)
+            if v is None:
+                continue
+            if v is False or (isinstance(v, list) and not all(v)):
+                bad.append(r["case"])
+        return bad
+
+    rows = [
+        ("null case accepts no effect", null, "null_accepts_nothing"),
+        ("right effect named, nothing extra", effect, "effect_named"),
+        ("main parameter within 20 %", effect, "parameter_within_20pct"),
+        ("after RMS on affected joints <= 2x noise floor", effect, "after_within_2x_floor"),
+        ("analyze <= plain LS on every joint, every case + Panda", ok, "beats_plain_ls"),
+        ("Panda: analyze <= README plain fit on every joint", ok, "at_or_below_readme"),
+    ]
+    out = []
+    for label, rs, key in rows:
+        applicable = [r for r in rs if r["criteria"].get(key) is not None]
+        bad = failing(rs, key)
+        if not applicable:
+            out.append((label, False, "no case to judge"))
+        else:
+            out.append(
+                (
+                    label,
+                    not bad and not broken,
+                    f"failing: {bad + broken}" if bad or broken else f"{len(applicable)} case(s)",
+                )
+            )
+    return out
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -281,6 +574,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--cases", nargs="+", choices=list(CASES), default=list(CASES))
     parser.add_argument("--seed", type=int, default=0, help="generator seed (default 0)")
+    parser.add_argument("--no-panda", action="store_true", help="leave out the Panda rows")
     parser.add_argument(
         "--timeout",
         type=float,
@@ -290,9 +584,16 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     table: dict[str, Any] = {"seed": args.seed, "arm": ARM.name, "cases": []}
-    for name in args.cases:
+    jobs = [(name, lambda name=name: table_case(name, args.out, args.seed, args.timeout))
+            for name in args.cases]  # fmt: skip
+    if not args.no_panda:
+        if panda.available():
+            jobs.append(("panda", lambda: table_panda(args.out, args.timeout)))
+        else:
+            print(f"Panda rows left out: no dataset at {panda.DATA}\n")
+    for name, job in jobs:
         try:
-            rec = table_case(name, args.out, args.seed, args.timeout)
+            rec = job()
         except Exception as exc:  # a broken case must not hide the others
             rec = {"case": name, "problems": [f"table failed: {type(exc).__name__}: {exc}"]}
             print(f"=== case {name}\nPROBLEM: {rec['problems'][0]}\n", flush=True)
@@ -300,6 +601,12 @@ def main(argv: list[str] | None = None) -> int:
             print(format_case(rec) + "\n", flush=True)
         table["cases"].append(rec)
         (args.out / "table.json").write_text(json.dumps(table, indent=2, default=_jsonable) + "\n")
+    table["verdicts"] = [
+        {"criterion": c, "pass": ok, "detail": d} for c, ok, d in verdicts(table["cases"])
+    ]
+    (args.out / "table.json").write_text(json.dumps(table, indent=2, default=_jsonable) + "\n")
+    for c, ok, d in verdicts(table["cases"]):
+        print(f"{'PASS' if ok else 'FAIL'}  {c}  ({d})")
     print(f"table: {args.out / 'table.json'}")
     return 0
 

@@ -79,7 +79,10 @@ class Bench:
             [train],
             [test],
             self.root / name,
-            AnalyzeOptions(plots=False, compare_friction=False),
+            # the family the data were made with: these tests are about the effect search (with
+            # --friction auto, eq. (14)'s additive sin q, cos q, sin 2q, cos 2q soak up most of
+            # the joint-2 spring over its short range, and the spring is then not named)
+            AnalyzeOptions(friction="eq15", plots=False, compare_friction=False),
             progress=lambda _: None,
         )
         print(f"\n{name}: held-out RMS before {np.round(summary['rms_before'], 3)}")
@@ -124,7 +127,7 @@ def clean_test(bench) -> Path:
 def test_no_effect_in_the_data_adds_nothing(bench, clean_train, clean_test):
     s = bench.analyze("none", clean_train, clean_test)
     assert s["effects"] == []
-    assert s["rms_after"] == s["rms_before"]
+    np.testing.assert_allclose(s["rms_after"], s["rms_before"], rtol=1e-12)
     # the fit is at the noise floor: white noise filtered at 40 Hz of a 1 kHz recording
     floor = np.asarray(GR630ST_NOISE_NM) * np.sqrt(2 * 40.0 / RATE_HZ)
     assert np.all(np.asarray(s["rms_before"]) < 1.5 * floor)

@@ -102,8 +102,13 @@ def test_cylinder_torque_is_taken_out_before_fitting(cylinder_run):
     s = cylinder_run["summary"]
     assert s["cylinders_removed"] is True
     floor = np.asarray(GR630ST_NOISE_NM) * np.sqrt(2 * 40.0 / RATE_HZ)
-    assert np.all(np.asarray(s["rms_before"]) < 1.5 * floor), s["rms_before"]
-    assert s["rms_after"] == s["rms_before"]
+    before = np.asarray(s["rms_before"])
+    # the test run is faster than the training run on some joints; there the friction is
+    # held at the training envelope's edge (bounded extrapolation), which costs accuracy
+    inside = np.asarray(s["test_outside_envelope"]["per_joint"]) < 0.05
+    assert np.all(before[inside] < 1.5 * floor[inside]), before
+    assert np.all(before < 2.0 * floor), before
+    np.testing.assert_allclose(s["rms_after"], s["rms_before"], rtol=1e-12)
     assert set(s["friction_comparison"]) == {"eq14", "eq15", "simple"}
     assert {"read", "preprocess", "regressor", "fit", "effects", "validate", "total"} <= set(
         s["timing_s"]
@@ -119,7 +124,7 @@ def test_model_file_reproduces_the_reported_held_out_error(cylinder_run):
     test = prepare(read_measurements(cylinder_run["paths"]["test"]))
     test = remove_cylinders(test, model.regressor, cylinder_run["desc"])
     rms = np.sqrt(np.mean((test.tau - model.predict_measured(test)) ** 2, axis=0))
-    np.testing.assert_allclose(rms, cylinder_run["summary"]["rms_before"], rtol=1e-9)
+    np.testing.assert_allclose(rms, cylinder_run["summary"]["rms_after"], rtol=1e-9)
 
 
 def test_model_evaluation_is_vectorised_and_consistent(cylinder_run):
@@ -142,7 +147,7 @@ def test_model_evaluation_is_vectorised_and_consistent(cylinder_run):
 
 def test_model_file_is_versioned(cylinder_run, tmp_path):
     doc = json.loads((cylinder_run["out"] / "model.json").read_text())
-    assert doc["format"] == "leadthrough-model" and doc["version"] == 2
+    assert doc["format"] == "leadthrough-model" and doc["version"] == 3
     assert len(doc["base_parameters"]["columns"]) == len(doc["base_parameters"]["values"]) == 40
     assert doc["friction"]["model"] == "eq15" and len(doc["friction"]["joints"]) == 6
     doc["version"] = 1
