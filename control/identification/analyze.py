@@ -52,12 +52,14 @@ from control.identification.lsq import BlockLS, contiguous_folds
 from control.identification.preprocess import (
     DEFAULT_POSITION_CUTOFF_HZ,
     DEFAULT_RATE_HZ,
+    DEFAULT_STICK_VELOCITY_RAD_S,
     DEFAULT_TORQUE_CUTOFF_HZ,
     FILTER_ORDER,
     Prepared,
     TooShortError,
     concatenate,
     prepare,
+    sliding_mask,
 )
 from control.identification.report import write_report
 from control.identification.rigid import DEFAULT_GRAVITY_M_S2, RobotRegressor
@@ -68,7 +70,13 @@ from control.identification.terms import (
     Envelope,
     shift_signal,
 )
-from control.identification.validate import plot_friction, plot_torques, relative_error, rms
+from control.identification.validate import (
+    masked_rms,
+    plot_friction,
+    plot_torques,
+    relative_error,
+    rms,
+)
 from control.robot.description import RobotDescription, load_description
 from gateway.errors import ConfigError, DataFileError
 
@@ -99,8 +107,15 @@ class AnalyzeOptions:
     compare_friction: bool = True
     plots: bool = True
     search: fx.Options = field(default_factory=fx.Options)
+    #: joints slower than this are stuck: their rows neither fit nor score the model
+    #: (:func:`.preprocess.sliding_mask`); 0 keeps every row [rad/s]
+    stick_velocity_rad_s: float = DEFAULT_STICK_VELOCITY_RAD_S
 
     def __post_init__(self) -> None:
+        if not (np.isfinite(self.stick_velocity_rad_s) and self.stick_velocity_rad_s >= 0):
+            raise ConfigError(
+                f"--stick-velocity: {self.stick_velocity_rad_s!r} must be a number >= 0"
+            )
         if self.friction not in (AUTO, *FRICTION_MODELS):
             raise ConfigError(
                 f"--friction: {self.friction!r} is not one of {[AUTO, *FRICTION_MODELS]}"
@@ -249,10 +264,12 @@ def choose_family(fits: dict[str, FrictionFit]) -> str:
     return min(mse, key=lambda k: float(np.sum(mse[k] / scale)))
 
 
-def plain_least_squares(ctx: Context, y: np.ndarray, folds: Sequence[slice]) -> Any:
+def plain_least_squares(
+    ctx: Context, y: np.ndarray, folds: Sequence[slice], mask: np.ndarray | None = None
+) -> Any:
     """Plain LS of every joint alone (:func:`.fit.plain_columns`) on targets ``y`` (T, n):
     the :class:`.lsq.Evaluation` (held-out SSE per joint over ``folds``) and its groups."""
-    ls = BlockLS(y, folds)
+    ls = BlockLS(y, folds, mask)
     names = []
     for j in range(y.shape[1]):
         ls.add(plain_key(j), plain_columns(ctx, j))
@@ -400,7 +417,10 @@ def _analyze(
     ctx_train, ctx_test, urdf = run.ctx_train, run.ctx_test, str(run.urdf)
 
     folds = contiguous_folds(train.n_samples, options.search.folds)
-    ls = BlockLS(train.tau, folds)
+    window_s = 1.0 / options.torque_cutoff_hz
+    sliding_train = sliding_mask(train, options.stick_velocity_rad_s, window_s)
+    sliding_test = sliding_mask(test, options.stick_velocity_rad_s, window_s)
+    ls = BlockLS(train.tau, folds, sliding_train)
     auto = options.friction == AUTO
     kinds = list(FRICTION_MODELS) if (auto or options.compare_friction) else [options.friction]
     fits, comparison = _fit_families(ls, run, kinds, ratios)
@@ -438,7 +458,7 @@ def _analyze(
 
     # Never worse than plain least squares, judged on the training files' held-out folds on
     # the same target as the model (the delay of case A included).
-    plain_eval = plain_least_squares(ctx_train, ls.y, folds)
+    plain_eval = plain_least_squares(ctx_train, ls.y, folds, sliding_train)
     worse = train_eval.cv_sse > plain_eval.cv_sse
     plain = {
         j: PlainJoint.from_coef(j, plain_eval.solution.coef[plain_key(j)])
@@ -456,7 +476,7 @@ def _analyze(
     pred_a = model_a.torque_from_context(ctx_test)
     if delay_a:
         pred_a = shift_signal(test.t, test.segment, pred_a, -delay_a)
-    plain_ref = plain_least_squares(ctx_train, train.tau, folds)
+    plain_ref = plain_least_squares(ctx_train, train.tau, folds, sliding_train)
     pred_plain = _plain_prediction(ctx_test, plain_ref.solution.coef)
 
     split = round(TEST_FIT_FRACTION * test.n_samples)
@@ -468,7 +488,7 @@ def _analyze(
         done = [a.term for a in accepted_a]
         between = fx.search_between(
             ctx_test, test, pred_a, base_fit.weights, done, options.search, fit_rows,
-            clock.say, gain,
+            clock.say, gain, sliding_test,
         )  # fmt: skip
         accepted_b = between.accepted
         pred_after = between.prediction
@@ -479,9 +499,11 @@ def _analyze(
         run.envelope, plain,
     )  # fmt: skip
     scored = slice(split, test.n_samples) if accepted_b else slice(0, test.n_samples)
-    rms_before = rms((test.tau - pred_before)[scored])
-    rms_after = rms((test.tau - pred_after)[scored])
-    rms_plain = rms((test.tau - pred_plain)[scored])
+    on = sliding_test[scored]
+    rms_before = masked_rms((test.tau - pred_before)[scored], on)
+    rms_after = masked_rms((test.tau - pred_after)[scored], on)
+    rms_plain = masked_rms((test.tau - pred_plain)[scored], on)
+    rms_after_all = rms((test.tau - pred_after)[scored])
     if options.find_effects and not accepted:
         clock.say("no further effect found")
     clock.say(f"held-out RMS before effects: {np.array2string(rms_before, precision=3)} N·m")
@@ -500,6 +522,12 @@ def _analyze(
         if accepted_b
         else f"all {test.n_samples} test rows"
     )
+    if options.stick_velocity_rad_s > 0:
+        where += (
+            f", per joint those where it slides (faster than {options.stick_velocity_rad_s} "
+            f"rad/s, and {window_s:.3g} s from being stuck: share in sliding_share_scored); "
+            "rms_after_all_samples has every row"
+        )
     summary: dict[str, Any] = {
         "joints": list(reg.joint_names),
         "friction_model": kind,
@@ -508,6 +536,9 @@ def _analyze(
         ),
         "rms_before": rms_before.tolist(),
         "rms_after": rms_after.tolist(),
+        "rms_after_all_samples": rms_after_all.tolist(),
+        "sliding_share_scored": on.mean(axis=0).tolist(),
+        "stick_velocity_rad_s": options.stick_velocity_rad_s,
         "rms_plain_ls": rms_plain.tolist(),
         "after_le_plain_ls": (rms_after <= rms_plain).tolist(),
         "plain_ls_joints": sorted(j + 1 for j in plain),

@@ -471,6 +471,7 @@ def search_between(
     fit_rows: slice,
     progress: Progress | None = None,
     training_gain: Callable[[EffectTerm], np.ndarray] | None = None,
+    sliding: np.ndarray | None = None,
 ) -> TestSearch:
     """Case (B) on the test data: ``model_prediction`` (T, n) is the fixed training model's
     torque on ``data`` (delay of case A included); ``ctx`` carries its rigid/friction parts.
@@ -479,7 +480,8 @@ def search_between(
     ``training_gain(term)`` gives the relative held-out gain per joint the term brings on the
     *training* data; an accepted effect whose joints gain ``margin`` there too was present all
     along (case A turned it down for another reason) and is labelled so, although its
-    parameters come from the test residual.
+    parameters come from the test residual. ``sliding`` (T, n): the rows that take part
+    (:func:`.preprocess.sliding_mask`), all when None.
     """
     progress = progress or _quiet
     part = data.select(np.arange(data.n_samples)[fit_rows])
@@ -487,7 +489,8 @@ def search_between(
     tau = data.tau
     allow_delay = not any(t.name == "time_delay" for t in done)
     n_fit = part.n_samples
-    ls = BlockLS((tau - model_prediction)[fit_rows], contiguous_folds(n_fit, options.folds))
+    mask = None if sliding is None else sliding[fit_rows]
+    ls = BlockLS((tau - model_prediction)[fit_rows], contiguous_folds(n_fit, options.folds), mask)
     screen = ctx.rows(fit_rows)
     names: list[str] = []
     effects: list[EffectTerm] = []

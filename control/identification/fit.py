@@ -198,7 +198,8 @@ def fit_rigid_friction(
     step = max(1, int(np.ceil(ctx.n_rows / Q_E_SEARCH_MAX_ROWS)))
     if step > 1:
         rows = ls.y[::step].shape[0]
-        target = BlockLS(ls.y[::step], contiguous_folds(rows, len(ls.folds)))
+        mask = None if ls.mask is None else ls.mask[::step]
+        target = BlockLS(ls.y[::step], contiguous_folds(rows, len(ls.folds)), mask)
         target.add("rigid", _thin(RigidTerm().columns(ctx), step))
     else:
         target = ls
@@ -223,7 +224,7 @@ def fit_rigid_friction(
         for term in terms:
             ls.add(term.key, term.columns(ctx))
     first = ls.solve(names, w0)
-    sigma = np.sqrt(ls.fold_sse(first).sum(axis=0) / ls.n_rows)
+    sigma = np.sqrt(ls.fold_sse(first).sum(axis=0) / np.maximum(ls.counts, 1.0))
     weights = 1.0 / np.maximum(sigma, max(_SIGMA_FLOOR_NM, 1e-6 * float(sigma.max())))
     evaluation = ls.evaluate(names, weights)
     progress(

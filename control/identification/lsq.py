@@ -53,7 +53,7 @@ class Evaluation:
     fit_sse: np.ndarray
     cv_sse: np.ndarray
     rank: int
-    n_rows: int
+    n_rows: np.ndarray  #: (n,) rows used per joint (all, unless a mask left some out)
     solution: Solution
 
     @property
@@ -96,18 +96,39 @@ def contiguous_folds(n_rows: int, k: int) -> list[slice]:
 class BlockLS:
     """Per-joint, per-fold Gram blocks of named column groups (see the module docstring).
 
-    ``y`` (T, n) targets; ``folds`` contiguous slices of the T rows.
+    ``y`` (T, n) targets; ``folds`` contiguous slices of the T rows. ``mask`` (T, n), 1 where
+    joint j's row at sample t takes part in the fit and its error, 0 where it does not (a joint
+    stuck in its static friction: its torque there is any value up to the breakaway level, not
+    a function of the motion). ``y``, :meth:`predict` and the columns stay unmasked: only the
+    Gram blocks and the error sums leave the masked rows out.
     """
 
-    def __init__(self, y: np.ndarray, folds: Sequence[slice]) -> None:
+    def __init__(
+        self, y: np.ndarray, folds: Sequence[slice], mask: np.ndarray | None = None
+    ) -> None:
         self.y = np.asarray(y, dtype=float)
         self.n_rows, self.n = self.y.shape
+        self.mask = None if mask is None else np.asarray(mask, dtype=float)
+        if self.mask is not None and self.mask.shape != self.y.shape:
+            raise ValueError(f"mask shape {self.mask.shape} is not the targets' {self.y.shape}")
+        #: rows used per joint
+        self.counts = (
+            np.full(self.n, float(self.n_rows)) if self.mask is None else self.mask.sum(axis=0)
+        )
         self.folds = list(folds)
         self.cols: dict[str, dict[int, np.ndarray]] = {}
+        self._mcols: dict[str, dict[int, np.ndarray]] = {}  #: the columns, masked
         self.sizes: dict[str, int] = {}
         self._gram: dict[tuple[str, str], dict[int, np.ndarray]] = {}
         self._xy: dict[str, dict[int, np.ndarray]] = {}
-        self._yy = self._fold_yy(self.y)
+        self._ym = self._masked_y(self.y)
+        self._yy = self._fold_yy(self._ym)
+
+    def _masked_y(self, y: np.ndarray) -> np.ndarray:
+        return y if self.mask is None else y * self.mask
+
+    def _masked(self, j: int, c: np.ndarray) -> np.ndarray:
+        return c if self.mask is None else c * self.mask[:, j : j + 1]
 
     def _fold_yy(self, y: np.ndarray) -> np.ndarray:
         return np.array([np.einsum("ij,ij->j", y[s], y[s]) for s in self.folds])
@@ -130,21 +151,24 @@ class BlockLS:
             clean[int(j)] = arr
         if m is None:
             raise ValueError(f"group {name} has no columns")
+        masked = {j: self._masked(j, c) for j, c in clean.items()}
         self.cols[name] = clean
+        self._mcols[name] = masked
         self.sizes[name] = m
         self._xy[name] = {
-            j: self._fold_products(c, self.y[:, j : j + 1])[:, :, 0] for j, c in clean.items()
+            j: self._fold_products(c, self._ym[:, j : j + 1])[:, :, 0] for j, c in masked.items()
         }
-        for other, ocols in self.cols.items():
-            shared = set(clean) & set(ocols)
+        for other, ocols in self._mcols.items():
+            shared = set(masked) & set(ocols)
             if not shared:
                 continue
             key = (name, other) if name <= other else (other, name)
-            first, second = (clean, ocols) if name <= other else (ocols, clean)
+            first, second = (masked, ocols) if name <= other else (ocols, masked)
             self._gram[key] = {j: self._fold_products(first[j], second[j]) for j in shared}
 
     def remove(self, name: str) -> None:
         self.cols.pop(name)
+        self._mcols.pop(name)
         self.sizes.pop(name)
         self._xy.pop(name)
         for key in [k for k in self._gram if name in k]:
@@ -153,10 +177,11 @@ class BlockLS:
     def set_y(self, y: np.ndarray) -> None:
         """Replace the targets (e.g. torques shifted by a delay); Gram blocks are kept."""
         self.y = np.asarray(y, dtype=float)
-        self._yy = self._fold_yy(self.y)
-        for name, cols in self.cols.items():
+        self._ym = self._masked_y(self.y)
+        self._yy = self._fold_yy(self._ym)
+        for name, cols in self._mcols.items():
             self._xy[name] = {
-                j: self._fold_products(c, self.y[:, j : j + 1])[:, :, 0] for j, c in cols.items()
+                j: self._fold_products(c, self._ym[:, j : j + 1])[:, :, 0] for j, c in cols.items()
             }
 
     def _offsets(self, names: Sequence[str]) -> dict[str, slice]:
@@ -243,7 +268,7 @@ class BlockLS:
             cv = np.zeros(self.n)
             for k in range(len(self.folds)):
                 cv += self.fold_sse(self.solve(names, weights, exclude_fold=k))[k]
-        return Evaluation(fit_sse, cv, full.rank, self.n_rows, full)
+        return Evaluation(fit_sse, cv, full.rank, self.counts, full)
 
     def predict(self, sol: Solution, rows: slice | None = None) -> np.ndarray:
         """Model output of ``sol`` on this object's rows (or a slice), shape (T, n)."""

@@ -358,3 +358,37 @@ def _cat_optional(arrays: Sequence[np.ndarray | None]) -> np.ndarray | None:
     if any(a is None for a in arrays):
         return None
     return np.concatenate(arrays)  # type: ignore[arg-type]
+
+
+#: Below this joint speed a joint is taken as stuck in its static friction [rad/s]: a quarter
+#: of the slowest friction run of the paper's plan (0.5 °/s), far above the velocity noise of
+#: an encoder-based velocity (a 17-bit encoder behind a 100:1 gear resolves 5e-5 rad/s at
+#: 125 Hz). See :func:`sliding_mask`.
+DEFAULT_STICK_VELOCITY_RAD_S = 2e-3
+
+
+def sliding_mask(data: Prepared, stick_velocity_rad_s: float, window_s: float) -> np.ndarray:
+    """(T, n) 1.0 where joint j slides at sample t, 0.0 where it is stuck or was within
+    ``window_s`` of being stuck (in the same segment).
+
+    A geared joint below its breakaway torque does not move, and its friction is then any
+    torque up to that level: whatever the servo's integrator has wound up, not a function of
+    the motion. No friction model of (q, dq) predicts those rows, so they neither fit the model
+    nor score it. The window covers the torque filter's smearing of the breakaway transient
+    (about one period of the cutoff frequency). ``stick_velocity_rad_s`` 0 keeps every row.
+    """
+    n_rows, n = data.dq.shape
+    if stick_velocity_rad_s <= 0:
+        return np.ones((n_rows, n))
+    stuck = np.abs(data.dq) < stick_velocity_rad_s
+    rates = data.sample_hz if data.sample_hz is not None else np.full(n_rows, data.rate_hz)
+    out = np.ones((n_rows, n))
+    bounds = np.flatnonzero(np.diff(data.segment) != 0) + 1
+    for a, b in pairwise(np.r_[0, bounds, n_rows]):
+        half = int(np.ceil(window_s * float(rates[a])))
+        seg = stuck[a:b].astype(float)
+        if half > 0:
+            kernel = np.ones(2 * half + 1)
+            seg = np.stack([np.convolve(seg[:, j], kernel, mode="same") for j in range(n)], axis=1)
+        out[a:b] = seg <= 0.0
+    return out

@@ -24,6 +24,14 @@ def rms(x: np.ndarray) -> np.ndarray:
     return np.sqrt(np.mean(np.square(np.asarray(x, dtype=float)), axis=0))
 
 
+def masked_rms(x: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """RMS over the samples where ``mask`` (T, n) is 1, per joint (NaN for a joint with none)."""
+    sq = np.square(np.asarray(x, dtype=float)) * mask
+    count = mask.sum(axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.sqrt(sq.sum(axis=0) / count)
+
+
 def relative_error(tau_measured: np.ndarray, tau_model: np.ndarray) -> np.ndarray:
     """RMS error / RMS of the measured torque, per joint (0 where the torque is all zero)."""
     scale = rms(tau_measured)
