@@ -21,6 +21,7 @@ from control.identification.analyze import AUTO, AnalyzeOptions, analyze
 from control.identification.preprocess import (
     DEFAULT_POSITION_CUTOFF_HZ,
     DEFAULT_RATE_HZ,
+    DEFAULT_STICK_VELOCITY_RAD_S,
     DEFAULT_TORQUE_CUTOFF_HZ,
 )
 from control.identification.rigid import DEFAULT_GRAVITY_M_S2
@@ -108,6 +109,14 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
         help=f"torque/pressure low-pass cutoff [Hz] (default {DEFAULT_TORQUE_CUTOFF_HZ:g})",
     )
     p.add_argument(
+        "--stick-velocity",
+        type=float,
+        default=DEFAULT_STICK_VELOCITY_RAD_S,
+        metavar="RAD_S",
+        help="a joint slower than this is stuck: its rows neither fit nor score the model "
+        f"(default {DEFAULT_STICK_VELOCITY_RAD_S}; 0 keeps every row)",
+    )
+    p.add_argument(
         "--margin",
         type=float,
         default=fx.MARGIN,
@@ -161,6 +170,7 @@ def options_from_args(args: argparse.Namespace) -> AnalyzeOptions:
         find_effects=not args.no_effects,
         plots=not args.no_plots,
         search=fx.Options(margin=args.margin, folds=args.folds, max_effects=args.max_effects),
+        stick_velocity_rad_s=args.stick_velocity,
     )
 
 
