@@ -217,23 +217,43 @@ def _per_joint(summary: Any, key: str, n: int) -> tuple[list[float | None], str 
 
 
 def filtered_rms(
-    t: np.ndarray, x: np.ndarray, summary: dict[str, Any], window: tuple[float, float] | None
+    t: np.ndarray,
+    x: np.ndarray,
+    summary: dict[str, Any],
+    window: tuple[float, float] | None,
+    dq: np.ndarray | None = None,
 ) -> np.ndarray:
     """RMS per joint of ``x`` (T, n) on times ``t`` [s] after the zero-phase Butterworth the
     summary declares (``target_filter``: order, cutoff), over the samples within ``window``
-    [s] (analyze's scored test samples). Jittered time is first put on a uniform grid at the
-    median step (linear interpolation), as a filter needs."""
+    [s] (analyze's scored test samples) and, given the velocities ``dq`` (T, n), where each
+    joint slides as analyze's summary defines it (``stick_velocity_rad_s``, one cutoff period
+    around a stuck sample; written here from that definition, not taken from the product).
+    Jittered time is first put on a uniform grid at the median step (linear interpolation), as
+    a filter needs."""
     spec = summary["target_filter"]
     step = float(np.median(np.diff(t)))
     grid = t[0] + step * np.arange(int(np.floor((t[-1] - t[0]) / step + 1e-9)) + 1)
     if np.max(np.abs(np.diff(t) - step)) > 0.01 * step:
         x = np.column_stack([np.interp(grid, t, x[:, j]) for j in range(x.shape[1])])
+        if dq is not None:
+            dq = np.column_stack([np.interp(grid, t, dq[:, j]) for j in range(dq.shape[1])])
         t = grid
     cutoff = float(min(spec["cutoff_hz"]))
     sos = signal.butter(int(spec["order"]), cutoff, fs=1.0 / step, output="sos")
     y = signal.sosfiltfilt(sos, x, axis=0)
     keep = np.ones(t.size, dtype=bool) if window is None else (t >= window[0]) & (t <= window[1])
-    return np.sqrt(np.mean(y[keep] ** 2, axis=0))
+    on = np.ones(y.shape, dtype=bool)
+    stick = float(summary.get("stick_velocity_rad_s") or 0.0)
+    if dq is not None and stick > 0:
+        stuck = np.abs(signal.sosfiltfilt(sos, dq, axis=0)) < stick
+        half = int(np.ceil(1.0 / (cutoff * step)))
+        kernel = np.ones(2 * half + 1)
+        near = [
+            np.convolve(stuck[:, j].astype(float), kernel, mode="same") for j in range(y.shape[1])
+        ]
+        on = np.stack(near, axis=1) <= 0.0
+    w = (keep[:, None] & on).astype(float)
+    return np.sqrt((y**2 * w).sum(axis=0) / np.maximum(w.sum(axis=0), 1.0))
 
 
 def _window(summary: Any) -> tuple[float, float] | None:
@@ -298,7 +318,8 @@ def table_case(name: str, root: Path, seed: int, timeout_s: float) -> dict[str, 
     ana = run_analyze(case_dir, paths, timeout_s)
     summary = ana.pop("summary")
     _, test_run, _ = make_case(name, seed)
-    _fill(record, summary, ana, base, test["t"], test_run.tau - test_run.tau_clean, n, t0)
+    noise = test_run.tau - test_run.tau_clean
+    _fill(record, summary, ana, base, test["t"], test["dq"], noise, n, t0)
     found = record["analyze_effects"]
     record["comparison"] = compare(truth["effects"], found)
     record["parameters"] = [
@@ -316,6 +337,7 @@ def _fill(
     ana: dict[str, Any],
     base: Any,
     t_test: np.ndarray,
+    dq_test: np.ndarray,
     noise: np.ndarray | None,
     n: int,
     t0: float,
@@ -328,7 +350,7 @@ def _fill(
     record["plain_ls"] = {
         "rms_test_raw": base.rms_test.tolist(),
         "rms_test": (
-            filtered_rms(t_test, base.residual_test, summary, window).tolist()
+            filtered_rms(t_test, base.residual_test, summary, window, dq_test).tolist()
             if have_filter
             else base.rms_test.tolist()
         ),
@@ -337,7 +359,7 @@ def _fill(
         "seconds": round(time.perf_counter() - t0 - ana.get("seconds", 0.0), 1),
     }
     record["floor_nm"] = (
-        filtered_rms(t_test, noise, summary, window).tolist()
+        filtered_rms(t_test, noise, summary, window, dq_test).tolist()
         if noise is not None and have_filter
         else None
     )
@@ -419,7 +441,7 @@ def table_panda(root: Path, timeout_s: float) -> dict[str, Any]:
     base = plain_ls(paths["urdf"].read_text(), train, test)
     ana = run_analyze(case_dir, paths, timeout_s)
     summary = ana.pop("summary")
-    _fill(record, summary, ana, base, test["t"], None, n, t0)
+    _fill(record, summary, ana, base, test["t"], test["dq"], None, n, t0)
     after = record["analyze_rms_after"]
     record["criteria"] = {
         "beats_plain_ls": [
