@@ -24,7 +24,7 @@ from gateway.bus import BusConfig, bus_config_from
 from gateway.config import load_toml
 from gateway.errors import LeadthroughError
 from gateway.messages import decode_json
-from gateway.recorder import BusRecorder, export_csv, iter_mcap
+from gateway.recorder import BusRecorder, export_csv, iter_mcap, read_states
 from gateway.supervisor import operator_request
 
 #: The paper's plan (Section 4): every joint's friction at 0.5–4 °/s and faster, gravity sweeps,
@@ -120,11 +120,13 @@ def export_segments(
         raise LeadthroughError(f"plan {plan_id} did not finish: {report.get('state')} "
                                f"{report.get('reason', '')}")  # fmt: skip
     train, test = [], []
+    recorded = read_states(mcap)  # once: each segment is cut from it
     for k, seg in enumerate(report["segments"]):
         name = f"{k:02d}_{seg['label'].replace('/', '_')}.csv"
         path = out / "segments" / name
         path.parent.mkdir(parents=True, exist_ok=True)
-        export_csv(mcap, path, gains, cycle_range=(seg["start_cycle"], seg["end_cycle"]))
+        cycles = (seg["start_cycle"], seg["end_cycle"])
+        export_csv(mcap, path, gains, cycle_range=cycles, recorded=recorded)
         (test if seg["role"] == "test" else train).append(path)
     return train, test
 

@@ -23,6 +23,7 @@ import signal
 import threading
 import time
 from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -140,29 +141,19 @@ DISTURBANCE_SETTLE_S = 0.15
 CURRENT_LAG_CYCLES = 0.5
 
 
-def export_csv(
-    mcap_path: Path,
-    csv_path: Path,
-    drive_gains_nm_per_a: list[float],
-    keys: Keys | None = None,
-    cycle_range: tuple[int, int] | None = None,
-    settle_s: float = DISTURBANCE_SETTLE_S,
-    current_lag_cycles: float = CURRENT_LAG_CYCLES,
-) -> int:
-    """Export joint states (+ latest pressures) to the measurement CSV; returns rows written.
+@dataclass(frozen=True)
+class RecordedStates:
+    """The joint states of a recording, each with the latest pressures [bar] before it."""
 
-    ``cycle_range`` keeps only the controller cycles ``first..last`` (inclusive). Cycles the
-    CAN driver answered with a hold or a coast instead of the control process's command (the
-    next JointState's flags say so) are *disturbed*: they and the cycles up to ``settle_s``
-    after them are left out, which leaves a time gap that the analysis treats as a segment
-    boundary; the sidecar lists them.
+    states: list[tuple[JointState, np.ndarray]]
+    n: int | None  #: joints (None: no state)
+    bad: int  #: malformed messages skipped
 
-    The reported current describes ``current_lag_cycles`` of a cycle before the kinematics
-    (LTC-1 reports its mean over the cycle: 0.5, PROTOCOL.md §2.1); each row gets the current
-    interpolated to its own instant from the next cycle's, so a row whose next cycle was not
-    recorded is not exported. Malformed messages are counted and skipped with a warning,
-    never exported.
-    """
+
+def read_states(mcap_path: Path, keys: Keys | None = None) -> RecordedStates:
+    """Read a recording's joint states once (:func:`export_csv` can then cut many files from
+    it). States of another joint count, without a cycle period or before the first pressures
+    are left out; malformed messages are counted and skipped with a warning."""
     keys = keys or Keys()
     states: list[tuple[JointState, np.ndarray]] = []
     p = np.array([np.nan, np.nan])
@@ -183,6 +174,36 @@ def export_csv(
         except MessageError as exc:
             bad += 1
             log.warning("skipped a malformed message on %s: %s", key, exc)
+    return RecordedStates(states, n, bad)
+
+
+def export_csv(
+    mcap_path: Path,
+    csv_path: Path,
+    drive_gains_nm_per_a: list[float],
+    keys: Keys | None = None,
+    cycle_range: tuple[int, int] | None = None,
+    settle_s: float = DISTURBANCE_SETTLE_S,
+    current_lag_cycles: float = CURRENT_LAG_CYCLES,
+    recorded: RecordedStates | None = None,
+) -> int:
+    """Export joint states (+ latest pressures) to the measurement CSV; returns rows written.
+    ``recorded``: the recording as :func:`read_states` read it (else it is read here).
+
+    ``cycle_range`` keeps only the controller cycles ``first..last`` (inclusive). Cycles the
+    CAN driver answered with a hold or a coast instead of the control process's command (the
+    next JointState's flags say so) are *disturbed*: they and the cycles up to ``settle_s``
+    after them are left out, which leaves a time gap that the analysis treats as a segment
+    boundary; the sidecar lists them.
+
+    The reported current describes ``current_lag_cycles`` of a cycle before the kinematics
+    (LTC-1 reports its mean over the cycle: 0.5, PROTOCOL.md §2.1); each row gets the current
+    interpolated to its own instant from the next cycle's, so a row whose next cycle was not
+    recorded is not exported. Malformed messages are counted and skipped with a warning,
+    never exported.
+    """
+    rec = recorded if recorded is not None else read_states(mcap_path, keys)
+    states, n, bad = rec.states, rec.n, rec.bad
     disturbed = _disturbed_cycles(states, cycle_range)
     excluded: set[int] = set()
     for cycle, period in disturbed:
