@@ -290,7 +290,8 @@ class IdentifiedModel:
 
     ``envelope`` bounds the friction and effect terms to the training range (see
     :mod:`.terms`); joints in ``plain_joints`` (0-based index → :class:`PlainJoint`) use their
-    plain least-squares model instead of ``beta``, the friction family and the effects.
+    plain least-squares model instead of ``beta`` and the friction family, plus the effects
+    that appeared between training and test (training-fitted effects are not on them).
     """
 
     regressor: RobotRegressor
@@ -404,9 +405,12 @@ class IdentifiedModel:
         for term, coef, _ in self.effects:
             if not term.is_linear or (term.name == "thermal_drift" and ctx.t is None):
                 continue
+            # every effect acts on its own joints: the training-fitted ones were taken off the
+            # plain joints when the model was built (analyze._restricted); one that appeared
+            # between training and test was fitted on the residual of the plain joints' own
+            # prediction and belongs on them too (a tool mounted weighs on every joint)
             for j, cols in term.columns(ctx).items():
-                if j not in self.plain_joints:
-                    out[:, j] += cols @ coef
+                out[:, j] += cols @ coef
         return out
 
     def predict_measured(self, data: Prepared) -> np.ndarray:
