@@ -386,9 +386,11 @@ def sliding_mask(data: Prepared, stick_velocity_rad_s: float, window_s: float) -
     bounds = np.flatnonzero(np.diff(data.segment) != 0) + 1
     for a, b in pairwise(np.r_[0, bounds, n_rows]):
         half = int(np.ceil(window_s * float(rates[a])))
-        seg = stuck[a:b].astype(float)
+        seg = stuck[a:b]
         if half > 0:
-            kernel = np.ones(2 * half + 1)
-            seg = np.stack([np.convolve(seg[:, j], kernel, mode="same") for j in range(n)], axis=1)
-        out[a:b] = seg <= 0.0
+            # dilate: a row is out when any row within ``half`` of it is stuck (any length)
+            padded = np.pad(seg, ((half, half), (0, 0))).astype(np.int64)
+            counts = np.cumsum(np.vstack([np.zeros((1, n), np.int64), padded]), axis=0)
+            seg = (counts[2 * half + 1 :] - counts[: -2 * half - 1]) > 0
+        out[a:b] = ~seg
     return out

@@ -51,6 +51,14 @@ def test_the_window_does_not_reach_across_a_segment_boundary():
     assert on[20:, 0].all(), "the next segment is another recording: untouched"
 
 
+def test_a_segment_shorter_than_the_window_is_handled():
+    dq = np.full((13, 1), 0.1)
+    dq[11, 0] = 0.0  # the last segment: 3 rows, one stuck, a window of ±5 rows
+    segment = np.repeat([0, 1], [10, 3])
+    on = sliding_mask(prepared(dq, segment), 2e-3, 0.05)
+    assert on[:10, 0].all() and not on[10:, 0].any()
+
+
 def test_zero_stick_velocity_keeps_every_row():
     dq = np.zeros((10, 3))
     assert sliding_mask(prepared(dq), 0.0, 0.05).all()
