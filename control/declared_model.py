@@ -116,8 +116,10 @@ class IdentifiedControlModel(DeclaredModel):
 
     def __init__(self, path: Path) -> None:
         from control.identification.fit import IdentifiedModel
+        from control.identification.point import PointModel
 
         self.identified = IdentifiedModel.load(path)
+        self.point = PointModel(self.identified)
         self.desc = load_description()
         self.n = len(self.desc.joints)
         if self.identified.n != self.n:
@@ -132,12 +134,12 @@ class IdentifiedControlModel(DeclaredModel):
         self, q_rad: np.ndarray, dq_rad_s: Sequence[float], p_bar: Sequence[float]
     ) -> tuple[list[float], list[float]]:
         # The torque at rest is both the static part and what friction_nm subtracts: once.
-        im, zeros = self.identified, self._zeros
-        at_rest = im.torque_nm(q_rad, zeros, zeros)
-        moving = im.torque_nm(q_rad, np.asarray(dq_rad_s, dtype=float), zeros)
+        point = self.point
+        at_rest = point.torque_nm(q_rad)
+        moving = point.torque_nm(q_rad, np.asarray(dq_rad_s, dtype=float))
         cyl = self.cylinders.joint_torques_nm(q_rad.tolist(), p_bar)
-        static = [gj - cj for gj, cj in zip(at_rest.tolist(), cyl, strict=True)]
-        return static, (moving - at_rest).tolist()
+        static = [gj - cj for gj, cj in zip(at_rest, cyl, strict=True)]
+        return static, [m - r for m, r in zip(moving, at_rest, strict=True)]
 
     def friction_nm(self, q_rad: np.ndarray, dq_rad_s: np.ndarray) -> np.ndarray:
         im = self.identified

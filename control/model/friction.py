@@ -190,24 +190,37 @@ class Eq15Friction:
         """Friction torque [N·m] of one sample, ``n`` floats: :meth:`__call__` on plain floats,
         the per-cycle form (for six joints about four times faster than numpy on (n,) arrays,
         and equal to it to rounding). ``math`` raises where numpy would return NaN."""
-        out = []
-        for (ts, tc, f1, f2, f3, f4, f5, f6, v1, v2, half_inv_qe, inv_qe, inv_r), q, dq in zip(
-            self._rows, q_rad, dq_rad_s, strict=True
-        ):
-            s = math.tanh(dq * half_inv_qe)  # smooth_sign
-            qr = q * inv_r
-            coulomb_like = (
-                ts * math.exp(-abs(dq) * inv_qe)
-                + tc
-                + f1 * math.sin(qr)
-                + f2 * math.cos(qr)
-                + f3 * math.sin(2.0 * qr)
-                + f4 * math.cos(2.0 * qr)
-                + f5 * math.sin(q)
-                + f6 * math.cos(q)
-            )
-            out.append(coulomb_like * s + (v1 * dq + v2 * dq * abs(dq)))
-        return out
+        return [
+            eq15_point(row, q, dq) for row, q, dq in zip(self._rows, q_rad, dq_rad_s, strict=True)
+        ]
+
+
+def eq15_row(coef: Sequence[float], q_e_rad_s: float, gear_ratio: float) -> tuple[float, ...]:
+    """The constants :func:`eq15_point` takes: the ten coefficients (:data:`EQ15_PARAM_NAMES`),
+    then 1/(2 q_e), 1/q_e, 1/R."""
+    c = [float(v) for v in coef]
+    if len(c) != len(EQ15_PARAM_NAMES):
+        raise ValueError(f"eq. (15) takes {len(EQ15_PARAM_NAMES)} coefficients, got {len(c)}")
+    return (*c, 0.5 / q_e_rad_s, 1.0 / q_e_rad_s, 1.0 / gear_ratio)
+
+
+def eq15_point(row: tuple[float, ...], q: float, dq: float) -> float:
+    """Eq. (15) friction [N·m] of one joint at one sample, on plain floats; ``row`` from
+    :func:`eq15_row`. ``math`` raises where numpy would return NaN."""
+    ts, tc, f1, f2, f3, f4, f5, f6, v1, v2, half_inv_qe, inv_qe, inv_r = row
+    s = math.tanh(dq * half_inv_qe)  # smooth_sign
+    qr = q * inv_r
+    coulomb_like = (
+        ts * math.exp(-abs(dq) * inv_qe)
+        + tc
+        + f1 * math.sin(qr)
+        + f2 * math.cos(qr)
+        + f3 * math.sin(2.0 * qr)
+        + f4 * math.cos(2.0 * qr)
+        + f5 * math.sin(q)
+        + f6 * math.cos(q)
+    )
+    return coulomb_like * s + (v1 * dq + v2 * dq * abs(dq))
 
 
 def friction_eq15(

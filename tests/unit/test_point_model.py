@@ -1,0 +1,146 @@
+"""The per-cycle form of an identified model computes what the model file says.
+
+:class:`control.identification.point.PointModel` re-states :meth:`IdentifiedModel.torque_nm`
+on plain floats for the control cycle. These tests pin the two together for every friction
+family, every effect of the vocabulary, plain joints and the training envelope, on samples
+inside and well outside that envelope and at exactly zero velocity.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from control.identification.fit import IdentifiedModel, PlainJoint
+from control.identification.point import NOT_AT_RUN_TIME, PointModel
+from control.identification.rigid import RobotRegressor
+from control.identification.terms import (
+    EFFECT_NAMES,
+    FRICTION_MODELS,
+    FRICTION_PARAM_NAMES,
+    EffectTerm,
+    Envelope,
+    FrictionTerm,
+)
+from control.robot.description import load_description
+from control.robot.urdf import to_urdf
+
+RTOL, ATOL = 1e-12, 1e-9
+
+
+@pytest.fixture(scope="module")
+def regressor() -> RobotRegressor:
+    desc = load_description()
+    return RobotRegressor(to_urdf(desc), tuple(desc.gravity_m_s2))
+
+
+def every_effect(rng: np.random.Generator) -> list[tuple[EffectTerm, np.ndarray, str]]:
+    """One of each effect of the vocabulary, with random coefficients."""
+    terms = [
+        EffectTerm("position_ripple", (2,), {"cycles_per_rev": 27}),
+        EffectTerm("payload", (0, 1, 2, 4, 5)),
+        EffectTerm("spring", (1,)),
+        EffectTerm("stribeck", (0,), {"velocity_rad_s": 0.03}),
+        EffectTerm("load_dependent_friction", (1,)),
+        EffectTerm("time_delay", (0, 1, 2, 3, 4, 5), {"delay_s": 0.004}),
+        EffectTerm("thermal_drift", (3,)),
+        EffectTerm("wrist_coupling", (4,), {"from_joint": 3, "source": "torque"}),
+        EffectTerm("wrist_coupling", (5,), {"from_joint": 4, "source": "friction"}),
+    ]
+    assert {t.name for t in terms} == set(EFFECT_NAMES), "a new effect needs a case here"
+    sizes = {"position_ripple": 2, "payload": 10, "spring": 2, "thermal_drift": 2}
+    return [
+        (t, rng.normal(0.0, 5.0, sizes.get(t.name, 1)), "between_train_and_test") for t in terms
+    ]
+
+
+def model_with(regressor, kinds, rng, *, envelope=True, plain=(), effects=True):
+    n = regressor.n
+    terms = [
+        FrictionTerm(j, kinds[j], float(rng.uniform(0.005, 0.05)), float(rng.uniform(50, 150)))
+        for j in range(n)
+    ]
+    coefs = [rng.normal(0.0, 20.0, len(FRICTION_PARAM_NAMES[t.kind])) for t in terms]
+    nb = regressor.base.n_base
+    beta = regressor.base.base_values(regressor.parameters()) + rng.normal(0.0, 0.5, nb)
+    env = None
+    if envelope:
+        q = rng.uniform(-1.0, 1.0, (200, n))
+        dq = rng.uniform(-0.5, 0.5, (200, n))
+        env = Envelope.of(q, dq)
+    plain_joints = {
+        j: PlainJoint(j, beta + rng.normal(0.0, 1.0, nb), *rng.normal(0.0, 10.0, 2)) for j in plain
+    }
+    return IdentifiedModel(
+        regressor,
+        beta,
+        "mixed",
+        terms,
+        coefs,
+        effects=every_effect(rng) if effects else [],
+        envelope=env,
+        plain_joints=plain_joints,
+    )
+
+
+def samples(n: int, rng: np.random.Generator, count: int):
+    """q and dq inside and far outside the envelope above; every fifth sample at rest, and one
+    joint at exactly zero velocity in each other sample."""
+    for i in range(count):
+        q = rng.uniform(-2.5, 2.5, n)
+        dq = np.zeros(n) if i % 5 == 0 else rng.uniform(-2.0, 2.0, n)
+        dq[i % n] = 0.0
+        yield q, dq
+
+
+CASES = {
+    "eq15 with every effect": (["eq15"] * 6, (), True),
+    "eq14 with every effect": (["eq14"] * 6, (), True),
+    "simple with every effect": (["simple"] * 6, (), True),
+    "families mixed, plain joints 2 and 6": (["eq15", "eq14", "simple"] * 2, (1, 5), True),
+    "no envelope": (["eq15"] * 6, (3,), False),
+}
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_point_model_equals_torque_nm(regressor, case):
+    kinds, plain, envelope = CASES[case]
+    assert set(kinds) <= set(FRICTION_MODELS)
+    rng = np.random.default_rng(abs(hash(case)) % 2**32)
+    model = model_with(regressor, kinds, rng, envelope=envelope, plain=plain)
+    point = PointModel(model)
+    zeros = np.zeros(regressor.n)
+    for q, dq in samples(regressor.n, rng, 100):
+        want = model.torque_nm(q, dq, zeros)
+        np.testing.assert_allclose(point.torque_nm(q, dq), want, rtol=RTOL, atol=ATOL)
+        at_rest = model.torque_nm(q, zeros, zeros)
+        np.testing.assert_allclose(point.torque_nm(q), at_rest, rtol=RTOL, atol=ATOL)
+
+
+def test_every_friction_family_is_covered():
+    kinds = {k for spec in CASES.values() for k in spec[0]}
+    assert kinds == set(FRICTION_MODELS)
+
+
+def test_effects_without_a_run_time_torque_are_the_ones_torque_nm_skips(regressor):
+    """time_delay and thermal_drift change nothing per cycle, exactly as torque_nm without a
+    time; every other effect does change the torque."""
+    rng = np.random.default_rng(3)
+    bare = model_with(regressor, ["eq15"] * 6, rng, effects=False)
+    q, dq = np.full(6, 0.3), np.full(6, 0.02)  # within the Stribeck velocity
+    base = np.asarray(PointModel(bare).torque_nm(q, dq))
+    for term, coef, appeared in every_effect(rng):
+        bare.effects = [(term, coef, appeared)]
+        delta = np.asarray(PointModel(bare).torque_nm(q, dq)) - base
+        if term.name in NOT_AT_RUN_TIME:
+            assert not np.any(delta), term.name
+        else:
+            assert np.any(np.abs(delta) > 1e-6), term.name
+
+
+def test_an_effect_it_cannot_evaluate_is_refused_at_load(regressor):
+    rng = np.random.default_rng(4)
+    model = model_with(regressor, ["eq15"] * 6, rng, effects=False)
+    model.effects = [(EffectTerm("gear_backlash", (1,)), np.ones(1), "training")]
+    with pytest.raises(ValueError, match="gear_backlash"):
+        PointModel(model)
