@@ -24,7 +24,7 @@ import numpy as np
 import pinocchio as pin
 
 from control.identification.fit import IdentifiedModel
-from control.identification.terms import EFFECT_NAMES, EffectTerm, Envelope, FrictionTerm
+from control.identification.terms import EffectTerm, Envelope, FrictionTerm
 from control.model.friction import eq15_point, eq15_row
 
 #: Joint friction of one joint: (q [rad], dq [rad/s]) → N·m, inputs already clipped.
@@ -45,14 +45,12 @@ class _Clip:
     """The envelope's clipping (:class:`.terms.Envelope`) on floats; no-op without one."""
 
     def __init__(self, envelope: Envelope | None, n: int) -> None:
-        inf = [math.inf] * n
-        e = envelope
-        self.q_lo, self.q_hi = (
-            ([-v for v in inf], inf) if e is None else (e.q_min.tolist(), e.q_max.tolist())
-        )
-        self.dq_lo, self.dq_hi = (
-            ([-v for v in inf], inf) if e is None else (e.dq_min.tolist(), e.dq_max.tolist())
-        )
+        if envelope is None:
+            self.q_lo = self.dq_lo = [-math.inf] * n
+            self.q_hi = self.dq_hi = [math.inf] * n
+        else:
+            self.q_lo, self.q_hi = envelope.q_min.tolist(), envelope.q_max.tolist()
+            self.dq_lo, self.dq_hi = envelope.dq_min.tolist(), envelope.dq_max.tolist()
 
     def q(self, j: int, v: float) -> float:
         return min(max(v, self.q_lo[j]), self.q_hi[j])
@@ -153,8 +151,6 @@ class PointModel:
         self._friction = [(j, f) for j, f in enumerate(friction) if f is not None]
         self._effects: list[tuple[int, EffectFn]] = []
         for term, coef, _ in model.effects:
-            if term.name not in EFFECT_NAMES:
-                raise ValueError(f"unknown effect {term.name!r}")
             if term.name in NOT_AT_RUN_TIME:
                 continue
             if term.name == "payload":

@@ -154,16 +154,10 @@ class Eq15Friction:
         self._half_inv_qe = 1.0 / (2.0 * p["q_e_rad_s"])
         self._inv_qe = 1.0 / p["q_e_rad_s"]
         self._inv_r = 1.0 / p["gear_ratio"]
-        #: per joint, for :meth:`joint_torques_nm`: the ten coefficients, 1/(2 q_e), 1/q_e, 1/R
-        self._rows = list(
-            zip(
-                *(p[name].tolist() for name in EQ15_PARAM_NAMES),
-                self._half_inv_qe.tolist(),
-                self._inv_qe.tolist(),
-                self._inv_r.tolist(),
-                strict=True,
-            )
-        )
+        #: per joint, for :meth:`joint_torques_nm` (:func:`eq15_row`)
+        self._rows = [
+            eq15_row(f.linear_parameters().tolist(), f.q_e_rad_s, f.gear_ratio) for f in params_list
+        ]
 
     def __call__(self, q_rad: np.ndarray, dq_rad_s: np.ndarray) -> np.ndarray:
         """Friction torque [N·m]; ``q``, ``dq`` of shape (n,) or (T, n)."""
@@ -201,7 +195,7 @@ def eq15_row(coef: Sequence[float], q_e_rad_s: float, gear_ratio: float) -> tupl
     c = [float(v) for v in coef]
     if len(c) != len(EQ15_PARAM_NAMES):
         raise ValueError(f"eq. (15) takes {len(EQ15_PARAM_NAMES)} coefficients, got {len(c)}")
-    return (*c, 0.5 / q_e_rad_s, 1.0 / q_e_rad_s, 1.0 / gear_ratio)
+    return (*c, 1.0 / (2.0 * q_e_rad_s), 1.0 / q_e_rad_s, 1.0 / gear_ratio)
 
 
 def eq15_point(row: tuple[float, ...], q: float, dq: float) -> float:
