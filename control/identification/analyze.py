@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -36,6 +36,7 @@ import numpy as np
 
 from control.identification import effects as fx
 from control.identification._blas import single_threaded_blas
+from control.identification.cutoff import CutoffChoice, choose_cutoff
 from control.identification.datafile import Measurements, read_measurements
 from control.identification.fit import (
     FrictionFit,
@@ -50,7 +51,6 @@ from control.identification.fit import (
 )
 from control.identification.lsq import BlockLS, contiguous_folds
 from control.identification.preprocess import (
-    DEFAULT_POSITION_CUTOFF_HZ,
     DEFAULT_RATE_HZ,
     DEFAULT_STICK_VELOCITY_RAD_S,
     DEFAULT_TORQUE_CUTOFF_HZ,
@@ -94,8 +94,11 @@ class AnalyzeOptions:
 
     friction: str = AUTO
     rate_hz: float = DEFAULT_RATE_HZ
-    position_cutoff_hz: float = DEFAULT_POSITION_CUTOFF_HZ
-    torque_cutoff_hz: float = DEFAULT_TORQUE_CUTOFF_HZ
+    #: None: chosen from the training files (:mod:`.cutoff`)
+    position_cutoff_hz: float | None = None
+    #: None: the highest cutoff candidate (:func:`.cutoff.candidates`: 0.4 × the analysis
+    #: rate, at most 40 Hz), one filter for the torque and every regressor column
+    torque_cutoff_hz: float | None = None
     drive_gains: tuple[float, ...] | None = None
     gear_ratios: tuple[float, ...] | None = None
     description_path: Path | None = None
@@ -189,13 +192,24 @@ def _gear_ratios(
 
 
 def _prepare(
-    ms: Sequence[Measurements], options: AnalyzeOptions, clock: _Clock, skipped: list[str]
+    ms: Sequence[Measurements],
+    options: AnalyzeOptions,
+    clock: _Clock,
+    skipped: list[str],
+    edge_cutoff_hz: float | None = None,
 ) -> Prepared:
+    assert options.position_cutoff_hz is not None and options.torque_cutoff_hz is not None
     parts = []
     for m in ms:
         try:
             parts.append(
-                prepare(m, options.rate_hz, options.position_cutoff_hz, options.torque_cutoff_hz)
+                prepare(
+                    m,
+                    options.rate_hz,
+                    options.position_cutoff_hz,
+                    options.torque_cutoff_hz,
+                    edge_cutoff_hz,
+                )
             )
         except TooShortError as exc:
             if not options.skip_short_files:
@@ -349,7 +363,7 @@ def _load(
     options: AnalyzeOptions,
     clock: _Clock,
     skipped: list[str],
-) -> tuple[_Run, np.ndarray]:
+) -> tuple[_Run, np.ndarray, AnalyzeOptions]:
     urdf = Path(urdf_path)
     if not train_paths or not test_paths:
         raise ConfigError("need at least one --train and one --test file")
@@ -368,6 +382,7 @@ def _load(
     has_p = any(m.p is not None for m in [*train_m, *test_m])
     desc = _description(options, has_p)
     ratios = _gear_ratios(options, reg, desc, clock)
+    options, cutoff = _resolve_cutoffs(options, reg, train_m, desc, clock)
     train = remove_cylinders(_prepare(train_m, options, clock, skipped), reg, desc)
     test = remove_cylinders(_prepare(test_m, options, clock, skipped), reg, desc)
     if test.p_joints != train.p_joints:
@@ -388,7 +403,9 @@ def _load(
     clock.say("regressor done")
     clock.lap("regressor")
     meta = {
+        "cutoff_choice": None if cutoff is None else cutoff.to_json(),
         "rate_hz": train.rate_hz,
+        "analysis_rate_hz": options.rate_hz,
         "position_cutoff_hz": options.position_cutoff_hz,
         "torque_cutoff_hz": options.torque_cutoff_hz,
         "train_files": [str(p) for p in train_paths],
@@ -397,7 +414,41 @@ def _load(
         "cylinders_removed": has_p,
     }
     run = _Run(reg, urdf, meta, train, test, ctx_train, ctx_test, envelope, clock)
-    return run, ratios
+    return run, ratios, options
+
+
+def _resolve_cutoffs(
+    options: AnalyzeOptions,
+    reg: RobotRegressor,
+    train_m: Sequence[Measurements],
+    desc: RobotDescription | None,
+    clock: _Clock,
+) -> tuple[AnalyzeOptions, CutoffChoice | None]:
+    """``options`` with both cutoffs set: a missing position cutoff chosen on the training
+    files (:func:`.cutoff.choose_cutoff`), a missing torque cutoff equal to it."""
+    choice = None
+    if options.position_cutoff_hz is None:
+
+        def prepared(cutoff_hz: float, edge_hz: float, torque_hz: float) -> Prepared:
+            trial = replace(options, position_cutoff_hz=cutoff_hz, torque_cutoff_hz=torque_hz)
+            data = _prepare(train_m, trial, _quiet_clock(), [], edge_hz)
+            return remove_cylinders(data, reg, desc)
+
+        sample_hz = min(1.0 / float(np.median(np.diff(m.t))) for m in train_m)
+        choice = choose_cutoff(
+            reg, prepared, options.rate_hz, sample_hz, options.stick_velocity_rad_s,
+            options.search.folds, clock.say,
+        )  # fmt: skip
+        options = replace(options, position_cutoff_hz=choice.cutoff_hz)
+    if options.torque_cutoff_hz is None:
+        top = max(choice.candidates_hz) if choice is not None else DEFAULT_TORQUE_CUTOFF_HZ
+        options = replace(options, torque_cutoff_hz=max(top, options.position_cutoff_hz))
+    clock.lap("cutoff")
+    return options, choice
+
+
+def _quiet_clock() -> _Clock:
+    return _Clock(lambda _line: None)
 
 
 def _analyze(
@@ -412,7 +463,8 @@ def _analyze(
     clock = _Clock(progress or (lambda s: print(s, flush=True)))
     out = Path(out_dir)
     skipped: list[str] = []
-    run, ratios = _load(urdf_path, train_paths, test_paths, options, clock, skipped)
+    run, ratios, options = _load(urdf_path, train_paths, test_paths, options, clock, skipped)
+    assert options.torque_cutoff_hz is not None
     reg, train, test, meta = run.reg, run.train, run.test, run.meta
     ctx_train, ctx_test, urdf = run.ctx_train, run.ctx_test, str(run.urdf)
 
@@ -459,7 +511,8 @@ def _analyze(
     # Never worse than plain least squares, judged on the training files' held-out folds on
     # the same target as the model (the delay of case A included).
     plain_eval = plain_least_squares(ctx_train, ls.y, folds, sliding_train)
-    worse = train_eval.cv_sse > plain_eval.cv_sse
+    # plain LS per joint extrapolates badly (no shared physics): it must win by the margin
+    worse = plain_eval.cv_sse < (1.0 - options.search.margin) ** 2 * train_eval.cv_sse
     plain = {
         j: PlainJoint.from_coef(j, plain_eval.solution.coef[plain_key(j)])
         for j in np.flatnonzero(worse).tolist()
@@ -536,6 +589,11 @@ def _analyze(
         ),
         "rms_before": rms_before.tolist(),
         "rms_after": rms_after.tolist(),
+        "cutoff_hz": {
+            "position": options.position_cutoff_hz,
+            "torque": options.torque_cutoff_hz,
+            "choice": meta["cutoff_choice"],
+        },
         "rms_after_all_samples": rms_after_all.tolist(),
         "sliding_share_scored": on.mean(axis=0).tolist(),
         "stick_velocity_rad_s": options.stick_velocity_rad_s,

@@ -19,10 +19,8 @@ from pathlib import Path
 from control.identification import effects as fx
 from control.identification.analyze import AUTO, AnalyzeOptions, analyze
 from control.identification.preprocess import (
-    DEFAULT_POSITION_CUTOFF_HZ,
     DEFAULT_RATE_HZ,
     DEFAULT_STICK_VELOCITY_RAD_S,
-    DEFAULT_TORQUE_CUTOFF_HZ,
 )
 from control.identification.rigid import DEFAULT_GRAVITY_M_S2
 from control.identification.terms import FRICTION_MODELS
@@ -99,14 +97,17 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--cutoff-hz",
         type=float,
-        default=DEFAULT_POSITION_CUTOFF_HZ,
-        help=f"position low-pass cutoff [Hz] (default {DEFAULT_POSITION_CUTOFF_HZ:g})",
+        default=None,
+        help="low-pass cutoff of positions and velocities [Hz] (default: chosen from the "
+        "training files by held-out error, reported in summary.json's cutoff_hz)",
     )
     p.add_argument(
         "--torque-cutoff-hz",
         type=float,
-        default=DEFAULT_TORQUE_CUTOFF_HZ,
-        help=f"torque/pressure low-pass cutoff [Hz] (default {DEFAULT_TORQUE_CUTOFF_HZ:g})",
+        default=None,
+        help="low-pass cutoff of the torque, pressures and every regressor column [Hz] "
+        "(default: the highest --cutoff-hz candidate, 0.4 x the analysis rate, at most 40; "
+        "never below --cutoff-hz)",
     )
     p.add_argument(
         "--stick-velocity",

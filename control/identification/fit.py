@@ -44,6 +44,8 @@ from typing import Any
 
 import numpy as np
 
+from control.identification import preprocess
+from control.identification.datafile import Measurements
 from control.identification.lsq import BlockLS, Evaluation, Solution, contiguous_folds
 from control.identification.preprocess import Prepared
 from control.identification.rigid import BaseParameters, RobotRegressor
@@ -412,6 +414,18 @@ class IdentifiedModel:
             for j, cols in term.columns(ctx).items():
                 out[:, j] += cols @ coef
         return out
+
+    def prepare(self, m: Measurements) -> Prepared:
+        """``m`` filtered and decimated as the analysis that made this model prepared its
+        files (its rate and cutoffs, :mod:`.preprocess`): the data :meth:`predict_measured`
+        is scored on."""
+        meta = self.metadata
+        return preprocess.prepare(
+            m,
+            float(meta.get("analysis_rate_hz", preprocess.DEFAULT_RATE_HZ)),
+            float(meta.get("position_cutoff_hz", preprocess.DEFAULT_POSITION_CUTOFF_HZ)),
+            float(meta.get("torque_cutoff_hz", preprocess.DEFAULT_TORQUE_CUTOFF_HZ)),
+        )
 
     def predict_measured(self, data: Prepared) -> np.ndarray:
         """What the torque sensor/drive should read on ``data`` (T, n), on the same target as

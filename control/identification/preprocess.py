@@ -204,8 +204,12 @@ def prepare(
     rate_hz: float = DEFAULT_RATE_HZ,
     position_cutoff_hz: float = DEFAULT_POSITION_CUTOFF_HZ,
     torque_cutoff_hz: float = DEFAULT_TORQUE_CUTOFF_HZ,
+    edge_cutoff_hz: float | None = None,
 ) -> Prepared:
     """Filter, differentiate and decimate one file's samples (steps in the module docstring).
+
+    ``edge_cutoff_hz`` (default ``position_cutoff_hz``) sets the edges dropped: analyses of the
+    same file at several cutoffs pass their lowest so that all keep the same rows.
 
     Raises :class:`DataFileError` when a position jumps by more than :data:`MAX_STEP_RAD`
     between two samples, or when no segment is long enough to filter.
@@ -243,7 +247,7 @@ def prepare(
                 for k, v in signals.items()
             }
             t = grid
-        edge = int(np.ceil(EDGE_PERIODS / position_cutoff_hz * fs))
+        edge = int(np.ceil(EDGE_PERIODS / (edge_cutoff_hz or position_cutoff_hz) * fs))
         if t.size < 2 * edge + MIN_SEGMENT_SAMPLES:
             continue
         tau_cut = min(torque_cutoff_hz, 0.4 * min(rate_hz, fs))

@@ -175,6 +175,7 @@ class RobotRegressor:
         """Full joint-torque regressor Y of one sample, shape (n, 11 n): ten link columns per
         link, then one armature column per joint."""
         y = pin.computeJointTorqueRegressor(self.model, self.data, q, dq, ddq)
+        y = np.reshape(y, (self.n, -1))  # a one-joint robot's comes back flat
         return np.hstack([y, np.diag(np.asarray(ddq, dtype=float))])
 
     def regressor_columns(
@@ -204,7 +205,8 @@ class RobotRegressor:
             out[j, :, j_col] = ddq[:, j]
         step = max(1, q.shape[0] // 10)
         for k in range(q.shape[0]):
-            out[:, k, link_pos] = fn(model, data, q[k], dq[k], ddq[k])[:, link_cols]
+            y = fn(model, data, q[k], dq[k], ddq[k])
+            out[:, k, link_pos] = (y if y.ndim == 2 else y[None, :])[:, link_cols]
             if progress is not None and k and k % step == 0 and q.shape[0] > 50_000:
                 progress(f"regressor {100 * k // q.shape[0]} %")
         return out

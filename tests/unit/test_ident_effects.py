@@ -18,7 +18,6 @@ from control.identification.analyze import AnalyzeOptions, analyze
 from control.identification.datafile import read_measurements, write_measurements
 from control.identification.effects import ALL_ALONG, BETWEEN
 from control.identification.fit import IdentifiedModel
-from control.identification.preprocess import prepare
 from control.identification.rigid import RobotRegressor
 from control.identification.synthetic import (
     GR630ST_MAX_SPEED_RAD_S,
@@ -97,7 +96,7 @@ class Bench:
         """Held-out RMS of the saved ``model.json`` (effects included) on every row of ``test``
         [N·m]: the summary's ``rms_after_all_samples``."""
         model = IdentifiedModel.load(self.root / name / "model.json")
-        data = prepare(read_measurements(test))
+        data = model.prepare(read_measurements(test))
         return np.sqrt(np.mean((data.tau - model.predict_measured(data)) ** 2, axis=0))
 
 

@@ -16,7 +16,6 @@ from control.identification.dh_urdf import PANDA_DH_ROWS, urdf_from_dh
 from control.identification.fit import IdentifiedModel, remove_cylinders
 from control.identification.preprocess import (
     DEFAULT_STICK_VELOCITY_RAD_S,
-    DEFAULT_TORQUE_CUTOFF_HZ,
     prepare,
     sliding_mask,
 )
@@ -126,13 +125,14 @@ def test_model_file_reproduces_the_reported_held_out_error(cylinder_run):
     model = IdentifiedModel.load(cylinder_run["out"] / "model.json")
     assert model.joint_names == ("j1", "j2", "j3", "j4", "j5", "j6")
     assert model.friction_kind == "eq15"
-    test = prepare(read_measurements(cylinder_run["paths"]["test"]))
+    test = model.prepare(read_measurements(cylinder_run["paths"]["test"]))
     test = remove_cylinders(test, model.regressor, cylinder_run["desc"])
     error = test.tau - model.predict_measured(test)
     rms = np.sqrt(np.mean(error**2, axis=0))
     np.testing.assert_allclose(rms, cylinder_run["summary"]["rms_after_all_samples"], rtol=1e-9)
     # rms_after: the rows where each joint slides (preprocess.sliding_mask)
-    on = sliding_mask(test, DEFAULT_STICK_VELOCITY_RAD_S, 1.0 / DEFAULT_TORQUE_CUTOFF_HZ)
+    window_s = 1.0 / model.metadata["torque_cutoff_hz"]
+    on = sliding_mask(test, DEFAULT_STICK_VELOCITY_RAD_S, window_s)
     assert 0.5 < on.mean() < 1.0, "the run has stuck rows, and mostly sliding ones"
     sliding = np.sqrt((error**2 * on).sum(axis=0) / on.sum(axis=0))
     np.testing.assert_allclose(sliding, cylinder_run["summary"]["rms_after"], rtol=1e-9)
