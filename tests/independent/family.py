@@ -52,9 +52,10 @@ Runs
 
 Torque [N·m, joint side]
     ``pin.rnea`` on the URDF plus friction per joint, eq. (15)-like with the position terms
-    inside the sign bracket (so τ_f dq ≥ 0)::
+    inside the sign bracket (so τ_f dq ≥ 0) and eq. (15)'s exponential Stribeck drop, as the
+    product reads eq. (15) (the declared model of the null case)::
 
-        τ_f = (τ_c + (τ_s - τ_c) exp(-(dq/q_e)²) + Σ_{k=1,2} (a_k sin kq + b_k cos kq)) s(dq)
+        τ_f = (τ_c + (τ_s - τ_c) exp(-|dq|/q_e) + Σ_{k=1,2} (a_k sin kq + b_k cos kq)) s(dq)
               + τ_v dq,           s(dq) = tanh(dq / 1e-4)
 
     P_j the joint's peak |rigid torque| over the training run: τ_c = 2-6 % P, τ_s = 1.0-1.5 τ_c,
@@ -810,7 +811,7 @@ class Friction:
 
     def torque(self, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
         """τ_f [N·m] (T, n) at true q [rad], dq [rad/s] (module docstring)."""
-        bracket = self.coulomb + (self.static - self.coulomb) * np.exp(-((dq / self.q_e) ** 2))
+        bracket = self.coulomb + (self.static - self.coulomb) * np.exp(-np.abs(dq) / self.q_e)
         for k in range(2):
             bracket = bracket + self.a[:, k] * np.sin((k + 1) * q)
             bracket = bracket + self.b[:, k] * np.cos((k + 1) * q)
@@ -825,7 +826,7 @@ class Friction:
             "sin_kq_nm": self.a.tolist(),
             "cos_kq_nm": self.b.tolist(),
             "sign_velocity_rad_s": SIGN_VELOCITY,
-            "formula": "(tc + (ts - tc) exp(-(dq/qe)^2) + sum_k=1,2 (a_k sin(k q) + b_k cos(k q)))"
+            "formula": "(tc + (ts - tc) exp(-|dq|/qe) + sum_k=1,2 (a_k sin(k q) + b_k cos(k q)))"
             " tanh(dq/1e-4) + tv dq",
         }
 

@@ -29,7 +29,7 @@ def _friction_from_truth(fr: dict, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
     tc, ts = np.array(fr["coulomb_nm"]), np.array(fr["static_nm"])
     qe, tv = np.array(fr["q_e_rad_s"]), np.array(fr["viscous_nm_s_per_rad"])
     a, b = np.array(fr["sin_kq_nm"]), np.array(fr["cos_kq_nm"])
-    bracket = tc + (ts - tc) * np.exp(-((dq / qe) ** 2))
+    bracket = tc + (ts - tc) * np.exp(-np.abs(dq) / qe)
     bracket = bracket + a[:, 0] * np.sin(q) + a[:, 1] * np.sin(2 * q)
     bracket = bracket + b[:, 0] * np.cos(q) + b[:, 1] * np.cos(2 * q)
     return bracket * np.tanh(dq / fr["sign_velocity_rad_s"]) + tv * dq
