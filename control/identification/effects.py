@@ -38,7 +38,12 @@ A candidate is accepted only if
     drop to beat the ``1 - ALPHA/m`` quantile of ``noise_dof_nm2 · χ²_p`` is therefore a
     conservative test. It replaces BIC on the residual's own MSE, which grew the penalty with
     the model's mismatch instead of with the noise;
-(iii) no joint's held-out RMS grows by more than :data:`WORSEN_TOLERANCE`.
+(iii) no joint's held-out RMS grows by more than :data:`WORSEN_TOLERANCE`;
+(iv) case (B) only, *it holds forward in time* (:func:`forward_gain`): fitted on the first
+    half of its part of the test run, the candidate lowers the RMS of the second half on its
+    improved joints by at least half the margin, and no joint's by less than
+    -:data:`WORSEN_TOLERANCE`. Checked on the acceptable candidates in order of their score;
+    the first that holds is taken.
 
 Among the acceptable ones the largest drop of the weighted held-out error wins.
 """
@@ -457,6 +462,37 @@ class TestSearch:
     fit_rows: slice
 
 
+def forward_gain(
+    ls: BlockLS,
+    names: Sequence[str],
+    weights: np.ndarray,
+    key: str,
+    cols: dict[int, np.ndarray] | None,
+    y_after: np.ndarray | None = None,
+) -> np.ndarray:
+    """Rule (iv) of case (B): the relative RMS gain per joint (n,) on the second half of
+    ``ls``'s rows when the groups ``names`` plus the candidate are fitted on the first half.
+
+    The candidate is a group ``key`` with columns ``cols``, or (a delay) targets ``y_after``.
+    An effect that appeared between training and test is fitted on the start of the test run
+    and then used on what follows: it has to predict forward in time, which K-fold
+    interpolation between neighbouring blocks does not test (a slow drift there fits any
+    smooth mismatch of the training model on the test trajectory).
+    """
+    halves = BlockLS(ls.y, contiguous_folds(ls.n_rows, 2), ls.mask)
+    for name in names:
+        halves.add(name, ls.cols[name])
+    before = halves.fold_sse(halves.solve(list(names), weights, exclude_fold=1))[1]
+    after_names = list(names)
+    if y_after is not None:
+        halves.set_y(y_after)
+    if cols is not None:
+        halves.add(key, cols)
+        after_names.append(key)
+    after = halves.fold_sse(halves.solve(after_names, weights, exclude_fold=1))[1]
+    return 1.0 - np.sqrt(np.maximum(after, 0.0) / np.maximum(before, 1e-300))
+
+
 def _rows(cols: dict[int, np.ndarray], rows: slice) -> dict[int, np.ndarray]:
     return {j: c[rows] for j, c in cols.items()}
 
@@ -527,11 +563,24 @@ def search_between(
             v.delay_s = d_best
             verdicts.append(v)
             ls.set_y(base_y)
-        ok = [v for v in verdicts if v.accepted]
         _log_round(progress, "test", verdicts)
-        if not ok:
+        ok = sorted((v for v in verdicts if v.accepted), key=lambda v: -v.score)
+        best = None
+        for v in ok:
+            y_after = (tau - shifted(v.delay_s))[fit_rows] if v.term.name == "time_delay" else None
+            cols = None if y_after is not None else _rows(v.term.columns(ctx), fit_rows)
+            gain = forward_gain(ls, names, weights, v.term.key, cols, y_after)
+            if np.all(gain[list(v.improved)] >= 0.5 * options.margin) and np.all(
+                gain >= -WORSEN_TOLERANCE
+            ):
+                best = v
+                break
+            progress(
+                f"refused {_describe(v)}: fitted on the first half of its rows, it does not "
+                f"hold on the second (held-out RMS gain {np.array2string(gain, precision=3)})"
+            )
+        if best is None:
             break
-        best = max(ok, key=lambda v: v.score)
         term = best.term
         if term.name == "time_delay":
             delay = best.delay_s

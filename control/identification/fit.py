@@ -243,15 +243,17 @@ def fit_rigid_friction(
 
 @dataclass(frozen=True)
 class PlainJoint:
-    """A joint kept on plain least squares (:func:`plain_columns`) because the full model's
-    held-out error was worse there: its own base-parameter vector ``beta`` (nb,) over its row
-    of the base regressor, Coulomb ``coulomb_nm`` [N·m] times sgn(dq) and viscous
-    ``viscous_nm_s_per_rad`` [N·m·s/rad]."""
+    """A joint on a fallback because the full model's held-out error was worse there (the
+    guard of :func:`.analyze.guard_joints`): its own base-parameter vector ``beta`` (nb,) over
+    its row of the base regressor, Coulomb ``coulomb_nm`` [N·m] times sgn(dq) and viscous
+    ``viscous_nm_s_per_rad`` [N·m·s/rad]. ``kind`` says which fallback: plain least squares
+    (:func:`plain_columns`), the URDF's nominal β with fitted friction, or zero."""
 
     joint: int
     beta: np.ndarray
     coulomb_nm: float
     viscous_nm_s_per_rad: float
+    kind: str = "plain_ls"
 
     @property
     def coef(self) -> np.ndarray:
@@ -265,6 +267,11 @@ class PlainJoint:
     def friction(self, ctx: Context) -> np.ndarray:
         dq = ctx.dq_of(self.joint)
         return ctx.filtered(self.coulomb_nm * np.sign(dq) + self.viscous_nm_s_per_rad * dq)
+
+
+#: What predicts a joint's torque (:class:`PlainJoint`'s ``kind``, or the full model).
+MODEL, PLAIN_LS, NOMINAL, ZERO = "model", "plain_ls", "nominal", "zero"
+FALLBACKS = (PLAIN_LS, NOMINAL, ZERO)
 
 
 def plain_key(j: int) -> str:
@@ -477,6 +484,7 @@ class IdentifiedModel:
                     "base_parameter_values": pj.beta.tolist(),
                     "coulomb_nm": pj.coulomb_nm,
                     "viscous_nm_s_per_rad": pj.viscous_nm_s_per_rad,
+                    "fallback": pj.kind,
                 }
                 for j, pj in sorted(self.plain_joints.items())
             ],
@@ -560,8 +568,9 @@ class IdentifiedModel:
                 np.asarray(e["base_parameter_values"], dtype=float),
                 float(e["coulomb_nm"]),
                 float(e["viscous_nm_s_per_rad"]),
+                str(e.get("fallback", PLAIN_LS)),
             )
-            if not 0 <= j < reg.n or pj.beta.shape != (base.n_base,):
+            if not 0 <= j < reg.n or pj.beta.shape != (base.n_base,) or pj.kind not in FALLBACKS:
                 raise DataFileError(f"{where}: plain joint {e['index']} malformed")
             plain[j] = pj
         return cls(

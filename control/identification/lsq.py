@@ -65,9 +65,27 @@ class Evaluation:
         return np.sqrt(self.fit_sse / self.n_rows)
 
 
-def tsvd_solve(gram: np.ndarray, rhs: np.ndarray, rcond: float = RCOND) -> tuple[np.ndarray, int]:
-    """Minimum-norm solution of ``gram x = rhs`` on the well-determined subspace; (x, rank)."""
+def tsvd_solve(
+    gram: np.ndarray,
+    rhs: np.ndarray,
+    rcond: float = RCOND,
+    prior: np.ndarray | None = None,
+    ridge: np.ndarray | None = None,
+) -> tuple[np.ndarray, int]:
+    """Solution of ``gram x = rhs`` on the well-determined subspace; (x, rank).
+
+    Without ``prior`` the minimum-norm one. With ``prior`` (p,) the solution closest to it:
+    directions the data do not determine keep the prior's values, and columns where ``ridge``
+    (p,) is non-zero are pulled towards it by that ridge in the scaled problem (unit-norm
+    columns, whose Gram has unit diagonal): ``(G_s + diag(ridge)) δ = b_s - G_s x0``.
+    """
     p = gram.shape[0]
+    if prior is not None:
+        x0 = np.asarray(prior, dtype=float)
+        d = np.sqrt(np.clip(np.diag(gram), 0.0, None))
+        reg = gram if ridge is None else gram + np.diag(np.asarray(ridge) * d**2)
+        delta, rank = tsvd_solve(reg, rhs - gram @ x0, rcond)
+        return x0 + delta, rank
     x = np.zeros(p)
     if p == 0:
         return x, 0
@@ -123,6 +141,14 @@ class BlockLS:
         self._xy: dict[str, dict[int, np.ndarray]] = {}
         self._ym = self._masked_y(self.y)
         self._yy = self._fold_yy(self._ym)
+        #: group name → (prior values (m,), relative ridge): see :meth:`set_prior`
+        self.priors: dict[str, tuple[np.ndarray, float]] = {}
+
+    def set_prior(self, name: str, values: np.ndarray, ridge: float = 0.0) -> None:
+        """Solve group ``name`` as a deviation from ``values`` (:func:`tsvd_solve`): what the
+        data do not determine stays at ``values`` (not at zero), and ``ridge`` × (the number of
+        solved columns) pulls weakly determined directions there too."""
+        self.priors[name] = (np.asarray(values, dtype=float).copy(), float(ridge))
 
     def _masked_y(self, y: np.ndarray) -> np.ndarray:
         return y if self.mask is None else y * self.mask
@@ -229,9 +255,35 @@ class BlockLS:
         if exclude_fold is not None:
             fw[exclude_fold] = 0.0
         gram, rhs = self._normal(list(names), weights, fw)
-        x, rank = tsvd_solve(gram, rhs, rcond)
         off = self._offsets(names)
+        prior = ridge = None
+        if any(n in self.priors for n in names):
+            prior = np.zeros(gram.shape[0])
+            ridge = np.zeros(gram.shape[0])
+            for n in names:
+                if n in self.priors:
+                    prior[off[n]] = self.priors[n][0]
+                    ridge[off[n]] = self.priors[n][1] * gram.shape[0]
+        x, rank = tsvd_solve(gram, rhs, rcond, prior, ridge)
         return Solution({n: x[off[n]] for n in names}, rank)
+
+    def excitation(self, name: str, weights: np.ndarray) -> np.ndarray:
+        """Per column of group ``name``, how well the data excite it apart from the group's
+        other columns: ``sqrt(VIF)``, the square root of the variance inflation factor of the
+        weighted, unit-scaled columns (1: orthogonal to the others; ∞: a combination of them)
+        over all folds and joints."""
+        gram, _ = self._normal([name], weights, np.ones(len(self.folds)))
+        d = np.sqrt(np.clip(np.diag(gram), 0.0, None))
+        out = np.full(d.size, np.inf)
+        live = d > 1e-150 * max(1.0, float(d.max(initial=0.0)))
+        if not live.any():
+            return out
+        gs = gram[np.ix_(live, live)] / np.outer(d[live], d[live])
+        evals, evecs = np.linalg.eigh(0.5 * (gs + gs.T))
+        floor = 1e-300
+        inv_diag = (evecs**2 / np.maximum(evals, floor)).sum(axis=1)
+        out[live] = np.sqrt(np.maximum(inv_diag, 1.0))
+        return out
 
     def fold_sse(self, sol: Solution) -> np.ndarray:
         """SSE of ``sol`` per fold and joint, shape (K, n)."""

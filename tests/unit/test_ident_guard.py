@@ -1,0 +1,106 @@
+"""The guard of ``analyze`` (:func:`control.identification.analyze.guard_joints`): a joint whose
+model does worse on held-out training folds than plain least squares, the URDF's nominal rigid
+body with Coulomb/viscous friction, or zero falls back to the best of them; the choice is in
+the model file."""
+
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+
+from control.identification.analyze import AnalyzeOptions, guard_joints
+from control.identification.datafile import Measurements
+from control.identification.fit import IdentifiedModel, make_context
+from control.identification.lsq import BlockLS, Evaluation, contiguous_folds
+from control.identification.preprocess import prepare
+from control.identification.rigid import RobotRegressor
+from control.identification.terms import FrictionTerm, RigidTerm
+
+ARM = """<robot name="two">
+  <link name="base"/>
+  <link name="l1"><inertial><origin xyz="0.3 0 0"/><mass value="12"/>
+    <inertia ixx="0.05" ixy="0" ixz="0" iyy="0.4" iyz="0" izz="0.4"/></inertial></link>
+  <link name="l2"><inertial><origin xyz="0.2 0 0.05"/><mass value="4"/>
+    <inertia ixx="0.02" ixy="0" ixz="0" iyy="0.1" iyz="0" izz="0.1"/></inertial></link>
+  <joint name="j1" type="revolute"><parent link="base"/><child link="l1"/>
+    <axis xyz="0 1 0"/><limit lower="-2" upper="2" effort="500" velocity="2"/></joint>
+  <joint name="j2" type="revolute"><parent link="l1"/><child link="l2"/>
+    <origin xyz="0.6 0 0"/><axis xyz="0 1 0"/>
+    <limit lower="-2" upper="2" effort="500" velocity="2"/></joint>
+</robot>"""
+
+
+def _run() -> Measurements:
+    rng = np.random.default_rng(5)
+    t = np.arange(12_000) / 200.0
+    w = 2 * np.pi * np.array([[0.13, 0.29], [0.17, 0.41]])
+    q = np.column_stack([0.7 * np.sin(w[j, 0] * t) + 0.3 * np.sin(w[j, 1] * t + j) for j in (0, 1)])
+    dq = np.column_stack(
+        [
+            0.7 * w[j, 0] * np.cos(w[j, 0] * t) + 0.3 * w[j, 1] * np.cos(w[j, 1] * t + j)
+            for j in (0, 1)
+        ]
+    )
+    ddq = np.gradient(dq, t, axis=0)
+    model = pin.buildModelFromXML(ARM)
+    data = model.createData()
+    tau = np.array([pin.rnea(model, data, a, b, c) for a, b, c in zip(q, dq, ddq, strict=True)])
+    tau += np.array([3.0, 1.0]) * np.sign(dq) + 0.2 * rng.standard_normal(tau.shape)
+    return Measurements(t, q, dq, tau, None, source="two.csv")
+
+
+def test_a_joint_worse_than_its_fallbacks_gets_the_best_one():
+    reg = RobotRegressor(ARM)
+    data = prepare(_run(), 200.0, 10.0, 40.0)
+    ctx = make_context(reg, data)
+    folds = contiguous_folds(data.n_samples, 5)
+    ls = BlockLS(data.tau, folds)
+    ls.add("rigid", RigidTerm().columns(ctx))
+    names = ["rigid"]
+    for j in range(2):
+        term = FrictionTerm(j, "simple", 0.002, 1.0)
+        ls.add(term.key, term.columns(ctx))
+        names.append(term.key)
+    good = ls.evaluate(names, np.ones(2))
+    # the same model, its joint-1 held-out error pretended 100x worse, joint 2's better
+    sse = good.cv_sse * [1e4, 0.5]
+    bad = Evaluation(good.fit_sse, sse, good.rank, good.n_rows, good.solution)
+    guard = guard_joints(reg, ctx, data.tau, folds, None, bad, AnalyzeOptions())
+    assert guard[1].fallback is None
+    fallback = guard[0].fallback
+    # the data are the URDF's own rigid body + Coulomb: the nominal fallback fits them best
+    assert fallback is not None and fallback.kind == "nominal"
+    np.testing.assert_allclose(fallback.beta, reg.base.base_values(reg.parameters()))
+    assert abs(fallback.coulomb_nm - 3.0) < 0.2
+    cv = guard[0].cv_rms
+    assert cv["nominal"] < cv["plain_ls"] < cv["zero"] and cv["nominal"] < cv["model"]
+    assert guard[0].to_json()["kept"] == "nominal"
+    assert guard[0].reason.endswith("nominal kept")
+
+
+def test_fallback_kind_is_saved_and_loaded(tmp_path):
+    from control.identification.analyze import analyze
+    from control.identification.datafile import write_measurements
+
+    m = _run()
+    half = m.t.size // 2
+    for name, rows in (("train", slice(0, half)), ("test", slice(half, None))):
+        write_measurements(
+            tmp_path / f"{name}.csv",
+            Measurements(m.t[rows], m.q[rows], m.dq[rows], m.tau[rows], None, source=name),
+        )
+    (tmp_path / "two.urdf").write_text(ARM)
+    summary = analyze(
+        tmp_path / "two.urdf",
+        [tmp_path / "train.csv"],
+        [tmp_path / "test.csv"],
+        tmp_path / "out",
+        AnalyzeOptions(plots=False, find_effects=False),
+        progress=lambda _line: None,
+    )
+    kept = [g["kept"] for g in summary["guard"]["joints"]]
+    assert set(kept) <= {"model", "plain_ls", "nominal", "zero"} and len(kept) == 2
+    model = IdentifiedModel.load(tmp_path / "out" / "model.json")
+    assert {j + 1: pj.kind for j, pj in model.plain_joints.items()} == {
+        g["joint"]: g["kept"] for g in summary["guard"]["joints"] if g["kept"] != "model"
+    }
