@@ -37,3 +37,19 @@ def test_shift_is_exact_on_a_smooth_signal_and_per_segment():
         np.testing.assert_allclose(got[inner], x(t + delta)[inner], atol=2e-4)
     one = shift_signal(t, segment, np.sin(t), 0.01)
     assert one.shape == t.shape
+
+
+def test_delay_refinement_finds_a_v_shaped_minimum_between_scan_points():
+    """Near its optimum the error of a torque with friction steps grows like |δ - δ₀|: a
+    parabola through the three best scan points misses δ₀, the bounded search does not."""
+    from control.identification.effects import DELAY_TOLERANCE_S, _refine
+
+    true = 0.0121
+
+    def error_of(d: float) -> float:
+        return abs(d - true) + 0.2 * (d - true) ** 2
+
+    deltas = 0.005 * np.arange(-20, 21)
+    errors = np.array([error_of(d) for d in deltas])
+    assert abs(_refine(deltas, errors, error_of) - true) <= 2 * DELAY_TOLERANCE_S
+    assert _refine(deltas, errors) == pytest.approx(0.01)  # the scan alone: its best point
