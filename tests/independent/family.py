@@ -97,7 +97,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import subprocess
 import sys
 import tempfile
 import time
@@ -111,7 +110,7 @@ import numpy as np
 import pinocchio as pin
 
 from .baseline import base_columns, regressor
-from .generator import write_csv
+from .generator import rnea_rows, write_csv
 from .table import (
     DEFAULT_TIMEOUT_S,
     FLOOR_FACTOR,
@@ -121,6 +120,7 @@ from .table import (
     filtered_rms,
     main_parameter_check,
 )
+from .table import run_analyze as table_run_analyze
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -789,13 +789,7 @@ def held_out_excitation(
 # --------------------------------------------------------------------------- torques
 
 
-def rigid_torque(model, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> np.ndarray:
-    """``pin.rnea`` per sample [N·m], (T, n)."""
-    data = model.createData()
-    out = np.empty_like(q)
-    for i in range(q.shape[0]):
-        out[i] = pin.rnea(model, data, q[i], dq[i], ddq[i])
-    return out
+rigid_torque = rnea_rows
 
 
 @dataclass(frozen=True)
@@ -1329,51 +1323,10 @@ def criteria(
 
 def run_analyze(draw_dir: Path, paths: dict[str, Path], timeout_s: float) -> dict[str, Any]:
     """:func:`.table.run_analyze` with ``--no-plots``, from the repository root: exit code,
-    seconds, the summary (or None) and an error text (or None)."""
-    out = draw_dir / "analyze"
-    cmd = [
-        sys.executable,
-        "-m",
-        "gateway.cli",
-        "analyze",
-        "--urdf",
-        str(paths["urdf"]),
-        "--train",
-        str(paths["train"]),
-        "--test",
-        str(paths["test"]),
-        "--out",
-        str(out),
-        "--no-plots",
-    ]
-    log = draw_dir / "analyze.log"
-    start = time.perf_counter()
-    result: dict[str, Any] = {"command": cmd, "log": str(log), "summary": None, "error": None}
-    try:
-        proc = subprocess.run(
-            cmd, capture_output=True, text=True, timeout=timeout_s, check=False, cwd=ROOT
-        )
-        result["exit_code"] = proc.returncode
-        log.write_text(f"$ {' '.join(cmd)}\n--- stdout\n{proc.stdout}\n--- stderr\n{proc.stderr}")
-        if proc.returncode != 0:
-            tail = (proc.stderr or proc.stdout).strip().splitlines()[-3:]
-            result["error"] = f"exit {proc.returncode}: " + " | ".join(tail)
-    except subprocess.TimeoutExpired:
-        result["exit_code"] = None
-        result["error"] = f"timeout after {timeout_s:.0f} s"
-    except OSError as exc:
-        result["exit_code"] = None
-        result["error"] = f"could not start: {exc}"
-    result["seconds"] = round(time.perf_counter() - start, 1)
-    summary_path = out / "summary.json"
-    if result["error"] is None:
-        if summary_path.exists():
-            try:
-                result["summary"] = json.loads(summary_path.read_text())
-            except (OSError, ValueError) as exc:
-                result["error"] = f"unreadable summary.json: {exc}"
-        else:
-            result["error"] = "no summary.json written"
+    seconds, the summary (None when analyze failed) and an error text (or None)."""
+    result = table_run_analyze(draw_dir, paths, timeout_s, ("--no-plots",), ROOT)
+    if result["error"] is not None:
+        result["summary"] = None
     return result
 
 

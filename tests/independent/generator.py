@@ -129,7 +129,11 @@ def excitation(seed: int, role: int, duration_s: float) -> Excitation:
 def rigid_torque(q: np.ndarray, dq: np.ndarray, ddq: np.ndarray, payload: bool = False):
     """Rigid-body joint torque [N·m], (T, 6), by ``pin.rnea`` on the arm's URDF (with
     :data:`.arm.PAYLOAD` on the flange when ``payload``)."""
-    model = pin_model(payload)
+    return rnea_rows(pin_model(payload), q, dq, ddq)
+
+
+def rnea_rows(model, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> np.ndarray:
+    """``pin.rnea`` of ``model`` per sample [N·m], (T, n)."""
     data = model.createData()
     out = np.empty_like(q)
     for i in range(q.shape[0]):

@@ -38,6 +38,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -158,8 +159,15 @@ def compare(truth_effects: list[dict[str, Any]], found: list[Any]) -> dict[str, 
     return {"truth": verdicts, "extra": extra}
 
 
-def run_analyze(case_dir: Path, paths: dict[str, Path], timeout_s: float) -> dict[str, Any]:
-    """Run the CLI on one case; returns exit code, seconds, the summary (or None) and errors."""
+def run_analyze(
+    case_dir: Path,
+    paths: dict[str, Path],
+    timeout_s: float,
+    extra: Sequence[str] = (),
+    cwd: Path | None = None,
+) -> dict[str, Any]:
+    """Run the CLI on one case (``extra`` options appended, from ``cwd``); returns exit code,
+    seconds, the summary (or None) and errors."""
     out = case_dir / "analyze"
     cmd = [
         sys.executable,
@@ -174,12 +182,15 @@ def run_analyze(case_dir: Path, paths: dict[str, Path], timeout_s: float) -> dic
         str(paths["test"]),
         "--out",
         str(out),
+        *extra,
     ]
     log = case_dir / "analyze.log"
     start = time.perf_counter()
     result: dict[str, Any] = {"command": cmd, "log": str(log), "summary": None, "error": None}
     try:
-        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s, check=False)
+        proc = subprocess.run(
+            cmd, capture_output=True, text=True, timeout=timeout_s, check=False, cwd=cwd
+        )
         result["exit_code"] = proc.returncode
         log.write_text(f"$ {' '.join(cmd)}\n--- stdout\n{proc.stdout}\n--- stderr\n{proc.stderr}")
         if proc.returncode != 0:
