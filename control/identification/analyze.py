@@ -36,7 +36,7 @@ import numpy as np
 
 from control.identification import effects as fx
 from control.identification._blas import single_threaded_blas
-from control.identification.cutoff import CutoffChoice, choose_cutoff
+from control.identification.cutoff import CutoffChoice, candidates, choose_cutoff
 from control.identification.datafile import Measurements, read_measurements
 from control.identification.fit import (
     MODEL,
@@ -55,6 +55,7 @@ from control.identification.fit import (
 )
 from control.identification.lsq import BlockLS, contiguous_folds
 from control.identification.preprocess import (
+    DEFAULT_POSITION_CUTOFF_HZ,
     DEFAULT_RATE_HZ,
     DEFAULT_STICK_VELOCITY_RAD_S,
     DEFAULT_TORQUE_CUTOFF_HZ,
@@ -567,16 +568,35 @@ def _resolve_cutoffs(
     if options.position_cutoff_hz is None:
 
         def prepared(cutoff_hz: float, edge_hz: float, torque_hz: float) -> Prepared:
-            trial = replace(options, position_cutoff_hz=cutoff_hz, torque_cutoff_hz=torque_hz)
+            trial = replace(
+                options,
+                position_cutoff_hz=cutoff_hz,
+                torque_cutoff_hz=torque_hz,
+                skip_short_files=False,
+            )
             data = _prepare(train_m, trial, _quiet_clock(), [], edge_hz)
             return remove_cylinders(data, reg, desc)
 
         sample_hz = min(1.0 / float(np.median(np.diff(m.t))) for m in train_m)
-        choice = choose_cutoff(
-            reg, prepared, options.rate_hz, sample_hz, options.stick_velocity_rad_s,
-            options.search.folds, clock.say,
-        )  # fmt: skip
-        options = replace(options, position_cutoff_hz=choice.cutoff_hz)
+        grid = list(candidates(options.rate_hz, sample_hz))
+        while choice is None:
+            try:
+                choice = choose_cutoff(
+                    reg, prepared, options.rate_hz, sample_hz, options.stick_velocity_rad_s,
+                    options.search.folds, clock.say, grid,
+                )  # fmt: skip
+            except TooShortError:
+                # a low cutoff trims EDGE_PERIODS / cutoff at each end: too much for a short
+                # file; the lowest candidate goes, the position cutoff falls back when none is left
+                grid = grid[1:]
+                if len(grid) < 2:
+                    clock.say(
+                        "training files too short to compare cutoffs: position cutoff "
+                        f"{DEFAULT_POSITION_CUTOFF_HZ:g} Hz"
+                    )
+                    break
+        cutoff = choice.cutoff_hz if choice is not None else DEFAULT_POSITION_CUTOFF_HZ
+        options = replace(options, position_cutoff_hz=cutoff)
     if options.torque_cutoff_hz is None:
         top = max(choice.candidates_hz) if choice is not None else DEFAULT_TORQUE_CUTOFF_HZ
         options = replace(options, torque_cutoff_hz=max(top, options.position_cutoff_hz))

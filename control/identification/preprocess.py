@@ -275,7 +275,8 @@ def prepare(
     if not parts:
         raise TooShortError(
             f"{m.source}: too short to analyse: no gap-free stretch longer than "
-            f"{2 * EDGE_PERIODS / position_cutoff_hz:.2f} s plus {MIN_SEGMENT_SAMPLES} samples"
+            f"{2 * EDGE_PERIODS / (edge_cutoff_hz or position_cutoff_hz):.2f} s plus "
+            f"{MIN_SEGMENT_SAMPLES} samples"
         )
     cat = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
     return Prepared(

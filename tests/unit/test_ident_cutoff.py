@@ -87,3 +87,30 @@ def test_other_sample_rates_work(rate_hz):
     )
     assert max(choice.candidates_hz) <= 0.4 * min(200.0, rate_hz)
     assert choice.cutoff_hz in choice.candidates_hz
+
+
+@pytest.mark.parametrize("seconds", [4.0, 12.0])
+def test_short_files_drop_the_low_cutoffs_they_cannot_hold(tmp_path, seconds):
+    """A 2 Hz candidate trims 2.5 s at each end: a 4 s file cannot hold it, so the candidates
+    start higher; a 12 s file holds them all. analyze runs and says what it compared."""
+    from control.identification.analyze import AnalyzeOptions, analyze
+    from control.identification.datafile import write_measurements
+
+    for name, shift in (("train", 0.0), ("test", 7.0)):
+        m = _recording(1e-3, rate_hz=250.0, seconds=seconds)
+        write_measurements(
+            tmp_path / f"{name}.csv", Measurements(m.t + shift, m.q, m.dq, m.tau, None, name)
+        )
+    (tmp_path / "p.urdf").write_text(PENDULUM)
+    summary = analyze(
+        tmp_path / "p.urdf",
+        [tmp_path / "train.csv"],
+        [tmp_path / "test.csv"],
+        tmp_path / "out",
+        AnalyzeOptions(plots=False, find_effects=False),
+        progress=lambda _line: None,
+    )
+    choice = summary["cutoff_hz"]["choice"]
+    lowest = min(choice["candidates_hz"])
+    assert (lowest > 2.0) if seconds < 5.0 else (lowest == 2.0)
+    assert summary["cutoff_hz"]["position"] == choice["cutoff_hz"] in choice["candidates_hz"]
