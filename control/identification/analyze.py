@@ -3,7 +3,8 @@
 Stages (each timed in ``summary.json``'s ``timing_s``):
 
 1. read the ``--train`` and ``--test`` CSVs (:mod:`.datafile`);
-2. preprocess each file (:mod:`.preprocess`: filtering, and the measured noise floor); take
+2. preprocess each file (:mod:`.preprocess`: filtering, the position/velocity low-pass chosen
+   on the training files by :mod:`.cutoff`, and the measured noise floor); take
    assist-cylinder torque out (:mod:`.fit`);
 3. base regressor of the URDF on every sample (:mod:`.rigid`), filtered like the torque;
 4. fit rigid body + friction on the training files; the eq. (14), eq. (15) and simple friction
@@ -12,8 +13,9 @@ Stages (each timed in ``summary.json``'s ``timing_s``):
    test files;
 5. effects: case (A) on the training files, then case (B) on the first part of the test run
    (:mod:`.effects`);
-6. never worse than plain least squares: per joint, the plain fit of :func:`.fit.plain_columns`
-   replaces the model where its held-out error on the training files is lower;
+6. the guard (:func:`guard_joints`): per joint, plain least squares (by the margin), the URDF's
+   nominal rigid body with Coulomb/viscous friction, or zero replaces the model where its
+   held-out error on the training files is lower;
 7. validate on the test files and plot (:mod:`.validate`);
 8. write ``model.json``, ``summary.json`` and ``report.md`` (:mod:`.report`).
 
@@ -50,6 +52,7 @@ from control.identification.fit import (
     make_context,
     model_from_solution,
     plain_columns,
+    plain_friction_columns,
     plain_key,
     remove_cylinders,
 )
@@ -425,7 +428,7 @@ def guard_joints(
     nominal = BlockLS(y - rigid_nominal, folds, mask)
     names = []
     for j in range(y.shape[1]):
-        nominal.add(f"nominal:{j}", {j: plain_columns(ctx, j)[j][:, -2:]})
+        nominal.add(f"nominal:{j}", {j: plain_friction_columns(ctx, j)})
         names.append(f"nominal:{j}")
     nominal_eval = nominal.evaluate(names, np.ones(y.shape[1]))
     zero_sse = BlockLS(y, folds, mask).evaluate([], np.ones(y.shape[1])).cv_sse
@@ -563,7 +566,8 @@ def _resolve_cutoffs(
     clock: _Clock,
 ) -> tuple[AnalyzeOptions, CutoffChoice | None]:
     """``options`` with both cutoffs set: a missing position cutoff chosen on the training
-    files (:func:`.cutoff.choose_cutoff`), a missing torque cutoff equal to it."""
+    files (:func:`.cutoff.choose_cutoff`; 20 Hz where they are too short to compare two
+    candidates), a missing torque cutoff the highest candidate, never below the position one."""
     choice = None
     if options.position_cutoff_hz is None:
 

@@ -115,13 +115,10 @@ def choose_cutoff(
     cands = tuple(sorted(grid)) if grid is not None else candidates(rate_hz, sample_hz)
     low, high = cands[0], cands[-1]
     reference = prepare(high, low, high)
-    smooth = prepare(low, low, low)
-    mask = sliding_mask(smooth, stick_velocity_rad_s, 1.0 / low)
-    mse = []
-    for c in cands:
-        data = reference if c == high else prepare(c, low, high)
-        mse.append(_heldout(reg, data, mask, folds))
-    table = np.array(mse)
+    data = {c: reference if c == high else prepare(c, low, high) for c in cands}
+    # stuck rows from the smoothest velocity, one mask for every candidate
+    mask = sliding_mask(data[low], stick_velocity_rad_s, 1.0 / low)
+    table = np.array([_heldout(reg, data[c], mask, folds) for c in cands])
     best = np.min(table, axis=0)
     rel = table / np.where(best > 0, best, 1.0)
     score = rel.sum(axis=1)

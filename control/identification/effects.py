@@ -311,14 +311,34 @@ def _refine(
     torque with friction steps grows like |δ - δ₀|, not (δ - δ₀)²; it missed a 12.1 ms delay
     by 0.3 ms, which left a heavy joint at 4x its noise floor.)"""
     i = int(np.argmin(errors))
-    step = float(deltas[1] - deltas[0]) if deltas.size > 1 else 0.0
-    if error_of is None or step == 0.0:
+    if error_of is None or deltas.size < 2:
         return float(deltas[i])
     lo, hi = float(deltas[max(i - 1, 0)]), float(deltas[min(i + 1, deltas.size - 1)])
+    return _search_delay(error_of, lo, hi, float(deltas[i]), float(errors[i]))
+
+
+def _search_delay(
+    error_of: Callable[[float], float], lo: float, hi: float, best: float, best_error: float
+) -> float:
+    """Bounded scalar search of ``error_of`` on [lo, hi] to :data:`DELAY_TOLERANCE_S`; ``best``
+    (error ``best_error``) unless the search found lower."""
     res = minimize_scalar(
         error_of, bounds=(lo, hi), method="bounded", options={"xatol": DELAY_TOLERANCE_S}
     )
-    return float(res.x) if res.fun < errors[i] else float(deltas[i])
+    return float(res.x) if res.fun < best_error else best
+
+
+def _fit_error_fn(
+    ls: BlockLS, names: Sequence[str], weights: np.ndarray, y_of: Callable[[float], np.ndarray]
+) -> Callable[[float], float]:
+    """``delay → weighted in-sample SSE`` of the groups ``names`` refitted on targets
+    ``y_of(delay)`` (left in ``ls``)."""
+
+    def error_of(d: float) -> float:
+        ls.set_y(y_of(float(d)))
+        return float(np.sum(weights**2 * ls.fold_sse(ls.solve(names, weights)).sum(axis=0)))
+
+    return error_of
 
 
 # --------------------------------------------------------------------------------------------
@@ -430,11 +450,9 @@ def _delay_all_along(
     options: Options,
 ) -> Verdict:
     deltas = _delays(options)
-
-    def error_of(d: float) -> float:
-        ls.set_y(shift_signal(data.t, data.segment, y0, float(d)))
-        return float(np.sum(weights**2 * ls.fold_sse(ls.solve(names, weights)).sum(axis=0)))
-
+    error_of = _fit_error_fn(
+        ls, names, weights, lambda d: shift_signal(data.t, data.segment, y0, d)
+    )
     delta = _refine(deltas, np.array([error_of(float(d)) for d in deltas]), error_of)
     ls.set_y(shift_signal(data.t, data.segment, y0, delta))
     ev = ls.evaluate(names, weights)
@@ -448,18 +466,11 @@ def _delay_again(
     ls: BlockLS, y0: np.ndarray, data: Prepared, names: list[str], weights: np.ndarray, near: float
 ) -> float:
     """The delay of least in-sample error within one scan step of ``near`` [s]."""
-
-    def error_of(d: float) -> float:
-        ls.set_y(shift_signal(data.t, data.segment, y0, float(d)))
-        return float(np.sum(weights**2 * ls.fold_sse(ls.solve(names, weights)).sum(axis=0)))
-
-    res = minimize_scalar(
-        error_of,
-        bounds=(near - DELAY_STEP_S, near + DELAY_STEP_S),
-        method="bounded",
-        options={"xatol": DELAY_TOLERANCE_S},
+    error_of = _fit_error_fn(
+        ls, names, weights, lambda d: shift_signal(data.t, data.segment, y0, d)
     )
-    return round(float(res.x), 6) if res.fun < error_of(near) else near
+    best = _search_delay(error_of, near - DELAY_STEP_S, near + DELAY_STEP_S, near, error_of(near))
+    return round(best, 6) if best != near else near
 
 
 def training_gain_fn(
@@ -590,11 +601,7 @@ def search_between(
         base_y = ls.y.copy()
         if with_delay:
             deltas = _delays(options)
-
-            def error_of(d: float) -> float:
-                ls.set_y((tau - shifted(float(d)))[fit_rows])
-                return float(np.sum(weights**2 * ls.evaluate(names, weights).fit_sse))
-
+            error_of = _fit_error_fn(ls, names, weights, lambda d: (tau - shifted(d))[fit_rows])
             errors = np.array([error_of(float(d)) for d in deltas])
             d_best = round(_refine(deltas, errors, error_of), 6)
             ls.set_y((tau - shifted(d_best))[fit_rows])

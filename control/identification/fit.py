@@ -265,8 +265,10 @@ class PlainJoint:
         return cls(joint, c[:-2].copy(), float(c[-2]), float(c[-1]))
 
     def friction(self, ctx: Context) -> np.ndarray:
-        dq = ctx.dq_of(self.joint)
-        return ctx.filtered(self.coulomb_nm * np.sign(dq) + self.viscous_nm_s_per_rad * dq)
+        return plain_friction_columns(ctx, self.joint) @ [
+            self.coulomb_nm,
+            self.viscous_nm_s_per_rad,
+        ]
 
 
 #: What predicts a joint's torque (:class:`PlainJoint`'s ``kind``, or the full model).
@@ -283,9 +285,14 @@ def plain_columns(ctx: Context, j: int) -> dict[int, np.ndarray]:
     its own, Coulomb ``sgn(dq_j)`` and viscous ``dq_j`` (velocity clipped to the envelope,
     columns filtered like the torque): the textbook fit the model must never do worse than."""
     assert ctx.y_base is not None
+    return {j: np.column_stack([ctx.y_base[j], plain_friction_columns(ctx, j)])}
+
+
+def plain_friction_columns(ctx: Context, j: int) -> np.ndarray:
+    """Coulomb ``sgn(dq_j)`` and viscous ``dq_j`` of joint j (velocity clipped to the
+    envelope), filtered like the torque, (T, 2): the friction of :func:`plain_columns`."""
     dq = ctx.dq_of(j)
-    friction = ctx.filtered(np.column_stack([np.sign(dq), dq]))
-    return {j: np.column_stack([ctx.y_base[j], friction])}
+    return ctx.filtered(np.column_stack([np.sign(dq), dq]))
 
 
 @dataclass
