@@ -68,35 +68,57 @@ class PlainLS:
     residual_test: np.ndarray
 
 
-def _columns(y: np.ndarray, dq: np.ndarray, j: int, cols: np.ndarray) -> np.ndarray:
-    return np.column_stack([y[:, j, cols], np.sign(dq[:, j]), dq[:, j]])
+def _design(
+    model, cols: list[np.ndarray], d: dict[str, np.ndarray], offset: bool, chunk: int
+) -> list[np.ndarray]:
+    """Per joint the plain-LS columns of one run: its base regressor columns, ``sgn dq_j``,
+    ``dq_j`` (and ``1`` with ``offset``); ddq = ``np.gradient`` of the measured dq. The
+    regressor is built ``chunk`` samples at a time (all of it at once is T × n × 10 n)."""
+    ddq = np.gradient(d["dq"], d["t"], axis=0)
+    n = model.nv
+    blocks: list[list[np.ndarray]] = [[] for _ in range(n)]
+    for s in range(0, d["t"].size, chunk):
+        sl = slice(s, s + chunk)
+        y = regressor(model, d["q"][sl], d["dq"][sl], ddq[sl])
+        for j in range(n):
+            blocks[j].append(y[:, j, cols[j]])
+    out = []
+    for j in range(n):
+        dq = d["dq"][:, j]
+        extra = [np.ones_like(dq)] if offset else []
+        out.append(np.column_stack([np.vstack(blocks[j]), np.sign(dq), dq, *extra]))
+    return out
 
 
-def plain_ls(urdf_xml: str, train: dict[str, np.ndarray], test: dict[str, np.ndarray]):
+def plain_ls(
+    urdf_xml: str,
+    train: dict[str, np.ndarray],
+    test: dict[str, np.ndarray],
+    offset: bool = False,
+    chunk: int = 4000,
+):
     """Fit on ``train``, judge on ``test``; each a dict with ``t`` [s] (T,), ``q`` [rad],
     ``dq`` [rad/s], ``tau`` [N·m] (T, n) (as :func:`.generator.read_csv` returns, or built
-    from a :class:`.generator.Run`). Returns a :class:`PlainLS`."""
+    from a :class:`.generator.Run`). ``offset`` adds a constant column per joint. Returns a
+    :class:`PlainLS`."""
     model = pin.buildModelFromXML(urdf_xml)
     cols = base_columns(model)
-    sets = []
-    for d in (train, test):
-        ddq = np.gradient(d["dq"], d["t"], axis=0)
-        sets.append((regressor(model, d["q"], d["dq"], ddq), d["dq"], d["tau"]))
-    (y_tr, dq_tr, tau_tr), (y_te, dq_te, tau_te) = sets
+    a_tr, a_te = (_design(model, cols, d, offset, chunk) for d in (train, test))
+    tau_tr, tau_te = train["tau"], test["tau"]
     n = model.nv
     rms_test, rms_train = np.zeros(n), np.zeros(n)
     coulomb, viscous = np.zeros(n), np.zeros(n)
     residual = np.zeros_like(tau_te)
+    k = 3 if offset else 2  # Coulomb and viscous are the k-th and (k-1)-th last columns
     for j in range(n):
-        a = _columns(y_tr, dq_tr, j, cols[j])
+        a = a_tr[j]
         scale = np.linalg.norm(a, axis=0)
         scale[scale == 0] = 1.0
         theta = np.linalg.lstsq(a / scale, tau_tr[:, j], rcond=None)[0] / scale
         rms_train[j] = np.sqrt(np.mean((tau_tr[:, j] - a @ theta) ** 2))
-        pred = _columns(y_te, dq_te, j, cols[j]) @ theta
-        residual[:, j] = tau_te[:, j] - pred
+        residual[:, j] = tau_te[:, j] - a_te[j] @ theta
         rms_test[j] = np.sqrt(np.mean(residual[:, j] ** 2))
-        coulomb[j], viscous[j] = theta[-2], theta[-1]
+        coulomb[j], viscous[j] = theta[-k], theta[-k + 1]
     n_base = np.array([c.size for c in cols])
     return PlainLS(rms_test, rms_train, n_base, coulomb, viscous, residual)
 

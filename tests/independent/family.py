@@ -109,7 +109,7 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
-from .baseline import base_columns, regressor
+from .baseline import plain_ls, run_arrays
 from .generator import rnea_rows, write_csv
 from .table import (
     DEFAULT_TIMEOUT_S,
@@ -1175,36 +1175,11 @@ def write_draw(directory: Path | str, d: Draw) -> dict[str, Path]:
 # --------------------------------------------------------------------------- plain LS
 
 
-def plain_ls_offset(urdf_xml: str, train: Run, test: Run, chunk: int = 4000):
+def plain_ls_offset(urdf_xml: str, train: Run, test: Run) -> tuple[np.ndarray, np.ndarray]:
     """Plain least squares per joint as :mod:`.baseline` fits it, plus an offset column:
-    base regressor columns, ``sgn dq_j``, ``dq_j``, ``1``; ddq = ``np.gradient`` of the
-    measured dq. Returns (raw held-out RMS (n,), held-out residual (T, n)) [N·m]."""
-    model = pin.buildModelFromXML(urdf_xml)
-    cols = base_columns(model)
-    n = model.nv
-
-    def design(run: Run) -> list[np.ndarray]:
-        ddq = np.gradient(run.dq, run.t, axis=0)
-        blocks: list[list[np.ndarray]] = [[] for _ in range(n)]
-        for s in range(0, run.t.size, chunk):
-            sl = slice(s, s + chunk)
-            y = regressor(model, run.q[sl], run.dq[sl], ddq[sl])
-            for j in range(n):
-                blocks[j].append(y[:, j, cols[j]])
-        out = []
-        for j in range(n):
-            dq = run.dq[:, j]
-            out.append(np.column_stack([np.vstack(blocks[j]), np.sign(dq), dq, np.ones_like(dq)]))
-        return out
-
-    a_tr, a_te = design(train), design(test)
-    residual = np.zeros_like(test.tau)
-    for j in range(n):
-        scale = np.linalg.norm(a_tr[j], axis=0)
-        scale[scale == 0] = 1.0
-        theta = np.linalg.lstsq(a_tr[j] / scale, train.tau[:, j], rcond=None)[0] / scale
-        residual[:, j] = test.tau[:, j] - a_te[j] @ theta
-    return np.sqrt(np.mean(residual**2, axis=0)), residual
+    (raw held-out RMS (n,), held-out residual (T, n)) [N·m]."""
+    fit = plain_ls(urdf_xml, run_arrays(train), run_arrays(test), offset=True)
+    return fit.rms_test, fit.residual_test
 
 
 # --------------------------------------------------------------------------- scoring
