@@ -264,6 +264,7 @@ def _fit_families(
             "rms_train_cv": fit.evaluation.cv_rms.tolist(),
             "rms_test": rms(run.test.tau - pred).tolist(),
             "q_e_rad_s": [t.q_e_rad_s for t in fit.terms],
+            "sign_width_rad_s": [t.sign_width_rad_s for t in fit.terms],
         }
     return fits, comparison
 

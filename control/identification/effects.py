@@ -43,8 +43,17 @@ A candidate is accepted only if
 (iv) case (B) only, *it holds forward in time* (:func:`forward_gain`): fitted on the first
     half of its part of the test run, the candidate lowers the RMS of the second half on its
     improved joints by at least half the margin, and no joint's by less than
-    -:data:`WORSEN_TOLERANCE`. Checked on the acceptable candidates in order of their score;
-    the first that holds is taken.
+    -:data:`WORSEN_TOLERANCE`;
+(v) case (B) only, *it holds where the training run went*: the same forward gain, scored only
+    on the test rows inside the training envelope (every joint's q and dq within the training
+    run's range), reaches half the margin on the improved joints. Outside the envelope the
+    fixed model extrapolates, and any term fitted on the test run there learns the
+    extrapolation error (a spurious Stribeck or drift term for a friction shape the declared
+    model lacks); an effect that really appeared shows where the model is known to hold. With
+    fewer than :data:`MIN_INSIDE_SHARE` of those rows inside, nothing is accepted in case (B).
+
+Rules (iv) and (v) are checked on the acceptable candidates in order of their score; the
+first that holds is taken.
 
 Among the acceptable ones the largest drop of the weighted held-out error wins.
 """
@@ -66,6 +75,8 @@ MARGIN = 0.10
 #: Family-wise probability, per search round, of accepting a candidate that only fits noise.
 ALPHA = 0.01
 WORSEN_TOLERANCE = 0.05
+#: Rule (v): least share of the scored test rows inside the training envelope.
+MIN_INSIDE_SHARE = 0.1
 MAX_EFFECTS = 6
 DEFAULT_FOLDS = 5
 RIPPLE_CYCLES = (1, 200)
@@ -519,9 +530,11 @@ def forward_gain(
     key: str,
     cols: dict[int, np.ndarray] | None,
     y_after: np.ndarray | None = None,
+    scored: np.ndarray | None = None,
 ) -> np.ndarray:
-    """Rule (iv) of case (B): the relative RMS gain per joint (n,) on the second half of
-    ``ls``'s rows when the groups ``names`` plus the candidate are fitted on the first half.
+    """Rules (iv)/(v) of case (B): the relative RMS gain per joint (n,) on the second half of
+    ``ls``'s rows (those of them where ``scored`` (T,) is true, when given) when the groups
+    ``names`` plus the candidate are fitted on the first half.
 
     The candidate is a group ``key`` with columns ``cols``, or (a delay) targets ``y_after``.
     An effect that appeared between training and test is fitted on the start of the test run
@@ -530,16 +543,26 @@ def forward_gain(
     smooth mismatch of the training model on the test trajectory).
     """
     halves = BlockLS(ls.y, contiguous_folds(ls.n_rows, 2), ls.mask)
+    second = halves.folds[1]
+    keep = np.ones((ls.n_rows, ls.n)) if ls.mask is None else ls.mask
+    if scored is not None:
+        keep = keep * np.asarray(scored, dtype=float)[:, None]
+    keep = keep[second]
+
+    def second_sse(sol: Solution) -> np.ndarray:
+        r = halves.y[second] - halves.predict(sol, second)
+        return np.sum(r * r * keep, axis=0)
+
     for name in names:
         halves.add(name, ls.cols[name])
-    before = halves.fold_sse(halves.solve(list(names), weights, exclude_fold=1))[1]
+    before = second_sse(halves.solve(list(names), weights, exclude_fold=1))
     after_names = list(names)
     if y_after is not None:
         halves.set_y(y_after)
     if cols is not None:
         halves.add(key, cols)
         after_names.append(key)
-    after = halves.fold_sse(halves.solve(after_names, weights, exclude_fold=1))[1]
+    after = second_sse(halves.solve(after_names, weights, exclude_fold=1))
     return 1.0 - np.sqrt(np.maximum(after, 0.0) / np.maximum(before, 1e-300))
 
 
@@ -583,6 +606,10 @@ def search_between(
     accepted: list[Accepted] = []
     delay = 0.0
     current = ls.evaluate(names, weights)
+    inside, inside_share = None, 1.0
+    if ctx.envelope is not None:
+        inside = ~np.any(ctx.envelope.outside(data.q, data.dq), axis=1)[fit_rows]
+        inside_share = float(np.mean(inside[contiguous_folds(n_fit, 2)[1]]))
 
     def shifted(d: float) -> np.ndarray:
         return shift_signal(data.t, data.segment, model_prediction, -d) if d else model_prediction
@@ -618,15 +645,34 @@ def search_between(
             y_after = (tau - shifted(v.delay_s))[fit_rows] if v.term.name == "time_delay" else None
             cols = None if y_after is not None else _rows(v.term.columns(ctx), fit_rows)
             gain = forward_gain(ls, names, weights, v.term.key, cols, y_after)
-            if np.all(gain[list(v.improved)] >= 0.5 * options.margin) and np.all(
-                gain >= -WORSEN_TOLERANCE
+            if not (
+                np.all(gain[list(v.improved)] >= 0.5 * options.margin)
+                and np.all(gain >= -WORSEN_TOLERANCE)
             ):
-                best = v
-                break
-            progress(
-                f"refused {_describe(v)}: fitted on the first half of its rows, it does not "
-                f"hold on the second (held-out RMS gain {np.array2string(gain, precision=3)})"
-            )
+                progress(
+                    f"refused {_describe(v)}: fitted on the first half of its rows, it does not "
+                    f"hold on the second (held-out RMS gain {np.array2string(gain, precision=3)})"
+                )
+                continue
+            if inside is not None:
+                if inside_share < MIN_INSIDE_SHARE:
+                    progress(
+                        f"refused {_describe(v)}: only {inside_share:.0%} of the test rows it "
+                        "would be judged on are inside the training envelope, too few to tell "
+                        "an effect that appeared from the model's extrapolation"
+                    )
+                    continue
+                gain = forward_gain(ls, names, weights, v.term.key, cols, y_after, inside)
+                if not np.all(gain[list(v.improved)] >= 0.5 * options.margin):
+                    progress(
+                        f"refused {_describe(v)}: it does not hold where the training run went "
+                        f"(held-out RMS gain inside the training envelope "
+                        f"{np.array2string(gain, precision=3)}): the model's extrapolation, "
+                        "not an effect that appeared"
+                    )
+                    continue
+            best = v
+            break
         if best is None:
             break
         term = best.term

@@ -38,7 +38,7 @@ from __future__ import annotations
 import hashlib
 import json
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -68,8 +68,14 @@ MODEL_VERSION = 3
 #: Versions :meth:`IdentifiedModel.load` reads: 2 lacks the envelope and the plain joints.
 READABLE_VERSIONS = (2, 3)
 #: Candidate transition velocities q_e [rad/s] of eqs. (16)-(17) for the grid search.
-Q_E_GRID_RAD_S = (0.002, 0.005, 0.01, 0.02, 0.05, 0.1, 0.2)
+Q_E_GRID_RAD_S = tuple(float(v) for v in np.geomspace(0.002, 0.2, 13))
 Q_E_SWEEPS = 2
+#: Sweeps after the first try only this many grid points either side of each joint's value.
+SWEEP_NEIGHBOURS = 2
+#: Candidate widths [rad/s] of eq. (15)'s smooth sign when it is not tied to q_e
+#: (:mod:`control.model.friction`): from a sign as sharp as the velocity's resolution allows to
+#: one as wide as the Stribeck decay.
+SIGN_WIDTH_GRID_RAD_S = (0.0005, 0.001, 0.002, 0.005, 0.01, 0.02, 0.05)
 #: Rows used by the q_e grid search at most (evenly thinned beyond): q_e is one number per
 #: joint and does not need every sample.
 Q_E_SEARCH_MAX_ROWS = 40_000
@@ -182,13 +188,15 @@ def fit_rigid_friction(
     gear_ratios: np.ndarray,
     q_e_grid: Sequence[float] = Q_E_GRID_RAD_S,
     progress: Progress | None = None,
+    sign_grid: Sequence[float] = SIGN_WIDTH_GRID_RAD_S,
 ) -> FrictionFit:
     """Rigid body + friction ``kind`` on ``ls`` (whose group "rigid" is already added).
 
-    q_e per joint by grid search on the held-out (contiguous K-fold) error of the joint, on at
-    most :data:`Q_E_SEARCH_MAX_ROWS` rows: q_e is a model choice, so it is chosen on data the
-    fit did not see. Then the two-step weighted LS on all rows; the friction groups are left
-    in ``ls``.
+    q_e per joint, and for eq. (15) the smooth sign's own width (``sign_grid``, or tied to q_e
+    as the paper writes), by coordinate grid search on the held-out (contiguous K-fold) error
+    of the joint, on at most :data:`Q_E_SEARCH_MAX_ROWS` rows: they are model choices, so they
+    are chosen on data the fit did not see. Then the two-step weighted LS on all rows; the
+    friction groups are left in ``ls``.
     """
     if kind not in FRICTION_MODELS:
         raise ConfigError(f"--friction: {kind!r} is not one of {list(FRICTION_MODELS)}")
@@ -205,23 +213,33 @@ def fit_rigid_friction(
         target.add("rigid", _thin(RigidTerm().columns(ctx), step))
     else:
         target = ls
-    grid = sorted(float(v) for v in q_e_grid)
+    grid: list[float | None] = sorted(float(v) for v in q_e_grid)
     q_e = [grid[len(grid) // 2]] * n
     terms = [FrictionTerm(j, kind, q_e[j], float(gear_ratios[j])) for j in range(n)]
     for term in terms:
         target.add(term.key, _thin(term.columns(ctx), step))
     names = ["rigid", *(t.key for t in terms)]
-    for _sweep in range(Q_E_SWEEPS if len(grid) > 1 else 0):
+    widths: list[float | None] = [None]
+    if kind == "eq15" and sign_grid:
+        widths += sorted(float(v) for v in sign_grid)
+    for sweep in range(Q_E_SWEEPS if len(grid) > 1 or len(widths) > 1 else 0):
         for j in range(n):
-            best = (np.inf, terms[j])
-            for value in grid:
-                cand = FrictionTerm(j, kind, value, float(gear_ratios[j]))
-                target.add(cand.key, _thin(cand.columns(ctx), step))
-                sse = target.evaluate(names, w0).cv_sse[j]
-                if sse < best[0]:
-                    best = (sse, cand)
-            terms[j] = best[1]
-            target.add(terms[j].key, _thin(terms[j].columns(ctx), step))
+            # the sign's width first: tied to q_e, a sharp sign would drag q_e down with it
+            for field_name, values in (("sign_width_rad_s", widths), ("q_e_rad_s", grid)):
+                if len(values) < 2:
+                    continue
+                if sweep:  # later sweeps refine around the value chosen: its grid neighbours
+                    at = values.index(getattr(terms[j], field_name))
+                    values = values[max(0, at - SWEEP_NEIGHBOURS) : at + SWEEP_NEIGHBOURS + 1]
+                best = (np.inf, terms[j])
+                for value in values:
+                    cand = replace(terms[j], **{field_name: value})
+                    target.add(cand.key, _thin(cand.columns(ctx), step))
+                    sse = target.evaluate(names, w0).cv_sse[j]
+                    if sse < best[0]:
+                        best = (sse, cand)
+                terms[j] = best[1]
+                target.add(terms[j].key, _thin(terms[j].columns(ctx), step))
     if target is not ls:
         for term in terms:
             ls.add(term.key, term.columns(ctx))
@@ -230,7 +248,13 @@ def fit_rigid_friction(
     weights = 1.0 / np.maximum(sigma, max(_SIGMA_FLOOR_NM, 1e-6 * float(sigma.max())))
     evaluation = ls.evaluate(names, weights)
     progress(
-        f"friction {kind}: q_e = {[t.q_e_rad_s for t in terms]} rad/s, training RMS "
+        f"friction {kind}: q_e = {[t.q_e_rad_s for t in terms]} rad/s"
+        + (
+            f", sign width {[t.sign_width_rad_s for t in terms]} rad/s"
+            if any(t.sign_width_rad_s is not None for t in terms)
+            else ""
+        )
+        + ", training RMS "
         f"{np.array2string(evaluation.fit_rms, precision=3)} N·m, held-out (K-fold) "
         f"{np.array2string(evaluation.cv_rms, precision=3)} N·m"
     )
@@ -548,7 +572,13 @@ class IdentifiedModel:
             names = FRICTION_PARAM_NAMES[kind]
             terms.append(
                 FrictionTerm(
-                    j, kind, float(entry["q_e_rad_s"]), float(entry.get("gear_ratio", 1.0))
+                    j,
+                    kind,
+                    float(entry["q_e_rad_s"]),
+                    float(entry.get("gear_ratio", 1.0)),
+                    None
+                    if entry.get("sign_width_rad_s") is None
+                    else float(entry["sign_width_rad_s"]),
                 )
             )
             coefs.append(np.array([float(entry[k]) for k in names]))

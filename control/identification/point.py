@@ -64,7 +64,7 @@ def _friction_fn(term: FrictionTerm, coef: np.ndarray) -> JointFn:
     c = [float(v) for v in coef]
     qe = float(term.q_e_rad_s)
     if term.kind == "eq15":
-        row = eq15_row(c, qe, term.gear_ratio)
+        row = eq15_row(c, qe, term.gear_ratio, term.sign_width_rad_s)
         return lambda q, dq: eq15_point(row, q, dq)
     if term.kind == "eq14":
         f1, f2, f3, f4, fc, fs, fv = c

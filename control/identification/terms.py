@@ -196,15 +196,23 @@ class Context:
 
 
 def friction_basis(
-    kind: str, q: np.ndarray, dq: np.ndarray, q_e: float, gear_ratio: float
+    kind: str,
+    q: np.ndarray,
+    dq: np.ndarray,
+    q_e: float,
+    gear_ratio: float,
+    sign_width: float | None = None,
 ) -> np.ndarray:
     """Friction design matrix of one joint, (T, m), columns :data:`FRICTION_PARAM_NAMES`.
 
-    ``eq15`` and ``eq14`` are :func:`control.model.friction.eq15_basis` / ``eq14_basis``;
-    ``simple`` is Coulomb ``s(dq) = tanh(dq / 2 q_e)``, viscous ``dq`` and a constant offset.
+    ``eq15`` and ``eq14`` are :func:`control.model.friction.eq15_basis` / ``eq14_basis``
+    (``sign_width``, eq. 15's own sign width, only for ``eq15``); ``simple`` is Coulomb
+    ``s(dq) = tanh(dq / 2 q_e)``, viscous ``dq`` and a constant offset.
     """
+    if sign_width is not None and kind != "eq15":
+        raise ValueError(f"friction {kind!r} has no separate sign width")
     if kind == "eq15":
-        return eq15_basis(q, dq, q_e, gear_ratio)
+        return eq15_basis(q, dq, q_e, gear_ratio, sign_width)
     if kind == "eq14":
         return eq14_basis(q, dq, q_e)
     if kind == "simple":
@@ -225,12 +233,14 @@ class RigidTerm:
 
 @dataclass(frozen=True)
 class FrictionTerm:
-    """Friction of one joint (0-based ``joint``) with transition velocity ``q_e`` [rad/s]."""
+    """Friction of one joint (0-based ``joint``) with transition velocity ``q_e`` [rad/s] and,
+    for eq. (15), the smooth sign's own width ``sign_width_rad_s`` (None: q_e)."""
 
     joint: int
     kind: str
     q_e_rad_s: float
     gear_ratio: float
+    sign_width_rad_s: float | None = None
 
     @property
     def key(self) -> str:
@@ -239,7 +249,12 @@ class FrictionTerm:
     def columns(self, ctx: Context) -> dict[int, np.ndarray]:
         j = self.joint
         basis = friction_basis(
-            self.kind, ctx.q_of(j), ctx.dq_of(j), self.q_e_rad_s, self.gear_ratio
+            self.kind,
+            ctx.q_of(j),
+            ctx.dq_of(j),
+            self.q_e_rad_s,
+            self.gear_ratio,
+            self.sign_width_rad_s,
         )
         return {j: ctx.filtered(basis)}
 
@@ -250,6 +265,8 @@ class FrictionTerm:
         out["q_e_rad_s"] = float(self.q_e_rad_s)
         if self.kind == "eq15":
             out["gear_ratio"] = float(self.gear_ratio)
+        if self.sign_width_rad_s is not None:
+            out["sign_width_rad_s"] = float(self.sign_width_rad_s)
         return out
 
 

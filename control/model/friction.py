@@ -13,6 +13,11 @@ term is odd in dq (friction opposes motion in both directions), τ_f is continuo
 at dq = 0, and for fixed q_e it is linear in the ten coefficients, which
 :func:`eq15_basis` exposes for identification. ``sgn(i_c)`` is replaced by the velocity sign:
 the model is evaluated on measured motion, and at rest the smooth sign gives zero.
+The paper uses one q_e for the sigmoid of eq. (16) and the decay of eq. (17); a fitted model
+may give the sign its own width ``q_sgn`` (``s(dq) = tanh(dq / (2 q_sgn))``, q_sgn = q_e when
+not given): a drive's sign change is often much sharper than its Stribeck decay, and tying the
+two makes the decay absorb the sign's shape (identification then reads the difference as a
+spurious Stribeck effect).
 R is the joint's gear ratio, as the paper writes (``q/R``); note that over a joint's range
 ``q/R`` stays small, so the f2 and f4 columns are nearly collinear with the Coulomb column.
 
@@ -76,10 +81,19 @@ class FrictionParams:
     tau_v2_nm_s2_per_rad2: float  #: quadratic viscous τ_v2 [N·m·s²/rad²]
     q_e_rad_s: float  #: transition velocity q_e of eqs. (16)-(17) [rad/s]
     gear_ratio: float  #: R, joint gear ratio [-]
+    #: width q_sgn of the smooth sign [rad/s]; None: q_e, as the paper writes
+    sign_width_rad_s: float | None = None
 
     def __post_init__(self) -> None:
         _check_positive("q_e_rad_s", self.q_e_rad_s)
         _check_positive("gear_ratio", self.gear_ratio)
+        if self.sign_width_rad_s is not None:
+            _check_positive("sign_width_rad_s", self.sign_width_rad_s)
+
+    @property
+    def sign_rad_s(self) -> float:
+        """The smooth sign's width [rad/s]: ``sign_width_rad_s``, or q_e without one."""
+        return self.q_e_rad_s if self.sign_width_rad_s is None else self.sign_width_rad_s
 
     def linear_parameters(self) -> np.ndarray:
         """The ten coefficients in :data:`EQ15_PARAM_NAMES` order, shape (10,)."""
@@ -87,13 +101,17 @@ class FrictionParams:
 
     @classmethod
     def from_linear(
-        cls, theta: np.ndarray | Sequence[float], q_e_rad_s: float, gear_ratio: float
+        cls,
+        theta: np.ndarray | Sequence[float],
+        q_e_rad_s: float,
+        gear_ratio: float,
+        sign_width_rad_s: float | None = None,
     ) -> FrictionParams:
         """Inverse of :meth:`linear_parameters` (e.g. from a least-squares fit on eq15_basis)."""
         values = [float(v) for v in np.asarray(theta, dtype=float).ravel()]
         if len(values) != len(EQ15_PARAM_NAMES):
             raise ValueError(f"expected {len(EQ15_PARAM_NAMES)} coefficients, got {len(values)}")
-        return cls(*values, q_e_rad_s=q_e_rad_s, gear_ratio=gear_ratio)
+        return cls(*values, q_e_rad_s, gear_ratio, sign_width_rad_s)
 
     @classmethod
     def from_table(cls, entry: Any, gear_ratio: float) -> FrictionParams:
@@ -149,14 +167,15 @@ class Eq15Friction:
 
     def __init__(self, params_list: Sequence[FrictionParams]) -> None:
         self.n = len(params_list)
-        p = _per_joint(params_list, (*EQ15_PARAM_NAMES, "q_e_rad_s", "gear_ratio"))
+        p = _per_joint(params_list, (*EQ15_PARAM_NAMES, "q_e_rad_s", "gear_ratio", "sign_rad_s"))
         self._p = p
-        self._half_inv_qe = 1.0 / (2.0 * p["q_e_rad_s"])
+        self._half_inv_sign = 1.0 / (2.0 * p["sign_rad_s"])
         self._inv_qe = 1.0 / p["q_e_rad_s"]
         self._inv_r = 1.0 / p["gear_ratio"]
         #: per joint, for :meth:`joint_torques_nm` (:func:`eq15_row`)
         self._rows = [
-            eq15_row(f.linear_parameters().tolist(), f.q_e_rad_s, f.gear_ratio) for f in params_list
+            eq15_row(f.linear_parameters().tolist(), f.q_e_rad_s, f.gear_ratio, f.sign_rad_s)
+            for f in params_list
         ]
 
     def __call__(self, q_rad: np.ndarray, dq_rad_s: np.ndarray) -> np.ndarray:
@@ -165,7 +184,7 @@ class Eq15Friction:
         dq = np.asarray(dq_rad_s, dtype=float)
         _check_shapes(q, dq, self.n)
         p = self._p
-        s = np.tanh(dq * self._half_inv_qe)  # smooth_sign
+        s = np.tanh(dq * self._half_inv_sign)  # smooth_sign
         qr = q * self._inv_r
         coulomb_like = (
             p["tau_s_nm"] * np.exp(-np.abs(dq) * self._inv_qe)
@@ -189,20 +208,26 @@ class Eq15Friction:
         ]
 
 
-def eq15_row(coef: Sequence[float], q_e_rad_s: float, gear_ratio: float) -> tuple[float, ...]:
+def eq15_row(
+    coef: Sequence[float],
+    q_e_rad_s: float,
+    gear_ratio: float,
+    sign_width_rad_s: float | None = None,
+) -> tuple[float, ...]:
     """The constants :func:`eq15_point` takes: the ten coefficients (:data:`EQ15_PARAM_NAMES`),
-    then 1/(2 q_e), 1/q_e, 1/R."""
+    then 1/(2 q_sgn), 1/q_e, 1/R (q_sgn = ``sign_width_rad_s``, or q_e without one)."""
     c = [float(v) for v in coef]
     if len(c) != len(EQ15_PARAM_NAMES):
         raise ValueError(f"eq. (15) takes {len(EQ15_PARAM_NAMES)} coefficients, got {len(c)}")
-    return (*c, 1.0 / (2.0 * q_e_rad_s), 1.0 / q_e_rad_s, 1.0 / gear_ratio)
+    sign = q_e_rad_s if sign_width_rad_s is None else sign_width_rad_s
+    return (*c, 1.0 / (2.0 * sign), 1.0 / q_e_rad_s, 1.0 / gear_ratio)
 
 
 def eq15_point(row: tuple[float, ...], q: float, dq: float) -> float:
     """Eq. (15) friction [N·m] of one joint at one sample, on plain floats; ``row`` from
     :func:`eq15_row`. ``math`` raises where numpy would return NaN."""
-    ts, tc, f1, f2, f3, f4, f5, f6, v1, v2, half_inv_qe, inv_qe, inv_r = row
-    s = math.tanh(dq * half_inv_qe)  # smooth_sign
+    ts, tc, f1, f2, f3, f4, f5, f6, v1, v2, half_inv_sign, inv_qe, inv_r = row
+    s = math.tanh(dq * half_inv_sign)  # smooth_sign
     qr = q * inv_r
     coulomb_like = (
         ts * math.exp(-abs(dq) * inv_qe)
@@ -225,12 +250,16 @@ def friction_eq15(
 
 
 def eq15_basis(
-    q_rad: np.ndarray, dq_rad_s: np.ndarray, q_e_rad_s: float, gear_ratio: float
+    q_rad: np.ndarray,
+    dq_rad_s: np.ndarray,
+    q_e_rad_s: float,
+    gear_ratio: float,
+    sign_width_rad_s: float | None = None,
 ) -> np.ndarray:
     """Design matrix of eq. (15) for one joint, shape (T, 10), columns :data:`EQ15_PARAM_NAMES`.
 
-    ``q_rad`` [rad] and ``dq_rad_s`` [rad/s] are that joint's samples, shape (T,). Given q_e
-    and R, ``eq15_basis(q, dq, q_e, R) @ params.linear_parameters()`` equals
+    ``q_rad`` [rad] and ``dq_rad_s`` [rad/s] are that joint's samples, shape (T,). Given q_e,
+    R and the sign width, ``eq15_basis(q, dq, q_e, R, w) @ params.linear_parameters()`` equals
     :func:`friction_eq15` for that joint [N·m].
     """
     q = np.atleast_1d(np.asarray(q_rad, dtype=float))
@@ -239,7 +268,9 @@ def eq15_basis(
         raise ValueError(f"q and dq must be 1-D of equal length, got {q.shape} and {dq.shape}")
     _check_positive("q_e_rad_s", q_e_rad_s)
     _check_positive("gear_ratio", gear_ratio)
-    s = smooth_sign(dq, q_e_rad_s)
+    if sign_width_rad_s is not None:
+        _check_positive("sign_width_rad_s", sign_width_rad_s)
+    s = smooth_sign(dq, q_e_rad_s if sign_width_rad_s is None else sign_width_rad_s)
     qr = q / gear_ratio
     return np.column_stack(
         [
