@@ -59,13 +59,59 @@ class FrictionTruth:
 
 
 @dataclass(frozen=True)
+class DrivesTruth:
+    """The drives: joint-side torque constant, current limit and gear ratio per joint."""
+
+    gain_nm_per_a: tuple[float, ...]  #: K [N·m/A], joint side
+    max_current_a: tuple[float, ...]  #: current limit [A]
+    gear_ratio: tuple[float, ...]  #: R [-]
+
+    def __post_init__(self) -> None:
+        n = len(self.gain_nm_per_a)
+        for name in ("gain_nm_per_a", "max_current_a", "gear_ratio"):
+            values = getattr(self, name)
+            require(len(values) == n, f"[drives].{name}", f"need {n} values, got {len(values)}")
+            require(all(v > 0 for v in values), f"[drives].{name}", "every value must be > 0")
+
+
+CYLINDER_LINKAGES = ("crank", "lever")
+
+
+@dataclass(frozen=True)
+class CylinderUnit:
+    """One assist cylinder's linkage (see ``gr630st_truth.toml``)."""
+
+    joint: int  #: 1-based joint it acts on
+    kind: str  #: "crank" (pivot, rod end |AB|, barrel end |AC|) or "lever" (arm |AB|)
+    piston_diameter_m: float
+    ab_m: float
+    sign: float  #: +1/-1: the direction of +q the cylinder's push turns the joint
+    ac_m: float = 0.0
+
+    def __post_init__(self) -> None:
+        where = f"[[cylinders.units]] (joint {self.joint})"
+        require(
+            self.kind in CYLINDER_LINKAGES, where, f"kind {self.kind!r} not in {CYLINDER_LINKAGES}"
+        )
+        require(self.piston_diameter_m > 0 and self.ab_m > 0, where, "sizes must be > 0")
+        require(self.sign in (1.0, -1.0), where, "sign must be +1 or -1")
+        require(self.kind != "crank" or self.ac_m > 0, where, "a crank needs ac_m > 0")
+
+
+@dataclass(frozen=True)
 class CylinderTruth:
     time_constant_s: float = 0.25  #: first-order lag of pressure towards its set-point
     noise_bar: float = 0.003  #: std of the transmitter noise [bar]
     initial_bar: tuple[float, float] = (6.0, 4.0)
+    units: tuple[CylinderUnit, ...] = ()
 
     def __post_init__(self) -> None:
         require(self.time_constant_s > 0, "[cylinders].time_constant_s", "must be > 0")
+        require(
+            len(self.units) == len(self.initial_bar),
+            "[cylinders].units",
+            f"need one linkage per pressure ({len(self.initial_bar)}), got {len(self.units)}",
+        )
 
 
 @dataclass(frozen=True)
@@ -198,6 +244,11 @@ class OperatorScript:
 class SimConfig:
     inner_loop: InnerLoopTruth
     friction: tuple[FrictionTruth, ...]
+    drives: DrivesTruth
+    #: the arm's MJCF: absolute, or a file beside this package
+    arm_mjcf: str = "gr630st_arm.xml"
+    #: 0: the truth as written; N > 0: a plant drawn around it (:mod:`sim_bridge.truth`)
+    plant_seed: int = 0
     timestep_s: float = 0.0005  #: physics and inner-loop step [s]
     realtime: bool = True  #: False: lock-step, as fast as the command loop answers
     lockstep_timeout_s: float = 0.25  #: lock-step: wall time to wait for a command set
@@ -218,6 +269,12 @@ class SimConfig:
             len(self.friction) == n, "[[friction]]", f"need {n} joints, got {len(self.friction)}"
         )
         require(len(self.initial_q_rad) == n, "initial_q_rad", f"need {n} values")
+        require(
+            len(self.drives.gain_nm_per_a) == n, "[drives]", f"need {n} joints like [inner_loop]"
+        )
+        require(self.plant_seed >= 0, "plant_seed", f"{self.plant_seed} must be >= 0")
+        for unit in self.cylinders.units:
+            require(1 <= unit.joint <= n, "[[cylinders.units]].joint", f"{unit.joint} not 1..{n}")
         require(0 < self.timestep_s <= 0.002, "timestep_s", f"{self.timestep_s} not in (0, 2 ms]")
         ratio = self.controller.cycle_period_s / self.timestep_s
         require(
@@ -231,6 +288,12 @@ class SimConfig:
                 f"[[effects]][{i}].kind",
                 f"{eff.get('kind')!r} not one of {EFFECT_KINDS}",
             )
+
+
+def arm_mjcf_path(cfg: SimConfig) -> Path:
+    """The arm's MJCF file of ``cfg`` (``arm_mjcf``, relative to this package)."""
+    p = Path(cfg.arm_mjcf)
+    return p if p.is_absolute() else Path(__file__).parent / p
 
 
 def load_sim_config(

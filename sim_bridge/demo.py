@@ -97,6 +97,12 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
         "OUT/demo.png and OUT/summary.json."
     )
     p.add_argument("--out", type=Path, default=Path("demo_out"), help="output folder")
+    p.add_argument(
+        "--plant-seed",
+        type=int,
+        default=0,
+        help="the virtual robot to teach (0: the documented default plant)",
+    )
 
 
 def cli_main(args: argparse.Namespace) -> int:
@@ -111,7 +117,9 @@ def cli_main(args: argparse.Namespace) -> int:
     }
     t0 = time.monotonic()
     print("starting the virtual cell, the drivers, the control process and the gateway ...")
-    with Stack(out / "run", sim_overrides={"operator": operator}) as stack:
+    with Stack(
+        out / "run", sim_overrides={"operator": operator}, plant_seed=args.plant_seed
+    ) as stack:
         stack.start()
         stack.start_teaching()
         print(f"teaching: the simulated operator guides the tool ({RELEASE_AFTER_S:.0f} s) ...")

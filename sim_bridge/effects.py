@@ -24,7 +24,6 @@ from gateway.config import require
 MOTION_RAD_S = 0.01
 
 if TYPE_CHECKING:
-    from control.robot.description import RobotDescription
     from sim_bridge.plant import Plant
 
 
@@ -61,7 +60,7 @@ class EffectSet:
         self,
         effects: tuple[dict[str, Any], ...],
         model: mujoco.MjModel,
-        desc: RobotDescription,
+        n: int,
         timestep_s: float,
     ) -> None:
         self.torque_effects: list[dict[str, Any]] = []
@@ -70,7 +69,6 @@ class EffectSet:
         self.onset_s: float | None = None  #: set by the simulator at teaching onset
         self.motion_s = 0.0  #: simulated time spent in motion so far [s]
         self.delay_steps = 0
-        n = len(desc.joints)
         for i, eff in enumerate(effects):
             where = f"[[effects]][{i}] ({eff.get('kind')})"
             kind = eff["kind"]

@@ -109,7 +109,10 @@ class Stack:
         cell_overrides: dict[str, Any] | None = None,
         lockstep: bool = False,
         quiet: bool = True,
+        plant_seed: int = 0,
     ) -> None:
+        """``plant_seed``: the virtual robot drawn (:mod:`sim_bridge.truth`; 0 is the truth
+        file as written)."""
         self.workdir = Path(workdir)
         self.workdir.mkdir(parents=True, exist_ok=True)
         self.lockstep = lockstep
@@ -141,11 +144,12 @@ class Stack:
         truth = deep_merge(
             truth,
             {
+                "plant_seed": plant_seed,
                 "endpoints": {
                     "can_interface": "seqpacket",
                     "can_channel": self.can_address,
                     "modbus_port": self.ports["modbus"],
-                }
+                },
             },
         )
         self.truth_cfg = deep_merge(truth, sim_overrides or {})

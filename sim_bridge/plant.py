@@ -1,6 +1,10 @@
 """The simulated robot: MuJoCo rigid bodies, the vendor's inner PI loop, true friction,
 assist cylinders with pressure lag, brakes, injected effects and the operator's hand.
 
+Everything here is the plant's own (:mod:`sim_bridge.physics`, :mod:`sim_bridge.truth`, the
+arm's MJCF): it imports nothing of the product's model, so a test of the product's model
+against the plant can fail when that model is wrong.
+
 Torque balance per joint (eq. (1) plus the cylinders and the hand):
 
     M(q) ddq + C dq + g(q) + τ_f(q, dq) = K sat(i_c) + T_cyl(q, p) + J(q)ᵀ F_hand + τ_effects
@@ -17,39 +21,37 @@ from collections.abc import Callable
 import mujoco
 import numpy as np
 
-from control.model.cylinders import cylinder_torque_nm
-from control.model.friction import Eq15Friction, FrictionParams
-from control.robot.description import RobotDescription
-from control.robot.mjcf import to_mjcf
 from sim_bridge.config import SimConfig
 from sim_bridge.effects import EffectSet
+from sim_bridge.physics import AssistCylinders, JointFriction
+from sim_bridge.truth import arm_spec, draw
 
-
-def friction_params(cfg: SimConfig, desc: RobotDescription) -> list[FrictionParams]:
-    return [
-        FrictionParams.from_table(ft, js.gear_ratio)
-        for ft, js in zip(cfg.friction, desc.joints, strict=True)
-    ]
+TOOL_SITE = "tool"
 
 
 class Plant:
-    """One robot arm. Call :meth:`step` once per physics timestep."""
+    """One robot arm, drawn for ``cfg.plant_seed`` (:mod:`sim_bridge.truth`); call :meth:`step`
+    once per physics timestep. :attr:`cfg` is the truth actually drawn."""
 
-    def __init__(self, desc: RobotDescription, cfg: SimConfig) -> None:
-        self.desc = desc
+    def __init__(self, cfg: SimConfig) -> None:
+        cfg = draw(cfg)
         self.cfg = cfg
-        self.n = len(desc.joints)
-        self.model = mujoco.MjModel.from_xml_string(to_mjcf(desc, timestep_s=cfg.timestep_s))
-        self.effects = EffectSet(cfg.effects, self.model, desc, cfg.timestep_s)
+        self.model = arm_spec(cfg).compile()
+        self.n = int(self.model.njnt)
+        #: joint limits [rad], (n,) each
+        self.lower_rad = self.model.jnt_range[: self.n, 0].copy()
+        self.upper_rad = self.model.jnt_range[: self.n, 1].copy()
+        self.effects = EffectSet(cfg.effects, self.model, self.n, cfg.timestep_s)
         self.data = mujoco.MjData(self.model)
         self.data.qpos[:] = cfg.initial_q_rad
-        self.tool_site = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_SITE, "tool")
+        self.tool_site = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_SITE, TOOL_SITE)
         self.last_body = self.model.site_bodyid[self.tool_site]
-        self.k_nm_per_a = np.array([j.drive_gain_nm_per_a for j in desc.joints])
-        self.i_max_a = np.array([j.max_current_a for j in desc.joints])
+        self.k_nm_per_a = np.array(cfg.drives.gain_nm_per_a)
+        self.i_max_a = np.array(cfg.drives.max_current_a)
         self.kp = np.array(cfg.inner_loop.kp_a_s_per_rad)
         self.ki = np.array(cfg.inner_loop.ki_a_per_rad)
-        self.friction = Eq15Friction(friction_params(cfg, desc))
+        self.friction = JointFriction(cfg.friction, cfg.drives.gear_ratio)
+        self.cylinders = AssistCylinders(cfg.cylinders.units, self.n)
         self.rng = np.random.default_rng(cfg.seed)
         self.pressure_bar = np.array(cfg.cylinders.initial_bar, dtype=float)
         self.pressure_set_bar = self.pressure_bar.copy()
@@ -126,7 +128,7 @@ class Plant:
         self._current_ticks += 1
         self.tau_motor_nm = self.k_nm_per_a * self.current_a
         tau_f = self.friction(q, dq)
-        tau_cyl = cylinder_torque_nm(q, self.pressure_bar, self.desc)
+        tau_cyl = self.cylinders.torque_nm(q, self.pressure_bar)
         tau_eff = self.effects.torque(self, q, dq)
         self.hand_force_n = self.hand(self) if self.hand is not None else np.zeros(3)
         d.qfrc_applied[: self.n] = self.tau_motor_nm - tau_f + tau_cyl + tau_eff

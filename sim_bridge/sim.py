@@ -38,7 +38,6 @@ from typing import Any, TextIO
 import can
 import numpy as np
 
-from control.robot.description import load_description
 from drivers.can.seqpacket import wait_readable
 from gateway.errors import ConfigError
 from gateway.messages import ControllerState
@@ -132,13 +131,12 @@ class VirtualCell:
         summary_path: Path | None = None,
     ) -> None:
         self.cfg = cfg
-        self.desc = load_description()
-        self.plant = Plant(self.desc, cfg)
+        self.plant = Plant(cfg)
         self.n = self.plant.n
         self.proto = controller_protocol(cfg.controller, self.n)
-        lower = np.array([j.lower_rad for j in self.desc.joints])
-        upper = np.array([j.upper_rad for j in self.desc.joints])
-        self.ctrl = VirtualController(cfg.controller, self.proto, lower, upper)
+        self.ctrl = VirtualController(
+            cfg.controller, self.proto, self.plant.lower_rad, self.plant.upper_rad
+        )
         self.operator = Operator(cfg.operator)
         self.plant.hand = self.operator.hand
         self.period_s = cfg.controller.cycle_period_s
@@ -383,6 +381,7 @@ class VirtualCell:
             "wake_late_p50_s": pct(50, late),
             "wake_late_p99_s": pct(99, late),
             "wake_late_max_s": pct(100, late),
+            "plant_seed": self.cfg.plant_seed,
             "can_endpoint": describe_can_endpoint(self.cfg.endpoints, self._can_fd),
             "scheduling": self.scheduling,
         }
@@ -401,6 +400,13 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--truth", type=Path, default=None, help="simulator config (private truth) TOML")
     p.add_argument(
+        "--plant-seed",
+        type=int,
+        default=None,
+        help="draw the plant from this seed (0: the truth file as written; default: its "
+        "plant_seed)",
+    )
+    p.add_argument(
         "--duration", type=float, default=None, help="stop after this simulated time [s]"
     )
     p.add_argument("--lockstep", action="store_true", help="run lock-step, faster than real time")
@@ -409,9 +415,12 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
 
 
 def cli_main(args: argparse.Namespace) -> int:
-    cfg = load_sim_config(args.truth)
+    overrides: dict[str, Any] = {}
     if args.lockstep:
-        cfg = load_sim_config(args.truth, {"realtime": False})
+        overrides["realtime"] = False
+    if args.plant_seed is not None:
+        overrides["plant_seed"] = args.plant_seed
+    cfg = load_sim_config(args.truth, overrides)
     cell = VirtualCell(cfg, args.log, args.summary)
 
     def _stop(signum: int, frame: object) -> None:

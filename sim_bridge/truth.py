@@ -1,0 +1,98 @@
+"""A virtual robot drawn from a seed: ``leadthrough sim --plant-seed N``.
+
+Seed 0 is the truth as written (``gr630st_truth.toml`` and the arm's MJCF, the documented
+default plant). Any other seed draws, independently per value and uniformly within:
+
+- inner-loop PI gains K_p, K_I: ±50 % (:data:`INNER_GAINS`);
+- joint friction, every coefficient and the Stribeck velocity: ±40 % (:data:`FRICTION`);
+- link masses ±15 % (the inertia about the COM scales with the mass) and each coordinate of a
+  link's centre of mass by up to ±15 % of its distance from the joint frame (:data:`INERTIALS`);
+- assist cylinders, bore, linkage lengths and pressure lag: ±10 % (:data:`CYLINDERS`).
+
+Each group draws from its own stream (``numpy.random.default_rng([seed, group])``), so a
+change to one group's draws leaves the others' as they were. Drive torque constants, current
+limits, sensors, kinematics and the command protocol are not drawn.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import mujoco
+import numpy as np
+
+from sim_bridge.config import SimConfig, arm_mjcf_path
+
+INNER_GAINS = 0.50
+FRICTION = 0.40
+INERTIALS = 0.15
+CYLINDERS = 0.10
+_GAINS, _FRICTION, _INERTIALS, _CYLINDERS = range(1, 5)
+
+
+def _factors(seed: int, group: int, shape: int | tuple[int, ...], spread: float) -> np.ndarray:
+    rng = np.random.default_rng([seed, group])
+    return rng.uniform(1.0 - spread, 1.0 + spread, shape)
+
+
+def draw(cfg: SimConfig) -> SimConfig:
+    """``cfg`` with its inner gains, friction and cylinders drawn for ``cfg.plant_seed`` (seed 0:
+    ``cfg`` itself). The inertials are drawn by :func:`arm_spec`."""
+    seed = cfg.plant_seed
+    if seed == 0:
+        return cfg
+    n = len(cfg.inner_loop.kp_a_s_per_rad)
+    g = _factors(seed, _GAINS, (2, n), INNER_GAINS)
+    inner = dataclasses.replace(
+        cfg.inner_loop,
+        kp_a_s_per_rad=tuple(float(v) for v in np.multiply(cfg.inner_loop.kp_a_s_per_rad, g[0])),
+        ki_a_per_rad=tuple(float(v) for v in np.multiply(cfg.inner_loop.ki_a_per_rad, g[1])),
+    )
+    f = _factors(seed, _FRICTION, (n, 11), FRICTION)
+    friction = tuple(
+        dataclasses.replace(
+            ft,
+            tau_s_nm=ft.tau_s_nm * f[j, 0],
+            tau_c_nm=ft.tau_c_nm * f[j, 1],
+            tau_v1_nm_s_per_rad=ft.tau_v1_nm_s_per_rad * f[j, 2],
+            tau_v2_nm_s2_per_rad2=ft.tau_v2_nm_s2_per_rad2 * f[j, 3],
+            q_e_rad_s=ft.q_e_rad_s * f[j, 4],
+            fourier_nm=tuple(float(v) for v in np.multiply(ft.fourier_nm, f[j, 5:])),
+        )
+        for j, ft in enumerate(cfg.friction)
+    )
+    units = cfg.cylinders.units
+    c = _factors(seed, _CYLINDERS, (len(units) + 1, 3), CYLINDERS)
+    cylinders = dataclasses.replace(
+        cfg.cylinders,
+        time_constant_s=cfg.cylinders.time_constant_s * c[-1, 0],
+        units=tuple(
+            dataclasses.replace(
+                u,
+                piston_diameter_m=u.piston_diameter_m * c[k, 0],
+                ab_m=u.ab_m * c[k, 1],
+                ac_m=u.ac_m * c[k, 2],
+            )
+            for k, u in enumerate(units)
+        ),
+    )
+    return dataclasses.replace(cfg, inner_loop=inner, friction=friction, cylinders=cylinders)
+
+
+def arm_spec(cfg: SimConfig) -> mujoco.MjSpec:
+    """The arm's MJCF as a spec with the timestep of ``cfg`` and, for a seed > 0, link masses,
+    centres of mass and inertias drawn around the file's (module docstring)."""
+    spec = mujoco.MjSpec.from_file(str(arm_mjcf_path(cfg)))
+    spec.option.timestep = cfg.timestep_s
+    if cfg.plant_seed == 0:
+        return spec
+    bodies = [b for b in spec.bodies if b.name != "world"]
+    f = _factors(cfg.plant_seed, _INERTIALS, (len(bodies), 4), INERTIALS)
+    for k, body in enumerate(bodies):
+        scale = f[k, 0]
+        com = np.array(body.ipos, dtype=float)
+        shift = (f[k, 1:] - 1.0) * np.linalg.norm(com)
+        body.mass = float(body.mass * scale)
+        body.ipos = com + shift
+        body.fullinertia = np.asarray(body.fullinertia, dtype=float) * scale
+    return spec
