@@ -10,6 +10,7 @@ LTC-1F on CAN FD (§10), through the controller-side API both protocol classes s
 from __future__ import annotations
 
 import logging
+from collections import deque
 from dataclasses import dataclass, field
 
 import can
@@ -90,6 +91,9 @@ class VirtualController:
         self.complete_for_cycle: int | None = None  #: cycle whose full set has arrived
         self.complete_hold = True
         self._new_set: tuple[np.ndarray, np.ndarray, bool] | None = None
+        #: reference updates on their way to the servo, oldest first, one per cycle: a set
+        #: (q, dq, hold), or None to freeze where the extrapolation has brought it
+        self._to_servo: deque[tuple[np.ndarray, np.ndarray, bool] | None] = deque()
 
     # --- inputs -------------------------------------------------------------------------
     def on_frame(self, msg: can.Message, wall_s: float) -> None:
@@ -149,7 +153,8 @@ class VirtualController:
         self.servo_requested = False
 
     def begin_cycle(self, now_s: float, q_rad: np.ndarray, wall_s: float) -> None:
-        """Apply what arrived during the last cycle, run the watchdogs, advance the counter.
+        """Accept what arrived during the last cycle, run the watchdogs, advance the counter.
+        The servo follows an accepted set ``[controller].command_delay_cycles`` cycles later.
 
         ``now_s`` is simulated time (command interpolation); ``wall_s`` is monotonic wall time
         (the host heartbeat is a wall-clock property, also in lock-step runs).
@@ -169,7 +174,9 @@ class VirtualController:
         ):
             self.state = ControllerState.HOLD
             self._set_ref(q_rad, np.zeros(self.n), now_s, hold=True)
+            self._to_servo.clear()
         new_set, self._new_set = self._new_set, None
+        update: tuple[np.ndarray, np.ndarray, bool] | None = None
         if self.state in (ControllerState.HOLD, ControllerState.EXTERNAL):
             if new_set is not None:
                 q_cmd, dq_cmd, hold = new_set
@@ -182,16 +189,26 @@ class VirtualController:
                     self.missed = 0
                     self.stats.command_sets += 1
                     self.stats.hold_sets += int(hold)
-                    self._set_ref(q_cmd, np.zeros(self.n) if hold else dq_cmd, now_s, hold)
+                    update = (q_cmd, np.zeros(self.n) if hold else dq_cmd, hold)
             elif self.state == ControllerState.EXTERNAL:
                 self.missed += 1
                 self.stats.missed_cycles += 1
-                # Freeze the reference where the extrapolation has brought it.
-                self._set_ref(self.reference(now_s)[0], np.zeros(self.n), now_s, hold=True)
                 if self.missed > self.spec.max_missed_cycles:
                     self._enter_fault(
                         FaultCode.CMD_TIMEOUT, f"{self.missed} cycles without commands"
                     )
+        if self.state in (ControllerState.HOLD, ControllerState.EXTERNAL):
+            self._to_servo.append(update)
+            if len(self._to_servo) > self.spec.command_delay_cycles:
+                applied = self._to_servo.popleft()
+                if applied is None:
+                    if self.state == ControllerState.EXTERNAL:
+                        # Nothing new: freeze where the extrapolation has brought it.
+                        self._set_ref(self.reference(now_s)[0], np.zeros(self.n), now_s, True)
+                else:
+                    self._set_ref(applied[0], applied[1], now_s, applied[2])
+        else:
+            self._to_servo.clear()
         if self.state in (ControllerState.HOLD, ControllerState.EXTERNAL):
             err = np.abs(self.reference(now_s)[0] - q_rad)
             if np.any(err > self.spec.max_following_error_rad):
