@@ -233,6 +233,10 @@ class OperatorScript:
 
     enabling_after_s: float = 0.0  #: sim time at which the enabling device is pressed
     release_after_s: float | None = None  #: after onset: enabling released (None: never)
+    #: sim time from which the operator holds the brake-release switch (None: never). With
+    #: the servo off the arm is then free: it moves under gravity, the cylinders, friction and
+    #: the hand (the paper's baseline); the hand's onset is that moment.
+    brake_release_after_s: float | None = None
     mode: str = "none"  #: none | force | path
     force_n: tuple[float, float, float] = (0.0, 0.0, 0.0)  #: world frame, mode force
     start_s: float = 0.5  #: after onset: the push starts

@@ -9,6 +9,7 @@ commands missed; writes a plot and a JSON summary.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import time
 from pathlib import Path
@@ -16,6 +17,8 @@ from typing import Any
 
 import numpy as np
 
+from sim_bridge.baseline import run_baseline
+from sim_bridge.config import load_sim_config
 from sim_bridge.harness import Stack
 
 #: [t_s, dx_m, dy_m, dz_m] from the tool position at teaching onset
@@ -32,6 +35,13 @@ DEMO_PATH = [
 RELEASE_AFTER_S = 18.0
 #: the operator's arm: stiff enough to steer a heavy arm along a line, like a painter's grip
 HAND = {"hand_stiffness_n_per_m": 1500.0, "hand_damping_n_s_per_m": 300.0, "max_force_n": 80.0}
+#: the baseline's second operator: a hand stiff and strong enough to keep the tool near the
+#: path, so its force is what the path needs from anyone
+BASELINE_STIFF_HAND = {
+    "hand_stiffness_n_per_m": 50_000.0,
+    "hand_damping_n_s_per_m": 3_000.0,
+    "max_force_n": 1.0e6,
+}
 
 
 def teaching_metrics(truth: dict[str, np.ndarray], summary: dict[str, Any]) -> dict[str, Any]:
@@ -98,6 +108,12 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--out", type=Path, default=Path("demo_out"), help="output folder")
     p.add_argument(
+        "--baseline",
+        action="store_true",
+        help="instead: the paper's baseline, servo off and brakes released, the operator drags "
+        "the arm along the same path (the plant alone, faster than real time)",
+    )
+    p.add_argument(
         "--plant-seed",
         type=int,
         default=0,
@@ -105,9 +121,41 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     )
 
 
+def baseline_main(out: Path, plant_seed: int) -> int:
+    """``--baseline``: the operator force with the servo off and the brakes released."""
+    cfg = dataclasses.replace(load_sim_config(), plant_seed=plant_seed)
+    duration = float(DEMO_PATH[-1][0])
+    print(
+        f"baseline: servo off, brakes released, cylinders at {cfg.cylinders.initial_bar} bar; "
+        f"the operator drags the tool along the demo's path ({duration:.1f} s) ..."
+    )
+    human = run_baseline(cfg, DEMO_PATH, HAND, duration)
+    needed = run_baseline(cfg, DEMO_PATH, BASELINE_STIFF_HAND, duration)
+    (out / "baseline.json").write_text(
+        json.dumps({"demo_hand": human, "stiff_unbounded_hand": needed}, indent=2)
+    )
+    rows = [
+        ("demo's hand (max 80 N): mean / peak force", f"{human['mean_force_n']:.1f} / "
+         f"{human['peak_force_n']:.1f} N"),
+        ("  of the time at its limit", f"{human['force_saturated_share'] * 100:.0f} %"),
+        ("  tool off the path, max", f"{human['max_tool_off_path_m'] * 1e3:.0f} mm"),
+        ("force the path needs: mean / peak", f"{needed['mean_force_n']:.1f} / "
+         f"{needed['peak_force_n']:.1f} N"),
+        ("  tool off the path, max", f"{needed['max_tool_off_path_m'] * 1e3:.0f} mm"),
+    ]  # fmt: skip
+    width = max(len(r[0]) for r in rows)
+    print()
+    for name, value in rows:
+        print(f"  {name:<{width}}  {value}")
+    print(f"\nsummary: {out / 'baseline.json'}")
+    return 0
+
+
 def cli_main(args: argparse.Namespace) -> int:
     out: Path = args.out
     out.mkdir(parents=True, exist_ok=True)
+    if args.baseline:
+        return baseline_main(out, args.plant_seed)
     operator = {
         "enabling_after_s": 0.0,
         "release_after_s": RELEASE_AFTER_S,

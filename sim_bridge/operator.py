@@ -38,6 +38,11 @@ class Operator:
             return t_s - self.onset_s < self.s.release_after_s
         return True
 
+    def brakes_released(self, t_s: float) -> bool:
+        """The brake-release switch is held (servo off only: the controller decides)."""
+        after = self.s.brake_release_after_s
+        return after is not None and t_s >= after
+
     def target_m(self, t_s: float) -> np.ndarray | None:
         """Where the hand wants the tool (path mode, after onset)."""
         if self.s.mode != "path" or self.onset_s is None or self.origin_m is None:

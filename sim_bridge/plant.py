@@ -101,13 +101,22 @@ class Plant:
         self._current_ticks = 0
         return mean + self.rng.normal(0.0, self.cfg.sensors.current_noise_a, self.n)
 
-    def step(self, q_cmd_rad: np.ndarray | None, dq_cmd_rad_s: np.ndarray | None) -> None:
-        """Advance one timestep. ``None`` commands mean servo off (brakes hold the joints)."""
+    def step(
+        self,
+        q_cmd_rad: np.ndarray | None,
+        dq_cmd_rad_s: np.ndarray | None,
+        brakes_released: bool = False,
+    ) -> None:
+        """Advance one timestep. ``None`` commands mean servo off: the brakes hold the joints,
+        unless ``brakes_released`` (the brake-release switch held with the servo off): then
+        the arm moves under gravity, the cylinders, friction and the hand, with no motor
+        torque."""
         dt = self.cfg.timestep_s
         alpha = dt / self.cfg.cylinders.time_constant_s
         self.pressure_bar += alpha * (self.pressure_set_bar - self.pressure_bar)
         d = self.data
-        if q_cmd_rad is None or dq_cmd_rad_s is None:
+        servo = q_cmd_rad is not None and dq_cmd_rad_s is not None
+        if not servo and not brakes_released:
             # Brakes engaged: joints locked, motor unpowered, the hand can't move it.
             self.brakes = True
             self.hand_force_n = np.zeros(3)
@@ -122,8 +131,11 @@ class Plant:
             return
         self.brakes = False
         q, dq = d.qpos[: self.n], d.qvel[: self.n]
-        i_c = -self.kp * (dq - dq_cmd_rad_s) - self.ki * (q - q_cmd_rad)  # eq. (19)
-        self.current_a = np.clip(i_c, -self.i_max_a, self.i_max_a)
+        if servo:
+            i_c = -self.kp * (dq - dq_cmd_rad_s) - self.ki * (q - q_cmd_rad)  # eq. (19)
+            self.current_a = np.clip(i_c, -self.i_max_a, self.i_max_a)
+        else:
+            self.current_a = np.zeros(self.n)
         self._current_sum += self.current_a
         self._current_ticks += 1
         self.tau_motor_nm = self.k_nm_per_a * self.current_a

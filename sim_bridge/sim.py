@@ -245,12 +245,15 @@ class VirtualCell:
             op.mark_onset(plant.t_s, plant.tool_position_m())
             if plant.effects.onset_s is None:
                 plant.effects.onset_s = plant.t_s
+        released = not ctrl.servo_on and op.brakes_released(plant.t_s)
+        if released:
+            op.mark_onset(plant.t_s, plant.tool_position_m())
         for _ in range(self.substeps):
             if ctrl.servo_on:
                 q_c, dq_c = ctrl.reference(plant.t_s)
                 plant.step(q_c, dq_c)
             else:
-                plant.step(None, None)
+                plant.step(None, None, brakes_released=released)
         p_meas = plant.measured_pressure_bar()
         enabling = op.enabling(plant.t_s)
         self.io.set_inputs(float(p_meas[0]), float(p_meas[1]), enabling, not self.estop_open)

@@ -1,0 +1,62 @@
+"""The paper's baseline on the virtual robot: servo off, brakes released, the operator drags.
+
+With the servo off and the brake-release switch held, nothing but the assist cylinders (at
+their pressures) offsets gravity; the operator's hand (the demo's, :data:`.demo.HAND`) guides
+the tool along the demo's path (:data:`.demo.DEMO_PATH`) against the unbalanced weight, the
+friction and the inertia. The plant runs in this process, faster than real time, without the
+controller or the product: a released brake needs neither. ``leadthrough demo --baseline``
+prints the operator force this takes, to set against the lead-through demo's.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import numpy as np
+
+from sim_bridge.config import SimConfig
+from sim_bridge.operator import Operator
+from sim_bridge.plant import Plant
+
+#: record every this many physics steps (the figures' sample period)
+RECORD_EVERY_S = 0.004
+
+
+def run_baseline(
+    cfg: SimConfig, path: list[list[float]], hand: dict[str, float], duration_s: float
+) -> dict[str, Any]:
+    """Drag the released arm along ``path`` for ``duration_s``; the operator force figures."""
+    script = dataclasses.replace(
+        cfg.operator,
+        mode="path",
+        path=tuple(tuple(float(v) for v in w) for w in path),
+        enabling_after_s=0.0,
+        release_after_s=None,
+        brake_release_after_s=0.0,
+        **hand,
+    )
+    plant = Plant(dataclasses.replace(cfg, operator=script))
+    op = Operator(script)
+    plant.hand = op.hand
+    op.mark_onset(plant.t_s, plant.tool_position_m())
+    every = max(1, round(RECORD_EVERY_S / plant.cfg.timestep_s))
+    force, tool, target = [], [], []
+    for k in range(round(duration_s / plant.cfg.timestep_s)):
+        plant.step(None, None, brakes_released=op.brakes_released(plant.t_s))
+        if k % every == 0:
+            force.append(float(np.linalg.norm(plant.hand_force_n)))
+            tool.append(plant.tool_position_m())
+            target.append(op.target_m(plant.t_s))
+    f = np.array(force)
+    miss = np.linalg.norm(np.array(tool) - np.array(target), axis=1)
+    return {
+        "plant_seed": plant.cfg.plant_seed,
+        "duration_s": duration_s,
+        "mean_force_n": float(f.mean()),
+        "peak_force_n": float(f.max()),
+        "force_saturated_share": float(np.mean(f >= 0.999 * script.max_force_n)),
+        "max_tool_off_path_m": float(miss.max()),
+        "mean_tool_off_path_m": float(miss.mean()),
+        "pressures_bar": list(plant.cfg.cylinders.initial_bar),
+    }
