@@ -159,6 +159,30 @@ def multisine(
     return Segment(f"multisine/seed{seed}", q, _differentiate(q, dt))
 
 
+def velocity_steps(
+    q0: np.ndarray, joints: list[int], speed_rad_s: float, step_s: float, dt: float
+) -> list[Segment]:
+    """The inner-loop experiment, one segment per joint: at rest, a velocity step to
+    ``+speed`` for ``step_s``, rest, a step to ``-speed`` for ``step_s`` (back at ``q0``), rest.
+    The command's velocity jumps, so the loop's velocity error is large for a few cycles: the
+    current then shows K_p and K_I of eq. (19) apart (:mod:`control.identification.inner_loop`).
+    """
+    if speed_rad_s <= 0 or step_s <= 0:
+        raise ValueError(f"velocity steps need speed and step_s > 0, got {speed_rad_s}, {step_s}")
+    rest, moving = round(0.3 / dt), round(step_s / dt)
+    profile = np.r_[np.zeros(rest), np.full(moving, speed_rad_s), np.zeros(rest),
+                    np.full(moving, -speed_rad_s), np.zeros(rest)]  # fmt: skip
+    travel = np.r_[0.0, np.cumsum(profile[:-1]) * dt]
+    out = []
+    for j in joints:
+        q = np.tile(np.asarray(q0, dtype=float), (len(profile), 1))
+        dq = np.zeros_like(q)
+        q[:, j] += travel
+        dq[:, j] = profile
+        out.append(Segment(f"inner_loop/j{j + 1}", q, dq))
+    return out
+
+
 def with_limits(seg: Segment, lower: np.ndarray, upper: np.ndarray, margin: float) -> Segment:
     """Refuse (ValueError) a segment that would leave the joint range minus ``margin``."""
     lo, hi = seg.q_rad.min(0), seg.q_rad.max(0)
@@ -181,8 +205,9 @@ def build_plan(
 
     Plan keys: ``plan_id``; ``friction`` {joints, amplitude_rad, speeds_deg_s}; ``gravity``
     {joints, amplitude_rad, speed_deg_s}; ``inertia`` {pairs, amplitude_rad, period_s,
-    slow_speed_deg_s}; ``multisine`` [{seed, duration_s, amplitude_rad, base_hz, harmonics,
-    role}] (role "train" or "test"); ``pause_s``.
+    slow_speed_deg_s}; ``inner_loop`` {joints, speed_rad_s, step_s} (velocity steps, role
+    "inner_loop"); ``multisine`` [{seed, duration_s, amplitude_rad, base_hz, harmonics, role}]
+    (role "train" or "test"); ``pause_s``.
     """
     unknown = set(plan) - PLAN_KEYS
     if unknown:
@@ -218,6 +243,11 @@ def build_plan(
                              np.radians(float(m["slow_speed_deg_s"])), dt)  # fmt: skip
             segs += s
             roles += ["train"] * len(s)
+        if "inner_loop" in plan:
+            v = plan["inner_loop"]
+            s = velocity_steps(q0, joints(v), float(v["speed_rad_s"]), float(v["step_s"]), dt)
+            segs += s
+            roles += ["inner_loop"] * len(s)
         for spec in plan.get("multisine", []):
             amp = np.broadcast_to(np.asarray(spec["amplitude_rad"], dtype=float), (n,))
             segs.append(multisine(q0, amp, float(spec["base_hz"]), int(spec["harmonics"]),
@@ -231,7 +261,9 @@ def build_plan(
     except (TypeError, ValueError) as exc:
         raise ValueError(f"bad plan value: {exc}") from None
     if not segs:
-        raise ValueError("plan has no experiment (friction, gravity, inertia, multisine)")
+        raise ValueError(
+            "plan has no experiment (friction, gravity, inertia, inner_loop, multisine)"
+        )
     pause = np.tile(q0, (max(1, round(float(plan.get("pause_s", 0.5)) / dt)), 1))
     out = []
     for seg, role in zip(segs, roles, strict=True):
@@ -242,4 +274,4 @@ def build_plan(
     return out
 
 
-PLAN_KEYS = {"plan_id", "friction", "gravity", "inertia", "multisine", "pause_s"}
+PLAN_KEYS = {"plan_id", "friction", "gravity", "inertia", "inner_loop", "multisine", "pause_s"}

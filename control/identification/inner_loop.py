@@ -1,0 +1,142 @@
+"""The vendor's inner loop, eq. (19), estimated from what the host sees: its own commands and
+the joints' measured positions, velocities and motor currents.
+
+The drive computes, at every servo tick (period ``servo_s``, the manual's 1 kHz) inside a
+communication cycle (period ``cycle_s``),
+
+    i = K_p (dq_c - dq) + K_I (q_c - q),      q_c(t) = q_cmd + dq_cmd (t - t_start)
+
+and reports the current averaged over the cycle. Averaged the same way, each cycle gives one
+linear equation in (K_p, K_I)::
+
+    ī = K_p (dq_cmd - <dq>) + K_I (q_cmd + dq_cmd (T - h)/2 - <q>) + i_0
+
+where <·> is the mean over the ticks (taken at each tick's start) computed from the cycle's
+end samples: <dq> = (q_b - q_a)/T - (h/2)(dq_b - dq_a)/T and <q> the cubic (Hermite) mean
+of q less (h/2)(q_b - q_a)/T, T = ``cycle_s``, h = ``servo_s``; i_0 takes a current-sensor
+offset. A velocity step makes the velocity error large for a few cycles, which separates the
+two gains (:func:`control.experiments.velocity_steps`); in smooth motion the velocity error
+stays near the noise and K_p is poorly determined.
+
+A command takes effect some whole number of cycles after the measurement it answers: every
+delay in ``delays`` is tried and the one with the smallest residual is kept (and reported).
+The outer loop of eq. (21) wants ω = 1/(K K_p) and Υ_I = K_I/K_p, K the drive's torque
+constant (joint side), which the datasheet gives.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+#: Delays tried between a command and the cycle it is followed in [cycles].
+DELAYS = (0, 1, 2, 3)
+
+
+@dataclass(frozen=True)
+class InnerLoopEstimate:
+    """Per joint (n,) arrays: K_p [A·s/rad], K_I [A/rad], ω [rad/s per N·m], Υ_I [1/s], the
+    fit's residual RMS [A] and its share of the current's variance it leaves (1 - R²); the
+    command delay found [cycles] and the rows used."""
+
+    k_p_a_s_per_rad: np.ndarray
+    k_i_a_per_rad: np.ndarray
+    omega_rad_s_per_nm: np.ndarray
+    upsilon_i_per_s: np.ndarray
+    residual_a: np.ndarray
+    unexplained: np.ndarray
+    delay_cycles: int
+    rows: int
+
+    def to_json(self) -> dict[str, object]:
+        return {
+            "k_p_a_s_per_rad": self.k_p_a_s_per_rad.tolist(),
+            "k_i_a_per_rad": self.k_i_a_per_rad.tolist(),
+            "omega_rad_s_per_nm": self.omega_rad_s_per_nm.tolist(),
+            "upsilon_i_per_s": self.upsilon_i_per_s.tolist(),
+            "residual_a": self.residual_a.tolist(),
+            "unexplained_variance": self.unexplained.tolist(),
+            "delay_cycles": self.delay_cycles,
+            "rows": self.rows,
+        }
+
+
+def _errors(
+    q_cmd: np.ndarray,
+    dq_cmd: np.ndarray,
+    q: np.ndarray,
+    dq: np.ndarray,
+    delay: int,
+    cycle_s: float,
+    servo_s: float,
+) -> tuple[np.ndarray, np.ndarray, slice]:
+    """Tick-mean velocity and position errors (T', n) of the commands against the cycle each
+    is followed in, and the slice of measurement rows that closes each of those cycles."""
+    t, h = cycle_s, servo_s
+    m = q.shape[0] - delay - 1
+    qc, dqc = q_cmd[:m], dq_cmd[:m]
+    qa, qb = q[delay : delay + m], q[delay + 1 : delay + 1 + m]
+    dqa, dqb = dq[delay : delay + m], dq[delay + 1 : delay + 1 + m]
+    mean_dq = (qb - qa) / t - (h / 2.0) * (dqb - dqa) / t
+    mean_q = 0.5 * (qa + qb) - t * (dqb - dqa) / 12.0 - (h / 2.0) * (qb - qa) / t
+    return dqc - mean_dq, qc + dqc * (t - h) / 2.0 - mean_q, slice(delay + 1, delay + 1 + m)
+
+
+def fit_inner_loop(
+    q_cmd: np.ndarray,
+    dq_cmd: np.ndarray,
+    q: np.ndarray,
+    dq: np.ndarray,
+    current_a: np.ndarray,
+    gains_nm_per_a: Sequence[float],
+    cycle_s: float,
+    servo_s: float,
+    delays: Sequence[int] = DELAYS,
+) -> InnerLoopEstimate:
+    """Eq. (19) per joint from cycle-aligned arrays (T, n): row k holds the command answering
+    the measurement of row k (``q``, ``dq`` at the cycle boundary, ``current_a`` the mean over
+    the cycle that ended there). Raises ValueError on mismatched shapes, non-finite values or
+    a fit the data cannot support (a gain that comes out <= 0)."""
+    arrays = [np.asarray(a, dtype=float) for a in (q_cmd, dq_cmd, q, dq, current_a)]
+    shape = arrays[0].shape
+    if len(shape) != 2 or any(a.shape != shape for a in arrays):
+        raise ValueError(f"command and measurement arrays must share one (T, n) shape: "
+                         f"{[a.shape for a in arrays]}")  # fmt: skip
+    if not all(np.all(np.isfinite(a)) for a in arrays):
+        raise ValueError("inner-loop data hold NaN or inf")
+    q_cmd, dq_cmd, q, dq, current = arrays
+    gains = np.asarray(gains_nm_per_a, dtype=float)
+    n = shape[1]
+    if gains.shape != (n,) or np.any(gains <= 0):
+        raise ValueError(f"need {n} drive gains > 0, got {gains_nm_per_a}")
+    if not 0 < servo_s <= cycle_s:
+        raise ValueError(f"servo period {servo_s} s must be in (0, cycle {cycle_s} s]")
+    best: tuple[float, int, np.ndarray, np.ndarray, np.ndarray, int] | None = None
+    for delay in delays:
+        if shape[0] - delay - 1 < 10:
+            continue
+        ev, eq, rows = _errors(q_cmd, dq_cmd, q, dq, delay, cycle_s, servo_s)
+        i = current[rows]
+        coef, resid = np.zeros((n, 3)), np.zeros(n)
+        for j in range(n):
+            a = np.column_stack([ev[:, j], eq[:, j], np.ones(len(i))])
+            coef[j], *_ = np.linalg.lstsq(a, i[:, j], rcond=None)
+            resid[j] = np.sqrt(np.mean((i[:, j] - a @ coef[j]) ** 2))
+        unexplained = resid**2 / np.maximum(np.var(i, axis=0), 1e-300)
+        score = float(np.sum(unexplained))
+        if best is None or score < best[0]:
+            best = (score, delay, coef, resid, unexplained, len(i))
+    if best is None:
+        raise ValueError(f"too few cycles ({shape[0]}) to fit the inner loop")
+    _, delay, coef, resid, unexplained, rows_used = best
+    kp, ki = coef[:, 0], coef[:, 1]
+    bad = np.flatnonzero((kp <= 0) | (ki <= 0))
+    if bad.size:
+        raise ValueError(
+            f"joint {int(bad[0]) + 1}: the fit gives K_p {kp[bad[0]]:.4g}, K_I {ki[bad[0]]:.4g} "
+            "(need > 0): the data do not excite the inner loop (run the velocity steps)"
+        )
+    return InnerLoopEstimate(kp, ki, 1.0 / (gains * kp), ki / kp, resid, unexplained,
+                             delay, rows_used)  # fmt: skip
