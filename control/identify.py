@@ -6,7 +6,10 @@ plan as position/velocity commands, the CAN driver forwards them, and this comma
 whole bus into ``OUT/identify.mcap``. Afterwards each experiment segment is exported to the
 measurement CSV format, the "train" segments (friction, gravity, inertia runs and training
 multi-sines) fit the model and the "test" multi-sines validate it (`leadthrough analyze`):
-``OUT/model.json``, ``OUT/report.md``, ``OUT/summary.json``.
+``OUT/model.json``, ``OUT/report.md``, ``OUT/summary.json``. The "inner_loop" segments (velocity
+steps per joint) estimate the vendor loop's gains, eq. (19), and from them the outer loop's ω and
+Υ_I (:mod:`control.identification.inner_loop`): ``OUT/inner_loop.json``, with the lines to put in
+the cell config's ``[control]``.
 """
 
 from __future__ import annotations
@@ -17,15 +20,29 @@ import time
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from control.identification.analyze import AnalyzeOptions, analyze
+from control.identification.inner_loop import (
+    DELAYS,
+    InnerLoopEstimate,
+    InnerLoopRun,
+    fit_inner_loop_runs,
+)
 from control.robot.description import load_description
 from control.robot.urdf import to_urdf
 from gateway.bus import BusConfig, bus_config_from
 from gateway.config import load_toml
 from gateway.errors import LeadthroughError
-from gateway.messages import decode_json
-from gateway.recorder import BusRecorder, export_csv, iter_mcap, read_states
+from gateway.messages import FLAG_PREV_COAST, FLAG_PREV_HOLD, decode_json
+from gateway.recorder import BusRecorder, RecordedStates, export_csv, iter_mcap, read_states
 from gateway.supervisor import operator_request
+
+#: The inner-loop experiment: per joint, velocity steps to ±0.05 rad/s for 0.3 s (15 mrad).
+INNER_LOOP_STEPS: dict[str, Any] = {"joints": [1, 2, 3, 4, 5, 6], "speed_rad_s": 0.05,
+                                    "step_s": 0.3}  # fmt: skip
+#: The servo rate of the vendor loop (the manual's 1 kHz, drivers/can/PROTOCOL.md §2.1) [s].
+SERVO_PERIOD_S = 0.001
 
 #: The paper's plan (Section 4): every joint's friction at 0.5–4 °/s and faster, gravity sweeps,
 #: inertia runs, and multi-sine excitation; about 25 minutes on the robot.
@@ -35,6 +52,7 @@ FULL_PLAN: dict[str, Any] = {
     "gravity": {"joints": [2, 3, 5], "amplitude_rad": 0.4, "speed_deg_s": 2.0},
     "inertia": {"pairs": [[1, 1], [2, 2], [3, 3], [2, 3], [3, 2], [1, 2]],
                 "amplitude_rad": 0.15, "period_s": 2.0, "slow_speed_deg_s": 2.0},
+    "inner_loop": INNER_LOOP_STEPS,
     "multisine": [
         {"seed": 1, "duration_s": 60, "amplitude_rad": [0.3, 0.25, 0.25, 0.5, 0.5, 0.5],
          "base_hz": 0.1, "harmonics": 5, "role": "train"},
@@ -58,6 +76,7 @@ ANALYSIS_CUTOFF_HZ = 20.0
 QUICK_PLAN: dict[str, Any] = {
     "friction": {"joints": [1, 2, 3, 4, 5, 6], "amplitude_rad": 0.1,
                  "speeds_deg_s": [2.0, 8.0]},
+    "inner_loop": INNER_LOOP_STEPS,
     "multisine": [
         {"seed": 1, "duration_s": 30, "amplitude_rad": [0.3, 0.25, 0.25, 0.5, 0.5, 0.5],
          "base_hz": 0.1, "harmonics": 5, "role": "train"},
@@ -122,6 +141,8 @@ def export_segments(
     train, test = [], []
     recorded = read_states(mcap)  # once: each segment is cut from it
     for k, seg in enumerate(report["segments"]):
+        if seg["role"] == "inner_loop":
+            continue  # velocity steps: fit_inner_loop_segments
         name = f"{k:02d}_{seg['label'].replace('/', '_')}.csv"
         path = out / "segments" / name
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -129,6 +150,59 @@ def export_segments(
         export_csv(mcap, path, gains, cycle_range=cycles, recorded=recorded)
         (test if seg["role"] == "test" else train).append(path)
     return train, test
+
+
+def inner_loop_runs(recorded: RecordedStates, cycle_range: tuple[int, int]) -> list[InnerLoopRun]:
+    """Cycle-aligned runs of one segment (:class:`InnerLoopRun`): the command answering state
+    c is the one state c + 1 echoes (what the CAN driver really sent); a command the driver
+    replaced by a hold or a coast is not valid, and a missing cycle starts a new run."""
+    by_cycle = {st.cycle: st for st, _ in recorded.states}
+    runs, rows = [], []
+
+    def close() -> None:
+        if len(rows) > max(DELAYS) + 1:
+            cols = [np.array(c) for c in zip(*rows, strict=True)]
+            valid = cols[5].astype(bool)
+            valid[-(max(DELAYS) + 1) :] = False  # their followed cycle is not in this run
+            runs.append(InnerLoopRun(*cols[:5], valid))
+        rows.clear()
+
+    for c in range(cycle_range[0], cycle_range[1]):
+        st, nxt = by_cycle.get(c), by_cycle.get(c + 1)
+        if st is None or nxt is None:
+            close()
+            continue
+        answered = not nxt.flags & (FLAG_PREV_HOLD | FLAG_PREV_COAST)
+        rows.append((nxt.q_cmd_rad, nxt.dq_cmd_rad_s, st.q_rad, st.dq_rad_s, st.current_a,
+                     answered))  # fmt: skip
+    close()
+    return runs
+
+
+def fit_inner_loop_segments(
+    mcap: Path, plan_id: str, key: str, gains: list[float], out: Path
+) -> InnerLoopEstimate | None:
+    """Eq. (19) from the plan's velocity steps (None when the plan has none); writes
+    ``out/inner_loop.json``."""
+    report = _last_report(mcap, key, plan_id)
+    segments = [s for s in report["segments"] if s["role"] == "inner_loop"]
+    if not segments:
+        return None
+    recorded = read_states(mcap)
+    runs = [r for s in segments for r in inner_loop_runs(recorded, (s["start_cycle"],
+                                                                    s["end_cycle"]))]  # fmt: skip
+    periods = {st.cycle_period_s for st, _ in recorded.states}
+    if len(periods) != 1:
+        raise LeadthroughError(f"{mcap}: the controller cycle changed during the recording "
+                               f"({sorted(periods)} s)")  # fmt: skip
+    (cycle_s,) = periods
+    try:
+        est = fit_inner_loop_runs(runs, gains, cycle_s, SERVO_PERIOD_S)
+    except ValueError as exc:
+        raise LeadthroughError(f"inner loop: {exc}") from None
+    doc = {**est.to_json(), "cycle_period_s": cycle_s, "servo_period_s": SERVO_PERIOD_S}
+    (out / "inner_loop.json").write_text(json.dumps(doc, indent=1))
+    return est
 
 
 def configure_parser(p: argparse.ArgumentParser) -> None:
@@ -160,7 +234,16 @@ def cli_main(args: argparse.Namespace) -> int:
     mcap = run_plan(bus, plan, out, args.timeout)
     desc = load_description()
     gains = [j.drive_gain_nm_per_a for j in desc.joints]
+    inner = fit_inner_loop_segments(mcap, plan["plan_id"], bus.keys.experiment, gains, out)
+    if inner is not None:
+        fmt = ", ".join
+        print(f"inner loop (eq. 19, command delay {inner.delay_cycles} cycles): "
+              f"{out / 'inner_loop.json'}; for the cell config's [control]:")  # fmt: skip
+        print(f"  omega_rad_s_per_nm = [{fmt(f'{v:.4g}' for v in inner.omega_rad_s_per_nm)}]")
+        print(f"  upsilon_i_per_s = [{fmt(f'{v:.4g}' for v in inner.upsilon_i_per_s)}]")
     train, test = export_segments(mcap, plan["plan_id"], out, gains, bus.keys.experiment)
+    if not train and not test and inner is not None:
+        return 0  # an inner-loop-only plan: nothing to fit a dynamic model on
     urdf = out / "robot.urdf"
     urdf.write_text(to_urdf(desc))
     ratios = tuple(j.gear_ratio for j in desc.joints)

@@ -84,6 +84,35 @@ def _errors(
     return dqc - mean_dq, qc + dqc * (t - h) / 2.0 - mean_q, slice(delay + 1, delay + 1 + m)
 
 
+@dataclass(frozen=True)
+class InnerLoopRun:
+    """One contiguous run of cycle-aligned arrays (T, n): row k holds the command answering
+    the measurement of row k (``q``, ``dq`` at the cycle boundary, ``current_a`` the mean over
+    the cycle that ended there); ``valid`` (T,) marks the commands the drive really got from
+    the host's experiment (None: all)."""
+
+    q_cmd: np.ndarray
+    dq_cmd: np.ndarray
+    q: np.ndarray
+    dq: np.ndarray
+    current_a: np.ndarray
+    valid: np.ndarray | None = None
+
+    def checked(self) -> InnerLoopRun:
+        arrays = [np.asarray(a, dtype=float) for a in
+                  (self.q_cmd, self.dq_cmd, self.q, self.dq, self.current_a)]  # fmt: skip
+        shape = arrays[0].shape
+        if len(shape) != 2 or any(a.shape != shape for a in arrays):
+            raise ValueError(f"command and measurement arrays must share one (T, n) shape: "
+                             f"{[a.shape for a in arrays]}")  # fmt: skip
+        if not all(np.all(np.isfinite(a)) for a in arrays):
+            raise ValueError("inner-loop data hold NaN or inf")
+        valid = np.ones(shape[0], bool) if self.valid is None else np.asarray(self.valid, bool)
+        if valid.shape != (shape[0],):
+            raise ValueError(f"valid must be ({shape[0]},), got {valid.shape}")
+        return InnerLoopRun(*arrays, valid)
+
+
 def fit_inner_loop(
     q_cmd: np.ndarray,
     dq_cmd: np.ndarray,
@@ -95,30 +124,43 @@ def fit_inner_loop(
     servo_s: float,
     delays: Sequence[int] = DELAYS,
 ) -> InnerLoopEstimate:
-    """Eq. (19) per joint from cycle-aligned arrays (T, n): row k holds the command answering
-    the measurement of row k (``q``, ``dq`` at the cycle boundary, ``current_a`` the mean over
-    the cycle that ended there). Raises ValueError on mismatched shapes, non-finite values or
-    a fit the data cannot support (a gain that comes out <= 0)."""
-    arrays = [np.asarray(a, dtype=float) for a in (q_cmd, dq_cmd, q, dq, current_a)]
-    shape = arrays[0].shape
-    if len(shape) != 2 or any(a.shape != shape for a in arrays):
-        raise ValueError(f"command and measurement arrays must share one (T, n) shape: "
-                         f"{[a.shape for a in arrays]}")  # fmt: skip
-    if not all(np.all(np.isfinite(a)) for a in arrays):
-        raise ValueError("inner-loop data hold NaN or inf")
-    q_cmd, dq_cmd, q, dq, current = arrays
+    """:func:`fit_inner_loop_runs` on one run (:class:`InnerLoopRun` says how rows align)."""
+    run = InnerLoopRun(q_cmd, dq_cmd, q, dq, current_a)
+    return fit_inner_loop_runs([run], gains_nm_per_a, cycle_s, servo_s, delays)
+
+
+def fit_inner_loop_runs(
+    runs: Sequence[InnerLoopRun],
+    gains_nm_per_a: Sequence[float],
+    cycle_s: float,
+    servo_s: float,
+    delays: Sequence[int] = DELAYS,
+) -> InnerLoopEstimate:
+    """Eq. (19) per joint from one or more runs (module docstring). Raises ValueError on
+    mismatched shapes, non-finite values or a fit the data cannot support (a gain <= 0)."""
+    checked = [r.checked() for r in runs]
+    if not checked:
+        raise ValueError("no inner-loop run to fit")
+    n = checked[0].q.shape[1]
+    if any(r.q.shape[1] != n for r in checked):
+        raise ValueError("inner-loop runs differ in their number of joints")
     gains = np.asarray(gains_nm_per_a, dtype=float)
-    n = shape[1]
     if gains.shape != (n,) or np.any(gains <= 0):
         raise ValueError(f"need {n} drive gains > 0, got {gains_nm_per_a}")
     if not 0 < servo_s <= cycle_s:
         raise ValueError(f"servo period {servo_s} s must be in (0, cycle {cycle_s} s]")
     best: tuple[float, int, np.ndarray, np.ndarray, np.ndarray, int] | None = None
     for delay in delays:
-        if shape[0] - delay - 1 < 10:
+        parts = []
+        for r in checked:
+            if r.q.shape[0] - delay - 1 < 1:
+                continue
+            ev, eq, rows = _errors(r.q_cmd, r.dq_cmd, r.q, r.dq, delay, cycle_s, servo_s)
+            keep = r.valid[: ev.shape[0]]
+            parts.append((ev[keep], eq[keep], r.current_a[rows][keep]))
+        if sum(len(p[2]) for p in parts) < 10:
             continue
-        ev, eq, rows = _errors(q_cmd, dq_cmd, q, dq, delay, cycle_s, servo_s)
-        i = current[rows]
+        ev, eq, i = (np.concatenate([p[k] for p in parts]) for k in range(3))
         coef, resid = np.zeros((n, 3)), np.zeros(n)
         for j in range(n):
             a = np.column_stack([ev[:, j], eq[:, j], np.ones(len(i))])
@@ -129,7 +171,7 @@ def fit_inner_loop(
         if best is None or score < best[0]:
             best = (score, delay, coef, resid, unexplained, len(i))
     if best is None:
-        raise ValueError(f"too few cycles ({shape[0]}) to fit the inner loop")
+        raise ValueError("too few cycles to fit the inner loop")
     _, delay, coef, resid, unexplained, rows_used = best
     kp, ki = coef[:, 0], coef[:, 1]
     bad = np.flatnonzero((kp <= 0) | (ki <= 0))
