@@ -12,9 +12,10 @@ from gateway.config import require
 class ControlConfig:
     #: declared model file (TOML or JSON, see control/declared_model.py), relative to the config
     model: Path
-    #: ω = 1/(K K_p) per joint [rad/s per N·m], from the vendor manual (eq. 21)
+    #: ω = 1/(K K_p) per joint [rad/s per N·m] (eq. 21): written here, or read from the
+    #: ``inner_loop`` estimate (:func:`control.process.load_control_config`)
     omega_rad_s_per_nm: tuple[float, ...]
-    #: Υ_I = K_I/K_p per joint [1/s], from the vendor manual (eq. 21)
+    #: Υ_I = K_I/K_p per joint [1/s] (eq. 21), like ω
     upsilon_i_per_s: tuple[float, ...]
     #: |q_cmd − q| never exceeds this per joint [rad] (the controller faults beyond 0.05)
     max_offset_rad: tuple[float, ...]
@@ -31,6 +32,9 @@ class ControlConfig:
     #: soft joint limits: a virtual spring pushes back this far inside the hard range [rad]
     soft_limit_margin_rad: float = 0.05
     wall_stiffness_nm_per_rad: float = 2000.0
+    #: ``inner_loop.json`` of `leadthrough identify` (relative to the cell config): ω and Υ_I
+    #: estimated on this cell's drives, in place of the two lists above
+    inner_loop: Path | None = None
     #: cylinder pressure set-points sent to the valves [bar]
     pressure_setpoint_bar: tuple[float, float] = (6.0, 4.0)
     #: I/O older than this: no command is published (the CAN driver then holds) [s]

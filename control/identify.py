@@ -238,7 +238,9 @@ def cli_main(args: argparse.Namespace) -> int:
     if inner is not None:
         fmt = ", ".join
         print(f"inner loop (eq. 19, command delay {inner.delay_cycles} cycles): "
-              f"{out / 'inner_loop.json'}; for the cell config's [control]:")  # fmt: skip
+              f"{out / 'inner_loop.json'}; in the cell config's [control] set")  # fmt: skip
+        print(f'  inner_loop = "{(out / "inner_loop.json").resolve()}"')
+        print("or write the estimate out in place of omega_rad_s_per_nm and upsilon_i_per_s:")
         print(f"  omega_rad_s_per_nm = [{fmt(f'{v:.4g}' for v in inner.omega_rad_s_per_nm)}]")
         print(f"  upsilon_i_per_s = [{fmt(f'{v:.4g}' for v in inner.upsilon_i_per_s)}]")
     train, test = export_segments(mcap, plan["plan_id"], out, gains, bus.keys.experiment)

@@ -24,6 +24,7 @@ import numpy as np
 from control.config import ControlConfig
 from control.declared_model import DeclaredModel
 from control.experiments import build_plan
+from control.identification.inner_loop import read_outer_loop_gains
 from control.load_check import REST_RAD_S, LoadCheck, static_load_check
 from control.outer_loop import OuterLoop
 from gateway.bus import (
@@ -34,7 +35,7 @@ from gateway.bus import (
     undeclare_all,
 )
 from gateway.config import from_mapping, load_toml, resolve_path
-from gateway.errors import MessageError
+from gateway.errors import ConfigError, MessageError
 from gateway.messages import (
     COMMANDING,
     FLAG_PREV_HOLD,
@@ -58,8 +59,20 @@ LOAD_CHECK_PERIOD_S = 0.1
 
 
 def load_control_config(cell_path: str | Path) -> tuple[ControlConfig, BusConfig]:
+    """The cell config's ``[control]`` and ``[bus]``. With ``[control].inner_loop``, ω and Υ_I
+    come from that estimate (`leadthrough identify`) and may not also be written out."""
     raw = load_toml(cell_path)
-    cfg = from_mapping(ControlConfig, raw.get("control", {}), f"{cell_path} [control]")
+    section = dict(raw.get("control", {}))
+    where = f"{cell_path} [control]"
+    if section.get("inner_loop"):
+        written = [k for k in ("omega_rad_s_per_nm", "upsilon_i_per_s") if k in section]
+        if written:
+            raise ConfigError(f"{where}: give {written} or inner_loop, not both")
+        source = resolve_path(cell_path, section["inner_loop"])
+        n = len(section.get("max_offset_rad", ()))
+        omega, upsilon = read_outer_loop_gains(source, n)
+        section.update(inner_loop=str(source), omega_rad_s_per_nm=omega, upsilon_i_per_s=upsilon)
+    cfg = from_mapping(ControlConfig, section, where)
     cfg = ControlConfig(**{**cfg.__dict__, "model": resolve_path(cell_path, cfg.model)})
     bus = bus_config_from(raw, str(cell_path))
     return cfg, bus

@@ -26,10 +26,14 @@ constant (joint side), which the datasheet gives.
 
 from __future__ import annotations
 
+import json
 from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
+
+from gateway.errors import ConfigError
 
 #: Delays tried between a command and the cycle it is followed in [cycles].
 DELAYS = (0, 1, 2, 3)
@@ -182,3 +186,30 @@ def fit_inner_loop_runs(
         )
     return InnerLoopEstimate(kp, ki, 1.0 / (gains * kp), ki / kp, resid, unexplained,
                              delay, rows_used)  # fmt: skip
+
+
+def read_outer_loop_gains(path: str | Path, n_joints: int) -> tuple[list[float], list[float]]:
+    """ω [rad/s per N·m] and Υ_I [1/s] per joint from an ``inner_loop.json`` that
+    ``leadthrough identify`` wrote. Raises ConfigError naming the file and what is wrong."""
+    p = Path(path)
+    try:
+        doc = json.loads(p.read_text())
+    except FileNotFoundError:
+        raise ConfigError(
+            f"{p}: inner-loop estimate not found (run `leadthrough identify`)"
+        ) from None
+    except (OSError, ValueError) as exc:
+        raise ConfigError(f"{p}: not a readable inner-loop estimate: {exc}") from None
+    out = []
+    for key in ("omega_rad_s_per_nm", "upsilon_i_per_s"):
+        values = doc.get(key) if isinstance(doc, dict) else None
+        if not isinstance(values, list) or len(values) != n_joints:
+            raise ConfigError(f"{p}: {key} must list {n_joints} values, got {values!r}")
+        try:
+            floats = [float(v) for v in values]
+        except (TypeError, ValueError):
+            raise ConfigError(f"{p}: {key} holds a value that is not a number: {values}") from None
+        if not all(np.isfinite(v) and v > 0 for v in floats):
+            raise ConfigError(f"{p}: {key} values must be finite and > 0, got {floats}")
+        out.append(floats)
+    return out[0], out[1]

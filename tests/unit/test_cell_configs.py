@@ -1,5 +1,6 @@
 """The shipped configs load and validate, and the simulator's truth stays private."""
 
+import json
 from pathlib import Path
 
 import pytest
@@ -9,7 +10,7 @@ from control.declared_model import DeclaredModel
 from control.process import load_control_config
 from drivers.can.config import load_can_config
 from drivers.modbus.config import ModbusDriverConfig
-from gateway.config import load_toml
+from gateway.config import load_toml, resolve_path
 from gateway.errors import ConfigError
 from gateway.supervisor import load_gateway_config
 from sim_bridge.config import load_sim_config
@@ -74,3 +75,45 @@ def test_sim_truth_loads_and_is_read_only_by_sim_bridge():
             assert "gr630st_truth" not in text, f"{py} refers to the simulator's truth"
             assert "sim_bridge.config" not in text, f"{py} imports the simulator's config"
             assert "ki_a_per_rad" not in text, f"{py} mentions the inner-loop gains"
+
+
+def _cell_with_inner_loop(tmp_path, estimate: object, keep_lists: bool = False) -> Path:
+    raw = load_toml(CELLS[1])
+    if not keep_lists:
+        del raw["control"]["omega_rad_s_per_nm"], raw["control"]["upsilon_i_per_s"]
+    raw["control"]["model"] = str(resolve_path(CELLS[1], raw["control"]["model"]))
+    raw["control"]["inner_loop"] = "ident/inner_loop.json"
+    (tmp_path / "ident").mkdir(exist_ok=True)
+    (tmp_path / "ident" / "inner_loop.json").write_text(json.dumps(estimate))
+    path = tmp_path / "cell.toml"
+    path.write_text(tomli_w.dumps(raw))
+    return path
+
+
+def test_the_outer_loop_gains_can_come_from_the_identified_inner_loop(tmp_path):
+    omega = [1e-4, 5e-5, 1e-4, 7e-3, 9e-3, 3e-2]
+    upsilon = [30.0, 31.0, 32.0, 33.0, 34.0, 35.0]
+    path = _cell_with_inner_loop(
+        tmp_path, {"omega_rad_s_per_nm": omega, "upsilon_i_per_s": upsilon}
+    )
+    cfg, _bus = load_control_config(path)
+    assert list(cfg.omega_rad_s_per_nm) == omega and list(cfg.upsilon_i_per_s) == upsilon
+    assert cfg.inner_loop == tmp_path / "ident" / "inner_loop.json"
+
+
+@pytest.mark.parametrize(
+    ("estimate", "keep_lists", "match"),
+    [
+        ({"omega_rad_s_per_nm": [1.0] * 6, "upsilon_i_per_s": [1.0] * 6}, True, "not both"),
+        ({"omega_rad_s_per_nm": [1.0] * 5, "upsilon_i_per_s": [1.0] * 6}, False, "6 values"),
+        ({"omega_rad_s_per_nm": [1.0] * 6, "upsilon_i_per_s": [1.0] * 5 + [-1]}, False, "> 0"),
+        ({"omega_rad_s_per_nm": [1.0] * 6}, False, "upsilon_i_per_s"),
+        ([1, 2], False, "omega_rad_s_per_nm"),
+    ],
+)
+def test_a_bad_inner_loop_estimate_names_the_file_and_the_key(
+    tmp_path, estimate, keep_lists, match
+):
+    path = _cell_with_inner_loop(tmp_path, estimate, keep_lists)
+    with pytest.raises(ConfigError, match=match):
+        load_control_config(path)
