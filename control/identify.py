@@ -130,16 +130,22 @@ def run_plan(bus: BusConfig, plan: dict[str, Any], out: Path, timeout_s: float) 
     return mcap
 
 
-def export_segments(
-    mcap: Path, plan_id: str, out: Path, gains: list[float], key: str
-) -> tuple[list[Path], list[Path]]:
-    """Cut the recording into one CSV per experiment segment: (train files, test files)."""
+def finished_report(mcap: Path, key: str, plan_id: str) -> dict[str, Any]:
+    """The plan's last progress report in the recording; raises unless the plan finished."""
     report = _last_report(mcap, key, plan_id)
     if report.get("state") != "done":
         raise LeadthroughError(f"plan {plan_id} did not finish: {report.get('state')} "
                                f"{report.get('reason', '')}")  # fmt: skip
+    return report
+
+
+def export_segments(
+    mcap: Path, report: dict[str, Any], recorded: RecordedStates, out: Path, gains: list[float]
+) -> tuple[list[Path], list[Path]]:
+    """Cut the recording (``recorded``, read once: each segment is cut from it) into one CSV
+    per experiment segment of ``report`` (:func:`finished_report`): (train files, test
+    files)."""
     train, test = [], []
-    recorded = read_states(mcap)  # once: each segment is cut from it
     for k, seg in enumerate(report["segments"]):
         if seg["role"] == "inner_loop":
             continue  # velocity steps: fit_inner_loop_segments
@@ -180,15 +186,17 @@ def inner_loop_runs(recorded: RecordedStates, cycle_range: tuple[int, int]) -> l
 
 
 def fit_inner_loop_segments(
-    mcap: Path, plan_id: str, key: str, gains: list[float], out: Path
+    mcap: Path,
+    report: dict[str, Any],
+    recorded: RecordedStates,
+    gains: list[float],
+    out: Path,
 ) -> InnerLoopEstimate | None:
-    """Eq. (19) from the plan's velocity steps (None when the plan has none); writes
-    ``out/inner_loop.json``."""
-    report = _last_report(mcap, key, plan_id)
+    """Eq. (19) from the velocity steps of ``report`` (:func:`finished_report`; None when the
+    plan has none), cut from ``recorded``; writes ``out/inner_loop.json``."""
     segments = [s for s in report["segments"] if s["role"] == "inner_loop"]
     if not segments:
         return None
-    recorded = read_states(mcap)
     runs = [r for s in segments for r in inner_loop_runs(recorded, (s["start_cycle"],
                                                                     s["end_cycle"]))]  # fmt: skip
     periods = {st.cycle_period_s for st, _ in recorded.states}
@@ -234,7 +242,9 @@ def cli_main(args: argparse.Namespace) -> int:
     mcap = run_plan(bus, plan, out, args.timeout)
     desc = load_description()
     gains = [j.drive_gain_nm_per_a for j in desc.joints]
-    inner = fit_inner_loop_segments(mcap, plan["plan_id"], bus.keys.experiment, gains, out)
+    report = finished_report(mcap, bus.keys.experiment, plan["plan_id"])
+    recorded = read_states(mcap)  # once: the inner loop and every segment are cut from it
+    inner = fit_inner_loop_segments(mcap, report, recorded, gains, out)
     if inner is not None:
         fmt = ", ".join
         print(f"inner loop (eq. 19, command delay {inner.delay_cycles} cycles): "
@@ -243,7 +253,7 @@ def cli_main(args: argparse.Namespace) -> int:
         print("or write the estimate out in place of omega_rad_s_per_nm and upsilon_i_per_s:")
         print(f"  omega_rad_s_per_nm = [{fmt(f'{v:.4g}' for v in inner.omega_rad_s_per_nm)}]")
         print(f"  upsilon_i_per_s = [{fmt(f'{v:.4g}' for v in inner.upsilon_i_per_s)}]")
-    train, test = export_segments(mcap, plan["plan_id"], out, gains, bus.keys.experiment)
+    train, test = export_segments(mcap, report, recorded, out, gains)
     if not train and not test and inner is not None:
         return 0  # an inner-loop-only plan: nothing to fit a dynamic model on
     urdf = out / "robot.urdf"

@@ -213,7 +213,7 @@ def fit_rigid_friction(
         target.add("rigid", _thin(RigidTerm().columns(ctx), step))
     else:
         target = ls
-    grid: list[float | None] = sorted(float(v) for v in q_e_grid)
+    grid = sorted(float(v) for v in q_e_grid)
     q_e = [grid[len(grid) // 2]] * n
     terms = [FrictionTerm(j, kind, q_e[j], float(gear_ratios[j])) for j in range(n)]
     for term in terms:
@@ -222,10 +222,14 @@ def fit_rigid_friction(
     widths: list[float | None] = [None]
     if kind == "eq15" and sign_grid:
         widths += sorted(float(v) for v in sign_grid)
+    # the sign's width first: tied to q_e, a sharp sign would drag q_e down with it
+    searched: tuple[tuple[str, Sequence[float | None]], ...] = (
+        ("sign_width_rad_s", widths),
+        ("q_e_rad_s", grid),
+    )
     for sweep in range(Q_E_SWEEPS if len(grid) > 1 or len(widths) > 1 else 0):
         for j in range(n):
-            # the sign's width first: tied to q_e, a sharp sign would drag q_e down with it
-            for field_name, values in (("sign_width_rad_s", widths), ("q_e_rad_s", grid)):
+            for field_name, values in searched:
                 if len(values) < 2:
                     continue
                 if sweep:  # later sweeps refine around the value chosen: its grid neighbours
