@@ -32,4 +32,4 @@ format: $(STAMP)
 	$(BIN)/ruff format .
 
 clean:
-	rm -rf $(VENV) demo_out
+	rm -rf $(VENV) demo_out .cache

@@ -26,11 +26,13 @@ import json
 import pstats
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
 from control.process import ControlProcess, load_control_config
 from gateway.bus import BusConfig
+from gateway.errors import ConfigError
 from gateway.messages import (
     ControllerState,
     IoState,
@@ -40,7 +42,6 @@ from gateway.messages import (
     make_joint_command,
     make_joint_state,
 )
-from sim_bridge.harness import SIM_CELL
 
 #: the cycle the benchmark simulates [s] (250 Hz)
 CYCLE_PERIOD_S = 0.004
@@ -82,6 +83,7 @@ def joint_states(proc: ControlProcess, count: int, seed: int = 1) -> list[bytes]
     walk inside the soft limits at up to ~0.5 rad/s, some cycles near rest, with current and
     command echo, at :data:`CYCLE_PERIOD_S`."""
     rng = np.random.default_rng(seed)
+    assert proc.ctl is not None, "a commissioned process"
     lower, upper = proc.ctl.lower, proc.ctl.upper
     n = proc.ctl.model.n
     q = 0.5 * (lower + upper)
@@ -101,9 +103,12 @@ def joint_states(proc: ControlProcess, count: int, seed: int = 1) -> list[bytes]
     return out
 
 
-def make_process() -> tuple[ControlProcess, _NullPublisher]:
-    """A ControlProcess on the virtual cell's config, TEACHING, with a stub publisher."""
-    cfg, _ = load_control_config(SIM_CELL)
+def make_process(cell: Path) -> tuple[ControlProcess, _NullPublisher]:
+    """A ControlProcess on the commissioned cell config ``cell``, TEACHING, with a stub
+    publisher."""
+    cfg, _ = load_control_config(cell)
+    if cfg.uncommissioned:
+        raise ConfigError(f"{cell}: {cfg.uncommissioned}")
     proc = ControlProcess(cfg, BusConfig())
     pub = _NullPublisher()
     proc._pub_cmd = pub
@@ -169,9 +174,10 @@ def time_messages(payloads: list[bytes], period_s: float = 0.0) -> tuple[np.ndar
     return dec, enc
 
 
-def run(calls: int, warmup: int, profile: bool = False, period_s: float = 0.0) -> dict:
-    """Time ``calls`` cycles after ``warmup`` untimed ones; figures in µs per call."""
-    proc, pub = make_process()
+def run(cell: Path, calls: int, warmup: int, profile: bool = False, period_s: float = 0.0) -> dict:
+    """Time ``calls`` cycles of the process of ``cell`` (a commissioned cell config) after
+    ``warmup`` untimed ones; figures in µs per call."""
+    proc, pub = make_process(cell)
     payloads = joint_states(proc, warmup + calls)
     if profile:
         prof = cProfile.Profile()
@@ -179,7 +185,7 @@ def run(calls: int, warmup: int, profile: bool = False, period_s: float = 0.0) -
         time_on_state(proc, payloads)
         prof.disable()
         pstats.Stats(prof).sort_stats("tottime").print_stats(25)
-        proc, pub = make_process()
+        proc, pub = make_process(cell)
     time_on_state(proc, payloads[:warmup])
     pub.count = 0
     gc.collect()
@@ -195,6 +201,24 @@ def run(calls: int, warmup: int, profile: bool = False, period_s: float = 0.0) -
         "JointState.from_bytes": _stats_us(dec),
         "make_joint_command.to_bytes": _stats_us(enc),
     }
+
+
+def _virtual_cell() -> Path:
+    """The virtual cell's config with plant seed 0's commissioned model, in a temp folder."""
+    import tempfile
+
+    import tomli_w
+
+    from gateway.config import load_toml
+    from sim_bridge.commission import commissioned
+    from sim_bridge.harness import SIM_CELL
+
+    done = commissioned(0)
+    raw = load_toml(SIM_CELL)
+    raw["control"].update(model=str(done.model), inner_loop=str(done.inner_loop))
+    path = Path(tempfile.mkdtemp(prefix="bench_loop-")) / "cell.toml"
+    path.write_text(tomli_w.dumps(raw))
+    return path
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -214,8 +238,16 @@ def main(argv: list[str] | None = None) -> int:
         "the process at that cycle); default 0: back to back, wall clock",
     )
     p.add_argument("--json", action="store_true", help="print the result as JSON")
+    p.add_argument(
+        "--config",
+        type=Path,
+        default=None,
+        help="a commissioned cell config (default: the virtual cell with plant seed 0's "
+        "commissioned model, identified first if not cached)",
+    )
     args = p.parse_args(argv)
-    result = run(args.calls, args.warmup, args.profile, args.period_ms / 1e3)
+    cell = args.config or _virtual_cell()
+    result = run(cell, args.calls, args.warmup, args.profile, args.period_ms / 1e3)
     if args.json:
         print(json.dumps(result, indent=2))
         return 0

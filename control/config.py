@@ -10,19 +10,22 @@ from gateway.config import require
 
 @dataclass(frozen=True)
 class ControlConfig:
-    #: declared model file (TOML or JSON, see control/declared_model.py), relative to the config
-    model: Path
-    #: ω = 1/(K K_p) per joint [rad/s per N·m] (eq. 21): written here, or read from the
-    #: ``inner_loop`` estimate (:func:`control.process.load_control_config`)
-    omega_rad_s_per_nm: tuple[float, ...]
-    #: Υ_I = K_I/K_p per joint [1/s] (eq. 21), like ω
-    upsilon_i_per_s: tuple[float, ...]
     #: |q_cmd − q| never exceeds this per joint [rad] (the controller faults beyond 0.05)
     max_offset_rad: tuple[float, ...]
     #: |dq_cmd| never exceeds this per joint [rad/s]
     max_velocity_rad_s: tuple[float, ...]
     #: added viscous damping, a margin against model error [N·m·s/rad]
     damping_nm_s_per_rad: tuple[float, ...]
+    #: the dynamic model the control compensates (``model.json`` of `leadthrough identify`, or
+    #: a TOML model, see control/declared_model.py), relative to the config; None: the cell
+    #: is not commissioned yet: it identifies but refuses to teach
+    model: Path | None = None
+    #: ω = 1/(K K_p) per joint [rad/s per N·m] (eq. 21): written here, or read from the
+    #: ``inner_loop`` estimate (:func:`control.process.load_control_config`); empty: not
+    #: commissioned, like ``model``
+    omega_rad_s_per_nm: tuple[float, ...] = ()
+    #: Υ_I = K_I/K_p per joint [1/s] (eq. 21), like ω
+    upsilon_i_per_s: tuple[float, ...] = ()
     #: fraction of the model friction that is compensated (1 = all)
     friction_compensation: float = 1.0
     #: below this joint speed no friction is compensated, so the arm rests on its own friction
@@ -35,6 +38,15 @@ class ControlConfig:
     #: ``inner_loop.json`` of `leadthrough identify` (relative to the cell config): ω and Υ_I
     #: estimated on this cell's drives, in place of the two lists above
     inner_loop: Path | None = None
+    #: eq. (28): γ, how fast ω̂ follows the measured motor current [1/s]; 0: ω fixed
+    #: (control/outer_loop.py)
+    omega_adaptation_per_s: float = 1.0
+    #: per joint: ω̂ adapts only while |τ_d| exceeds this [N·m] (the current's noise would
+    #: otherwise dominate); needed when the rate is > 0
+    omega_adaptation_min_torque_nm: tuple[float, ...] = ()
+    #: cycles between a command and the cycle the drive follows it in (the inner-loop
+    #: estimate gives it)
+    command_delay_cycles: int = 0
     #: cylinder pressure set-points sent to the valves [bar]
     pressure_setpoint_bar: tuple[float, float] = (6.0, 4.0)
     #: I/O older than this: no command is published (the CAN driver then holds) [s]
@@ -47,11 +59,34 @@ class ControlConfig:
     #: friction, per joint [N·m]; empty: none beyond the friction
     load_check_margin_nm: tuple[float, ...] = ()
 
+    @property
+    def uncommissioned(self) -> str | None:
+        """Why this config cannot teach (what commissioning must set), or None."""
+        missing = [
+            k for k, v in (("model", self.model), ("inner_loop", self.omega_rad_s_per_nm)) if not v
+        ]
+        if not missing:
+            return None
+        return (
+            f"the cell is not commissioned: [control] {' and '.join(missing)} not set "
+            "(run `leadthrough identify` on this cell and set them to its model.json and "
+            "inner_loop.json)"
+        )
+
     def __post_init__(self) -> None:
-        n = len(self.omega_rad_s_per_nm)
+        n = len(self.max_offset_rad)
+        for name in ("omega_rad_s_per_nm", "upsilon_i_per_s"):
+            require(
+                len(getattr(self, name)) in (0, n),
+                f"[control].{name}",
+                f"needs {n} values (one per [control].max_offset_rad) or none",
+            )
+        require(
+            bool(self.omega_rad_s_per_nm) == bool(self.upsilon_i_per_s),
+            "[control].omega_rad_s_per_nm and upsilon_i_per_s",
+            "give both or neither",
+        )
         for name in (
-            "upsilon_i_per_s",
-            "max_offset_rad",
             "max_velocity_rad_s",
             "damping_nm_s_per_rad",
         ):
@@ -64,6 +99,25 @@ class ControlConfig:
             f"needs {n} values >= 0 (or none)",
         )
         require(all(v > 0 for v in self.upsilon_i_per_s), "[control].upsilon_i_per_s", "> 0")
+        require(
+            self.omega_adaptation_per_s >= 0,
+            "[control].omega_adaptation_per_s",
+            f"{self.omega_adaptation_per_s} must be >= 0",
+        )
+        require(
+            self.omega_adaptation_per_s == 0
+            or (
+                len(self.omega_adaptation_min_torque_nm) == n
+                and all(v > 0 for v in self.omega_adaptation_min_torque_nm)
+            ),
+            "[control].omega_adaptation_min_torque_nm",
+            f"needs {n} values > 0 while omega_adaptation_per_s > 0",
+        )
+        require(
+            0 <= self.command_delay_cycles <= 10,
+            "[control].command_delay_cycles",
+            f"{self.command_delay_cycles} not in 0..10",
+        )
         require(all(v > 0 for v in self.max_offset_rad), "[control].max_offset_rad", "> 0")
         require(
             0.0 <= self.friction_compensation <= 1.0,

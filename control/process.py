@@ -26,7 +26,8 @@ from control.declared_model import DeclaredModel
 from control.experiments import build_plan
 from control.identification.inner_loop import read_outer_loop_gains
 from control.load_check import REST_RAD_S, LoadCheck, static_load_check
-from control.outer_loop import OuterLoop
+from control.outer_loop import HoldAverage, OmegaAdaptation, OuterLoop
+from control.robot.description import load_description
 from gateway.bus import (
     BusConfig,
     bus_config_from,
@@ -38,6 +39,7 @@ from gateway.config import from_mapping, load_toml, resolve_path
 from gateway.errors import ConfigError, MessageError
 from gateway.messages import (
     COMMANDING,
+    FLAG_PREV_COAST,
     FLAG_PREV_HOLD,
     HEALTH_RATE_HZ,
     ControllerState,
@@ -69,11 +71,16 @@ def load_control_config(cell_path: str | Path) -> tuple[ControlConfig, BusConfig
         if written:
             raise ConfigError(f"{where}: give {written} or inner_loop, not both")
         source = resolve_path(cell_path, section["inner_loop"])
-        n = len(section.get("max_offset_rad", ()))
-        omega, upsilon = read_outer_loop_gains(source, n)
-        section.update(inner_loop=str(source), omega_rad_s_per_nm=omega, upsilon_i_per_s=upsilon)
+        if "max_offset_rad" in section:  # else from_mapping names the missing key
+            n = len(section["max_offset_rad"])
+            omega, upsilon, delay = read_outer_loop_gains(source, n)
+            section.update(omega_rad_s_per_nm=omega, upsilon_i_per_s=upsilon)
+            if "command_delay_cycles" not in section:
+                section["command_delay_cycles"] = delay
+        section["inner_loop"] = str(source)
     cfg = from_mapping(ControlConfig, section, where)
-    cfg = ControlConfig(**{**cfg.__dict__, "model": resolve_path(cell_path, cfg.model)})
+    if cfg.model is not None:
+        cfg = ControlConfig(**{**cfg.__dict__, "model": resolve_path(cell_path, cfg.model)})
     bus = bus_config_from(raw, str(cell_path))
     return cfg, bus
 
@@ -91,12 +98,24 @@ class ZeroMomentController:
         self.cfg = cfg
         self.model = model
         n = model.n
+        adaptation = None
+        if cfg.omega_adaptation_per_s > 0:
+            adaptation = OmegaAdaptation(
+                cfg.omega_adaptation_per_s,
+                cfg.omega_adaptation_min_torque_nm,
+                cfg.command_delay_cycles,
+            )
         self.loop = OuterLoop(
             np.array(cfg.omega_rad_s_per_nm),
             np.array(cfg.upsilon_i_per_s),
             np.array(cfg.max_offset_rad),
             np.array(cfg.max_velocity_rad_s),
+            adaptation,
         )
+        #: the drives' torque constants (datasheet) [N·m/A]: measured motor torque = K i
+        self._k_nm_per_a = [j.drive_gain_nm_per_a for j in model.desc.joints]
+        #: the driver's hold at rest before teaching (:meth:`observe_hold`)
+        self.hold = HoldAverage()
         self.damping = np.array(cfg.damping_nm_s_per_rad)
         self.lower = np.array([j.lower_rad for j in model.desc.joints]) + cfg.soft_limit_margin_rad
         self.upper = np.array([j.upper_rad for j in model.desc.joints]) - cfg.soft_limit_margin_rad
@@ -129,6 +148,15 @@ class ZeroMomentController:
     def disengage(self) -> None:
         self.engaged = False
 
+    def observe_hold(self, st: JointState) -> None:
+        """A state while the driver holds (not commanding): at rest, its held offset and
+        current go into :attr:`hold` for the next engagement; moving, the average restarts."""
+        if st.flags & FLAG_PREV_HOLD and float(np.max(np.abs(st.dq_rad_s))) <= REST_RAD_S:
+            tau_m = [k * i for k, i in zip(self._k_nm_per_a, st.current_a.tolist(), strict=True)]
+            self.hold.add((st.q_cmd_rad - st.q_rad).tolist(), tau_m)
+        else:
+            self.hold.clear()
+
     def update(
         self, st: JointState, p_bar: Sequence[float], now_s: float, state_rx_s: float = 0.0
     ) -> JointCommand:
@@ -146,12 +174,21 @@ class ZeroMomentController:
         period = st.cycle_period_s or self.cfg.default_cycle_period_s
         if not self.engaged:
             # Bumpless: start from the command the robot follows now (the driver's hold).
+            self.observe_hold(st)
+            if len(self.hold):  # the held offsets and currents measure the drive's K K_I
+                self.loop.calibrate_from_hold(*self.hold.mean())
+            self.hold.clear()
             self.loop.reset(st.q_cmd_rad - st.q_rad)
             self.engaged = True
             self.last_cycle = st.cycle - 1
         gap = st.cycle - (self.last_cycle if self.last_cycle is not None else st.cycle - 1)
         dt = period * max(1, min(gap, 50))
         self.last_cycle = st.cycle
+        followed = gap == 1 and not st.flags & (FLAG_PREV_HOLD | FLAG_PREV_COAST)
+        tau_m = None
+        if followed:  # eq. (28): the torque the drive delivered, from its reported current
+            tau_m = [k * i for k, i in zip(self._k_nm_per_a, st.current_a.tolist(), strict=True)]
+        self.loop.adapt_floats(tau_m, period)
         try:
             q_cmd, dq_cmd = self.cycle_command(st.q_rad, st.dq_rad_s, p_bar, dt)
         except (ValueError, ArithmeticError) as exc:  # where numpy would have given NaN
@@ -303,9 +340,20 @@ class ControlProcess:
         self.bus = bus
         self.keys = bus.keys
         self.clock = clock
-        self.ctl = ZeroMomentController(cfg, DeclaredModel.load(cfg.model))
-        self.player = PlanPlayer(self.ctl.lower - cfg.soft_limit_margin_rad,
-                                 self.ctl.upper + cfg.soft_limit_margin_rad)  # fmt: skip
+        #: the zero-moment law; None on a cell not commissioned yet (it only identifies)
+        self.ctl: ZeroMomentController | None = None
+        if cfg.uncommissioned is None:
+            assert cfg.model is not None
+            self.ctl = ZeroMomentController(cfg, DeclaredModel.load(cfg.model))
+        joints = load_description().joints if self.ctl is None else self.ctl.model.desc.joints
+        self.n = len(joints)
+        if len(cfg.max_offset_rad) != self.n:
+            raise ConfigError(
+                f"[control].max_offset_rad: {len(cfg.max_offset_rad)} values, the robot has "
+                f"{self.n} joints"
+            )
+        self.player = PlanPlayer(np.array([j.lower_rad for j in joints]),
+                                 np.array([j.upper_rad for j in joints]))  # fmt: skip
         self._report_sent: tuple | None = None
         self._lock = threading.Lock()
         self.io: IoState | None = None
@@ -374,18 +422,23 @@ class ControlProcess:
         self.stats["states"] += 1
         with self._lock:
             io, mode, lc = self.io, self._mode(now), self.lifecycle
-        if st.n != self.ctl.model.n:
+        if st.n != self.n:
             self.stats["bad_messages"] += 1
-            log.error("joint state has %d joints, model has %d", st.n, self.ctl.model.n)
+            log.error("joint state has %d joints, the robot has %d", st.n, self.n)
             return
+        ctl = self.ctl
         following = st.controller_state in (ControllerState.HOLD, ControllerState.EXTERNAL)
         if mode is None or not following:
-            self.ctl.disengage()
+            if ctl is not None:
+                ctl.disengage()
+                if following:
+                    ctl.observe_hold(st)
             if following and io is not None and now - io.stamp_s <= self.cfg.io_timeout_s:
                 self._check_load(st, io, now)
             return
         if mode == Lifecycle.IDENTIFYING:
-            self.ctl.disengage()
+            if ctl is not None:
+                ctl.disengage()
             plan = lc.extra.get("plan") if lc else None
             if isinstance(plan, dict) and str(plan.get("plan_id")) != self.player.plan_id:
                 period = st.cycle_period_s or self.cfg.default_cycle_period_s
@@ -396,16 +449,18 @@ class ControlProcess:
                 self._pub_cmd.put(cmd.to_bytes())
                 self.stats["commands"] += 1
             return
+        if ctl is None:  # teaching without a model: the gateway refuses it; never command
+            return
         if io is None or now - io.stamp_s > self.cfg.io_timeout_s:
             self.stats["io_stale"] += 1
-            self.ctl.disengage()  # no pressures, no cylinder torque: let the driver hold
+            ctl.disengage()  # no pressures, no cylinder torque: let the driver hold
             return
         try:
-            q_cmd, dq_cmd = self.ctl.answer(st, (io.p2_bar, io.p3_bar))
+            q_cmd, dq_cmd = ctl.answer(st, (io.p2_bar, io.p3_bar))
             payload = JointCommand.pack(st.cycle, st.stamp_s, self.clock(), q_cmd, dq_cmd, now)
         except MessageError as exc:  # NaN from the model: never send it
             self.stats["bad_messages"] += 1
-            self.ctl.disengage()
+            ctl.disengage()
             log.error("command not sent: %s", exc)
             return
         self._pub_cmd.put(payload)
@@ -417,6 +472,11 @@ class ControlProcess:
         if now - self.load_check_s < LOAD_CHECK_PERIOD_S:
             return
         if float(np.max(np.abs(st.dq_rad_s))) > REST_RAD_S:
+            return
+        if self.ctl is None:
+            zero = (0.0,) * self.n
+            reason = self.cfg.uncommissioned or "no model"
+            self.load_check, self.load_check_s = LoadCheck(False, 0, zero, zero, zero, reason), now
             return
         check = static_load_check(
             self.ctl.model,
@@ -441,19 +501,21 @@ class ControlProcess:
             health = {
                 "process": "control",
                 "stamp_s": now,
-                "engaged": self.ctl.engaged,
+                "engaged": self.ctl is not None and self.ctl.engaged,
                 **self.stats,
                 "load_check": None
                 if self.load_check is None
                 else {**self.load_check.to_json(), "age_s": round(now - self.load_check_s, 3)},
             }
             s.put(self.keys.health("control"), encode_json(health))
-            tele = {
-                "stamp_s": now,
-                "tau_d_nm": [round(float(v), 3) for v in self.ctl.tau_d_nm],
-                "offset_rad": [round(float(v), 6) for v in self.ctl.loop.offset_rad],
-            }
-            s.put(self.keys.control_telemetry, encode_json(tele))
+            if self.ctl is not None:
+                tele = {
+                    "stamp_s": now,
+                    "tau_d_nm": [round(float(v), 3) for v in self.ctl.tau_d_nm],
+                    "offset_rad": [round(float(v), 6) for v in self.ctl.loop.offset_rad],
+                    "omega_rad_s_per_nm": [float(f"{v:.5g}") for v in self.ctl.loop.omega],
+                }
+                s.put(self.keys.control_telemetry, encode_json(tele))
             if self.player.plan_id is not None:
                 s.put(self.keys.experiment, encode_json(self.player.report()))
 

@@ -34,7 +34,8 @@ from sim_bridge.sim import truth_log_columns
 REPO = Path(__file__).resolve().parent.parent
 SIM_CELL = REPO / "deploy" / "config" / "sim_cell.toml"
 TRUTH = Path(__file__).with_name("gr630st_truth.toml")
-DECLARED = REPO / "deploy" / "config" / "gr630st_declared.toml"
+#: ``Stack(model=COMMISSIONED)``: the plant seed's commissioned model (:mod:`.commission`)
+COMMISSIONED = "commissioned"
 
 #: The CAN profiles of the protocol (drivers/can/PROTOCOL.md §2 and §10) as (virtual
 #: controller overrides, cell config overrides): both ends must speak the same one.
@@ -110,9 +111,15 @@ class Stack:
         lockstep: bool = False,
         quiet: bool = True,
         plant_seed: int = 0,
+        model: str | Path | None = COMMISSIONED,
+        inner_loop: str | Path | None = None,
     ) -> None:
         """``plant_seed``: the virtual robot drawn (:mod:`sim_bridge.truth`; 0 is the truth
-        file as written)."""
+        file as written). ``model``: what the control process compensates: the plant's
+        commissioned model and inner-loop estimate (:func:`.commission.commissioned`, built
+        by `leadthrough identify` on this plant seed when not cached), a ``model.json`` path
+        (with the ``inner_loop.json`` of the same identification, or None), or None for a cell
+        that is not commissioned yet (it identifies but refuses to teach)."""
         self.workdir = Path(workdir)
         self.workdir.mkdir(parents=True, exist_ok=True)
         self.lockstep = lockstep
@@ -121,7 +128,14 @@ class Stack:
         self.can_address = unique_can_address()
         self.bus = BusConfig(endpoint=f"tcp/127.0.0.1:{self.ports['bus']}")
         cell = load_toml(SIM_CELL)
-        cell["control"]["model"] = str(DECLARED)
+        if model == COMMISSIONED:
+            from sim_bridge.commission import commissioned
+
+            done = commissioned(plant_seed)
+            model, inner_loop = done.model, done.inner_loop
+        for key, path in (("model", model), ("inner_loop", inner_loop)):
+            if path is not None:
+                cell["control"][key] = str(path)
         cell = deep_merge(
             cell,
             {

@@ -188,9 +188,10 @@ def fit_inner_loop_runs(
                              delay, rows_used)  # fmt: skip
 
 
-def read_outer_loop_gains(path: str | Path, n_joints: int) -> tuple[list[float], list[float]]:
-    """ω [rad/s per N·m] and Υ_I [1/s] per joint from an ``inner_loop.json`` that
-    ``leadthrough identify`` wrote. Raises ConfigError naming the file and what is wrong."""
+def read_outer_loop_gains(path: str | Path, n_joints: int) -> tuple[list[float], list[float], int]:
+    """ω [rad/s per N·m] and Υ_I [1/s] per joint, and the command delay [cycles] (0 when not
+    given) from an ``inner_loop.json`` that ``leadthrough identify`` wrote. Raises
+    ConfigError naming the file and what is wrong."""
     p = Path(path)
     try:
         doc = json.loads(p.read_text())
@@ -212,4 +213,8 @@ def read_outer_loop_gains(path: str | Path, n_joints: int) -> tuple[list[float],
         if not all(np.isfinite(v) and v > 0 for v in floats):
             raise ConfigError(f"{p}: {key} values must be finite and > 0, got {floats}")
         out.append(floats)
-    return out[0], out[1]
+    delay = doc.get("delay_cycles", 0)
+    if not isinstance(delay, int) or isinstance(delay, bool) or not 0 <= delay <= 10:
+        raise ConfigError(f"{p}: delay_cycles must be a whole number of cycles 0..10, "
+                          f"got {delay!r}")  # fmt: skip
+    return out[0], out[1], delay

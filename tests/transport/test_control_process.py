@@ -6,6 +6,7 @@ import time
 
 import numpy as np
 import pytest
+from example_cell import example_cell
 
 from control.process import ControlProcess, load_control_config
 from gateway.bus import BusConfig, open_client, open_router
@@ -17,16 +18,15 @@ from gateway.messages import (
     LifecycleMsg,
     make_joint_state,
 )
-from sim_bridge.harness import SIM_CELL
 
 Q0 = np.array([0.0, 0.15, 0.25, 0.0, -0.4, 0.0])
 
 
 @pytest.fixture
-def rig(port):
+def rig(port, tmp_path):
     bus = BusConfig(endpoint=f"tcp/127.0.0.1:{port}")
     router = open_router(bus)
-    cfg, _ = load_control_config(SIM_CELL)
+    cfg, _ = load_control_config(example_cell(tmp_path))
     proc = ControlProcess(cfg, bus)
     proc.open()
     client = open_client(bus)

@@ -331,13 +331,14 @@ def test_other_friction_families_give_loadable_models(cylinder_run, tmp_path):
         assert Path(out / "report.md").read_text().startswith("# Identification report")
 
 
-def test_control_process_loads_the_identified_model(cylinder_run):
+def test_control_process_loads_the_identified_model(cylinder_run, tmp_path):
     """The versioned model file is what the control process compensates with."""
+    from example_cell import example_cell
+
     from control.declared_model import DeclaredModel, IdentifiedControlModel
     from control.model.dynamics import RigidBodyModel
     from control.process import ZeroMomentController, load_control_config
     from gateway.messages import ControllerState, make_joint_state
-    from sim_bridge.harness import SIM_CELL
 
     model = DeclaredModel.load(cylinder_run["out"] / "model.json")
     assert isinstance(model, IdentifiedControlModel)
@@ -347,7 +348,9 @@ def test_control_process_loads_the_identified_model(cylinder_run):
     for q in rng.uniform(desc.lower_rad * 0.5, desc.upper_rad * 0.5, size=(5, 6)):
         np.testing.assert_allclose(model.gravity_nm(q), truth.gravity_nm(q), atol=3.0)
         assert np.all(np.isfinite(model.friction_nm(q, np.full(6, 0.1))))
-    cfg, _ = load_control_config(SIM_CELL)
+    cfg, _ = load_control_config(
+        example_cell(tmp_path, model=str(cylinder_run["out"] / "model.json"))
+    )
     ctl = ZeroMomentController(cfg, model)
     q = np.array([0.0, 0.15, 0.25, 0.0, -0.4, 0.0])
     st = make_joint_state(1, 0.0, ControllerState.EXTERNAL, 0, q, np.zeros(6), np.zeros(6), q,

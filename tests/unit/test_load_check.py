@@ -1,13 +1,12 @@
 """The static-load check that gates teaching (control/load_check.py)."""
 
 import numpy as np
+from example_cell import EXAMPLE_MODEL
 
 from control.declared_model import DeclaredModel
 from control.load_check import breakaway_nm, static_load_check
 from control.model.dynamics import RigidBodyModel
-from gateway.config import resolve_path
 
-DECLARED = resolve_path("deploy/config/sim_cell.toml", "gr630st_declared.toml")
 Q = np.array([0.0, 0.15, 0.25, 0.0, -0.4, 0.0])
 P = np.array([6.0, 4.0])
 MARGIN = [20.0, 20.0, 20.0, 2.0, 2.0, 1.0]
@@ -20,7 +19,7 @@ def held_current(model: DeclaredModel, extra_nm: np.ndarray) -> np.ndarray:
 
 
 def test_matching_load_passes_within_friction_and_margin():
-    model = DeclaredModel.load(DECLARED)
+    model = DeclaredModel.load(EXAMPLE_MODEL)
     friction = breakaway_nm(model, Q)
     assert np.all(friction > 0)
     check = static_load_check(model, Q, held_current(model, 0.9 * friction), P, MARGIN)
@@ -28,7 +27,7 @@ def test_matching_load_passes_within_friction_and_margin():
 
 
 def test_an_undeclared_tool_fails_naming_the_joint():
-    model = DeclaredModel.load(DECLARED)
+    model = DeclaredModel.load(EXAMPLE_MODEL)
     # An 8 kg gun 0.05 m beyond the flange, as the virtual cell's test mounts it.
     rb = RigidBodyModel.from_description(model.desc)
     jac = rb.tool_jacobian_world(Q)[:3]
@@ -40,7 +39,7 @@ def test_an_undeclared_tool_fails_naming_the_joint():
 
 
 def test_a_nan_current_fails():
-    model = DeclaredModel.load(DECLARED)
+    model = DeclaredModel.load(EXAMPLE_MODEL)
     current = held_current(model, np.zeros(6))
     current[4] = np.nan
     check = static_load_check(model, Q, current, P, [])

@@ -13,21 +13,21 @@ import math
 
 import numpy as np
 import pytest
+from example_cell import EXAMPLE_MODEL, example_cell
 
 from control.declared_model import DeclaredModel
 from control.model.cylinders import CylinderTorques, cylinder_torque_nm
 from control.process import ZeroMomentController, load_control_config
 from gateway.errors import MessageError
 from gateway.messages import ControllerState, JointCommand, make_joint_state
-from sim_bridge.harness import SIM_CELL
 
 #: equal to rounding: a few ulps of torques up to ~1e4 N·m, commands of ~1 rad
 RTOL, ATOL = 1e-12, 1e-9
 
 
 @pytest.fixture(scope="module")
-def cfg():
-    return load_control_config(SIM_CELL)[0]
+def cfg(tmp_path_factory):
+    return load_control_config(example_cell(tmp_path_factory.mktemp("cell")))[0]
 
 
 @pytest.fixture(scope="module")
@@ -118,6 +118,7 @@ def test_update_answers_with_the_reference_command(cfg, model):
         if not ref.engaged:
             ref.loop.reset(st.q_cmd_rad - st.q_rad)
             ref.engaged = True
+        ref.loop.adapt_floats([0.0] * 6, 0.004)  # eq. (28) on the (zero) reported current
         want = ref.loop.step(q, dq, ref.desired_torque(q, dq, p), 0.004)
         assert (cmd.cycle, cmd.state_stamp_s, cmd.sent_stamp_s) == (cycle, 1.0, 2.0)
         np.testing.assert_allclose(cmd.q_cmd_rad, want.q_cmd_rad, rtol=RTOL, atol=ATOL)
@@ -131,7 +132,7 @@ def test_identified_model_cycle_torques_equal_its_array_methods(tmp_path):
     from control.robot.description import load_description
     from control.robot.urdf import to_urdf
 
-    declared = DeclaredModel.load(load_control_config(SIM_CELL)[0].model)
+    declared = DeclaredModel.load(EXAMPLE_MODEL)
     desc = load_description()
     xml = to_urdf(desc)
     reg = RobotRegressor(xml, tuple(desc.gravity_m_s2))
@@ -171,13 +172,13 @@ def test_non_finite_torque_is_refused_not_sent(cfg, model):
         bad.update(st, (6.0, 4.0), 0.0)
 
 
-def test_process_answers_each_state_stamped_at_receipt_and_at_sending():
+def test_process_answers_each_state_stamped_at_receipt_and_at_sending(tmp_path):
     """The control process's callback, as the benchmark drives it (no bus): one command per
     state, carrying when the state arrived and, later, when the command was sent."""
     from control import bench_loop
 
     ticks = iter(range(1_000_000, 2_000_000))
-    proc, pub = bench_loop.make_process()
+    proc, pub = bench_loop.make_process(example_cell(tmp_path))
     proc.clock = lambda: next(ticks) * 1e-3  # 1 ms per reading
     sent = []
     pub.put = sent.append
@@ -189,8 +190,38 @@ def test_process_answers_each_state_stamped_at_receipt_and_at_sending():
     assert all(0 < c.state_rx_stamp_s < c.sent_stamp_s for c in cmds)
 
 
-def test_benchmark_runs_and_every_call_commands():
+def test_benchmark_runs_and_every_call_commands(tmp_path):
     from control import bench_loop
 
-    result = bench_loop.run(calls=300, warmup=30)
+    result = bench_loop.run(example_cell(tmp_path), calls=300, warmup=30)
     assert result["calls"] == 300 and result["on_state"]["median_us"] > 0
+
+
+def test_the_drive_holding_the_arm_calibrates_omega_before_teaching(cfg, model):
+    """At rest the driver's hold gives ``K i = K K_I (q_c - q)`` (eq. 19): over the hold's
+    states the control process learns K K_I and starts teaching with the ω̂ whose static gain
+    K K_I ω̂ / Υ̂_I is 1, even though the commissioned ω is 10 % off and the current noisy."""
+    from gateway.messages import FLAG_PREV_HOLD
+
+    ctl = ZeroMomentController(cfg, model)
+    k = np.array([j.drive_gain_nm_per_a for j in model.desc.joints])
+    upsilon = np.array(cfg.upsilon_i_per_s)
+    kki = 1.1 * upsilon / np.array(cfg.omega_rad_s_per_nm)  # the drive's true K K_I
+    q = np.array([0.0, 0.15, 0.25, 0.0, -0.4, 0.0])
+    load = np.array([50.0, 2000.0, 800.0, 12.0, 9.0, 3.0])  # held static torque [N·m]
+    offset = load / kki
+    rng = np.random.default_rng(3)
+    hold = ControllerState.HOLD
+    for c in range(64):
+        current = (load + rng.normal(0.0, [0.9, 1.3, 0.8, 0.2, 0.2, 0.1])) / k
+        st = make_joint_state(c, 0.0, hold, FLAG_PREV_HOLD | 2, q, np.zeros(6), current,
+                              q + offset, np.zeros(6), 0.008)  # fmt: skip
+        ctl.observe_hold(st)
+    assert len(ctl.hold) == 64
+    ctl.answer(st, (6.0, 4.0))  # teaching starts from that hold
+    np.testing.assert_allclose(ctl.loop.omega * kki / upsilon, 1.0, rtol=0.01)
+    # a moving arm is no hold: the average starts again
+    moving = make_joint_state(99, 0.0, hold, FLAG_PREV_HOLD | 2, q, np.full(6, 0.1),
+                              np.zeros(6), q, np.zeros(6), 0.008)  # fmt: skip
+    ctl.observe_hold(moving)
+    assert len(ctl.hold) == 0

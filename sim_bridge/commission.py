@@ -1,0 +1,181 @@
+"""Commissioning a virtual robot as a user commissions a real one, cached per plant and code.
+
+A drawn plant (:mod:`sim_bridge.truth`) is a robot the product knows nothing about: its model
+comes from `leadthrough identify`, run on the virtual cell in lock-step (faster than real time)
+through the whole product, exactly as on the real cell: the gateway identifies, the control
+process plays :data:`control.identify.QUICK_PLAN` (friction sweeps, inner-loop velocity steps,
+multi-sines), the CAN driver forwards it, the bus is recorded and fitted. The output folder holds
+``model.json`` (the dynamic model) and ``inner_loop.json`` (ω and Υ_I of eq. 21), which
+``[control] model`` and ``[control] inner_loop`` point at.
+
+:func:`commissioned` keeps one such folder per plant seed and *code version* (a digest of every
+source file of the product and of the virtual cell, and of the plan): a change to either builds
+it again, and two processes asking for the same one build it once (a file lock). The truth is
+never read here: the plant seed goes to the simulator, which draws the plant itself.
+
+``python -m sim_bridge.commission --plant-seed N`` builds (or finds) one and prints its folder.
+"""
+
+from __future__ import annotations
+
+import argparse
+import fcntl
+import hashlib
+import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from sim_bridge.harness import REPO, Stack
+
+#: Where commissioned models are kept (``LEADTHROUGH_CACHE`` overrides; `make clean` removes it).
+DEFAULT_CACHE = REPO / ".cache" / "commission"
+CACHE_ENV = "LEADTHROUGH_CACHE"
+#: The controller cycle commissioning runs at (the virtual controller's default) [s].
+CYCLE_S = 0.008
+#: Source trees whose files make up the code version.
+CODE_TREES = ("control", "drivers", "gateway", "sim_bridge", "deploy/config")
+CODE_SUFFIXES = (".py", ".toml", ".xml", ".dbc", ".json")
+#: Longest a commissioning may take before it is abandoned (robot stopped) [s].
+IDENTIFY_TIMEOUT_S = 600.0
+
+
+@dataclass(frozen=True)
+class Commissioned:
+    """A commissioned plant: the folder `leadthrough identify` wrote."""
+
+    plant_seed: int
+    folder: Path
+
+    @property
+    def model(self) -> Path:
+        return self.folder / "model.json"
+
+    @property
+    def inner_loop(self) -> Path:
+        return self.folder / "inner_loop.json"
+
+    @property
+    def summary(self) -> dict[str, Any]:
+        return json.loads((self.folder / "summary.json").read_text())
+
+
+def code_version(plan: dict[str, Any]) -> str:
+    """Digest of the plan and of every source file of the product and the virtual cell."""
+    h = hashlib.sha256(json.dumps(plan, sort_keys=True).encode())
+    for tree in CODE_TREES:
+        for path in sorted((REPO / tree).rglob("*")):
+            if path.suffix in CODE_SUFFIXES and "__pycache__" not in path.parts:
+                h.update(str(path.relative_to(REPO)).encode())
+                h.update(path.read_bytes())
+    return h.hexdigest()[:16]
+
+
+def cache_root() -> Path:
+    env = os.environ.get(CACHE_ENV)
+    return Path(env) if env else DEFAULT_CACHE
+
+
+@contextmanager
+def _locked(path: Path) -> Iterator[None]:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("a") as fh:
+        fcntl.flock(fh, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(fh, fcntl.LOCK_UN)
+
+
+def commissioned(
+    plant_seed: int,
+    *,
+    root: Path | None = None,
+    progress: Callable[[str], None] = print,
+) -> Commissioned:
+    """The commissioned model of ``plant_seed`` for this code: from the cache, or built now by
+    :func:`commission` (about a minute) and kept."""
+    from control.identify import QUICK_PLAN
+
+    if plant_seed < 0:
+        raise ValueError(f"plant seed {plant_seed} must be >= 0")
+    plan = {"plan_id": f"commission-seed{plant_seed}", **QUICK_PLAN}
+    root = root or cache_root()
+    folder = root / f"seed{plant_seed}-{code_version(plan)}"
+    with _locked(root / f".seed{plant_seed}.lock"):
+        if (folder / "model.json").exists() and (folder / "inner_loop.json").exists():
+            return Commissioned(plant_seed, folder)
+        progress(f"commissioning plant seed {plant_seed} with `leadthrough identify` "
+                 f"(lock-step, about a minute) into {folder} ...")  # fmt: skip
+        work = root / f".build-seed{plant_seed}-{os.getpid()}"
+        shutil.rmtree(work, ignore_errors=True)
+        t0 = time.monotonic()
+        try:
+            commission(plant_seed, plan, work)
+            shutil.rmtree(folder, ignore_errors=True)
+            (work / "ident").rename(folder)
+        finally:
+            shutil.rmtree(work, ignore_errors=True)
+        progress(f"commissioned plant seed {plant_seed} in {time.monotonic() - t0:.0f} s")
+        # Older versions of this seed are of no further use.
+        for old in root.glob(f"seed{plant_seed}-*"):
+            if old != folder:
+                shutil.rmtree(old, ignore_errors=True)
+        return Commissioned(plant_seed, folder)
+
+
+def commission(plant_seed: int, plan: dict[str, Any], work: Path) -> Path:
+    """Run `leadthrough identify` with ``plan`` on a fresh virtual cell of ``plant_seed`` whose
+    product knows no model yet; returns ``work/ident`` (raises RuntimeError on failure)."""
+    sim = {"operator": {"enabling_after_s": 0.0}, "controller": {"cycle_period_s": CYCLE_S}}
+    # Lock-step, the virtual controller waits for each answer: the driver may use the whole
+    # cycle before it coasts or holds.
+    can = {"can": {"answer_by_period_fraction": 1.0, "deadline_s": 0.1}}
+    plan_path = work / "plan.json"
+    work.mkdir(parents=True, exist_ok=True)
+    plan_path.write_text(json.dumps(plan))
+    with Stack(
+        work / "cell", sim_overrides=sim, cell_overrides=can, lockstep=True,
+        plant_seed=plant_seed, model=None,
+    ) as stack:  # fmt: skip
+        stack.start()
+        stack.wait_status(lambda s: s.get("can_start") is True, 60.0, "cell ready to start")
+        reply = stack.request("start")
+        if not reply.get("ok"):
+            raise RuntimeError(f"start refused: {reply}")
+        stack.wait_status(lambda s: s.get("state") == "ready", 10.0, "ready")
+        out = subprocess.run(
+            [sys.executable, "-m", "gateway.cli", "identify", "--config", str(stack.cell_path),
+             "--plan", str(plan_path), "--out", str(work / "ident"),
+             "--timeout", str(IDENTIFY_TIMEOUT_S)],
+            capture_output=True, text=True, timeout=IDENTIFY_TIMEOUT_S + 120, cwd=REPO,
+        )  # fmt: skip
+        stack.request("stop")
+    (work / "identify.log").write_text(out.stdout + out.stderr)
+    if out.returncode != 0:
+        raise RuntimeError(
+            f"commissioning plant seed {plant_seed} failed ({out.returncode}):\n"
+            f"{out.stdout[-3000:]}{out.stderr[-3000:]}"
+        )
+    shutil.copy(work / "identify.log", work / "ident" / "identify.log")
+    return work / "ident"
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m sim_bridge.commission", description=__doc__)
+    p.add_argument("--plant-seed", type=int, default=0)
+    args = p.parse_args(argv)
+    c = commissioned(args.plant_seed)
+    print(c.folder)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
