@@ -115,6 +115,8 @@ def make_context(
         y_payload=y[:, :, nb:] if payload else None,
         envelope=envelope,
         lowpass=data.lowpass if data.filter_hz is not None else None,
+        sample_hz=data.sample_hz,
+        raw_hz=data.raw_hz,
     )
 
 
@@ -319,8 +321,7 @@ def plain_columns(ctx: Context, j: int) -> dict[int, np.ndarray]:
 def plain_friction_columns(ctx: Context, j: int) -> np.ndarray:
     """Coulomb ``sgn(dq_j)`` and viscous ``dq_j`` of joint j (velocity clipped to the
     envelope), filtered like the torque, (T, 2): the friction of :func:`plain_columns`."""
-    dq = ctx.dq_of(j)
-    return ctx.filtered(np.column_stack([np.sign(dq), dq]))
+    return ctx.filtered(ctx.sample_mean(j, lambda dq: np.column_stack([np.sign(dq), dq])))
 
 
 @dataclass
@@ -474,7 +475,9 @@ class IdentifiedModel:
         ``data.tau``: :meth:`torque_nm` at the sample times, through the torque's low-pass
         (:meth:`.preprocess.Prepared.lowpass`), delayed by :attr:`delay_s` when a time_delay
         effect was accepted."""
-        tau = data.lowpass(self.torque_nm(data.q, data.dq, data.ddq, data.t))
+        ctx = self._context(data.q, data.dq, data.ddq, data.t)
+        ctx.sample_hz, ctx.raw_hz = data.sample_hz, data.raw_hz
+        tau = data.lowpass(self.torque_from_context(ctx))
         return shift_signal(data.t, data.segment, tau, -self.delay_s) if self.delay_s else tau
 
     # -- file format -------------------------------------------------------------------------

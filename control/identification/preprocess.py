@@ -29,7 +29,9 @@ Per recorded file (and per gap-free segment of it):
    each segment (filter start-up and one-sided differences).
 7. **Decimation** to ``rate_hz`` (default :data:`DEFAULT_RATE_HZ` = 200 Hz) by keeping every
    k-th sample, k = round(f_s / rate_hz); the low-pass above is its anti-alias filter. Ten
-   minutes at 1 kHz become 120,000 samples.
+   minutes at 1 kHz become 120,000 samples. ``raw_hz`` keeps f_s per sample: a kept sample
+   stands for k recorded ones, over which the friction columns are averaged
+   (:meth:`.terms.Context.sample_mean`).
 
 Units: t [s], q [rad], dq [rad/s], ddq [rad/s²], tau [N·m], p [bar].
 """
@@ -97,6 +99,10 @@ class Prepared:
     noise_nm: np.ndarray | None = None
     raw_noise_nm: np.ndarray | None = None
     noise_dof_nm2: np.ndarray | None = None
+    #: (T,) the recorded rate [Hz] of each sample's segment before decimation (None: unknown,
+    #: taken as ``sample_hz``): a kept sample stands for ``raw_hz / sample_hz`` recorded ones
+    #: (:meth:`.terms.Context.sample_mean`)
+    raw_hz: np.ndarray | None = None
 
     @property
     def n_samples(self) -> int:
@@ -114,7 +120,7 @@ class Prepared:
         """The samples where ``mask`` (T,) is true (a boolean array or index array)."""
         per_sample = ("t", "q", "dq", "ddq", "tau", "segment")
         changes = {k: getattr(self, k)[mask] for k in per_sample}
-        for k in ("p", "filter_hz", "sample_hz"):
+        for k in ("p", "filter_hz", "sample_hz", "raw_hz"):
             v = getattr(self, k)
             changes[k] = None if v is None else v[mask]
         return replace(self, **changes)
@@ -268,6 +274,7 @@ def prepare(
         part["segment"] = np.full(part["t"].size, seg_id)
         part["filter_hz"] = np.full(part["t"].size, tau_cut)
         part["sample_hz"] = np.full(part["t"].size, fs / factor)
+        part["raw_hz"] = np.full(part["t"].size, fs)
         parts.append(part)
         rates.append(fs / factor)
         floor = raw_noise * np.sqrt(filter_noise_gain(tau_cut, fs))
@@ -292,6 +299,7 @@ def prepare(
         rate_hz=float(np.median(rates)),
         filter_hz=cat["filter_hz"],
         sample_hz=cat["sample_hz"],
+        raw_hz=cat["raw_hz"],
         noise_nm=_pooled([(k, f) for k, _, f, _ in noise]),
         raw_noise_nm=_pooled([(k, r) for k, r, _, _ in noise]),
         noise_dof_nm2=_squared(_pooled([(k, d) for k, _, _, d in noise])),
@@ -349,6 +357,7 @@ def concatenate(parts: Sequence[Prepared]) -> Prepared:
         rate_hz=float(np.median([p.rate_hz for p in parts])),
         filter_hz=_cat_optional([p.filter_hz for p in parts]),
         sample_hz=_cat_optional([p.sample_hz for p in parts]),
+        raw_hz=_cat_optional([p.raw_hz for p in parts]),
         noise_nm=_pooled([(p.n_samples, p.noise_nm) for p in parts]),
         raw_noise_nm=_pooled([(p.n_samples, p.raw_noise_nm) for p in parts]),
         noise_dof_nm2=_squared(_pooled([(p.n_samples, _sqrt(p.noise_dof_nm2)) for p in parts])),

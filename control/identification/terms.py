@@ -20,7 +20,11 @@ clipped; ``thermal_drift`` is linear in time by definition.
 
 Filtering: when the :class:`Context` carries the measured torque's low-pass (``lowpass``),
 every column is passed through it, so the model is fitted to and judged on the filtered
-torque with the same filter on both sides (:meth:`.preprocess.Prepared.lowpass`).
+torque with the same filter on both sides (:meth:`.preprocess.Prepared.lowpass`). Where the
+analysis rate is below the recorded one, the friction columns and the effect columns with a
+velocity sign in them are first averaged over the recorded samples each kept sample stands for
+(:meth:`Context.sample_mean`), so a friction reversal falls where the filtered measurement has
+it, not on the decimated grid.
 
 - ``position_ripple`` on joint j: ``sin(c q_j)``, ``cos(c q_j)``, c scanned; parameters
   ``cycles_per_rev`` c, ``amplitude_nm`` A, ``phase_rad`` φ (``A sin(c q_j + φ)``).
@@ -140,7 +144,11 @@ class Context:
     ``rigid`` and ``friction`` [N·m] are the current model's rigid-body and friction torques,
     needed by terms built on the model itself (load-dependent friction, wrist coupling).
     ``envelope`` clips the inputs of friction and effect terms, ``lowpass`` filters every
-    column like the measured torque (module docstring); both None at run time.
+    column like the measured torque (module docstring); both None at run time. ``sample_hz``
+    and ``raw_hz`` (T,) are each sample's rate after decimation and as recorded
+    (:class:`.preprocess.Prepared`): where a kept sample stands for several recorded ones, the
+    velocity-discontinuous columns are averaged over them (:meth:`sample_mean`); None at run
+    time.
     """
 
     q: np.ndarray
@@ -153,6 +161,8 @@ class Context:
     friction: np.ndarray | None = None
     envelope: Envelope | None = None
     lowpass: Callable[[np.ndarray], np.ndarray] | None = None
+    sample_hz: np.ndarray | None = None
+    raw_hz: np.ndarray | None = None
 
     @property
     def n_rows(self) -> int:
@@ -167,6 +177,46 @@ class Context:
         """Joint j's velocities [rad/s], clipped to the envelope."""
         dq = self.dq[:, j]
         return dq if self.envelope is None else self.envelope.clip_dq(j, dq)
+
+    def sample_mean(self, j: int, fn: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
+        """``fn`` (columns (T,) or (T, m) of a velocity array (T,)) of joint j's velocity,
+        clipped to the envelope, per sample averaged over the recorded samples it stands for.
+
+        The measured torque was low-passed at the recorded rate and then decimated
+        (:mod:`.preprocess`), so a friction reversal sits in it where the velocity crossed zero
+        to within one *recorded* sample. A column computed only at the kept samples jumps on
+        the decimated grid instead, up to ``raw_hz / sample_hz`` recorded samples off; the
+        fit then bends the friction's shape (a wider smooth sign, another Stribeck velocity)
+        to stand in for that timing error, and the bent shape is tuned to how fast the
+        training motion crosses zero, not to the friction: a run reversing at other
+        accelerations gets it wrong. Here each kept sample's column is the mean of ``fn`` at
+        the recorded samples around it, the velocity carried there by the acceleration
+        (``dq + ddq δ``, δ their time offsets): the reversal lands at its recorded time, as
+        in the measurement. One recorded sample per kept one (or no rates known) is ``fn``
+        of the velocity itself.
+        """
+        dq = self.dq[:, j]
+        env = self.envelope
+
+        def at(v: np.ndarray) -> np.ndarray:
+            out = np.asarray(fn(v if env is None else env.clip_dq(j, v)), dtype=float)
+            return out[:, None] if out.ndim == 1 else out
+
+        if self.sample_hz is None or self.raw_hz is None or dq.size == 0:
+            return at(dq)
+        raw = np.asarray(self.raw_hz, dtype=float)
+        k = np.maximum(1, np.round(raw / np.asarray(self.sample_hz, dtype=float))).astype(int)
+        if int(k.max()) == 1:
+            return at(dq)
+        ddq = self.ddq[:, j]
+        acc: np.ndarray | None = None
+        for i in range(int(k.max())):
+            live = i < k
+            dt = np.where(live, (i - 0.5 * (k - 1)) / raw, 0.0)
+            part = at(dq + ddq * dt) * (live / k)[:, None]
+            acc = part if acc is None else acc + part
+        assert acc is not None
+        return acc
 
     def filtered(self, cols: np.ndarray) -> np.ndarray:
         """Columns (T, m) through :attr:`lowpass` (unchanged without one)."""
@@ -192,6 +242,8 @@ class Context:
             take(self.friction),
             self.envelope,
             None,
+            take(self.sample_hz),
+            take(self.raw_hz),
         )
 
 
@@ -248,13 +300,12 @@ class FrictionTerm:
 
     def columns(self, ctx: Context) -> dict[int, np.ndarray]:
         j = self.joint
-        basis = friction_basis(
-            self.kind,
-            ctx.q_of(j),
-            ctx.dq_of(j),
-            self.q_e_rad_s,
-            self.gear_ratio,
-            self.sign_width_rad_s,
+        q = ctx.q_of(j)
+        basis = ctx.sample_mean(
+            j,
+            lambda dq: friction_basis(
+                self.kind, q, dq, self.q_e_rad_s, self.gear_ratio, self.sign_width_rad_s
+            ),
         )
         return {j: ctx.filtered(basis)}
 
@@ -304,7 +355,6 @@ class EffectTerm:
 
     def _raw_columns(self, ctx: Context, j: int) -> np.ndarray:
         name, s = self.name, self.setting
-        dq = ctx.dq_of(j)
         if name == "position_ripple":
             c = float(s["cycles_per_rev"])
             q = ctx.q[:, j]  # periodic: bounded without clipping (module docstring)
@@ -314,15 +364,15 @@ class EffectTerm:
             return np.column_stack([q, np.ones_like(q)])
         if name == "stribeck":
             v = float(s["velocity_rad_s"])
-            return (np.exp(-((dq / v) ** 2)) * np.sign(dq))[:, None]
+            return ctx.sample_mean(j, lambda x: np.exp(-((x / v) ** 2)) * np.sign(x))
         if name == "load_dependent_friction":
             assert ctx.rigid is not None
-            return (np.abs(ctx.rigid[:, j]) * np.sign(dq))[:, None]
+            return np.abs(ctx.rigid[:, j : j + 1]) * ctx.sample_mean(j, np.sign)
         if name == "thermal_drift":
             if ctx.t is None:
                 return np.zeros((ctx.n_rows, 2))
-            t = np.asarray(ctx.t, dtype=float)
-            return np.column_stack([t * np.sign(dq), t * dq])
+            t = np.asarray(ctx.t, dtype=float)[:, None]
+            return t * ctx.sample_mean(j, lambda x: np.column_stack([np.sign(x), x]))
         if name == "wrist_coupling":
             assert ctx.friction is not None and ctx.rigid is not None
             k = int(s["from_joint"])
