@@ -117,6 +117,18 @@ class CylinderTruth:
 @dataclass(frozen=True)
 class SensorTruth:
     current_noise_a: float = 0.02  #: std of the motor-current measurement noise [A]
+    #: motor-side encoder resolution [bits per motor revolution]: the joint position is
+    #: reported in steps of 2π / (2^bits · R), the velocity is the drive's difference of
+    #: that position over its last servo tick; 0: exact (no encoder)
+    encoder_bits: int = 20
+
+    def __post_init__(self) -> None:
+        require(self.current_noise_a >= 0, "[sensors].current_noise_a", "must be >= 0")
+        require(
+            self.encoder_bits == 0 or 8 <= self.encoder_bits <= 32,
+            "[sensors].encoder_bits",
+            f"{self.encoder_bits} not 0 or in 8..32",
+        )
 
 
 @dataclass(frozen=True)

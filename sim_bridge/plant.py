@@ -60,14 +60,34 @@ class Plant:
         self._current_ticks = 0
         self.brakes = True
         self.hand_force_n = np.zeros(3)
-        #: position and velocity at the end of the last servo tick [rad], [rad/s]; the current
-        #: a drive reports is its mean over the communication cycle (PROTOCOL.md §2.1)
-        self.sample_q_rad = self.data.qpos[: self.n].copy()
-        self.sample_dq_rad_s = self.data.qvel[: self.n].copy()
+        #: joint-side encoder step [rad] (0: exact), :class:`SensorTruth.encoder_bits`
+        bits = cfg.sensors.encoder_bits
+        ratio = np.asarray(cfg.drives.gear_ratio, dtype=float)
+        self.encoder_step_rad = 2.0 * np.pi / (2.0**bits * ratio) if bits else np.zeros(self.n)
+        #: position and velocity as the drive has them at the end of the last servo tick
+        #: [rad], [rad/s]: the encoder's position, and its difference over that tick; the
+        #: current a drive reports is its mean over the communication cycle (PROTOCOL.md §2.1)
+        self.sample_q_rad = self._encoder(self.data.qpos[: self.n])
+        self.sample_dq_rad_s = np.zeros(self.n)
         #: called each step with the plant, returns the hand force [N] (world frame)
         self.hand: Callable[[Plant], np.ndarray] | None = None
         self.tau_motor_nm = np.zeros(self.n)
         mujoco.mj_forward(self.model, self.data)
+
+    def _encoder(self, q: np.ndarray) -> np.ndarray:
+        step = self.encoder_step_rad
+        if not step.any():
+            return q.copy()
+        return np.round(q / step) * step
+
+    def _sample(self, dt: float) -> None:
+        """The drive's position and velocity at the end of this servo tick."""
+        q = self._encoder(self.data.qpos[: self.n])
+        if self.encoder_step_rad.any():
+            self.sample_dq_rad_s = (q - self.sample_q_rad) / dt
+        else:
+            self.sample_dq_rad_s = self.data.qvel[: self.n].copy()
+        self.sample_q_rad = q
 
     @property
     def t_s(self) -> float:
@@ -124,7 +144,7 @@ class Plant:
             self._current_ticks += 1
             self.tau_motor_nm[:] = 0.0
             d.qvel[:] = 0.0
-            self.sample_q_rad, self.sample_dq_rad_s = d.qpos[: self.n].copy(), np.zeros(self.n)
+            self._sample(dt)
             d.time += dt
             mujoco.mj_kinematics(self.model, d)
             self.effects.advance(self, dt)
@@ -132,7 +152,9 @@ class Plant:
         self.brakes = False
         q, dq = d.qpos[: self.n], d.qvel[: self.n]
         if servo:
-            i_c = -self.kp * (dq - dq_cmd_rad_s) - self.ki * (q - q_cmd_rad)  # eq. (19)
+            # eq. (19) on what the drive measures: its encoder's position and velocity
+            q_m, dq_m = self.sample_q_rad, self.sample_dq_rad_s
+            i_c = -self.kp * (dq_m - dq_cmd_rad_s) - self.ki * (q_m - q_cmd_rad)
             self.current_a = np.clip(i_c, -self.i_max_a, self.i_max_a)
         else:
             self.current_a = np.zeros(self.n)
@@ -150,5 +172,5 @@ class Plant:
             d.xfrc_applied[self.last_body, :3] = self.hand_force_n
             d.xfrc_applied[self.last_body, 3:] = np.cross(arm, self.hand_force_n)
         mujoco.mj_step(self.model, d)
-        self.sample_q_rad, self.sample_dq_rad_s = self.q_rad, self.dq_rad_s
+        self._sample(dt)
         self.effects.advance(self, dt)

@@ -7,11 +7,14 @@ default plant). Any other seed draws, independently per value and uniformly with
 - joint friction, every coefficient and the Stribeck velocity: ±40 % (:data:`FRICTION`);
 - link masses ±15 % (the inertia about the COM scales with the mass) and each coordinate of a
   link's centre of mass by up to ±15 % of its distance from the joint frame (:data:`INERTIALS`);
-- assist cylinders, bore, linkage lengths and pressure lag: ±10 % (:data:`CYLINDERS`).
+- assist cylinders, bore, linkage lengths and pressure lag: ±10 % (:data:`CYLINDERS`);
+- drive torque constants K: ±7 % (:data:`TORQUE_CONSTANTS`), a datasheet's tolerance: the
+  product converts current to torque with the datasheet's value, so its every torque is off
+  by the same factor per joint.
 
 Each group draws from its own stream (``numpy.random.default_rng([seed, group])``), so a
-change to one group's draws leaves the others' as they were. Drive torque constants, current
-limits, sensors, kinematics and the command protocol are not drawn.
+change to one group's draws leaves the others' as they were. Current limits, sensors,
+kinematics and the command protocol are not drawn.
 """
 
 from __future__ import annotations
@@ -27,7 +30,8 @@ INNER_GAINS = 0.50
 FRICTION = 0.40
 INERTIALS = 0.15
 CYLINDERS = 0.10
-_GAINS, _FRICTION, _INERTIALS, _CYLINDERS = range(1, 5)
+TORQUE_CONSTANTS = 0.07
+_GAINS, _FRICTION, _INERTIALS, _CYLINDERS, _TORQUE_CONSTANTS = range(1, 6)
 
 
 def _factors(seed: int, group: int, shape: int | tuple[int, ...], spread: float) -> np.ndarray:
@@ -36,8 +40,8 @@ def _factors(seed: int, group: int, shape: int | tuple[int, ...], spread: float)
 
 
 def draw(cfg: SimConfig) -> SimConfig:
-    """``cfg`` with its inner gains, friction and cylinders drawn for ``cfg.plant_seed`` (seed 0:
-    ``cfg`` itself). The inertials are drawn by :func:`arm_spec`."""
+    """``cfg`` with its inner gains, friction, cylinders and torque constants drawn for
+    ``cfg.plant_seed`` (seed 0: ``cfg`` itself). The inertials are drawn by :func:`arm_spec`."""
     seed = cfg.plant_seed
     if seed == 0:
         return cfg
@@ -76,7 +80,14 @@ def draw(cfg: SimConfig) -> SimConfig:
             for k, u in enumerate(units)
         ),
     )
-    return dataclasses.replace(cfg, inner_loop=inner, friction=friction, cylinders=cylinders)
+    k = _factors(seed, _TORQUE_CONSTANTS, n, TORQUE_CONSTANTS)
+    drives = dataclasses.replace(
+        cfg.drives,
+        gain_nm_per_a=tuple(float(v) for v in np.multiply(cfg.drives.gain_nm_per_a, k)),
+    )
+    return dataclasses.replace(
+        cfg, inner_loop=inner, friction=friction, cylinders=cylinders, drives=drives
+    )
 
 
 def arm_spec(cfg: SimConfig) -> mujoco.MjSpec:

@@ -16,7 +16,7 @@ import pytest
 
 from sim_bridge.config import load_sim_config
 from sim_bridge.plant import Plant
-from sim_bridge.truth import CYLINDERS, FRICTION, INERTIALS, INNER_GAINS, draw
+from sim_bridge.truth import CYLINDERS, FRICTION, INERTIALS, INNER_GAINS, TORQUE_CONSTANTS, draw
 
 REPO = Path(__file__).resolve().parents[2]
 PRODUCT = ("control", "drivers", "gateway")
@@ -125,6 +125,8 @@ def test_seed_zero_is_the_truth_as_written_and_other_seeds_draw_within_the_range
         assert np.all(np.abs(tc - 1) <= FRICTION) and np.ptp(tc) > 0.05
         for u, u0 in zip(drawn.cylinders.units, cfg.cylinders.units, strict=True):
             assert abs(u.ab_m / u0.ab_m - 1) <= CYLINDERS
+        k = np.divide(drawn.drives.gain_nm_per_a, cfg.drives.gain_nm_per_a)
+        assert np.all(np.abs(k - 1) <= TORQUE_CONSTANTS) and np.ptp(k) > 0.01
         plant = Plant(dataclasses.replace(cfg, plant_seed=seed))
         mass = plant.model.body_mass[1:] / base.model.body_mass[1:]
         assert np.all(np.abs(mass - 1) <= INERTIALS + 1e-12) and np.ptp(mass) > 0.02
