@@ -33,7 +33,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from sim_bridge.harness import REPO, Stack
+from sim_bridge.harness import REPO, Stack, deep_merge
 
 #: Where commissioned models are kept (``LEADTHROUGH_CACHE`` overrides; `make clean` removes it).
 DEFAULT_CACHE = REPO / ".cache" / "commission"
@@ -131,10 +131,17 @@ def commissioned(
         return Commissioned(plant_seed, folder)
 
 
-def commission(plant_seed: int, plan: dict[str, Any], work: Path) -> Path:
+def commission(
+    plant_seed: int,
+    plan: dict[str, Any],
+    work: Path,
+    sim_overrides: dict[str, Any] | None = None,
+) -> Path:
     """Run `leadthrough identify` with ``plan`` on a fresh virtual cell of ``plant_seed`` whose
-    product knows no model yet; returns ``work/ident`` (raises RuntimeError on failure)."""
+    product knows no model yet (``sim_overrides`` on the simulator's truth file, e.g. injected
+    effects); returns ``work/ident`` (raises RuntimeError on failure)."""
     sim = {"operator": {"enabling_after_s": 0.0}, "controller": {"cycle_period_s": CYCLE_S}}
+    sim = deep_merge(sim, sim_overrides or {})
     # Lock-step, the virtual controller waits for each answer: the driver may use the whole
     # cycle before it coasts or holds.
     can = {"can": {"answer_by_period_fraction": 1.0, "deadline_s": 0.1}}

@@ -10,8 +10,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -19,7 +17,7 @@ import pytest
 
 from control.experiments import build_plan
 from control.robot.description import load_description
-from sim_bridge.commission import commissioned
+from sim_bridge.commission import commission, commissioned
 from sim_bridge.config import load_sim_config
 from sim_bridge.effects import MOTION_RAD_S
 from sim_bridge.harness import Stack
@@ -73,33 +71,10 @@ def teaching_drift_m(truth: dict[str, np.ndarray], seconds: float) -> float:
 
 
 def identify(tmp_path, effects: list[dict], plan: dict = PLAN, plant_seed: int = 0) -> dict:
-    plan_path = tmp_path / "plan.json"
-    plan_path.write_text(json.dumps({"plan_id": "stack-test", **plan}))
-    sim = {
-        "effects": effects,
-        "operator": {"enabling_after_s": 0.0},
-        "controller": {"cycle_period_s": CYCLE_S},
-    }
-    # Lock-step, the virtual controller waits for each answer: the driver may use the whole
-    # cycle before it coasts or holds (this VM's timers overshoot 1 ms sleeps by up to 11 ms).
-    can = {"can": {"answer_by_period_fraction": 1.0, "deadline_s": 0.1}}
-    # A cell not commissioned yet, as a user identifies a new robot: no model, no loop gains.
-    with Stack(
-        tmp_path / "cell", sim_overrides=sim, cell_overrides=can, lockstep=True,
-        plant_seed=plant_seed, model=None,
-    ) as stack:  # fmt: skip
-        stack.start()
-        # Identification needs a cell ready to start, not teaching (which it refuses).
-        stack.wait_status(lambda s: s.get("can_start") is True, 40.0, "cell ready to start")
-        assert stack.request("start").get("ok")
-        stack.wait_status(lambda s: s.get("state") in ("ready", "teaching"), 10.0, "started")
-        out = subprocess.run(
-            [sys.executable, "-m", "gateway.cli", "identify", "--config", str(stack.cell_path),
-             "--plan", str(plan_path), "--out", str(tmp_path / "ident"), "--timeout", "400"],
-            capture_output=True, text=True, timeout=600,
-        )  # fmt: skip
-        stack.request("stop")
-    assert out.returncode == 0, out.stdout[-3000:] + out.stderr[-3000:]
+    """`leadthrough identify` with ``plan`` on a virtual cell that is not commissioned yet,
+    the simulator injecting ``effects`` (:func:`sim_bridge.commission.commission`, as
+    commissioning runs it): the summary it wrote to ``tmp_path / "ident"``."""
+    commission(plant_seed, {"plan_id": "stack-test", **plan}, tmp_path, {"effects": effects})
     summary = tmp_path / "ident" / "summary.json"
     return json.loads(summary.read_text()) if summary.exists() else {}
 
