@@ -42,6 +42,7 @@ parameters (eqs. 29, 30) stay at their identified values.
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -80,16 +81,13 @@ class HoldAverage:
     current noise would set ω̂ of a lightly loaded wrist joint tens of per cent off)."""
 
     def __init__(self, size: int = 64) -> None:
-        self.size = size
-        self._rows: list[tuple[list[float], list[float]]] = []
+        self._rows: deque[tuple[list[float], list[float]]] = deque(maxlen=size)
 
     def add(self, offset_rad: list[float], tau_m_nm: list[float]) -> None:
         self._rows.append((offset_rad, tau_m_nm))
-        if len(self._rows) > self.size:
-            del self._rows[0]
 
     def clear(self) -> None:
-        self._rows = []
+        self._rows.clear()
 
     def __len__(self) -> int:
         return len(self._rows)
@@ -163,11 +161,6 @@ class OuterLoop:
         """ω̂ per joint now [rad/s per N·m] (a copy)."""
         return np.array(self._omega)
 
-    @omega.setter
-    def omega(self, value: np.ndarray) -> None:
-        self._omega = np.clip(np.asarray(value, dtype=float), self._omega_lo,
-                              self._omega_hi).tolist()  # fmt: skip
-
     @property
     def offset_rad(self) -> np.ndarray:
         """e = q_cmd - q that the next command carries [rad] (a copy)."""
@@ -208,8 +201,7 @@ class OuterLoop:
             if td > floor or td < -floor:
                 r = (tm - td) / td
                 r = 0.5 if r > 0.5 else -0.5 if r < -0.5 else r
-                w = omega[j] * math.exp(-step * r)
-                omega[j] = self._omega_lo[j] if w < self._omega_lo[j] else min(w, self._omega_hi[j])
+                self._project(j, omega[j] * math.exp(-step * r))
 
     def calibrate_from_hold(self, offset_rad: list[float], tau_m_nm: list[float]) -> None:
         """ω̂ from the drive holding the arm at rest (module docstring): there eq. (19) is
@@ -225,8 +217,11 @@ class OuterLoop:
             zip(offset_rad, tau_m_nm, a.min_torque_nm, self.upsilon_i.tolist(), strict=True)
         ):
             if (tm > floor or tm < -floor) and e * tm > 0:
-                w = ups * e / tm
-                self._omega[j] = min(max(w, self._omega_lo[j]), self._omega_hi[j])
+                self._project(j, ups * e / tm)
+
+    def _project(self, j: int, omega: float) -> None:
+        """Set ω̂ of joint j to ``omega`` projected onto [ω̂₀/2, 2 ω̂₀]."""
+        self._omega[j] = min(max(omega, self._omega_lo[j]), self._omega_hi[j])
 
     def _remember(self, tau_d_nm: list[float], clean: bool) -> None:
         if self.adaptation is None:

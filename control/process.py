@@ -148,12 +148,15 @@ class ZeroMomentController:
     def disengage(self) -> None:
         self.engaged = False
 
+    def motor_torque_nm(self, st: JointState) -> list[float]:
+        """The motor torque ``st`` reports: datasheet K × measured current [N·m]."""
+        return [k * i for k, i in zip(self._k_nm_per_a, st.current_a.tolist(), strict=True)]
+
     def observe_hold(self, st: JointState) -> None:
         """A state while the driver holds (not commanding): at rest, its held offset and
         current go into :attr:`hold` for the next engagement; moving, the average restarts."""
         if st.flags & FLAG_PREV_HOLD and float(np.max(np.abs(st.dq_rad_s))) <= REST_RAD_S:
-            tau_m = [k * i for k, i in zip(self._k_nm_per_a, st.current_a.tolist(), strict=True)]
-            self.hold.add((st.q_cmd_rad - st.q_rad).tolist(), tau_m)
+            self.hold.add((st.q_cmd_rad - st.q_rad).tolist(), self.motor_torque_nm(st))
         else:
             self.hold.clear()
 
@@ -184,11 +187,9 @@ class ZeroMomentController:
         gap = st.cycle - (self.last_cycle if self.last_cycle is not None else st.cycle - 1)
         dt = period * max(1, min(gap, 50))
         self.last_cycle = st.cycle
+        # eq. (28): the torque the drive delivered, if it followed the commands as sent
         followed = gap == 1 and not st.flags & (FLAG_PREV_HOLD | FLAG_PREV_COAST)
-        tau_m = None
-        if followed:  # eq. (28): the torque the drive delivered, from its reported current
-            tau_m = [k * i for k, i in zip(self._k_nm_per_a, st.current_a.tolist(), strict=True)]
-        self.loop.adapt_floats(tau_m, period)
+        self.loop.adapt_floats(self.motor_torque_nm(st) if followed else None, period)
         try:
             q_cmd, dq_cmd = self.cycle_command(st.q_rad, st.dq_rad_s, p_bar, dt)
         except (ValueError, ArithmeticError) as exc:  # where numpy would have given NaN

@@ -64,6 +64,7 @@ class Plant:
         bits = cfg.sensors.encoder_bits
         ratio = np.asarray(cfg.drives.gear_ratio, dtype=float)
         self.encoder_step_rad = 2.0 * np.pi / (2.0**bits * ratio) if bits else np.zeros(self.n)
+        self._has_encoder = bits > 0
         #: position and velocity as the drive has them at the end of the last servo tick
         #: [rad], [rad/s]: the encoder's position, and its difference over that tick; the
         #: current a drive reports is its mean over the communication cycle (PROTOCOL.md §2.1)
@@ -75,15 +76,14 @@ class Plant:
         mujoco.mj_forward(self.model, self.data)
 
     def _encoder(self, q: np.ndarray) -> np.ndarray:
-        step = self.encoder_step_rad
-        if not step.any():
+        if not self._has_encoder:
             return q.copy()
-        return np.round(q / step) * step
+        return np.round(q / self.encoder_step_rad) * self.encoder_step_rad
 
     def _sample(self, dt: float) -> None:
         """The drive's position and velocity at the end of this servo tick."""
         q = self._encoder(self.data.qpos[: self.n])
-        if self.encoder_step_rad.any():
+        if self._has_encoder:
             self.sample_dq_rad_s = (q - self.sample_q_rad) / dt
         else:
             self.sample_dq_rad_s = self.data.qvel[: self.n].copy()
