@@ -47,6 +47,11 @@ class ControlConfig:
     #: cycles between a command and the cycle the drive follows it in (the inner-loop
     #: estimate gives it)
     command_delay_cycles: int = 0
+    #: teaching engages once the arm has rested in the hold for this many states (their mean
+    #: calibrates ω̂, eq. 28), holding on meanwhile; 0: at once
+    engage_rest_states: int = 32
+    #: ... or after this many states of waiting for rest, whatever the arm does [states]
+    engage_max_wait_states: int = 125
     #: cylinder pressure set-points sent to the valves [bar]
     pressure_setpoint_bar: tuple[float, float] = (6.0, 4.0)
     #: I/O older than this: no command is published (the CAN driver then holds) [s]
@@ -113,6 +118,13 @@ class ControlConfig:
             "[control].omega_adaptation_min_torque_nm",
             f"needs {n} values > 0 while omega_adaptation_per_s > 0",
         )
+        for name in ("engage_rest_states", "engage_max_wait_states"):
+            value = getattr(self, name)
+            require(
+                isinstance(value, int) and 0 <= value <= 10_000,
+                f"[control].{name}",
+                f"{value!r} not a whole number of states in 0..10000",
+            )
         require(
             0 <= self.command_delay_cycles <= 10,
             "[control].command_delay_cycles",

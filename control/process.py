@@ -122,6 +122,8 @@ class ZeroMomentController:
         self._damping = self.damping.tolist()
         self._lower, self._upper = self.lower.tolist(), self.upper.tolist()
         self.engaged = False
+        #: states answered with a hold while waiting for the arm to rest before engaging
+        self._waited = 0
         self.last_cycle: int | None = None
         self._tau_d_nm: list[float] = [0.0] * n
 
@@ -147,15 +149,20 @@ class ZeroMomentController:
 
     def disengage(self) -> None:
         self.engaged = False
+        self._waited = 0
 
     def motor_torque_nm(self, st: JointState) -> list[float]:
         """The motor torque ``st`` reports: datasheet K × measured current [N·m]."""
         return [k * i for k, i in zip(self._k_nm_per_a, st.current_a.tolist(), strict=True)]
 
     def observe_hold(self, st: JointState) -> None:
-        """A state while the driver holds (not commanding): at rest, its held offset and
-        current go into :attr:`hold` for the next engagement; moving, the average restarts."""
-        if st.flags & FLAG_PREV_HOLD and float(np.max(np.abs(st.dq_rad_s))) <= REST_RAD_S:
+        """A state while the arm is held (by the driver, or by this controller waiting to
+        engage): at rest, its held offset and current go into :attr:`hold` for the next
+        engagement; moving, the average restarts."""
+        held = st.flags & FLAG_PREV_HOLD or (
+            self._waited and not st.flags & FLAG_PREV_COAST
+        )  # fmt: skip
+        if held and float(np.max(np.abs(st.dq_rad_s))) <= REST_RAD_S:
             self.hold.add((st.q_cmd_rad - st.q_rad).tolist(), self.motor_torque_nm(st))
         else:
             self.hold.clear()
@@ -176,8 +183,15 @@ class ZeroMomentController:
         """
         period = st.cycle_period_s or self.cfg.default_cycle_period_s
         if not self.engaged:
-            # Bumpless: start from the command the robot follows now (the driver's hold).
             self.observe_hold(st)
+            cfg = self.cfg
+            resting = len(self.hold) >= cfg.engage_rest_states
+            if not resting and self._waited < cfg.engage_max_wait_states:
+                # Not at rest long enough to calibrate ω̂: hold on where the driver holds.
+                self._waited += 1
+                return st.q_cmd_rad.tolist(), [0.0] * len(st.q_cmd_rad)
+            self._waited = 0
+            # Bumpless: start from the command the robot follows now (the driver's hold).
             if len(self.hold):  # the held offsets and currents measure the drive's K K_I
                 self.loop.calibrate_from_hold(*self.hold.mean())
             self.hold.clear()

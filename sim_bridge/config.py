@@ -8,6 +8,7 @@ its own declared model and its own copy of ω and Υ_I, as it would on the real 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -87,6 +88,10 @@ class CylinderUnit:
     ab_m: float
     sign: float  #: +1/-1: the direction of +q the cylinder's push turns the joint
     ac_m: float = 0.0
+    #: the chamber's gas volume at q = 0 as a length of piston area [m] (chamber, hose and
+    #: accumulator): the volume grows with the rod's extension, so the pressure drops as the
+    #: cylinder extends faster than the regulator refills it; 0: an ideal reservoir
+    gas_length_m: float = 0.0
 
     def __post_init__(self) -> None:
         where = f"[[cylinders.units]] (joint {self.joint})"
@@ -96,6 +101,7 @@ class CylinderUnit:
         require(self.piston_diameter_m > 0 and self.ab_m > 0, where, "sizes must be > 0")
         require(self.sign in (1.0, -1.0), where, "sign must be +1 or -1")
         require(self.kind != "crank" or self.ac_m > 0, where, "a crank needs ac_m > 0")
+        require(self.gas_length_m >= 0, where, "gas_length_m must be >= 0")
 
 
 @dataclass(frozen=True)
@@ -121,9 +127,25 @@ class SensorTruth:
     #: reported in steps of 2π / (2^bits · R), the velocity is the drive's difference of
     #: that position over its last servo tick; 0: exact (no encoder)
     encoder_bits: int = 20
+    #: per joint, the current sensor's zero offset [A]: every reported current, the servo on
+    #: or off, reads this much above the motor's; () none
+    current_offset_a: tuple[float, ...] = ()
+    #: for a seed > 0, the offset is drawn within ± this fraction of each joint's current
+    #: limit (a drive's offset tolerance)
+    current_offset_fraction: float = 0.0
 
     def __post_init__(self) -> None:
         require(self.current_noise_a >= 0, "[sensors].current_noise_a", "must be >= 0")
+        require(
+            0 <= self.current_offset_fraction <= 0.05,
+            "[sensors].current_offset_fraction",
+            f"{self.current_offset_fraction} not in 0..0.05",
+        )
+        require(
+            all(math.isfinite(v) for v in self.current_offset_a),
+            "[sensors].current_offset_a",
+            "must be finite",
+        )
         require(
             self.encoder_bits == 0 or 8 <= self.encoder_bits <= 32,
             "[sensors].encoder_bits",
@@ -299,6 +321,11 @@ class SimConfig:
         require(len(self.initial_q_rad) == n, "initial_q_rad", f"need {n} values")
         require(
             len(self.drives.gain_nm_per_a) == n, "[drives]", f"need {n} joints like [inner_loop]"
+        )
+        require(
+            len(self.sensors.current_offset_a) in (0, n),
+            "[sensors].current_offset_a",
+            f"need {n} joints like [inner_loop] (or none)",
         )
         require(self.plant_seed >= 0, "plant_seed", f"{self.plant_seed} must be >= 0")
         for unit in self.cylinders.units:

@@ -13,7 +13,10 @@ Friction per joint (joint side [N·m]), with the gear ratio R::
 term opposes the motion). Assist cylinders push with p·S along their rod: a crank (pivot A,
 rod end B on the link |AB| from the joint, barrel end C fixed |AC| from it, the angle BAC =
 π - q) turns the joint with the moment arm |AB||AC| sin(BAC) / |BC|; a lever turns it with
-|AB| cos q.
+|AB| cos q. By virtual work the rod extends by the moment arm per radian, so a chamber whose gas
+column is L₀ long at q = 0 holds the volume S (L₀ + x(q)) (x the extension since q = 0); the
+gas is isothermal, p_abs V constant, between the regulator's refills (a first-order lag of the
+pressure towards its set-point).
 """
 
 from __future__ import annotations
@@ -26,6 +29,8 @@ import numpy as np
 from sim_bridge.config import CylinderUnit, FrictionTruth
 
 PA_PER_BAR = 1.0e5
+#: atmospheric pressure [bar]: the transmitters read gauge pressure
+ATMOSPHERE_BAR = 1.01325
 
 
 class JointFriction:
@@ -66,7 +71,8 @@ class AssistCylinders:
         self.n = n_joints
         self.area_m2 = [math.pi * u.piston_diameter_m**2 / 4.0 for u in self.units]
 
-    def moment_arm_m(self, unit: CylinderUnit, q_joint: float) -> float:
+    @staticmethod
+    def moment_arm_m(unit: CylinderUnit, q_joint: float) -> float:
         """Signed moment arm [m] of the cylinder's push about its joint at angle ``q_joint``."""
         if unit.kind == "crank":
             bac = math.pi - q_joint
@@ -75,6 +81,29 @@ class AssistCylinders:
             )
             return unit.sign * unit.ab_m * unit.ac_m * math.sin(bac) / bc
         return unit.sign * unit.ab_m * math.cos(q_joint)
+
+    @staticmethod
+    def extension_m(unit: CylinderUnit, q_joint: float) -> float:
+        """The rod's extension [m] since q = 0 (its derivative is :meth:`moment_arm_m`)."""
+        if unit.kind == "crank":
+
+            def bc(q: float) -> float:
+                return math.sqrt(
+                    unit.ab_m**2 + unit.ac_m**2 + 2.0 * unit.ab_m * unit.ac_m * math.cos(q)
+                )
+
+            return -unit.sign * (bc(q_joint) - bc(0.0))
+        return unit.sign * unit.ab_m * math.sin(q_joint)
+
+    def gas_columns_m(self, q: np.ndarray) -> np.ndarray:
+        """Each chamber's gas volume over its piston area [m] at joint angles ``q``
+        (``inf`` for an ideal reservoir, ``gas_length_m`` 0); never below a tenth of L₀."""
+        out = np.full(len(self.units), np.inf)
+        for k, unit in enumerate(self.units):
+            if unit.gas_length_m > 0:
+                x = self.extension_m(unit, float(q[unit.joint - 1]))
+                out[k] = max(unit.gas_length_m + x, 0.1 * unit.gas_length_m)
+        return out
 
     def torque_nm(self, q: np.ndarray, p_bar: np.ndarray) -> np.ndarray:
         """Joint torques [N·m] (n,), zero on joints without a cylinder."""

@@ -1,5 +1,6 @@
 """The simulated robot: MuJoCo rigid bodies, the vendor's inner PI loop, true friction,
-assist cylinders with pressure lag, brakes, injected effects and the operator's hand.
+assist cylinders whose gas is compressed by their stroke and refilled with a lag, current
+sensors with zero offsets, brakes, injected effects and the operator's hand.
 
 Everything here is the plant's own (:mod:`sim_bridge.physics`, :mod:`sim_bridge.truth`, the
 arm's MJCF): it imports nothing of the product's model, so a test of the product's model
@@ -23,7 +24,7 @@ import numpy as np
 
 from sim_bridge.config import SimConfig
 from sim_bridge.effects import EffectSet
-from sim_bridge.physics import AssistCylinders, JointFriction
+from sim_bridge.physics import ATMOSPHERE_BAR, AssistCylinders, JointFriction
 from sim_bridge.truth import arm_spec, draw
 
 TOOL_SITE = "tool"
@@ -55,6 +56,11 @@ class Plant:
         self.rng = np.random.default_rng(cfg.seed)
         self.pressure_bar = np.array(cfg.cylinders.initial_bar, dtype=float)
         self.pressure_set_bar = self.pressure_bar.copy()
+        #: each chamber's gas volume over its piston area [m] (inf: an ideal reservoir)
+        self._gas_m = self.cylinders.gas_columns_m(self.data.qpos[: self.n])
+        offset = cfg.sensors.current_offset_a
+        #: the current sensors' zero offsets [A], in every reported current
+        self.current_offset_a = np.array(offset, dtype=float) if offset else np.zeros(self.n)
         self.current_a = np.zeros(self.n)
         self._current_sum = np.zeros(self.n)
         self._current_ticks = 0
@@ -119,7 +125,20 @@ class Plant:
         mean = self._current_sum / max(self._current_ticks, 1)
         self._current_sum = np.zeros(self.n)
         self._current_ticks = 0
-        return mean + self.rng.normal(0.0, self.cfg.sensors.current_noise_a, self.n)
+        noise = self.rng.normal(0.0, self.cfg.sensors.current_noise_a, self.n)
+        return mean + self.current_offset_a + noise
+
+    def _pressure_step(self, dt: float) -> None:
+        """The chambers' gas over one timestep: isothermal with the rod's motion since the
+        last step, then the regulator's first-order lag towards the set-point."""
+        gas = self.cylinders.gas_columns_m(self.data.qpos[: self.n])
+        closed = np.isfinite(gas)
+        if closed.any():
+            p_abs = self.pressure_bar[closed] + ATMOSPHERE_BAR
+            self.pressure_bar[closed] = p_abs * self._gas_m[closed] / gas[closed] - ATMOSPHERE_BAR
+        self._gas_m = gas
+        alpha = dt / self.cfg.cylinders.time_constant_s
+        self.pressure_bar += alpha * (self.pressure_set_bar - self.pressure_bar)
 
     def step(
         self,
@@ -132,8 +151,7 @@ class Plant:
         the arm moves under gravity, the cylinders, friction and the hand, with no motor
         torque."""
         dt = self.cfg.timestep_s
-        alpha = dt / self.cfg.cylinders.time_constant_s
-        self.pressure_bar += alpha * (self.pressure_set_bar - self.pressure_bar)
+        self._pressure_step(dt)
         d = self.data
         servo = q_cmd_rad is not None and dq_cmd_rad_s is not None
         if not servo and not brakes_released:

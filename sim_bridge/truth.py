@@ -7,10 +7,14 @@ default plant). Any other seed draws, independently per value and uniformly with
 - joint friction, every coefficient and the Stribeck velocity: ±40 % (:data:`FRICTION`);
 - link masses ±15 % (the inertia about the COM scales with the mass) and each coordinate of a
   link's centre of mass by up to ±15 % of its distance from the joint frame (:data:`INERTIALS`);
-- assist cylinders, bore, linkage lengths and pressure lag: ±10 % (:data:`CYLINDERS`);
+- assist cylinders, bore, linkage lengths and pressure lag: ±10 % (:data:`CYLINDERS`), and
+  each chamber's gas volume, likewise (its own stream);
 - drive torque constants K: ±7 % (:data:`TORQUE_CONSTANTS`), a datasheet's tolerance: the
   product converts current to torque with the datasheet's value, so its every torque is off
-  by the same factor per joint.
+  by the same factor per joint;
+- current-sensor zero offsets: uniformly within ± ``[sensors] current_offset_fraction`` of
+  each joint's current limit (a drive's tolerance is about 0.5 %; 0 by default), in every
+  current it reports.
 
 Each group draws from its own stream (``numpy.random.default_rng([seed, group])``), so a
 change to one group's draws leaves the others' as they were. Current limits, sensors,
@@ -31,7 +35,7 @@ FRICTION = 0.40
 INERTIALS = 0.15
 CYLINDERS = 0.10
 TORQUE_CONSTANTS = 0.07
-_GAINS, _FRICTION, _INERTIALS, _CYLINDERS, _TORQUE_CONSTANTS = range(1, 6)
+_GAINS, _FRICTION, _INERTIALS, _CYLINDERS, _TORQUE_CONSTANTS, _GAS, _CURRENT_OFFSETS = range(1, 8)
 
 
 def _factors(seed: int, group: int, shape: int | tuple[int, ...], spread: float) -> np.ndarray:
@@ -40,7 +44,8 @@ def _factors(seed: int, group: int, shape: int | tuple[int, ...], spread: float)
 
 
 def draw(cfg: SimConfig) -> SimConfig:
-    """``cfg`` with its inner gains, friction, cylinders and torque constants drawn for
+    """``cfg`` with its inner gains, friction, cylinders, torque constants and current-sensor
+    offsets drawn for
     ``cfg.plant_seed`` (seed 0: ``cfg`` itself). The inertials are drawn by :func:`arm_spec`."""
     seed = cfg.plant_seed
     if seed == 0:
@@ -85,8 +90,25 @@ def draw(cfg: SimConfig) -> SimConfig:
         cfg.drives,
         gain_nm_per_a=tuple(float(v) for v in np.multiply(cfg.drives.gain_nm_per_a, k)),
     )
+    gas = _factors(seed, _GAS, len(units), CYLINDERS)
+    cylinders = dataclasses.replace(
+        cylinders,
+        units=tuple(
+            dataclasses.replace(u, gas_length_m=u.gas_length_m * float(gas[k]))
+            for k, u in enumerate(cylinders.units)
+        ),
+    )
+    limit = np.asarray(cfg.drives.max_current_a, dtype=float)
+    spread = cfg.sensors.current_offset_fraction
+    o = np.random.default_rng([seed, _CURRENT_OFFSETS]).uniform(-spread, spread, n) * limit
+    sensors = dataclasses.replace(cfg.sensors, current_offset_a=tuple(float(v) for v in o))
     return dataclasses.replace(
-        cfg, inner_loop=inner, friction=friction, cylinders=cylinders, drives=drives
+        cfg,
+        inner_loop=inner,
+        friction=friction,
+        cylinders=cylinders,
+        drives=drives,
+        sensors=sensors,
     )
 
 

@@ -71,6 +71,12 @@ class CanDriverConfig:
     max_following_error_rad: float | tuple[float, ...] = 0.05
     #: Per joint (or one value for all): a command with |dq_cmd| beyond this is rejected [rad/s].
     max_velocity_rad_s: float | tuple[float, ...] = 1.0
+    #: The current sensors' zero is the mean of the newest this-many cycles reported with the
+    #: servo power off, subtracted from every published current (current_zero.py); the first
+    #: servo-on waits for it. 0: off (currents as the drives report them).
+    current_zero_cycles: int = 0
+    #: Cycles skipped after the servo power goes off before they count towards the zero.
+    current_zero_settle_cycles: int = 5
 
     def __post_init__(self) -> None:
         where = "[can]"
@@ -90,6 +96,13 @@ class CanDriverConfig:
                 math.isfinite(value) and lo < value <= hi,
                 f"{where}.{name}",
                 f"{value!r} s outside ({lo}, {hi}]",
+            )
+        for name in ("current_zero_cycles", "current_zero_settle_cycles"):
+            value = getattr(self, name)
+            require(
+                isinstance(value, int) and 0 <= value <= 100_000,
+                f"{where}.{name}",
+                f"{value!r} not a whole number of cycles in 0..100000",
             )
         require(
             math.isfinite(self.answer_by_period_fraction)

@@ -27,6 +27,10 @@ it is a missed cycle (§3). A command arriving after its cycle was answered is r
 Servo power is requested from the gateway's lifecycle (READY, TEACHING or IDENTIFYING, and
 fresh: SERVO_ON; anything else, including silence: BRAKE), repeated with every host heartbeat.
 The default and :meth:`HostCore.closing_frames` lead to BRAKE.
+
+Every published current is the reported one less the current sensors' zero, measured while the
+servo power is off (:mod:`drivers.can.current_zero`); the first SERVO_ON waits until that
+measurement is complete.
 """
 
 from __future__ import annotations
@@ -41,6 +45,7 @@ import numpy as np
 
 from drivers.can.adapter import CanAdapter, CycleFeedback, HostRequest
 from drivers.can.config import CanDriverConfig
+from drivers.can.current_zero import CurrentZero
 from gateway.errors import FrameError, MessageError
 from gateway.messages import (
     COMMANDING,
@@ -156,6 +161,10 @@ class HostCore:
         self._io_rx_s = -np.inf
         self._reset_wanted = False
         # controller
+        #: the current sensors' zero, measured with the servo power off
+        self.current_zero = CurrentZero(
+            n, config.current_zero_cycles, config.current_zero_settle_cycles
+        )
         self.feedback: CycleFeedback | None = None
         self._last_cycle_rx_s = -np.inf
         self._last_counter: int | None = None
@@ -286,6 +295,7 @@ class HostCore:
             )
         self.cycles += 1
         self.feedback, self._last_cycle_rx_s = fb, now
+        self.current_zero.update(fb.current_a, fb.servo_power)
         if fb.controller_state in _BRAKED:
             # On its brakes the arm is where it is: the next hold starts from there.
             self._holding, self._last_forwarded_q = False, None
@@ -312,7 +322,7 @@ class HostCore:
             fb.cycle_period_s,
             q_list,
             fb.dq_rad_s.tolist(),
-            fb.current_a.tolist(),
+            self.current_zero.correct(fb.current_a).tolist(),
             q_cmd,
             dq_cmd,
         )
@@ -393,6 +403,15 @@ class HostCore:
         ):
             return HostRequest.BRAKE
         if lc.state in (Lifecycle.READY, *COMMANDING):
+            if not self.current_zero.ready:
+                zero = self.current_zero
+                self._note(
+                    logging.INFO,
+                    "zero",
+                    f"servo on waits for the current sensors' zero ({zero.samples} of "
+                    f"{zero.window} cycles with the servo power off)",
+                )
+                return HostRequest.BRAKE
             return HostRequest.SERVO_ON
         return HostRequest.BRAKE
 
@@ -517,4 +536,7 @@ class HostCore:
             "incomplete_cycles": stats.incomplete_cycles,
             "corrupt_cycles": stats.corrupt_cycles,
             "bad_inputs": self.bad_inputs,
+            "current_zero_a": [round(float(v), 4) for v in self.current_zero.offset_a],
+            "current_zero_samples": self.current_zero.samples,
+            "current_zero_ready": self.current_zero.ready,
         }

@@ -87,6 +87,7 @@ def driver_config(port: int, **overrides: Any) -> CanDriverConfig:
         "heartbeat_period_s": 0.05,
         "max_following_error_rad": 0.05,
         "max_velocity_rad_s": 1.0,
+        "current_zero_cycles": 0,  # currents as reported, the servo at once (test_can_core)
     }
     values.update(overrides)
     return CanDriverConfig(**values)

@@ -40,7 +40,10 @@ class Cell:
     """The core and a scripted controller; ``t`` is the injected clock [s]."""
 
     def __init__(self, **overrides: object) -> None:
-        values: dict = {"transport": {"interface": "virtual", "channel": "unused"}}
+        values: dict = {
+            "transport": {"interface": "virtual", "channel": "unused"},
+            "current_zero_cycles": 0,  # the servo at once; the zero's own tests set it
+        }
         values.update(overrides)
         self.config = CanDriverConfig(**values)
         self.core = HostCore(self.config, LtcAdapter(N))
@@ -52,14 +55,18 @@ class Cell:
         self.core.on_lifecycle(LifecycleMsg(state, 1, self.t).to_bytes(), self.t)
         self.core.on_io(IoState(self.t, 6.0, 4.0, 6.0, 4.0, enabling, True).to_bytes(), self.t)
 
-    def cycle(self, q=Q0, state=ControllerState.EXTERNAL) -> tuple[JointState, list]:
+    def cycle(
+        self, q=Q0, state=ControllerState.EXTERNAL, current=(1.5,) * N, power=True
+    ) -> tuple[JointState, list]:
         """Feed one controller cycle; returns its JointState and the frames sent at once."""
         self.counter = (self.counter + 1) & 0xFFFF
         frames = [
-            self.proto.encode_feedback(k + 1, float(q[k]), 0.01 * k, 1.5, self.counter & 0xFF)
+            self.proto.encode_feedback(
+                k + 1, float(q[k]), 0.01 * k, float(current[k]), self.counter & 0xFF
+            )
             for k in range(N)
         ]
-        status = ControllerStatus(self.counter, state, FaultCode.NONE, 0, False, True, PERIOD_US)
+        status = ControllerStatus(self.counter, state, FaultCode.NONE, 0, False, power, PERIOD_US)
         frames.append(self.proto.encode_status(status))
         out, payload = [], None
         for msg in frames:
@@ -93,6 +100,35 @@ def test_a_cycle_becomes_one_joint_state_with_the_feedback_and_the_echo():
     np.testing.assert_allclose(js.current_a, 1.5)
     np.testing.assert_allclose(js.q_cmd_rad, js.q_rad)  # nothing sent yet: the measurement
     assert js.flags & FLAG_SERVO_POWER
+
+
+def test_currents_are_published_less_the_zero_measured_with_the_servo_power_off():
+    cell = Cell(current_zero_cycles=4, current_zero_settle_cycles=2)
+    zero = np.array([0.07, -0.21, 0.15, 0.02, -0.01, 0.0])
+    js, _ = cell.cycle(current=zero + 2.0)  # powered: nothing measured yet
+    np.testing.assert_allclose(js.current_a, zero + 2.0, atol=6e-3)
+    for k in range(8):  # the power goes off; the first 2 cycles still hold powered ticks
+        js, _ = cell.cycle(state=ControllerState.BRAKED, current=zero + (1.0 if k < 2 else 0.0),
+                           power=False)  # fmt: skip
+    np.testing.assert_allclose(js.current_a, 0.0, atol=6e-3)
+    np.testing.assert_allclose(cell.core.health(cell.t)["current_zero_a"], zero, atol=6e-3)
+    assert cell.core.health(cell.t)["current_zero_samples"] == 4
+    js, _ = cell.cycle(current=zero + 3.0)  # powered again: the zero stays as measured
+    np.testing.assert_allclose(js.current_a, 3.0, atol=6e-3)
+
+
+def test_the_first_servo_on_waits_until_the_current_zero_is_measured():
+    cell = Cell(current_zero_cycles=3, current_zero_settle_cycles=0)
+    cell.gateway(Lifecycle.READY)
+    assert cell.core.desired_request(cell.t) == HostRequest.BRAKE  # nothing measured yet
+    for _ in range(2):
+        cell.cycle(state=ControllerState.BRAKED, current=(0.1,) * N, power=False)
+    assert cell.core.desired_request(cell.t) == HostRequest.BRAKE
+    cell.cycle(state=ControllerState.BRAKED, current=(0.1,) * N, power=False)
+    assert cell.core.desired_request(cell.t) == HostRequest.SERVO_ON
+    cell.cycle(current=(2.0,) * N)  # powered, then off again: no new wait
+    cell.cycle(state=ControllerState.BRAKED, current=(0.1,) * N, power=False)
+    assert cell.core.desired_request(cell.t) == HostRequest.SERVO_ON
 
 
 def test_a_blocked_cycle_is_held_at_once_and_flagged_in_the_next_state():

@@ -178,6 +178,7 @@ def make_rig() -> Iterator[Any]:
             "heartbeat_period_s": 0.1,
             "max_following_error_rad": 0.05,
             "max_velocity_rad_s": 1.0,
+            "current_zero_cycles": 0,  # the servo at once (tests of the zero: test_can_core)
         }
         values.update(overrides)
         config = CanDriverConfig(**values)

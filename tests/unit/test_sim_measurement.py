@@ -51,15 +51,21 @@ def run(single_tick: bool) -> tuple[np.ndarray, np.ndarray]:
         i_m = plant.measured_current_a()
         if single_tick:
             i_m = plant.current_a.copy()
-        rows.append(np.concatenate([plant.sample_q_rad, plant.sample_dq_rad_s, i_m]))
+        # the judge's truth: the sensors' zero offset out, the chambers' own pressures
+        i_m = i_m - plant.current_offset_a
+        rows.append(np.concatenate([plant.sample_q_rad, plant.sample_dq_rad_s, i_m,
+                                    plant.pressure_bar]))  # fmt: skip
     data = np.array(rows)
     n = plant.n
-    q, dq, current = data[:, :n], data[:, n : 2 * n], data[:, 2 * n :]
+    q, dq, current = data[:, :n], data[:, n : 2 * n], data[:, 2 * n : 3 * n]
+    pressure = data[:-1, 3 * n :]
     if not single_tick:  # the mean over a cycle describes its middle: as the recorder aligns it
         current = np.vstack([0.5 * (current[:-1] + current[1:]), current[-1:]])
     gains = np.array([j.drive_gain_nm_per_a for j in desc.joints])
     t = CYCLE_S * np.arange(len(rows))
-    m = Measurements(t[:-1], q[:-1], dq[:-1], (gains * current)[:-1], None, "driven")
+    m = Measurements(
+        t[:-1], q[:-1], dq[:-1], (gains * current)[:-1], pressure, "driven", p_joints=(2, 3)
+    )
     p = prepare(m, 125.0, 20.0, 20.0)
     rigid = RigidBodyModel.from_description(desc)
     # The test judges with the truth: the plant's friction (its own code) in the product's
@@ -70,12 +76,11 @@ def run(single_tick: bool) -> tuple[np.ndarray, np.ndarray]:
             for ft, r in zip(cfg.friction, cfg.drives.gear_ratio, strict=True)
         ]
     )
-    pressure = np.array(cfg.cylinders.initial_bar)
     truth = np.array(
         [
             rigid.rnea_nm(qk, dqk, ak, True) + friction(qk, dqk)
-            - cylinder_torque_nm(qk, pressure, desc)
-            for qk, dqk, ak in zip(p.q, p.dq, p.ddq, strict=True)
+            - cylinder_torque_nm(qk, pk, desc)
+            for qk, dqk, ak, pk in zip(p.q, p.dq, p.ddq, p.p, strict=True)
         ]
     )  # fmt: skip
     return p.tau - truth, gains * cfg.sensors.current_noise_a

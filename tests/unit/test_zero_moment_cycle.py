@@ -9,6 +9,7 @@ whole runs, so a later optimisation cannot change what the loop computes without
 from __future__ import annotations
 
 import copy
+import dataclasses
 import math
 
 import numpy as np
@@ -28,6 +29,12 @@ RTOL, ATOL = 1e-12, 1e-9
 @pytest.fixture(scope="module")
 def cfg(tmp_path_factory):
     return load_control_config(example_cell(tmp_path_factory.mktemp("cell")))[0]
+
+
+@pytest.fixture(scope="module")
+def at_once(cfg):
+    """``cfg`` engaging on the first state (these tests are about the cycle's physics)."""
+    return dataclasses.replace(cfg, engage_rest_states=0)
 
 
 @pytest.fixture(scope="module")
@@ -107,9 +114,9 @@ def test_cycle_command_equals_desired_torque_then_eq21_over_a_run(cfg, model):
     assert walls > 100, "the soft limits were hardly exercised"
 
 
-def test_update_answers_with_the_reference_command(cfg, model):
-    ctl = ZeroMomentController(cfg, model)
-    ref = ZeroMomentController(cfg, model)
+def test_update_answers_with_the_reference_command(at_once, model):
+    ctl = ZeroMomentController(at_once, model)
+    ref = ZeroMomentController(at_once, model)
     rng = np.random.default_rng(6)
     for cycle, (q, dq, p) in enumerate(random_states(model, rng, 200), start=100):
         st = make_joint_state(cycle, 1.0, ControllerState.EXTERNAL, 2, q, dq, np.zeros(6),
@@ -150,9 +157,10 @@ def test_identified_model_cycle_torques_equal_its_array_methods(tmp_path):
         np.testing.assert_allclose(friction, model.friction_nm(q, dq), rtol=RTOL, atol=ATOL)
 
 
-def test_non_finite_torque_is_refused_not_sent(cfg, model):
+def test_non_finite_torque_is_refused_not_sent(at_once, model):
     """A state the model cannot evaluate raises MessageError (the process then sends nothing
     and disengages), whether the float path produces NaN or math refuses the input."""
+    cfg = at_once
     ctl = ZeroMomentController(cfg, model)
     q = np.array([1e308, 0.1, 0.2, 0.0, 0.0, 0.0])  # finite, but the wall spring overflows
     states = [make_joint_state(cycle, 0.0, ControllerState.EXTERNAL, 2, q, np.zeros(6),
@@ -225,3 +233,36 @@ def test_the_drive_holding_the_arm_calibrates_omega_before_teaching(cfg, model):
                               np.zeros(6), q, np.zeros(6), 0.008)  # fmt: skip
     ctl.observe_hold(moving)
     assert len(ctl.hold) == 0
+
+
+def test_teaching_engages_once_the_arm_rests_in_the_hold_or_after_the_longest_wait(cfg, model):
+    """An arm still settling in the driver's hold gives no calibration of ω̂: the controller
+    holds on where the driver holds (position echoed, zero velocity) until the arm has rested
+    ``engage_rest_states`` states, calibrating from those, or ``engage_max_wait_states`` passed."""
+    from gateway.messages import FLAG_PREV_HOLD
+
+    cfg = dataclasses.replace(cfg, engage_rest_states=4, engage_max_wait_states=10)
+    ctl = ZeroMomentController(cfg, model)
+    q = np.array([0.0, 0.15, 0.25, 0.0, -0.4, 0.0])
+    held = q + 0.001
+
+    def state(c, dq, flags=2):
+        return make_joint_state(c, 0.0, ControllerState.EXTERNAL, flags, q, np.full(6, dq),
+                                np.ones(6), held, np.zeros(6), 0.008)  # fmt: skip
+
+    q_cmd, dq_cmd = ctl.answer(state(1, 0.01, FLAG_PREV_HOLD | 2), (6.0, 4.0))  # settling
+    np.testing.assert_array_equal(q_cmd, held)
+    assert dq_cmd == [0.0] * 6 and not ctl.engaged
+    for c in range(2, 5):  # three states at rest under our own hold: one short
+        ctl.answer(state(c, 0.0), (6.0, 4.0))
+    assert not ctl.engaged and len(ctl.hold) == 3
+    ctl.answer(state(5, 0.0), (6.0, 4.0))
+    assert ctl.engaged  # the fourth resting state: calibrated and teaching
+
+    ctl.disengage()
+    ctl.hold.clear()
+    for c in range(10, 20):  # never at rest: hold on for at most 10 states
+        ctl.answer(state(c, 0.01), (6.0, 4.0))
+        assert not ctl.engaged
+    ctl.answer(state(20, 0.01), (6.0, 4.0))
+    assert ctl.engaged
