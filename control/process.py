@@ -23,6 +23,7 @@ import numpy as np
 
 from control.config import ControlConfig
 from control.declared_model import DeclaredModel
+from control.delay import DelayPredictor
 from control.experiments import build_plan
 from control.identification.inner_loop import read_outer_loop_gains
 from control.load_check import REST_RAD_S, LoadCheck, static_load_check
@@ -114,6 +115,14 @@ class ZeroMomentController:
         )
         #: the drives' torque constants (datasheet) [N·m/A]: measured motor torque = K i
         self._k_nm_per_a = [j.drive_gain_nm_per_a for j in model.desc.joints]
+        #: the state when a command takes effect (control/delay.py), on the datasheet's
+        #: nominal rigid body (with rotor inertias) for M(q)
+        self.predictor = DelayPredictor(cfg.command_delay_cycles)
+        self._inertia = None
+        if cfg.command_delay_cycles:
+            from control.model.dynamics import RigidBodyModel
+
+            self._inertia = RigidBodyModel.from_description(model.desc)
         #: the driver's hold at rest before teaching (:meth:`observe_hold`)
         self.hold = HoldAverage()
         self.damping = np.array(cfg.damping_nm_s_per_rad)
@@ -196,6 +205,7 @@ class ZeroMomentController:
                 self.loop.calibrate_from_hold(*self.hold.mean())
             self.hold.clear()
             self.loop.reset(st.q_cmd_rad - st.q_rad)
+            self.predictor.reset()
             self.engaged = True
             self.last_cycle = st.cycle - 1
         gap = st.cycle - (self.last_cycle if self.last_cycle is not None else st.cycle - 1)
@@ -204,8 +214,15 @@ class ZeroMomentController:
         # eq. (28): the torque the drive delivered, if it followed the commands as sent
         followed = gap == 1 and not st.flags & (FLAG_PREV_HOLD | FLAG_PREV_COAST)
         self.loop.adapt_floats(self.motor_torque_nm(st) if followed else None, period)
+        q, dq = st.q_rad, st.dq_rad_s
+        if self._inertia is not None:
+            m_inv = np.linalg.inv(self._inertia.mass_matrix(q, include_armature=True))
+            q, dq = self.predictor.predict(
+                q, dq, st.q_cmd_rad, st.dq_cmd_rad_s, period, gap == 1, m_inv,
+                1.0 / self.loop.omega, self.loop.upsilon_i,
+            )  # fmt: skip
         try:
-            q_cmd, dq_cmd = self.cycle_command(st.q_rad, st.dq_rad_s, p_bar, dt)
+            q_cmd, dq_cmd = self.cycle_command(q, dq, p_bar, dt)
         except (ValueError, ArithmeticError) as exc:  # where numpy would have given NaN
             raise MessageError(f"cycle {st.cycle}: model torque undefined ({exc})") from None
         return q_cmd, dq_cmd

@@ -163,11 +163,11 @@ class ControllerSpec:
     max_following_error_rad: float = 0.05  #: |q_cmd - q| beyond this → FAULT
     #: cycles between a command set's acceptance and the servo following it. A real controller
     #: reads the joints at a cycle boundary, the host answers during the cycle and the answer
-    #: takes effect at a later boundary: 1 is the physical minimum. 0 (the default for now)
-    #: applies it at the boundary that accepted it, in the same simulated instant as the
-    #: measurement it answers: today's outer loop (control/outer_loop.py) runs away with 1
-    #: under a 20 N push (tests/stack/test_stack.py), so 1 waits for a delay-aware outer loop.
-    command_delay_cycles: int = 0
+    #: takes effect at a later boundary: 1 (the default) is the physical minimum. 0 applies it
+    #: at the boundary that accepted it, in the same simulated instant as the measurement it
+    #: answers. The product measures it (the inner-loop experiment) and sends each command for
+    #: the state the arm will be in then (control/delay.py).
+    command_delay_cycles: int = 1
     #: CAN profile of LTC-1 the controller speaks (drivers/can/PROTOCOL.md): "classic" (§2,
     #: JOINT_FB/JOINT_CMD per joint, host adapter "ltc_dbc") or "fd" (§10, one CAN FD frame
     #: each way per cycle, host adapter "ltc_fd")

@@ -377,7 +377,9 @@ def test_requests_roll_their_counter_and_the_heartbeat_is_classic():
 
 # --- the virtual controller on either profile -----------------------------------------------
 def make_controller(profile: str, n_joints: int = 6) -> VirtualController:
-    spec = ControllerSpec(can_profile=profile)
+    # The frames are under test: each set applies at the boundary that accepts it (the
+    # command delay has its own tests, test_sim_controller_delay.py).
+    spec = ControllerSpec(can_profile=profile, command_delay_cycles=0)
     return VirtualController(spec, controller_protocol(spec, n_joints), LOWER, UPPER)
 
 
