@@ -59,6 +59,8 @@ log = logging.getLogger("leadthrough.control")
 PRESSURE_PUBLISH_PERIOD_S = 0.1
 #: the static-load check runs at most this often [s] (the gateway accepts one up to 0.5 s old)
 LOAD_CHECK_PERIOD_S = 0.1
+#: the delay predictor's M(q)⁻¹ is recomputed after a joint moved this much [rad]
+INERTIA_STEP_RAD = 0.02
 
 
 def load_control_config(cell_path: str | Path) -> tuple[ControlConfig, BusConfig]:
@@ -123,6 +125,10 @@ class ZeroMomentController:
             from control.model.dynamics import RigidBodyModel
 
             self._inertia = RigidBodyModel.from_description(model.desc)
+        #: (q it was computed at, M(q)⁻¹) for the predictor: M changes slowly with q, and the
+        #: predictor holds with M off by 30 %, so it is recomputed only after a joint moved
+        #: more than INERTIA_STEP_RAD (a 6×6 crba and inverse cost half the control law)
+        self._m_inv: tuple[np.ndarray, np.ndarray] | None = None
         #: the driver's hold at rest before teaching (:meth:`observe_hold`)
         self.hold = HoldAverage()
         self.damping = np.array(cfg.damping_nm_s_per_rad)
@@ -155,6 +161,16 @@ class ZeroMomentController:
         k = self.cfg.wall_stiffness_nm_per_rad
         tau = tau - k * np.maximum(q - self.upper, 0.0) + k * np.maximum(self.lower - q, 0.0)
         return tau
+
+    def inverse_inertia(self, q: np.ndarray) -> np.ndarray:
+        """M(q)⁻¹ of the nominal rigid body with rotor inertias, recomputed once a joint has
+        moved more than :data:`INERTIA_STEP_RAD` since the last time."""
+        assert self._inertia is not None
+        cached = self._m_inv
+        if cached is None or float(np.max(np.abs(q - cached[0]))) > INERTIA_STEP_RAD:
+            m = self._inertia.mass_matrix(q, include_armature=True)
+            cached = self._m_inv = (q.copy(), np.linalg.inv(m))
+        return cached[1]
 
     def disengage(self) -> None:
         self.engaged = False
@@ -216,7 +232,7 @@ class ZeroMomentController:
         self.loop.adapt_floats(self.motor_torque_nm(st) if followed else None, period)
         q, dq = st.q_rad, st.dq_rad_s
         if self._inertia is not None:
-            m_inv = np.linalg.inv(self._inertia.mass_matrix(q, include_armature=True))
+            m_inv = self.inverse_inertia(q)
             q, dq = self.predictor.predict(
                 q, dq, st.q_cmd_rad, st.dq_cmd_rad_s, period, gap == 1, m_inv,
                 1.0 / self.loop.omega, self.loop.upsilon_i,

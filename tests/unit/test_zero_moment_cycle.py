@@ -266,3 +266,22 @@ def test_teaching_engages_once_the_arm_rests_in_the_hold_or_after_the_longest_wa
         assert not ctl.engaged
     ctl.answer(state(20, 0.01), (6.0, 4.0))
     assert ctl.engaged
+
+
+def test_the_predictors_inverse_inertia_is_recomputed_only_after_the_arm_moved(cfg, model):
+    from control.model.dynamics import RigidBodyModel
+    from control.process import INERTIA_STEP_RAD
+
+    ctl = ZeroMomentController(dataclasses.replace(cfg, command_delay_cycles=1), model)
+    rigid = RigidBodyModel.from_description(model.desc)
+    q = np.array([0.0, 0.15, 0.25, 0.0, -0.4, 0.0])
+    first = ctl.inverse_inertia(q)
+    want = np.linalg.inv(rigid.mass_matrix(q, include_armature=True))
+    np.testing.assert_allclose(first, want, rtol=1e-12)
+    assert ctl.inverse_inertia(q + 0.5 * INERTIA_STEP_RAD) is first
+    moved = q + np.array([0.0, 2.0 * INERTIA_STEP_RAD, 0.0, 0.0, 0.0, 0.0])
+    again = ctl.inverse_inertia(moved)
+    assert again is not first
+    np.testing.assert_allclose(
+        again, np.linalg.inv(rigid.mass_matrix(moved, include_armature=True)), rtol=1e-12
+    )
