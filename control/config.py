@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from gateway.config import require
+from gateway.config import require, require_count
 
 
 @dataclass(frozen=True)
@@ -119,12 +119,7 @@ class ControlConfig:
             f"needs {n} values > 0 while omega_adaptation_per_s > 0",
         )
         for name in ("engage_rest_states", "engage_max_wait_states"):
-            value = getattr(self, name)
-            require(
-                isinstance(value, int) and 0 <= value <= 10_000,
-                f"[control].{name}",
-                f"{value!r} not a whole number of states in 0..10000",
-            )
+            require_count(getattr(self, name), f"[control].{name}", 10_000, "states")
         require(
             0 <= self.command_delay_cycles <= 10,
             "[control].command_delay_cycles",

@@ -70,13 +70,13 @@ class DelayPredictor:
         echo_dq: np.ndarray,
         period_s: float,
         consecutive: bool,
-        m_inv: np.ndarray | None,
+        m_inv: np.ndarray,
         k_star: np.ndarray,
         upsilon: np.ndarray,
     ) -> tuple[np.ndarray, np.ndarray]:
         """``(q, dq)`` when the command answering this state takes effect. ``echo_*`` the
         command the driver sent last (this state's echo), ``consecutive`` this state follows
-        the last by one cycle, ``m_inv`` M(q)⁻¹ (None: no model; velocity carried on),
+        the last by one cycle, ``m_inv`` M(q)⁻¹,
         ``k_star`` = 1/ω̂ [N·m·s/rad], ``upsilon`` Υ̂_I [1/s]."""
         d = self.delay_cycles
         if d == 0:
@@ -90,21 +90,23 @@ class DelayPredictor:
         full = len(self._echoes) == d
         self._applied = self._echoes[0] if full else None  # followed from now on
         h = d * period_s
-        if m_inv is None or last is None or applied is None or not full:
+        if last is None or applied is None or not full:
             return q + h * dq, dq
-        q_mid, dq_mid = 0.5 * (q + last[0]), 0.5 * (dq + last[1])
-        ref_q, ref_dq = applied
-        tau_last = k_star * (
-            (ref_dq - dq_mid) + upsilon * (ref_q + 0.5 * period_s * ref_dq - q_mid)
-        )
+
+        def drive_nm(ref_q: np.ndarray, ref_dq: np.ndarray, qa: np.ndarray, dqa: np.ndarray):
+            """Eq. (19)'s torque at arm state (qa, dqa) against the reference (ref_q, ref_dq)."""
+            return k_star * ((ref_dq - dqa) + upsilon * (ref_q - qa))
+
+        ref_q, ref_dq = applied  # at the middle of the last cycle, against its mean state
+        tau_last = drive_nm(ref_q + 0.5 * period_s * ref_dq, ref_dq, 0.5 * (q + last[0]),
+                            0.5 * (dq + last[1]))  # fmt: skip
         base = (dq - last[1]) / period_s - m_inv @ tau_last
         steps = max(1, math.ceil(period_s / SUBSTEP_S - 1e-9))
         step = period_s / steps
         qp, dqp = q.copy(), dq.copy()
         for ref_q, ref_dq in self._echoes:  # oldest first: the one applied now
             for s in range(steps):
-                r = ref_q + ref_dq * (s * step)
-                tau = k_star * ((ref_dq - dqp) + upsilon * (r - qp))
+                tau = drive_nm(ref_q + ref_dq * (s * step), ref_dq, qp, dqp)
                 dqp = dqp + step * (base + m_inv @ tau)
                 qp = qp + step * dqp
         return qp, dqp

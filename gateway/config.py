@@ -42,6 +42,12 @@ def require(ok: bool, where: str, message: str) -> None:
         raise ConfigError(f"{where}: {message}")
 
 
+def require_count(value: Any, where: str, high: int, unit: str) -> None:
+    """Raise ConfigError unless ``value`` is a whole number of ``unit`` in 0..``high``."""
+    ok = isinstance(value, int) and not isinstance(value, bool) and 0 <= value <= high
+    require(ok, where, f"{value!r} not a whole number of {unit} in 0..{high}")
+
+
 def _convert(value: Any, tp: Any, where: str) -> Any:
     origin = typing.get_origin(tp)
     args = typing.get_args(tp)

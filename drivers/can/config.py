@@ -28,7 +28,7 @@ from typing import Any
 
 from drivers.can.seqpacket import address_problem
 from gateway.bus import BusConfig, bus_config_from
-from gateway.config import from_mapping, load_toml, require
+from gateway.config import from_mapping, load_toml, require, require_count
 
 _TRANSPORT_SCALARS = (str, int, float, bool)
 #: Keyword arguments SeqpacketBus takes; anything else would be silently ignored, so refuse it.
@@ -98,12 +98,7 @@ class CanDriverConfig:
                 f"{value!r} s outside ({lo}, {hi}]",
             )
         for name in ("current_zero_cycles", "current_zero_settle_cycles"):
-            value = getattr(self, name)
-            require(
-                isinstance(value, int) and 0 <= value <= 100_000,
-                f"{where}.{name}",
-                f"{value!r} not a whole number of cycles in 0..100000",
-            )
+            require_count(getattr(self, name), f"{where}.{name}", 100_000, "cycles")
         require(
             math.isfinite(self.answer_by_period_fraction)
             and 0.0 < self.answer_by_period_fraction <= 1.0,

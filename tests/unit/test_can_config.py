@@ -66,6 +66,8 @@ def test_from_toml_table_with_per_joint_lists():
         ({"transport": {**SOCKETCAND, "bitrate": [1]}}, "transport.bitrate"),
         ({"deadline": 0.01}, "unknown key"),
         ({"answer_by_period_fraction": 1.5}, r"answer_by_period_fraction: 1.5 outside \(0, 1\]"),
+        ({"current_zero_cycles": -1}, r"current_zero_cycles: -1 not a whole number of cycles"),
+        ({"current_zero_settle_cycles": 2.5}, "expected an integer"),
     ],
 )
 def test_bad_values_are_refused_with_field_and_reason(table, message):
