@@ -455,7 +455,7 @@ def guard_joints(
             fallback = PlainJoint.from_coef(j, plain_eval.solution.coef[plain_key(j)])
         elif kind == NOMINAL:
             c = nominal_eval.solution.coef[f"nominal:{j}"]
-            fallback = PlainJoint(j, beta_nominal.copy(), float(c[0]), float(c[1]), NOMINAL)
+            fallback = PlainJoint(j, beta_nominal.copy(), *map(float, c[:2]), NOMINAL, float(c[2]))
         else:
             fallback = PlainJoint(j, np.zeros_like(beta_nominal), 0.0, 0.0, ZERO)
         reason = (
@@ -660,9 +660,12 @@ def _analyze(
             refit.append(again[_keep_family(ls, again, options.friction, clock)])
             return [t.key for t in refit[-1].terms]
 
+        def plain_sse(y: np.ndarray) -> np.ndarray:
+            return plain_least_squares(ctx_train, y, folds, sliding_train).cv_sse
+
         state = fx.search_all_along(
             ls, ctx_train, train, base_fit.names, base_fit.weights, options.search, clock.say,
-            refit_friction,
+            refit_friction, plain_sse,
         )  # fmt: skip
         base_fit = refit[-1] if refit else base_fit
         kind = base_fit.kind

@@ -52,6 +52,13 @@ A candidate is accepted only if
     model lacks); an effect that really appeared shows where the model is known to hold. With
     fewer than :data:`MIN_INSIDE_SHARE` of those rows inside, nothing is accepted in case (B).
 
+(vi) case (A) only, *below the margin where plain least squares wins*: when no candidate
+    passes (i), one that passes (ii) and (iii) is still taken if it brings a joint on which
+    the guard's plain least squares (per-joint coefficients, no shared physics) has the lower
+    held-out error to at least that error. Plain least squares beating the shared model there
+    says the model lacks something on that joint; a significant effect that accounts for the
+    difference is a better repair than the guard's fallback to a fit without physics.
+
 Rules (iv) and (v) are checked on the acceptable candidates in order of their score; the
 first that holds is taken.
 
@@ -61,7 +68,7 @@ Among the acceptable ones the largest drop of the weighted held-out error wins.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.optimize import minimize_scalar
@@ -75,6 +82,8 @@ MARGIN = 0.10
 #: Family-wise probability, per search round, of accepting a candidate that only fits noise.
 ALPHA = 0.01
 WORSEN_TOLERANCE = 0.05
+#: What rule (vi) measures the model against.
+RIVAL = "plain least squares"
 #: Rule (v): least share of the scored test rows inside the training envelope.
 MIN_INSIDE_SHARE = 0.1
 MAX_EFFECTS = 6
@@ -203,6 +212,27 @@ def judge(
     ok = bool(improved) and no_worse and stat >= threshold
     score = float(np.sum(weights**2 * drop))
     return Verdict(term, new, ok, score, rel, improved, stat, threshold)
+
+
+def rescuing(
+    verdicts: Sequence[Verdict], current: Evaluation, rival_sse: np.ndarray
+) -> list[Verdict]:
+    """Rule (vi): the candidates that pass rules (ii) and (iii) and take some joint the rival
+    (plain least squares) beats on the held-out folds to at least the rival's error; their
+    ``improved`` joints are those. Empty when the rival beats no joint."""
+    beaten = np.asarray(current.cv_sse) > rival_sse
+    if not np.any(beaten):
+        return []
+    out = []
+    for v in verdicts:
+        lifted = beaten & (np.asarray(v.evaluation.cv_sse) <= rival_sse)
+        lifted[[j for j in range(lifted.size) if j not in v.term.joints]] = False
+        no_worse = bool(np.all(v.rel >= -WORSEN_TOLERANCE))
+        if np.any(lifted) and no_worse and v.chi2 >= v.chi2_threshold:
+            out.append(
+                replace(v, accepted=True, improved=tuple(int(j) for j in np.flatnonzero(lifted)))
+            )
+    return out
 
 
 def scanned_settings(terms: Sequence[EffectTerm], options: Options, delay: bool) -> int:
@@ -378,6 +408,7 @@ def search_all_along(
     options: Options,
     progress: Progress | None = None,
     refit_friction: Callable[[], list[str]] | None = None,
+    rival_sse: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> SearchState:
     """Case (A) greedy search on the training data in ``ls`` (groups ``names`` fitted there).
 
@@ -387,6 +418,10 @@ def search_all_along(
     delay is accepted, since the friction chosen on the unshifted torque stood in for part of
     the delay (a late sign change looks like a slow one), and left alone would hand the rest
     of the mismatch to spurious Stribeck terms.
+
+    ``rival_sse(y)`` is the held-out sum of squares per joint of the guard's plain least
+    squares on targets ``y`` (same folds): when no candidate passes, :func:`rescuing` may
+    still take one below the margin (rule (vi) of the module docstring).
     """
     progress = progress or _quiet
     noise = NoiseFloor.of(data)
@@ -413,6 +448,11 @@ def search_all_along(
             ls.set_y(y0)
         ok = [v for v in verdicts if v.accepted]
         _log_round(progress, "train", verdicts)
+        if not ok and rival_sse is not None:
+            ok = rescuing(verdicts, current, rival_sse(ls.y))
+            for v in ok:
+                lifted = [j + 1 for j in v.improved]
+                progress(f"below the margin, but it lifts joints {lifted} past {RIVAL}")
         if not ok:
             break
         best = max(ok, key=lambda v: v.score)

@@ -276,29 +276,30 @@ class PlainJoint:
     """A joint on a fallback because the full model's held-out error was worse there (the
     guard of :func:`.analyze.guard_joints`): its own base-parameter vector ``beta`` (nb,) over
     its row of the base regressor, Coulomb ``coulomb_nm`` [N·m] times sgn(dq) and viscous
-    ``viscous_nm_s_per_rad`` [N·m·s/rad]. ``kind`` says which fallback: plain least squares
-    (:func:`plain_columns`), the URDF's nominal β with fitted friction, or zero."""
+    ``viscous_nm_s_per_rad`` [N·m·s/rad] and a constant ``offset_nm`` [N·m]. ``kind`` says
+    which fallback: plain least squares (:func:`plain_columns`), the URDF's nominal β with
+    fitted friction, or zero."""
 
     joint: int
     beta: np.ndarray
     coulomb_nm: float
     viscous_nm_s_per_rad: float
     kind: str = "plain_ls"
+    offset_nm: float = 0.0
 
     @property
     def coef(self) -> np.ndarray:
-        return np.r_[self.beta, self.coulomb_nm, self.viscous_nm_s_per_rad]
+        return np.r_[self.beta, self.coulomb_nm, self.viscous_nm_s_per_rad, self.offset_nm]
 
     @classmethod
-    def from_coef(cls, joint: int, coef: np.ndarray) -> PlainJoint:
+    def from_coef(cls, joint: int, coef: np.ndarray, kind: str = "plain_ls") -> PlainJoint:
+        """From the coefficients of :func:`plain_columns` (β, Coulomb, viscous, offset)."""
         c = np.asarray(coef, dtype=float)
-        return cls(joint, c[:-2].copy(), float(c[-2]), float(c[-1]))
+        return cls(joint, c[:-3].copy(), float(c[-3]), float(c[-2]), kind, float(c[-1]))
 
     def friction(self, ctx: Context) -> np.ndarray:
-        return plain_friction_columns(ctx, self.joint) @ [
-            self.coulomb_nm,
-            self.viscous_nm_s_per_rad,
-        ]
+        """Coulomb, viscous and the offset, (T,)."""
+        return plain_friction_columns(ctx, self.joint) @ self.coef[-3:]
 
 
 #: What predicts a joint's torque (:class:`PlainJoint`'s ``kind``, or the full model).
@@ -312,16 +313,22 @@ def plain_key(j: int) -> str:
 
 def plain_columns(ctx: Context, j: int) -> dict[int, np.ndarray]:
     """Plain least squares of joint j alone: its row of the base regressor with coefficients of
-    its own, Coulomb ``sgn(dq_j)`` and viscous ``dq_j`` (velocity clipped to the envelope,
-    columns filtered like the torque): the textbook fit the model must never do worse than."""
+    its own, Coulomb ``sgn(dq_j)``, viscous ``dq_j`` (velocity clipped to the envelope) and a
+    constant offset, columns filtered like the torque: the textbook fit the model must never do
+    worse than. The offset is what a torque or current sensor's zero error adds; without it a
+    constant the shared model cannot place (a wrist joint reading part of its neighbour's
+    gravity torque) made plain least squares look worse than the textbook fit is."""
     assert ctx.y_base is not None
     return {j: np.column_stack([ctx.y_base[j], plain_friction_columns(ctx, j)])}
 
 
 def plain_friction_columns(ctx: Context, j: int) -> np.ndarray:
-    """Coulomb ``sgn(dq_j)`` and viscous ``dq_j`` of joint j (velocity clipped to the
-    envelope), filtered like the torque, (T, 2): the friction of :func:`plain_columns`."""
-    return ctx.filtered(ctx.sample_mean(j, lambda dq: np.column_stack([np.sign(dq), dq])))
+    """Coulomb ``sgn(dq_j)``, viscous ``dq_j`` (velocity clipped to the envelope) and a
+    constant 1 of joint j, filtered like the torque, (T, 3): the friction and offset of
+    :func:`plain_columns`."""
+    return ctx.filtered(
+        ctx.sample_mean(j, lambda dq: np.column_stack([np.sign(dq), dq, np.ones_like(dq)]))
+    )
 
 
 @dataclass
@@ -522,6 +529,7 @@ class IdentifiedModel:
                     "base_parameter_values": pj.beta.tolist(),
                     "coulomb_nm": pj.coulomb_nm,
                     "viscous_nm_s_per_rad": pj.viscous_nm_s_per_rad,
+                    "offset_nm": pj.offset_nm,
                     "fallback": pj.kind,
                 }
                 for j, pj in sorted(self.plain_joints.items())
@@ -613,6 +621,7 @@ class IdentifiedModel:
                 float(e["coulomb_nm"]),
                 float(e["viscous_nm_s_per_rad"]),
                 str(e.get("fallback", PLAIN_LS)),
+                float(e.get("offset_nm", 0.0)),
             )
             if not 0 <= j < reg.n or pj.beta.shape != (base.n_base,) or pj.kind not in FALLBACKS:
                 raise DataFileError(f"{where}: plain joint {e['index']} malformed")

@@ -146,8 +146,8 @@ class PointModel:
         for term, coef in zip(model.friction_terms, model.friction_coef, strict=True):
             friction[term.joint] = _friction_fn(term, coef)
         for j, pj in model.plain_joints.items():
-            coulomb, viscous = pj.coulomb_nm, pj.viscous_nm_s_per_rad
-            friction[j] = lambda q, dq, c=coulomb, v=viscous: c * _sign(dq) + v * dq
+            coulomb, viscous, offset = pj.coulomb_nm, pj.viscous_nm_s_per_rad, pj.offset_nm
+            friction[j] = lambda q, dq, c=coulomb, v=viscous, o=offset: c * _sign(dq) + v * dq + o
         self._friction = [(j, f) for j, f in enumerate(friction) if f is not None]
         self._effects: list[tuple[int, EffectFn]] = []
         for term, coef, _ in model.effects:

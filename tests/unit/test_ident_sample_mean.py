@@ -55,7 +55,7 @@ def test_the_reversal_lands_at_its_recorded_time():
     for recorded in (True, False):
         ctx, tau = _context(m, recorded)
         cols = plain_friction_columns(ctx, 0)
-        errors[recorded] = _rms(cols @ [COULOMB_NM, VISCOUS_NM_S] - tau)
+        errors[recorded] = _rms(cols @ [COULOMB_NM, VISCOUS_NM_S, 0.0] - tau)
     # the true friction through the same chain: left with what filtering a 5-sample box
     # instead of the recorded samples leaves, far below the decimated grid's timing error
     assert errors[True] < 0.01 * COULOMB_NM
