@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
 import signal
 import threading
 import time
@@ -28,7 +29,8 @@ from control.experiments import build_plan
 from control.identification.inner_loop import read_outer_loop_gains
 from control.load_check import REST_RAD_S, LoadCheck, static_load_check
 from control.outer_loop import HoldAverage, OmegaAdaptation, OuterLoop
-from control.robot.description import load_description
+from control.robot.description import RobotDescription, load_description
+from control.taught_path import replay_trajectory
 from gateway.bus import (
     BusConfig,
     bus_config_from,
@@ -43,6 +45,7 @@ from gateway.messages import (
     FLAG_PREV_COAST,
     FLAG_PREV_HOLD,
     HEALTH_RATE_HZ,
+    PLAYING,
     ControllerState,
     IoState,
     JointCommand,
@@ -53,6 +56,7 @@ from gateway.messages import (
     encode_json,
     make_joint_command,
 )
+from gateway.program import ProgramError, read_program
 
 log = logging.getLogger("leadthrough.control")
 
@@ -61,6 +65,11 @@ PRESSURE_PUBLISH_PERIOD_S = 0.1
 LOAD_CHECK_PERIOD_S = 0.1
 #: the delay predictor's M(q)⁻¹ is recomputed after a joint moved this much [rad]
 INERTIA_STEP_RAD = 0.02
+#: fastest tool speed a replay may ask for [m/s] (ISO 10218-1 reduced speed)
+MAX_REPLAY_SPEED_M_S = 0.25
+#: no joint of a replay (its approaches included) moves faster [rad/s]: ~17 °/s, 0.3 m/s at
+#: 1 m from the axis; a taught segment that would need more is slowed down as a whole
+MAX_REPLAY_JOINT_SPEED_RAD_S = 0.3
 
 
 def load_control_config(cell_path: str | Path) -> tuple[ControlConfig, BusConfig]:
@@ -161,6 +170,16 @@ class ZeroMomentController:
         k = self.cfg.wall_stiffness_nm_per_rad
         tau = tau - k * np.maximum(q - self.upper, 0.0) + k * np.maximum(self.lower - q, 0.0)
         return tau
+
+    def hold_offset(self, q: np.ndarray, dq: np.ndarray, p_bar: Sequence[float]) -> np.ndarray:
+        """The command offset ``q_c - q`` [rad] at which the vendor loop, following a path at
+        ``q``, ``dq``, gives the model's torque there (gravity less the cylinders, friction):
+        eq. (21)'s steady state ``ω̂ τ / Υ̂_I``. Position mode without it sags by the load over
+        the loop's stiffness (eq. 19 holds a load with a position error, not an integral)."""
+        m = self.model
+        tau = m.gravity_nm(q) - m.cylinder_nm(q, np.asarray(p_bar, dtype=float))
+        tau = tau + m.friction_nm(q, dq)
+        return self.loop.omega * tau / self.loop.upsilon_i
 
     def inverse_inertia(self, q: np.ndarray) -> np.ndarray:
         """M(q)⁻¹ of the nominal rigid body with rotor inertias, recomputed once a joint has
@@ -290,9 +309,16 @@ class PlanPlayer:
     LIMIT_MARGIN_RAD = 0.05
     #: the plan fails when its commands were held this long in a row [s]
     MAX_PAUSE_S = 0.5
+    #: ... before its first sample was followed: building a plan (a replay's path) can take
+    #: this process a few hundred ms on a loaded machine, and the states that queued up
+    #: meanwhile are answered too late to be followed
+    MAX_START_PAUSE_S = 2.0
 
-    def __init__(self, lower_rad: np.ndarray, upper_rad: np.ndarray) -> None:
+    def __init__(
+        self, lower_rad: np.ndarray, upper_rad: np.ndarray, desc: RobotDescription | None = None
+    ) -> None:
         self.lower, self.upper = lower_rad, upper_rad
+        self.desc = desc  #: the robot, for a taught program's tool path (plan key "replay")
         self.plan_id: str | None = None
         self.state = "idle"  # idle | running | done | failed
         self.reason = ""
@@ -310,9 +336,12 @@ class PlanPlayer:
         self.plan_id, self.k, self._sent_cycle, self.held_s = str(plan.get("plan_id")), 0, None, 0.0
         self.start_cycle, self.period_s, self.repeats = st.cycle, period_s, 0
         try:
-            parts = build_plan(plan, st.q_cmd_rad.copy(), self.lower, self.upper, period_s,
-                               self.LIMIT_MARGIN_RAD)  # fmt: skip
-        except ValueError as exc:
+            if "replay" in plan:
+                parts = self._replay_parts(plan["replay"], st.q_cmd_rad.copy(), period_s)
+            else:
+                parts = build_plan(plan, st.q_cmd_rad.copy(), self.lower, self.upper, period_s,
+                                   self.LIMIT_MARGIN_RAD)  # fmt: skip
+        except (ValueError, ProgramError) as exc:
             self.state, self.reason = "failed", str(exc)
             log.error("excitation plan %s refused: %s", self.plan_id, exc)
             return
@@ -327,6 +356,25 @@ class PlanPlayer:
         self.state, self.reason = "running", ""
         log.info("excitation plan %s: %d segments, %.1f s", self.plan_id, len(parts),
                  len(self.q) * period_s)  # fmt: skip
+
+    def _replay_parts(
+        self, spec: dict, q0: np.ndarray, period_s: float
+    ) -> list[tuple[str, str, np.ndarray, np.ndarray]]:
+        """A taught program's path (:mod:`control.taught_path`) as plan segments, role
+        "replay"."""
+        if not isinstance(spec, dict) or not isinstance(spec.get("program"), str):
+            raise ValueError(f"replay needs {{'program': path, 'speed_m_s': v}}, got {spec!r}")
+        if self.desc is None:
+            raise ValueError("replay needs the robot description")
+        speed = float(spec.get("speed_m_s", 0.1))
+        if not (math.isfinite(speed) and 0 < speed <= MAX_REPLAY_SPEED_M_S):
+            raise ValueError(f"replay speed {speed} m/s not in (0, {MAX_REPLAY_SPEED_M_S}]")
+        program = read_program(spec["program"])
+        segments = replay_trajectory(
+            program, self.desc, q0, period_s, speed,
+            max_joint_speed_rad_s=MAX_REPLAY_JOINT_SPEED_RAD_S,
+        )  # fmt: skip
+        return [(label, "replay", q, dq) for label, q, dq in segments]
 
     def _played(self, cycle: int) -> None:
         """Sample ``self.k`` was carried out in ``cycle``: note segment bounds, move on."""
@@ -346,7 +394,8 @@ class PlanPlayer:
             if st.flags & FLAG_PREV_HOLD:
                 self.repeats += 1
                 self.held_s += self.period_s * max(1, st.cycle - self._sent_cycle)
-                if self.held_s > self.MAX_PAUSE_S:
+                limit = self.MAX_PAUSE_S if self.k else self.MAX_START_PAUSE_S
+                if self.held_s > limit:
                     self.state = "failed"
                     self.reason = (
                         f"the robot did not follow: the CAN driver held the plan's commands for "
@@ -400,8 +449,9 @@ class ControlProcess:
                 f"[control].max_offset_rad: {len(cfg.max_offset_rad)} values, the robot has "
                 f"{self.n} joints"
             )
+        desc = load_description() if self.ctl is None else self.ctl.model.desc
         self.player = PlanPlayer(np.array([j.lower_rad for j in joints]),
-                                 np.array([j.upper_rad for j in joints]))  # fmt: skip
+                                 np.array([j.upper_rad for j in joints]), desc)  # fmt: skip
         self._report_sent: tuple | None = None
         self._lock = threading.Lock()
         self.io: IoState | None = None
@@ -456,7 +506,7 @@ class ControlProcess:
                 self.lifecycle, self.lifecycle_rx_s = msg, self.clock()
 
     def _mode(self, now: float) -> Lifecycle | None:
-        """TEACHING or IDENTIFYING when the gateway says so (fresh), else None."""
+        """TEACHING, IDENTIFYING or REPLAYING when the gateway says so (fresh), else None."""
         lc = self.lifecycle
         if lc is None or now - self.lifecycle_rx_s > self.cfg.lifecycle_timeout_s:
             return None
@@ -484,7 +534,7 @@ class ControlProcess:
             if following and io is not None and now - io.stamp_s <= self.cfg.io_timeout_s:
                 self._check_load(st, io, now)
             return
-        if mode == Lifecycle.IDENTIFYING:
+        if mode in PLAYING:
             if ctl is not None:
                 ctl.disengage()
             plan = lc.extra.get("plan") if lc else None
@@ -493,7 +543,11 @@ class ControlProcess:
                 self.player.start(plan, st, period)
             qd = self.player.command(st)
             if qd is not None:
-                cmd = make_joint_command(st.cycle, st.stamp_s, self.clock(), qd[0], qd[1], now)
+                q_cmd = qd[0]
+                if mode == Lifecycle.REPLAYING and ctl is not None and io is not None:
+                    # a taught path is where the tool must be: the load's offset on top
+                    q_cmd = q_cmd + ctl.hold_offset(qd[0], qd[1], (io.p2_bar, io.p3_bar))
+                cmd = make_joint_command(st.cycle, st.stamp_s, self.clock(), q_cmd, qd[1], now)
                 self._pub_cmd.put(cmd.to_bytes())
                 self.stats["commands"] += 1
             return

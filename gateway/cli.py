@@ -24,6 +24,9 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "stop": ("gateway.cli", "operator: stop the robot (brakes on)"),
     "status": ("gateway.cli", "operator: show lifecycle state, links and why it cannot start"),
     "reset": ("gateway.cli", "operator: clear a fault once its cause is gone"),
+    "mark": ("gateway.cli", "operator: mark a waypoint in the program being taught"),
+    "program": ("gateway.program_cli", "show a taught program, export it as CSV or processed"),
+    "replay": ("gateway.replay", "operator: play a taught program back on the robot"),
     "can-driver": ("drivers.can.driver", "run the CAN driver (started by the gateway)"),
     "modbus-driver": ("drivers.modbus.driver", "run the Modbus driver (started by the gateway)"),
     "control": ("control.process", "run the control process (started by the gateway)"),
@@ -37,14 +40,23 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
         "identify the dynamic model from recorded files, validate, find missing effects",
     ),
 }
-OPERATOR_COMMANDS = ("start", "stop", "status", "reset")
+OPERATOR_COMMANDS = ("start", "stop", "status", "reset", "mark")
 
 
-def _configure_operator(p: argparse.ArgumentParser) -> None:
+def _configure_operator(p: argparse.ArgumentParser, name: str) -> None:
     p.add_argument("--config", type=Path, default=None, help="cell config TOML (for [bus])")
     p.add_argument("--bus", default=None, help="zenoh endpoint of the gateway")
     p.add_argument("--json", action="store_true", help="print the gateway's full JSON reply")
     p.add_argument("--timeout", type=float, default=3.0, help="seconds to wait for the gateway")
+    if name == "start":
+        p.add_argument(
+            "--program",
+            default=None,
+            help="name of the program this session's teaching is recorded to (default: "
+            "teach-<UTC time>), in the gateway's [gateway].program_dir",
+        )
+    if name == "mark":
+        p.add_argument("--label", default="", help="a label for the waypoint")
 
 
 def _operator_main(args: argparse.Namespace) -> int:
@@ -55,7 +67,12 @@ def _operator_main(args: argparse.Namespace) -> int:
     bus = BusConfig()
     if args.config:
         bus = bus_config_from(load_toml(args.config), str(args.config))
-    reply = operator_request(bus.with_overrides(args.bus), args.command, args.timeout)
+    fields = {}
+    if getattr(args, "program", None) is not None:
+        fields["program"] = args.program
+    if getattr(args, "label", ""):
+        fields["label"] = args.label
+    reply = operator_request(bus.with_overrides(args.bus), args.command, args.timeout, **fields)
     if args.json:
         print(json.dumps(reply, indent=2))
     else:
@@ -81,7 +98,7 @@ def build_parser() -> argparse.ArgumentParser:
     for name, (module, help_text) in SUBCOMMANDS.items():
         p = sub.add_parser(name, help=help_text, description=help_text)
         if name in OPERATOR_COMMANDS:
-            _configure_operator(p)
+            _configure_operator(p, name)
         else:
             importlib.import_module(module).configure_parser(p)
     return parser
@@ -112,7 +129,7 @@ def _single(name: str) -> argparse.ArgumentParser:
     module, help_text = SUBCOMMANDS[name]
     p = sub.add_parser(name, help=help_text, description=help_text)
     if name in OPERATOR_COMMANDS:
-        _configure_operator(p)
+        _configure_operator(p, name)
     else:
         importlib.import_module(module).configure_parser(p)
     return parser

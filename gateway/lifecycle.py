@@ -5,9 +5,14 @@
        |---------------- stop -----------+-----------------------------------+
     any --fault condition--> FAULT --reset [cause gone]--> STOPPED
     READY|TEACHING --identify PLAN [enabling held, servo on]--> IDENTIFYING
-    IDENTIFYING --plan done | enabling released--> READY
+    READY|TEACHING --replay PLAN [enabling held, servo on]--> REPLAYING
+    IDENTIFYING|REPLAYING --plan done | enabling released--> READY
 
-STOPPED is the initial state and the state `stop` leads to from anywhere but FAULT. Every fault
+STOPPED is the initial state and the state `stop` leads to from anywhere but FAULT. A robot
+controller in FAULT (after a crash of this service, its host heartbeat lost) makes STOPPED a
+FAULT too, so that `reset` — which the CAN driver forwards as the controller's RESET_FAULT —
+clears both; the controller then has :data:`CONTROLLER_RESET_UPDATES` updates to leave its
+FAULT before the gateway faults again. Every fault
 condition wins over every operator command. Like ros2_control's hardware lifecycle, READY means
 "link up, states readable, holding still": only TEACHING lets the control process's commands
 through (the CAN driver checks the same conditions again before forwarding a command). Teaching
@@ -17,9 +22,9 @@ starts only when the control process reports that the model carries the arm's st
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
-from gateway.messages import ControllerState, Lifecycle
+from gateway.messages import PLAYING, ControllerState, Lifecycle
 
 
 @dataclass(frozen=True)
@@ -45,9 +50,16 @@ class Limits:
     io_timeout_s: float = 0.25
     #: teaching (and identification) start only from standstill: after servo-on the arm first
     #: settles onto the vendor loop's position error, and a weightless arm would keep any
-    #: velocity it has at takeover [rad/s], for at least ``standstill_s`` [s]
-    standstill_rad_s: float = 5e-4
+    #: velocity it has at takeover [rad/s], for at least ``standstill_s`` [s]. A vendor loop
+    #: holding on a quantised encoder dithers by 1-2 mrad/s without going anywhere (measured
+    #: on the virtual cell: ±1.4 mrad/s on J4 for 15 s, the position still to 0.1 mrad), so
+    #: below 5e-4 teaching could wait forever; 2e-3 is also the control's own "at rest"
+    standstill_rad_s: float = 2e-3
     standstill_s: float = 0.3
+
+
+#: updates (gateway ticks, 10 ms) a robot controller has to leave FAULT after a reset
+CONTROLLER_RESET_UPDATES = 200
 
 
 @dataclass
@@ -56,12 +68,20 @@ class LifecycleMachine:
     state: Lifecycle = Lifecycle.STOPPED
     reason: str = "initial state"
     seq: int = 0
-    #: the excitation plan being run while IDENTIFYING (JSON-able), with its "plan_id"
+    #: the plan being played while IDENTIFYING or REPLAYING (JSON-able), with its "plan_id"
     plan: dict | None = None
+    #: how the last plan went: {"plan_id", "state": running|done|failed|aborted, "reason"}
+    plan_result: dict | None = None
+    #: updates left for the robot controller to leave FAULT after a reset (0: none pending)
+    controller_reset_left: int = 0
 
     def _go(self, state: Lifecycle, reason: str) -> None:
         if state != self.state or reason != self.reason:
             self.seq += 1
+        running = self.plan_result is not None and self.plan_result["state"] == "running"
+        if running and self.state in PLAYING and state != self.state:
+            assert self.plan_result is not None
+            self.plan_result = {**self.plan_result, "state": "aborted", "reason": reason}
         self.state, self.reason = state, reason
 
     def link_problems(self, obs: Observations) -> list[str]:
@@ -84,14 +104,15 @@ class LifecycleMachine:
 
     def update(self, obs: Observations) -> Lifecycle:
         """Apply the automatic transitions for the latest observations."""
-        if self.state in (Lifecycle.READY, Lifecycle.TEACHING, Lifecycle.IDENTIFYING):
+        if self.state in (Lifecycle.READY, Lifecycle.TEACHING, *PLAYING):
             problems = self.link_problems(obs)
             if problems:
                 self._go(Lifecycle.FAULT, "; ".join(problems))
                 return self.state
-            if self.state == Lifecycle.IDENTIFYING:
+            if self.state in PLAYING:
                 if not obs.enabling:
-                    self._go(Lifecycle.READY, "identification aborted: enabling device released")
+                    what = self.state.name.lower()
+                    self._go(Lifecycle.READY, f"{what} aborted: enabling device released")
                 return self.state
             servo_on = obs.controller_state in (ControllerState.HOLD, ControllerState.EXTERNAL)
             if self.state == Lifecycle.READY and obs.enabling and servo_on and self._still(obs):
@@ -103,6 +124,13 @@ class LifecycleMachine:
                 self._go(Lifecycle.READY, "enabling device released")
         elif self.state == Lifecycle.STOPPED and not obs.estop_ok and obs.io_age_s is not None:
             self._go(Lifecycle.FAULT, "e-stop chain open")
+        elif self.state == Lifecycle.STOPPED and obs.controller_state == ControllerState.FAULT:
+            if self.controller_reset_left > 0:
+                self.controller_reset_left -= 1  # the reset is on its way to the controller
+            else:
+                self._go(Lifecycle.FAULT, "robot controller reports FAULT; reset to clear it")
+        if obs.controller_state != ControllerState.FAULT:
+            self.controller_reset_left = 0
         return self.state
 
     def command(self, name: str, obs: Observations) -> tuple[bool, str]:
@@ -115,7 +143,7 @@ class LifecycleMachine:
             self._go(Lifecycle.STOPPED, "stop requested by operator")
             return True, "stopped: brakes engaged"
         if name == "start":
-            if self.state in (Lifecycle.READY, Lifecycle.TEACHING, Lifecycle.IDENTIFYING):
+            if self.state in (Lifecycle.READY, Lifecycle.TEACHING, *PLAYING):
                 return True, f"already {self.state.name.lower()}"
             if self.state == Lifecycle.FAULT:
                 return False, f"in fault ({self.reason}); use reset first"
@@ -127,9 +155,12 @@ class LifecycleMachine:
         if name == "reset":
             if self.state != Lifecycle.FAULT:
                 return True, f"nothing to reset (state {self.state.name.lower()})"
-            problems = self.link_problems(obs)
+            # the controller's own FAULT is what this reset clears (the CAN driver sends it)
+            problems = self.link_problems(replace(obs, controller_state=None))
             if problems:
                 return False, "fault cause still present: " + "; ".join(problems)
+            if obs.controller_state == ControllerState.FAULT:
+                self.controller_reset_left = CONTROLLER_RESET_UPDATES
             self._go(Lifecycle.STOPPED, "fault reset by operator")
             return True, self.reason
         return False, f"unknown command {name!r}; use start, stop, status or reset"
@@ -144,8 +175,15 @@ class LifecycleMachine:
 
     def identify(self, plan: dict, obs: Observations) -> tuple[bool, str]:
         """Start an excitation plan (operator command `identify`)."""
+        return self.play(Lifecycle.IDENTIFYING, plan, obs)
+
+    def play(self, state: Lifecycle, plan: dict, obs: Observations) -> tuple[bool, str]:
+        """Start playing ``plan`` in ``state`` (IDENTIFYING: an excitation plan, operator
+        command `identify`; REPLAYING: a taught program, `replay`)."""
+        assert state in PLAYING
+        verb = "identify" if state == Lifecycle.IDENTIFYING else "replay"
         if self.state not in (Lifecycle.READY, Lifecycle.TEACHING):
-            return False, f"identify needs state ready, not {self.state.name.lower()}"
+            return False, f"{verb} needs state ready, not {self.state.name.lower()}"
         if not obs.enabling:
             return False, "hold the enabling device: the robot will move by itself"
         if obs.controller_state not in (ControllerState.HOLD, ControllerState.EXTERNAL):
@@ -153,17 +191,18 @@ class LifecycleMachine:
         if self.state == Lifecycle.READY and not self._still(obs):
             return False, "the robot is still settling after servo-on; try again"
         self.plan = plan
-        self._go(Lifecycle.IDENTIFYING, f"running excitation plan {plan.get('plan_id')}")
+        self.plan_result = {"plan_id": plan.get("plan_id"), "state": "running", "reason": ""}
+        what = "excitation plan" if state == Lifecycle.IDENTIFYING else "taught program"
+        self._go(state, f"running {what} {plan.get('plan_id')}")
         return True, self.reason
 
     def plan_finished(self, plan_id: str, ok: bool, why: str) -> None:
         """The control process reports the plan ended (done, or refused/aborted)."""
-        if (
-            self.state == Lifecycle.IDENTIFYING
-            and self.plan
-            and self.plan.get("plan_id") == plan_id
-        ):
-            self._go(Lifecycle.READY, f"plan {plan_id} {'done' if ok else 'failed: ' + why}")
+        if self.state in PLAYING and self.plan and self.plan.get("plan_id") == plan_id:
+            reason = f"plan {plan_id} {'done' if ok else 'failed: ' + why}"
+            self.plan_result = {"plan_id": plan_id, "state": "done" if ok else "failed",
+                                "reason": reason}  # fmt: skip
+            self._go(Lifecycle.READY, reason)
 
     def fault(self, reason: str) -> None:
         """Enter FAULT from any state (used by error paths)."""

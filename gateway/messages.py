@@ -85,12 +85,15 @@ class Lifecycle(IntEnum):
     TEACHING = 2  #: enabling device held; the control process's commands reach the robot
     FAULT = 3  #: an error stopped the robot; `reset` once the cause is gone
     IDENTIFYING = 4  #: enabling device held; the control process plays an excitation plan
+    REPLAYING = 5  #: enabling device held; the control process plays a taught program back
 
 
 _CONTROLLER_STATES = tuple(ControllerState)
 
 #: Lifecycle states in which the control process's commands may reach the robot.
-COMMANDING = (Lifecycle.TEACHING, Lifecycle.IDENTIFYING)
+COMMANDING = (Lifecycle.TEACHING, Lifecycle.IDENTIFYING, Lifecycle.REPLAYING)
+#: Lifecycle states in which the control process plays a plan (the lifecycle's ``plan``).
+PLAYING = (Lifecycle.IDENTIFYING, Lifecycle.REPLAYING)
 
 
 def _finite(name: str, values: np.ndarray) -> np.ndarray:
@@ -335,7 +338,9 @@ class IoState:
     """Cylinder pressures and safety inputs, as read over Modbus."""
 
     MAGIC: ClassVar[bytes] = b"LTIO"
-    _FMT: ClassVar[struct.Struct] = struct.Struct("<4sBdddddBB")
+    _FMT: ClassVar[struct.Struct] = struct.Struct("<4sBdddddBBB")
+    #: the layout before the teach handle's mark button (read as "not pressed")
+    _FMT_NO_MARK: ClassVar[struct.Struct] = struct.Struct("<4sBdddddBB")
 
     stamp_s: float  #: Modbus driver monotonic time of the poll [s]
     p2_bar: float  #: measured pressure, assist cylinder of joint 2 [bar]
@@ -344,6 +349,7 @@ class IoState:
     p3_set_bar: float
     enabling: bool  #: enabling device held (3-position switch in its middle position)
     estop_ok: bool  #: e-stop chain closed (False = e-stop pressed or wire broken)
+    mark: bool = False  #: the teach handle's mark button pressed (False: no such button)
 
     def to_bytes(self) -> bytes:
         return self._FMT.pack(
@@ -356,18 +362,24 @@ class IoState:
             self.p3_set_bar,
             int(self.enabling),
             int(self.estop_ok),
+            int(self.mark),
         )
 
     @classmethod
     def from_bytes(cls, data: bytes) -> IoState:
         _check_header(data, cls.MAGIC, "IoState", 5)
-        if len(data) != cls._FMT.size:
+        if len(data) == cls._FMT.size:
+            _, _, stamp, p2, p3, s2, s3, en, es, mk = cls._FMT.unpack(data)
+        elif len(data) == cls._FMT_NO_MARK.size:
+            (_, _, stamp, p2, p3, s2, s3, en, es), mk = cls._FMT_NO_MARK.unpack(data), 0
+        else:
             raise MessageError(f"IoState: {len(data)} bytes, expected {cls._FMT.size}")
-        _, _, stamp, p2, p3, s2, s3, en, es = cls._FMT.unpack(data)
         _finite("IoState(stamp, p2, p3, p2_set, p3_set)", np.array([stamp, p2, p3, s2, s3]))
-        if en not in (0, 1) or es not in (0, 1):
-            raise MessageError(f"IoState: flags enabling={en} estop_ok={es} must be 0 or 1")
-        return cls(stamp, p2, p3, s2, s3, bool(en), bool(es))
+        if en not in (0, 1) or es not in (0, 1) or mk not in (0, 1):
+            raise MessageError(
+                f"IoState: flags enabling={en} estop_ok={es} mark={mk} must be 0 or 1"
+            )
+        return cls(stamp, p2, p3, s2, s3, bool(en), bool(es), bool(mk))
 
 
 @dataclass(frozen=True)

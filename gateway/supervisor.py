@@ -9,6 +9,7 @@ can bring the cell back once the cause is gone.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import ctypes
 import json
 import logging
@@ -26,12 +27,13 @@ import numpy as np
 import zenoh
 
 from gateway.bus import BusConfig, bus_config_from, open_router, undeclare_all
-from gateway.config import from_mapping, load_toml, require
+from gateway.config import from_mapping, load_toml, require, resolve_path
 from gateway.errors import MessageError
 from gateway.lifecycle import LifecycleMachine, Limits, Observations
 from gateway.messages import (
     LAYOUT_VERSION,
     LIFECYCLE_RATE_HZ,
+    PLAYING,
     ControllerState,
     IoState,
     JointState,
@@ -40,6 +42,7 @@ from gateway.messages import (
     decode_json,
     encode_json,
 )
+from gateway.program import ProgramError, TeachRecorder, program_path
 
 #: A static-load check older than this (at the control process's last health) does not count [s].
 LOAD_CHECK_MAX_AGE_S = 0.5
@@ -154,11 +157,13 @@ class GatewayConfig:
 
     joint_state_timeout_s: float = 0.1
     io_timeout_s: float = 0.25
-    standstill_rad_s: float = 5e-4  #: teaching starts only below this joint speed [rad/s]
+    standstill_rad_s: float = 2e-3  #: teaching starts only below this joint speed [rad/s]
     standstill_s: float = 0.3  #: ... held for this long [s]
     health_timeout_s: float = 0.5  #: a child whose heartbeat is older is "silent"
     restart_backoff_s: float = 2.0
     processes: tuple[str, ...] = SUPERVISED
+    #: where taught programs are written (relative: to the cell config's folder)
+    program_dir: str = "programs"
 
     def __post_init__(self) -> None:
         for p in self.processes:
@@ -205,6 +210,10 @@ class Gateway:
         self._last_pub_s = 0.0
         self._last_seq = -1
         self._dead: tuple[str, ...] = ()  #: children not running, as of the last tick
+        self.program_dir = resolve_path(cell_path, cfg.program_dir)
+        self.teach = TeachRecorder(str(cell_path))
+        self._mark_button = False  #: the teach handle's mark button, as last seen
+        self._handle_marks = 0  #: presses of it not yet recorded
 
     # --- processes ----------------------------------------------------------------------
     def _argv(self, name: str) -> list[str]:
@@ -271,6 +280,9 @@ class Gateway:
             log.warning("ignored I/O state: %s", exc)
             return
         with self.lock:
+            if io.mark and not self._mark_button:
+                self._handle_marks += 1  # recorded by the next tick (an fsync is no callback work)
+            self._mark_button = io.mark
             self.io, self.io_rx_s = io, time.monotonic()
 
     def _on_health(self, sample) -> None:
@@ -356,6 +368,8 @@ class Gateway:
                 for n, c in self.children.items()
             },
             "q_rad": None if st is None else [round(float(v), 6) for v in st.q_rad],
+            "program": self.teach.status(),
+            "plan": self.machine.plan_result,
         }
 
     def _on_experiment(self, sample) -> None:
@@ -375,26 +389,100 @@ class Gateway:
             req = decode_json(query.payload.to_bytes() if query.payload else b"", "request")
             command = str(req.get("command", ""))
             plan = req.get("plan")
-            if command == "identify" and not (isinstance(plan, dict) and plan.get("plan_id")):
-                raise MessageError("identify needs a 'plan' object with a 'plan_id'")
+            if command in ("identify", "replay") and not (
+                isinstance(plan, dict) and plan.get("plan_id")
+            ):
+                raise MessageError(f"{command} needs a 'plan' object with a 'plan_id'")
+            name, label = req.get("program"), req.get("label", "")
+            if name is not None and not isinstance(name, str):
+                raise MessageError(f"'program' must be a name (string), not {name!r}")
+            if not isinstance(label, str):
+                raise MessageError(f"'label' must be a string, not {label!r}")
         except MessageError as exc:
             reply = {"ok": False, "message": str(exc)}
+            ok, message = False, str(exc)
         else:
             with self.lock:
                 self._take_states()
                 obs = self.observations(now, self._dead)
-                if command == "identify":
-                    ok, message = self.machine.identify(plan, obs)
-                else:
-                    ok, message = self.machine.command(command, obs)
+                try:
+                    ok, message = self._command(command, plan, name, label, obs)
+                except ProgramError as exc:
+                    ok, message = False, str(exc)
                 reply = {"ok": ok, "message": message, **self.status(now)}
-            log.info("operator %s → %s: %s", command, "ok" if ok else "refused", message)
+        log.info("operator %s → %s: %s", command, "ok" if ok else "refused", message)
         query.reply(query.key_expr, encode_json(reply))
+
+    def _command(
+        self, command: str, plan: dict | None, name: str | None, label: str, obs: Observations
+    ) -> tuple[bool, str]:
+        """One operator command (lock held)."""
+        m = self.machine
+        if command == "identify":
+            assert plan is not None
+            return m.identify(plan, obs)
+        if command == "replay":
+            assert plan is not None
+            return m.play(Lifecycle.REPLAYING, plan, obs)
+        if command == "mark":
+            return self._mark(label, "cli")
+        if command == "start" and m.state in (Lifecycle.STOPPED,):
+            path = program_path(self.program_dir, name)
+            ok, message = m.command(command, obs)
+            if ok:
+                self.teach.prepare(path)
+                message += f"; teaching is recorded to {path}"
+            return ok, message
+        return m.command(command, obs)
+
+    def _mark(self, label: str, source: str) -> tuple[bool, str]:
+        """Mark a waypoint at the newest joint state; on disk when this returns (lock held)."""
+        st = self.joint_state
+        if st is None:
+            return False, "no joint state to mark"
+        if self.machine.state not in (Lifecycle.TEACHING, Lifecycle.READY):
+            return False, f"marks are made while teaching, not {self.machine.state.name.lower()}"
+        w = self.teach.writer
+        try:
+            mark = self.teach.mark(st.stamp_s, st.cycle, st.q_rad, label, source)
+        except ProgramError as exc:
+            if w is not None and not w.is_open:  # the disk refused it, not the operator's input
+                self._program_failed(exc)
+            raise
+        return True, f"mark {mark.index} recorded in {self.teach.path}"
+
+    def _follow_program(self) -> None:
+        """The tick's share of the taught program (lock held): segment starts and ends, the
+        trace, the teach handle's marks, and closing it when the session ends."""
+        m, st = self.machine, self.joint_state
+        session = m.state not in (Lifecycle.STOPPED, Lifecycle.FAULT)
+        try:
+            self.teach.follow(
+                m.state == Lifecycle.TEACHING, session, m.reason,
+                None if st is None else st.stamp_s, None if st is None else st.cycle,
+                None if st is None else st.q_rad,
+            )  # fmt: skip
+            while self._handle_marks:
+                self._handle_marks -= 1
+                ok, message = self._mark("", "handle")
+                (log.info if ok else log.warning)("teach handle mark: %s", message)
+        except ProgramError as exc:
+            self._program_failed(exc)
+
+    def _program_failed(self, exc: ProgramError) -> None:
+        """The program cannot be written (disk full, removed): teaching stops with a fault, so
+        the operator does not go on guiding a path that is not being kept (lock held)."""
+        log.error("taught program: %s", exc)
+        w, self.teach.writer, self.teach.pending = self.teach.writer, None, None
+        if w is not None:
+            with contextlib.suppress(ProgramError):
+                w.close()
+        self.machine.fault(f"the taught program could not be written: {exc}")
 
     def _publish_lifecycle(self, now: float) -> None:
         m = self.machine
         if m.seq != self._last_seq or now - self._last_pub_s >= 1.0 / LIFECYCLE_RATE_HZ:
-            extra = {"plan": m.plan} if m.state == Lifecycle.IDENTIFYING and m.plan else {}
+            extra = {"plan": m.plan} if m.state in PLAYING and m.plan else {}
             msg = LifecycleMsg(m.state, m.seq, now, m.reason, extra)
             self.session.put(self.keys.lifecycle, msg.to_bytes())
             if m.seq != self._last_seq:
@@ -432,6 +520,7 @@ class Gateway:
                 self.machine.update(self.observations(now, dead))
                 if before != self.machine.state and self.machine.state == Lifecycle.FAULT:
                     log.error("FAULT: %s", self.machine.reason)
+                self._follow_program()
                 self._publish_lifecycle(now)
 
     def close(self) -> None:
@@ -441,6 +530,8 @@ class Gateway:
                     if self.machine.state != Lifecycle.FAULT:
                         self.machine.command("stop", self.observations(time.monotonic()))
                     self._publish_lifecycle(time.monotonic())
+                    st = self.joint_state
+                    self.teach.close(None if st is None else st.stamp_s, "gateway stopped")
                 time.sleep(STOP_GRACE_S)  # let the drivers brake before they are stopped
         finally:
             self._stop_children()

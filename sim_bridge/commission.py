@@ -169,10 +169,24 @@ def commission(
     if out.returncode != 0:
         raise RuntimeError(
             f"commissioning plant seed {plant_seed} failed ({out.returncode}):\n"
-            f"{out.stdout[-3000:]}{out.stderr[-3000:]}"
+            f"{out.stdout[-3000:]}{out.stderr[-3000:]}\n"
+            f"the gateway's lifecycle and errors:\n{_lifecycle_lines(work / 'cell')}"
         )
     shutil.copy(work / "identify.log", work / "ident" / "identify.log")
     return work / "ident"
+
+
+def _lifecycle_lines(cell_dir: Path, last: int = 30) -> str:
+    """The last lifecycle changes and errors of the gateway's log in ``cell_dir`` (the
+    commissioning work folder is removed after a failure: this is what explains it)."""
+    log = cell_dir / "gateway.log"
+    if not log.exists():
+        return "(no gateway log)"
+    lines = [
+        line for line in log.read_text(errors="replace").splitlines()
+        if "lifecycle" in line or " ERROR " in line or " WARNING " in line
+    ]  # fmt: skip
+    return "\n".join(lines[-last:])
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -281,6 +281,11 @@ class OperatorScript:
     hand_stiffness_n_per_m: float = 600.0
     hand_damping_n_s_per_m: float = 80.0
     max_force_n: float = 60.0
+    #: after onset: the hand lets go of the tool (the enabling device stays held; None: never)
+    hand_off_after_s: float | None = None
+    #: after onset: times the teach handle's mark button is pressed, for ``mark_press_s`` each
+    mark_at_s: tuple[float, ...] = ()
+    mark_press_s: float = 0.2
 
     def __post_init__(self) -> None:
         require(self.mode in ("none", "force", "path"), "[operator].mode", f"{self.mode!r}")
@@ -288,6 +293,13 @@ class OperatorScript:
             require(len(self.path) >= 2, "[operator].path", "needs at least 2 waypoints")
             times = [w[0] for w in self.path]
             require(times == sorted(times), "[operator].path", "times must increase")
+        marks = list(self.mark_at_s)
+        require(
+            marks == sorted(marks) and all(m >= 0 for m in marks),
+            "[operator].mark_at_s",
+            f"{marks}: times after onset must be >= 0 and increase",
+        )
+        require(self.mark_press_s > 0, "[operator].mark_press_s", f"{self.mark_press_s} <= 0")
 
 
 @dataclass(frozen=True)

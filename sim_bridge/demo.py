@@ -4,8 +4,11 @@ The virtual robot of ``--plant-seed`` is first commissioned as a user commission
 by `leadthrough identify` (or the cached result of that for this plant and code,
 :mod:`sim_bridge.commission`). Then the operator presses the enabling device, grabs the tool
 and guides it along a rectangle in a vertical plane (like the paper's Fig. 11 path) while the
-zero-moment controller makes the arm weightless. Prints mean and peak operator force, tool
-travel, the loop rate achieved and the commands missed; writes a plot and a JSON summary.
+zero-moment controller makes the arm weightless, pressing the teach handle's mark button at
+each corner; the gateway writes the taught program. The operator lets go, the session is
+stopped, and the program is replayed (`leadthrough replay`). Prints mean and peak operator
+force, tool travel, the loop rate achieved, the commands missed, the program's marks and how
+closely the replay followed the taught path; writes a plot and a JSON summary.
 """
 
 from __future__ import annotations
@@ -35,7 +38,12 @@ DEMO_PATH = [
     [16.5, 0.0, 0.0, -0.20],
     [17.5, 0.0, 0.0, -0.20],
 ]
-RELEASE_AFTER_S = 18.0
+#: after onset: the hand lets go of the tool (the enabling device stays held for the replay)
+HAND_OFF_AFTER_S = 18.0
+#: after onset: the teach handle's mark button at the start and at each corner [s]
+MARKS_AT_S = (0.5, 6.5, 11.0, 17.0)
+#: tool speed of the replay [mm/s]
+REPLAY_SPEED_MM_S = 100.0
 #: the operator's arm: stiff enough to steer a heavy arm along a line, like a painter's grip
 HAND = {"hand_stiffness_n_per_m": 1500.0, "hand_damping_n_s_per_m": 300.0, "max_force_n": 80.0}
 #: the baseline's second operator: a hand stiff and strong enough to keep the tool near the
@@ -47,9 +55,13 @@ BASELINE_STIFF_HAND = {
 }
 
 
-def teaching_metrics(truth: dict[str, np.ndarray], summary: dict[str, Any]) -> dict[str, Any]:
-    """Figures of merit over the teaching interval of a truth log."""
+def teaching_metrics(
+    truth: dict[str, np.ndarray], summary: dict[str, Any], rows: int | None = None
+) -> dict[str, Any]:
+    """Figures of merit over the teaching interval of a truth log (its first ``rows``)."""
     mask = truth["teaching"] > 0.5
+    if rows is not None:
+        mask[rows:] = False
     if not np.any(mask):
         raise RuntimeError("the robot never followed the control process's commands")
     t = truth["t_s"][mask]
@@ -59,6 +71,9 @@ def teaching_metrics(truth: dict[str, np.ndarray], summary: dict[str, Any]) -> d
     duration = float(t[-1] - t[0]) if len(t) > 1 else 0.0
     cycles = summary.get("teaching_cycles", 0)
     missed = summary.get("teaching_missed_cycles", 0)
+    if rows is not None:  # the simulator's counters span the whole run: count these rows
+        cycles = int(mask.sum())
+        missed = int(np.sum(np.isnan(truth["latency_s"][mask])))
     return {
         "teaching_duration_s": duration,
         "mean_force_n": float(force.mean()),
@@ -74,20 +89,26 @@ def teaching_metrics(truth: dict[str, np.ndarray], summary: dict[str, Any]) -> d
     }
 
 
-def plot(truth: dict[str, np.ndarray], out_png: Path) -> None:
+def plot(truth: dict[str, np.ndarray], out_png: Path, rows: int, replay: np.ndarray) -> None:
+    """Tool path taught (the first ``rows`` of the truth log), the replayed tool path
+    (``replay`` (T, 3) [m], world), and the operator's force while teaching."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     mask = truth["teaching"] > 0.5
+    mask[rows:] = False
     t = truth["t_s"][mask] - truth["t_s"][mask][0]
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.2))
     x, z = truth["tool_x"][mask], truth["tool_z"][mask]
     x0, z0 = x[0], z[0]
     path = np.array(DEMO_PATH)
     ax1.plot(path[:, 1] * 1e3, path[:, 3] * 1e3, "k--", lw=1, label="operator's target")
-    ax1.plot((x - x0) * 1e3, (z - z0) * 1e3, lw=1.5, label="tool (simulated robot)")
+    ax1.plot((x - x0) * 1e3, (z - z0) * 1e3, lw=1.5, label="tool, taught")
+    if replay.size:
+        ax1.plot((replay[:, 0] - x0) * 1e3, (replay[:, 2] - z0) * 1e3, ":", lw=1.5,
+                 label="tool, replayed")  # fmt: skip
     ax1.set(xlabel="x [mm]", ylabel="z [mm]", title="Tool path during lead-through")
     ax1.axis("equal")
     ax1.legend(loc="best", fontsize=8)
@@ -165,7 +186,8 @@ def cli_main(args: argparse.Namespace) -> int:
         return baseline_main(out, args.plant_seed)
     operator = {
         "enabling_after_s": 0.0,
-        "release_after_s": RELEASE_AFTER_S,
+        "hand_off_after_s": HAND_OFF_AFTER_S,
+        "mark_at_s": list(MARKS_AT_S),
         "mode": "path",
         "path": DEMO_PATH,
         **HAND,
@@ -184,14 +206,25 @@ def cli_main(args: argparse.Namespace) -> int:
         model=done.model, inner_loop=done.inner_loop,
     ) as stack:  # fmt: skip
         stack.start()
-        stack.start_teaching()
-        print(f"teaching: the simulated operator guides the tool ({RELEASE_AFTER_S:.0f} s) ...")
-        stack.wait_status(lambda s: s.get("state") == "ready", RELEASE_AFTER_S + 20.0, "release")
+        status = stack.start_teaching()
+        program = Path(status["program"]["path"])
+        print(f"teaching: the simulated operator guides the tool ({HAND_OFF_AFTER_S:.0f} s) and "
+              f"marks the corners; the gateway writes {program} ...")  # fmt: skip
+        # Wait cheaply (reading the growing truth log would take CPU from the product).
+        deadline = time.monotonic() + HAND_OFF_AFTER_S + 0.5
+        while time.monotonic() < deadline:
+            stack.check_alive()
+            time.sleep(0.5)
+        taught_rows = stack.truth()["t_s"].size
         stack.request("stop")
+        replay = replay_program(stack, program)
     truth = stack.truth()
     summary = json.loads(stack.sim_summary.read_text())
-    m = teaching_metrics(truth, summary)
-    plot(truth, out / "demo.png")
+    m = teaching_metrics(truth, summary, taught_rows)
+    first_row = replay.pop("first_row")
+    m.update(replay)
+    replayed = np.stack([truth[f"tool_{a}"][first_row:] for a in "xyz"], axis=1)
+    plot(truth, out / "demo.png", taught_rows, replayed)
     m["wall_time_s"] = time.monotonic() - t0
     m["plant_seed"] = args.plant_seed
     m["model"] = str(done.model)
@@ -207,10 +240,50 @@ def cli_main(args: argparse.Namespace) -> int:
             f"{m['latency_p50_ms']:.2f} / {m['latency_p99_ms']:.2f} ms",
         ),
         ("controller faults", ", ".join(m["controller_faults"]) or "none"),
+        ("taught program", f"{m['program']} ({m['marks']} marks)"),
+        ("replay at 100 mm/s", f"{m['replay_result']}, {m['replay_duration_s']:.1f} s"),
+        ("taught path from the replayed, p95", f"{m['replay_path_error_mm']:.2f} mm"),
     ]
     width = max(len(r[0]) for r in rows)
     print()
     for name, value in rows:
         print(f"  {name:<{width}}  {value}")
     print(f"\nplot: {out / 'demo.png'}   summary: {out / 'summary.json'}")
-    return 0 if not m["controller_faults"] else 1
+    return 0 if not m["controller_faults"] and m["replay_result"] == "done" else 1
+
+
+def replay_program(stack: Stack, program: Path) -> dict[str, Any]:
+    """Start a new session and replay ``program`` as `leadthrough replay` does; its figures
+    (``first_row``: the truth log's first row of the replay session)."""
+    from control.robot.description import load_description
+    from control.taught_path import path_error_m
+    from gateway.program import read_program
+    from gateway.replay import replay_plan
+
+    taught = read_program(program)
+    print(f"taught program: {len(taught.marks)} marks, {taught.t_s.size} trace samples; "
+          f"replaying it at {REPLAY_SPEED_MM_S:.0f} mm/s ...")  # fmt: skip
+    stack.request("start")
+    stack.wait_status(lambda s: s.get("state") == "teaching", 20.0, "arm at rest, enabling held")
+    first_row = stack.truth()["t_s"].size
+    plan = replay_plan(program, REPLAY_SPEED_MM_S)
+    reply = stack.request("replay", plan=plan)
+    if not reply.get("ok"):
+        raise RuntimeError(f"replay refused: {reply.get('message')}")
+    t0 = time.monotonic()
+    status = stack.wait_status(
+        lambda s: (s.get("plan") or {}).get("state") != "running", 120.0, "replay finished"
+    )
+    duration = time.monotonic() - t0
+    stack.request("stop")
+    truth = stack.truth()
+    q = np.stack([truth[f"q{j + 1}"][first_row:] for j in range(taught.q_rad.shape[1])], axis=1)
+    error = path_error_m(load_description(), q, taught.q_rad) if len(q) > 1 else float("nan")
+    return {
+        "program": str(program),
+        "marks": len(taught.marks),
+        "replay_result": status["plan"]["state"],
+        "replay_duration_s": duration,
+        "replay_path_error_mm": error * 1e3,
+        "first_row": first_row,
+    }

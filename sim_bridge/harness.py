@@ -202,8 +202,14 @@ class Stack:
         _wait_port("127.0.0.1", self.ports["modbus"], timeout_s, self.sim)
         self.gateway = self._spawn("gateway", ["gateway", "--config", str(self.cell_path)])
 
-    def request(self, command: str, timeout_s: float = 3.0) -> dict[str, Any]:
-        return operator_request(self.bus, command, timeout_s)
+    def request(self, command: str, timeout_s: float = 3.0, **fields: Any) -> dict[str, Any]:
+        return operator_request(self.bus, command, timeout_s, **fields)
+
+    def restart_gateway(self) -> None:
+        """Start the gateway again (after a test killed it); the simulator runs on."""
+        if self.gateway is not None and self.gateway.poll() is None:
+            raise RuntimeError("the gateway is still running")
+        self.gateway = self._spawn("gateway2", ["gateway", "--config", str(self.cell_path)])
 
     def wait_status(
         self, predicate: Callable[[dict[str, Any]], bool], timeout_s: float, what: str

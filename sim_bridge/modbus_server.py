@@ -15,11 +15,12 @@ holding registers  0–1      p2 set-point  int32    low word first, bytes big (
 holding registers  2–3      p3 set-point  int32    as p2 set-point                     mbar
 discrete inputs    0        enabling      bit      1 = enabling device held
 discrete inputs    1        estop_ok      bit      1 = e-stop chain closed
+discrete inputs    2        mark          bit      1 = teach handle's mark button pressed
 coils              0        (reserved)    bit      none; present so the table exists
 =================  =======  ============  =======  ==================================  ====
 
 Any other register address answers exception 2 (ILLEGAL DATA ADDRESS); discrete inputs
-2–15 and coils 1–15 exist (pymodbus stores bits 16 to a word) and read 0. Set-points are
+3–15 and coils 1–15 exist (pymodbus stores bits 16 to a word) and read 0. Set-points are
 stored as written (no clamping: the driver owns the limits) and read back unchanged.
 
 The encodings here are written out with :mod:`struct`, independently of
@@ -104,6 +105,12 @@ name = "estop_ok"
 table = "discrete_inputs"
 address = 1
 type = "bool"
+
+[[modbus.points]]
+name = "mark"
+table = "discrete_inputs"
+address = 2
+type = "bool"
 """
 
 
@@ -179,7 +186,7 @@ class VirtualIoServer:
         self.host = host
         self.port = port
         self.device_id = device_id
-        self._inputs: tuple[float, float, bool, bool] = (0.0, 0.0, False, False)
+        self._inputs: tuple[float, float, bool, bool, bool] = (0.0, 0.0, False, False, False)
         self._initial_holding = _int32_cdab(_mbar_int32(p2_set_bar)) + _int32_cdab(
             _mbar_int32(p3_set_bar)
         )
@@ -198,9 +205,11 @@ class VirtualIoServer:
 
     # Simulator side ----------------------------------------------------------------------
 
-    def set_inputs(self, p2_bar: float, p3_bar: float, enabling: bool, estop_ok: bool) -> None:
+    def set_inputs(
+        self, p2_bar: float, p3_bar: float, enabling: bool, estop_ok: bool, mark: bool = False
+    ) -> None:
         """Publish new input values [bar]. Cheap and thread-safe: one reference swap."""
-        self._inputs = (float(p2_bar), float(p3_bar), bool(enabling), bool(estop_ok))
+        self._inputs = (float(p2_bar), float(p3_bar), bool(enabling), bool(estop_ok), bool(mark))
 
     def setpoints(self) -> tuple[float, float]:
         """``(p2_set_bar, p3_set_bar)`` as last written by a client (or the initial values)."""
@@ -326,11 +335,11 @@ class VirtualIoServer:
         0 here); editing it in place changes what this request reads.
         """
         if function_code == _FC_READ_IR:
-            p2, p3, _, _ = self._inputs
+            p2, p3, _, _, _ = self._inputs
             registers[0:_N_INPUT] = [*_float32_abcd(p2), _mbar_uint16(p3)]
         elif function_code == _FC_READ_DI:
-            _, _, enabling, estop_ok = self._inputs
-            registers[0] = int(enabling) | (int(estop_ok) << 1)
+            _, _, enabling, estop_ok, mark = self._inputs
+            registers[0] = int(enabling) | (int(estop_ok) << 1) | (int(mark) << 2)
         elif function_code in _FC_WRITE_HR and set_values is not None:
             # The hook runs before pymodbus stores the values: apply them to a copy to decode.
             regs = list(registers[0:_N_HOLDING])

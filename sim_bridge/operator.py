@@ -38,6 +38,13 @@ class Operator:
             return t_s - self.onset_s < self.s.release_after_s
         return True
 
+    def mark_pressed(self, t_s: float) -> bool:
+        """The teach handle's mark button is held now (``mark_at_s`` after onset)."""
+        if self.onset_s is None:
+            return False
+        tau = t_s - self.onset_s
+        return any(0.0 <= tau - m < self.s.mark_press_s for m in self.s.mark_at_s)
+
     def brakes_released(self, t_s: float) -> bool:
         """The brake-release switch is held (servo off only: the controller decides)."""
         after = self.s.brake_release_after_s
@@ -55,6 +62,8 @@ class Operator:
         """Hand force on the tool now [N] (world frame); the plant calls it every step."""
         t = plant.t_s
         if self.onset_s is None or self.s.mode == "none" or not self.enabling(t):
+            return np.zeros(3)
+        if self.s.hand_off_after_s is not None and t - self.onset_s >= self.s.hand_off_after_s:
             return np.zeros(3)
         if self.s.mode == "force":
             return self.force_n(t, None, None)

@@ -256,7 +256,10 @@ class VirtualCell:
                 plant.step(None, None, brakes_released=released)
         p_meas = plant.measured_pressure_bar()
         enabling = op.enabling(plant.t_s)
-        self.io.set_inputs(float(p_meas[0]), float(p_meas[1]), enabling, not self.estop_open)
+        self.io.set_inputs(
+            float(p_meas[0]), float(p_meas[1]), enabling, not self.estop_open,
+            op.mark_pressed(plant.t_s),
+        )  # fmt: skip
         plant.pressure_set_bar = np.array(self.io.setpoints(), dtype=float)
         q_m, dq_m = plant.effects.measured_kinematics(plant)
         i_m = plant.measured_current_a()

@@ -35,6 +35,7 @@ class IoReading(NamedTuple):
     p3_set_bar: float
     enabling: bool  #: enabling device held in its middle position
     estop_ok: bool  #: e-stop chain closed
+    mark: bool = False  #: the teach handle's mark button pressed (False: the cell has none)
 
 
 class PressureIoAdapter(abc.ABC):
@@ -70,7 +71,8 @@ class RegisterMapAdapter(PressureIoAdapter):
 
     Required points: ``p2_bar``, ``p3_bar`` (measured, numeric), ``p2_set_bar``, ``p3_set_bar``
     (numeric, in ``holding_registers``: they are written for set-points and read back),
-    ``enabling`` and ``estop_ok`` (``bool``).
+    ``enabling`` and ``estop_ok`` (``bool``). Optional: ``mark`` (``bool``), the teach
+    handle's button that marks a waypoint in the taught program.
 
     :param link: inject a link (tests); by default one is built from the config.
     """
@@ -78,6 +80,7 @@ class RegisterMapAdapter(PressureIoAdapter):
     REQUIRED = ("p2_bar", "p3_bar", "p2_set_bar", "p3_set_bar", "enabling", "estop_ok")
     SETPOINTS = ("p2_set_bar", "p3_set_bar")
     BOOLS = ("enabling", "estop_ok")
+    OPTIONAL_BOOLS = ("mark",)
 
     def __init__(self, config: ModbusDriverConfig, link: ModbusLink | None = None) -> None:
         where = "[modbus].points"
@@ -92,7 +95,7 @@ class RegisterMapAdapter(PressureIoAdapter):
         for name in ("p2_bar", "p3_bar"):
             if self.map[name].type == "bool":
                 raise ConfigError(f"{where}: {name!r} must be numeric, not bool")
-        for name in self.BOOLS:
+        for name in (*self.BOOLS, *(b for b in self.OPTIONAL_BOOLS if b in self.map)):
             if self.map[name].type != "bool":
                 raise ConfigError(
                     f"{where}: {name!r} must have type 'bool', not {self.map[name].type!r}"
@@ -111,6 +114,7 @@ class RegisterMapAdapter(PressureIoAdapter):
             float(v["p3_set_bar"]),
             bool(v["enabling"]),
             bool(v["estop_ok"]),
+            bool(v.get("mark", False)),
         )
 
     def write_setpoints(self, p2_bar: float, p3_bar: float) -> None:

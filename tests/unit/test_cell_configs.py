@@ -31,8 +31,12 @@ def test_every_section_of_the_cell_configs_validates(cell):
 
 
 def test_production_and_virtual_cells_differ_only_in_transport():
+    """... and where the taught programs go (the cell PC's state folder, a folder beside the
+    virtual cell's config)."""
     prod, sim = (load_toml(p) for p in CELLS)
     assert prod["control"] == sim["control"]
+    assert prod["gateway"].pop("program_dir") == "/var/lib/leadthrough/programs"
+    assert sim["gateway"].pop("program_dir") == "programs"
     assert prod["gateway"] == sim["gateway"]
     assert prod["modbus"]["points"] == sim["modbus"]["points"]
     assert {k: v for k, v in prod["can"].items() if k != "transport"} == {

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from control.experiments import build_plan, friction_runs, multisine, reciprocating
-from control.process import PlanPlayer
+from control.process import MAX_REPLAY_JOINT_SPEED_RAD_S, PlanPlayer
 from control.robot.description import load_description
 from gateway.messages import (
     FLAG_PREV_HOLD,
@@ -162,6 +162,16 @@ def test_a_held_sample_is_sent_again_and_the_plan_waits():
     assert player.segments[1]["end_cycle"] == 100 + n + 1  # two cycles later than unheld
 
 
+def test_a_plan_whose_first_sample_came_late_has_longer_to_start():
+    player = _player()
+    play(player, set(range(100, 100 + round(1.0 / PERIOD_S))), 100 + round(1.0 / PERIOD_S))
+    assert player.state == "running" and player.k == 0  # e.g. states queued while it built
+    player = _player()
+    held = set(range(100, 100 + round(2.1 / PERIOD_S)))
+    play(player, held, 100 + round(2.1 / PERIOD_S))
+    assert player.state == "failed" and "did not follow" in player.reason
+
+
 def test_a_plan_held_too_long_fails_with_the_reason():
     player = _player()
     held = set(range(105, 105 + round(0.6 / PERIOD_S)))
@@ -169,3 +179,54 @@ def test_a_plan_held_too_long_fails_with_the_reason():
     assert player.state == "failed" and "did not follow" in player.reason
     report = player.report()
     assert report["state"] == "failed" and report["repeated_samples"] > 0
+
+
+def _program(path, q_start: np.ndarray) -> None:
+    from gateway.program import ProgramWriter
+
+    w = ProgramWriter(path, [f"j{k}" for k in range(1, 7)])
+    w.open()
+    w.teach(True, 0.0)
+    for k in range(300):
+        s = 0.5 - 0.5 * np.cos(np.pi * k / 299)
+        w.trace(0.01 * k, k, q_start + s * np.array([0.15, 0.0, 0.05, 0.0, 0.0, 0.0]))
+    w.close(3.0)
+
+
+def test_a_replay_plan_approaches_the_taught_path_and_ends_at_its_end(tmp_path):
+    desc = load_description()
+    program = tmp_path / "p.jsonl"
+    q_start = np.array([0.1, 0.2, 0.3, 0.0, -0.3, 0.0])
+    _program(program, q_start)
+    player = PlanPlayer(desc.lower_rad, desc.upper_rad, desc)
+    plan = {"plan_id": "r", "replay": {"program": str(program), "speed_m_s": 0.1}}
+    player.start(plan, _state(100), PERIOD_S)
+    assert player.state == "running", player.reason
+    assert [s["label"] for s in player.segments] == ["approach/1", "taught/1"]
+    assert {s["role"] for s in player.segments} == {"replay"}
+    np.testing.assert_allclose(player.q[0], _state(100).q_cmd_rad, atol=1e-9)
+    np.testing.assert_allclose(
+        player.q[-1], q_start + np.array([0.15, 0, 0.05, 0, 0, 0]), atol=2e-3
+    )
+    assert np.abs(player.dq).max() <= MAX_REPLAY_JOINT_SPEED_RAD_S + 1e-6
+
+
+@pytest.mark.parametrize(
+    ("spec", "match"),
+    [
+        ({"program": "/nonexistent.jsonl"}, "cannot read program"),
+        ({"speed_m_s": 0.1}, "replay needs"),
+        ("p.jsonl", "replay needs"),
+        ({"program": "PROGRAM", "speed_m_s": 2.0}, "replay speed"),
+        ({"program": "PROGRAM", "speed_m_s": float("nan")}, "replay speed"),
+    ],
+)
+def test_a_bad_replay_plan_fails_with_the_reason(tmp_path, spec, match):
+    desc = load_description()
+    _program(tmp_path / "p.jsonl", np.array([0.1, 0.2, 0.3, 0.0, -0.3, 0.0]))
+    if isinstance(spec, dict) and spec.get("program") == "PROGRAM":
+        spec = {**spec, "program": str(tmp_path / "p.jsonl")}
+    player = PlanPlayer(desc.lower_rad, desc.upper_rad, desc)
+    player.start({"plan_id": "r", "replay": spec}, _state(100), PERIOD_S)
+    assert player.state == "failed" and match in player.reason
+    assert player.command(_state(101)) is None  # nothing moves

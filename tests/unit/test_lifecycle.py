@@ -1,4 +1,6 @@
-from gateway.lifecycle import LifecycleMachine, Observations
+from dataclasses import replace
+
+from gateway.lifecycle import CONTROLLER_RESET_UPDATES, LifecycleMachine, Observations
 from gateway.messages import ControllerState, Lifecycle
 
 
@@ -128,3 +130,50 @@ def test_identify_needs_enabling_and_ends_back_in_ready():
     assert m.state == Lifecycle.READY
     m.identify({"plan_id": "q"}, healthy(enabling=True))
     assert m.update(healthy(enabling=False)) == Lifecycle.READY
+
+
+def test_replay_needs_enabling_stops_on_release_and_ends_back_in_ready():
+    m = LifecycleMachine()
+    ok, msg = m.play(Lifecycle.REPLAYING, {"plan_id": "r"}, healthy(enabling=True))
+    assert not ok and "replay needs state ready" in msg
+    m.command("start", healthy())
+    ok, msg = m.play(Lifecycle.REPLAYING, {"plan_id": "r"}, healthy())
+    assert not ok and "enabling" in msg
+    ok, msg = m.play(Lifecycle.REPLAYING, {"plan_id": "r"}, healthy(enabling=True))
+    assert ok and m.state == Lifecycle.REPLAYING and "taught program r" in msg
+    assert m.command("start", healthy(enabling=True)) == (True, "already replaying")
+    assert m.update(healthy(enabling=False)) == Lifecycle.READY
+    assert m.reason == "replaying aborted: enabling device released"
+    assert m.plan_result == {"plan_id": "r", "state": "aborted", "reason": m.reason}
+    m.play(Lifecycle.REPLAYING, {"plan_id": "s"}, healthy(enabling=True))
+    m.plan_finished("s", True, "")
+    assert (m.state, m.reason) == (Lifecycle.READY, "plan s done")
+    assert m.plan_result is not None and m.plan_result["state"] == "done"
+    m.play(Lifecycle.REPLAYING, {"plan_id": "t"}, healthy(enabling=True))
+    assert m.plan_result is not None and m.plan_result["state"] == "running"
+    assert m.update(healthy(enabling=True, estop_ok=False)) == Lifecycle.FAULT
+    assert m.plan_result["state"] == "aborted" and "e-stop" in m.plan_result["reason"]
+
+
+def test_a_controller_fault_while_stopped_is_a_fault_that_reset_clears():
+    m = LifecycleMachine()
+    faulted = healthy(controller_state=ControllerState.FAULT)
+    assert m.update(faulted) == Lifecycle.FAULT  # e.g. its host heartbeat lost in a crash
+    assert "reset to clear it" in m.reason
+    ok, msg = m.command("reset", replace(faulted, estop_ok=False))
+    assert not ok and "e-stop" in msg and "controller" not in msg
+    ok, _ = m.command("reset", faulted)  # the CAN driver forwards it as RESET_FAULT
+    assert ok and m.state == Lifecycle.STOPPED
+    for _ in range(CONTROLLER_RESET_UPDATES - 1):
+        assert m.update(faulted) == Lifecycle.STOPPED  # the controller's reset on its way
+    assert m.update(healthy(controller_state=ControllerState.BRAKED)) == Lifecycle.STOPPED
+    assert m.command("start", healthy())[0]
+
+
+def test_a_controller_that_stays_in_fault_after_reset_faults_again():
+    m = LifecycleMachine()
+    faulted = healthy(controller_state=ControllerState.FAULT)
+    m.update(faulted)
+    m.command("reset", faulted)
+    states = {m.update(faulted) for _ in range(CONTROLLER_RESET_UPDATES + 1)}
+    assert states == {Lifecycle.STOPPED, Lifecycle.FAULT} and m.state == Lifecycle.FAULT

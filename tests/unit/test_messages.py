@@ -72,6 +72,12 @@ def test_io_and_setpoint_round_trip_and_validation():
         IoState.from_bytes(bad)
     sp = PressureSetpoint(2.0, 5.5, 3.5)
     assert PressureSetpoint.from_bytes(sp.to_bytes()) == sp
+    marked = IoState(1.0, 6.0, 4.0, 6.0, 4.0, True, True, mark=True)
+    assert IoState.from_bytes(marked.to_bytes()).mark
+    # a recording from before the mark button: read as not pressed
+    assert IoState.from_bytes(marked.to_bytes()[:-1]) == io
+    with pytest.raises(MessageError, match="mark=2"):
+        IoState.from_bytes(marked.to_bytes()[:-1] + b"\x02")
 
 
 def test_lifecycle_json_round_trip_and_rejects_nan_literals():

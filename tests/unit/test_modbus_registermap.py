@@ -249,7 +249,7 @@ def test_sim_points_build_a_valid_adapter_without_connecting():
     assert [(g.table, g.address, g.count) for g in adapter.map.read_groups] == [
         ("input_registers", 0, 3),
         ("holding_registers", 0, 4),
-        ("discrete_inputs", 0, 2),
+        ("discrete_inputs", 0, 3),
     ]
     assert "[[modbus.points]]" in sim_register_points_toml()
 
@@ -305,7 +305,7 @@ def test_adapter_reads_with_one_request_per_group_and_writes_setpoints_together(
         {
             "input_registers": {0: 0x4020, 1: 0x0000, 2: 3250},  # 2.5 bar, 3250 mbar
             "holding_registers": {0: 4200, 1: 0, 2: 5125, 3: 0},  # CDAB int32 mbar
-            "discrete_inputs": {0: True, 1: False},
+            "discrete_inputs": {0: True, 1: False, 2: True},
         }
     )
     adapter = RegisterMapAdapter(ModbusDriverConfig.from_cell_config(sim_cell()), link=link)
@@ -313,7 +313,7 @@ def test_adapter_reads_with_one_request_per_group_and_writes_setpoints_together(
     assert reading.p2_bar == 2.5
     assert reading.p3_bar == pytest.approx(3.25)
     assert (reading.p2_set_bar, reading.p3_set_bar) == pytest.approx((4.2, 5.125))
-    assert (reading.enabling, reading.estop_ok) == (True, False)
+    assert (reading.enabling, reading.estop_ok, reading.mark) == (True, False, True)
     assert len(link.calls) == 3
 
     link.calls.clear()
@@ -324,3 +324,22 @@ def test_adapter_reads_with_one_request_per_group_and_writes_setpoints_together(
     with pytest.raises(ValueError, match="p3_set_bar"):
         adapter.write_setpoints(1.0, 13.0)  # above the point's max: nothing written
     assert link.calls == []
+
+
+def test_the_mark_button_is_optional_and_must_be_a_bool():
+    cell = sim_cell()
+    cell["modbus"]["points"] = [p for p in cell["modbus"]["points"] if p["name"] != "mark"]
+    link = FakeLink(
+        {
+            "input_registers": {0: 0x4020, 1: 0x0000, 2: 3250},
+            "holding_registers": {0: 4200, 1: 0, 2: 5125, 3: 0},
+            "discrete_inputs": {0: True, 1: True},
+        }
+    )
+    adapter = RegisterMapAdapter(ModbusDriverConfig.from_cell_config(cell), link=link)
+    assert adapter.read().mark is False
+    cell["modbus"]["points"].append(
+        {"name": "mark", "table": "input_registers", "address": 7, "type": "uint16"}
+    )
+    with pytest.raises(ConfigError, match="'mark' must have type 'bool'"):
+        RegisterMapAdapter(ModbusDriverConfig.from_cell_config(cell), link=link)
