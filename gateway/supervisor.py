@@ -57,6 +57,8 @@ PR_SET_PDEATHSIG = 1
 #: Joint states the bus keeps for the gateway's next tick (a zenoh ring channel, oldest dropped
 #: first): far more than arrive in one tick at 1 kHz; only a tick stalled that long loses some.
 JOINT_STATE_QUEUE = 64
+#: Operator requests waiting for the next tick (a zenoh FIFO channel).
+REQUEST_QUEUE = 16
 
 _STATE_HEAD = JointState._HEAD  #: magic, version, n, cycle, stamp, state, flags, period
 _CONTROLLER_STATES = {int(s): s for s in ControllerState}
@@ -199,6 +201,7 @@ class Gateway:
         self.spawn = spawn
         self.watch = JointStateWatch(cfg.standstill_rad_s, time.monotonic())
         self._state_sub = None  #: joint states, in a ring channel the tick drains
+        self._requests = None  #: operator requests, in a channel the tick serves
         self.io: IoState | None = None
         self.io_rx_s: float | None = None
         self.health_rx_s: dict[str, float] = {}
@@ -383,10 +386,23 @@ class Gateway:
             with self.lock:
                 self.machine.plan_finished(plan_id, state == "done", str(msg.get("reason", "")))
 
-    def _on_request(self, query) -> None:
+    def _serve_requests(self) -> None:
+        """Answer the operator requests that arrived since the last tick, on the tick's thread:
+        no Python runs in zenoh's threads for them, and a mark's fsync stalls nothing else."""
+        if self._requests is None:
+            return
+        while (query := self._requests.try_recv()) is not None:
+            try:
+                reply = self._request(query.payload.to_bytes() if query.payload else b"")
+                query.reply(query.key_expr, encode_json(reply))
+            finally:
+                query.drop()
+
+    def _request(self, data: bytes) -> dict:
+        """One operator request (JSON): its reply."""
         now = time.monotonic()
         try:
-            req = decode_json(query.payload.to_bytes() if query.payload else b"", "request")
+            req = decode_json(data, "request")
             command = str(req.get("command", ""))
             plan = req.get("plan")
             if command in ("identify", "replay") and not (
@@ -399,24 +415,30 @@ class Gateway:
             if not isinstance(label, str):
                 raise MessageError(f"'label' must be a string, not {label!r}")
         except MessageError as exc:
-            reply = {"ok": False, "message": str(exc)}
-            ok, message = False, str(exc)
-        else:
-            with self.lock:
-                self._take_states()
-                obs = self.observations(now, self._dead)
+            log.info("operator request refused: %s", exc)
+            return {"ok": False, "message": str(exc)}
+        with self.lock:
+            self._take_states()
+            obs = self.observations(now, self._dead)
+            st, state = self.joint_state, self.machine.state
+            if command != "mark":
                 try:
-                    ok, message = self._command(command, plan, name, label, obs)
+                    ok, message = self._command(command, plan, name, obs)
                 except ProgramError as exc:
                     ok, message = False, str(exc)
-                reply = {"ok": ok, "message": message, **self.status(now)}
+        if command == "mark":  # the file's fsync outside the lock: callbacks wait on it
+            try:
+                ok, message = self._mark(label, "cli", st, state)
+            except ProgramError as exc:
+                ok, message = False, str(exc)
         log.info("operator %s → %s: %s", command, "ok" if ok else "refused", message)
-        query.reply(query.key_expr, encode_json(reply))
+        with self.lock:
+            return {"ok": ok, "message": message, **self.status(now)}
 
     def _command(
-        self, command: str, plan: dict | None, name: str | None, label: str, obs: Observations
+        self, command: str, plan: dict | None, name: str | None, obs: Observations
     ) -> tuple[bool, str]:
-        """One operator command (lock held)."""
+        """One operator command but `mark` (lock held)."""
         m = self.machine
         if command == "identify":
             assert plan is not None
@@ -424,8 +446,6 @@ class Gateway:
         if command == "replay":
             assert plan is not None
             return m.play(Lifecycle.REPLAYING, plan, obs)
-        if command == "mark":
-            return self._mark(label, "cli")
         if command == "start" and m.state in (Lifecycle.STOPPED,):
             path = program_path(self.program_dir, name)
             ok, message = m.command(command, obs)
@@ -435,13 +455,15 @@ class Gateway:
             return ok, message
         return m.command(command, obs)
 
-    def _mark(self, label: str, source: str) -> tuple[bool, str]:
-        """Mark a waypoint at the newest joint state; on disk when this returns (lock held)."""
-        st = self.joint_state
+    def _mark(
+        self, label: str, source: str, st: JointState | None, state: Lifecycle
+    ) -> tuple[bool, str]:
+        """Mark a waypoint at joint state ``st`` (lifecycle ``state``); on disk when this
+        returns. The tick's thread, lock not held."""
         if st is None:
             return False, "no joint state to mark"
-        if self.machine.state not in (Lifecycle.TEACHING, Lifecycle.READY):
-            return False, f"marks are made while teaching, not {self.machine.state.name.lower()}"
+        if state not in (Lifecycle.TEACHING, Lifecycle.READY):
+            return False, f"marks are made while teaching, not {state.name.lower()}"
         w = self.teach.writer
         try:
             mark = self.teach.mark(st.stamp_s, st.cycle, st.q_rad, label, source)
@@ -452,32 +474,36 @@ class Gateway:
         return True, f"mark {mark.index} recorded in {self.teach.path}"
 
     def _follow_program(self) -> None:
-        """The tick's share of the taught program (lock held): segment starts and ends, the
-        trace, the teach handle's marks, and closing it when the session ends."""
-        m, st = self.machine, self.joint_state
-        session = m.state not in (Lifecycle.STOPPED, Lifecycle.FAULT)
+        """The tick's share of the taught program: segment starts and ends, the trace, the
+        teach handle's marks, and closing it when the session ends. The file is written with
+        the lock released (zenoh's threads wait on it in the callbacks)."""
+        with self.lock:
+            m, st = self.machine, self.joint_state
+            state, reason, presses = m.state, m.reason, self._handle_marks
+            self._handle_marks = 0
+        session = state not in (Lifecycle.STOPPED, Lifecycle.FAULT)
         try:
             self.teach.follow(
-                m.state == Lifecycle.TEACHING, session, m.reason,
+                state == Lifecycle.TEACHING, session, reason,
                 None if st is None else st.stamp_s, None if st is None else st.cycle,
                 None if st is None else st.q_rad,
             )  # fmt: skip
-            while self._handle_marks:
-                self._handle_marks -= 1
-                ok, message = self._mark("", "handle")
+            for _ in range(presses):
+                ok, message = self._mark("", "handle", st, state)
                 (log.info if ok else log.warning)("teach handle mark: %s", message)
         except ProgramError as exc:
             self._program_failed(exc)
 
     def _program_failed(self, exc: ProgramError) -> None:
         """The program cannot be written (disk full, removed): teaching stops with a fault, so
-        the operator does not go on guiding a path that is not being kept (lock held)."""
+        the operator does not go on guiding a path that is not being kept."""
         log.error("taught program: %s", exc)
         w, self.teach.writer, self.teach.pending = self.teach.writer, None, None
         if w is not None:
             with contextlib.suppress(ProgramError):
                 w.close()
-        self.machine.fault(f"the taught program could not be written: {exc}")
+        with self.lock:
+            self.machine.fault(f"the taught program could not be written: {exc}")
 
     def _publish_lifecycle(self, now: float) -> None:
         m = self.machine
@@ -496,12 +522,15 @@ class Gateway:
         self._state_sub = s.declare_subscriber(
             self.keys.joint_state, zenoh.handlers.RingChannel(JOINT_STATE_QUEUE)
         )
+        self._requests = s.declare_queryable(
+            self.keys.request, zenoh.handlers.FifoChannel(REQUEST_QUEUE)
+        )
         self._decls = [
             self._state_sub,
             s.declare_subscriber(self.keys.io_state, self._on_io),
             s.declare_subscriber(self.keys.health_all, self._on_health),
             s.declare_subscriber(self.keys.experiment, self._on_experiment),
-            s.declare_queryable(self.keys.request, self._on_request),
+            self._requests,
         ]
         if self.spawn:
             for name in self.cfg.processes:
@@ -520,7 +549,9 @@ class Gateway:
                 self.machine.update(self.observations(now, dead))
                 if before != self.machine.state and self.machine.state == Lifecycle.FAULT:
                     log.error("FAULT: %s", self.machine.reason)
-                self._follow_program()
+            self._follow_program()
+            self._serve_requests()
+            with self.lock:
                 self._publish_lifecycle(now)
 
     def close(self) -> None:
@@ -536,7 +567,7 @@ class Gateway:
         finally:
             self._stop_children()
             undeclare_all(self._decls)
-            self._decls, self._state_sub = [], None
+            self._decls, self._state_sub, self._requests = [], None, None
             if self.session is not None:
                 self.session.close()
                 self.session = None
