@@ -57,19 +57,18 @@ from gateway.messages import (
     make_joint_command,
 )
 from gateway.program import ProgramError, read_program
+from gateway.replay import MAX_JOINT_SPEED_RAD_S as MAX_REPLAY_JOINT_SPEED_RAD_S
+from gateway.replay import MAX_SPEED_MM_S
 
 log = logging.getLogger("leadthrough.control")
 
+#: fastest tool speed a replay may ask for [m/s] (gateway.replay's bound, ISO 10218-1)
+MAX_REPLAY_SPEED_M_S = MAX_SPEED_MM_S / 1000.0
 PRESSURE_PUBLISH_PERIOD_S = 0.1
 #: the static-load check runs at most this often [s] (the gateway accepts one up to 0.5 s old)
 LOAD_CHECK_PERIOD_S = 0.1
 #: the delay predictor's M(q)⁻¹ is recomputed after a joint moved this much [rad]
 INERTIA_STEP_RAD = 0.02
-#: fastest tool speed a replay may ask for [m/s] (ISO 10218-1 reduced speed)
-MAX_REPLAY_SPEED_M_S = 0.25
-#: no joint of a replay (its approaches included) moves faster [rad/s]: ~17 °/s, 0.3 m/s at
-#: 1 m from the axis; a taught segment that would need more is slowed down as a whole
-MAX_REPLAY_JOINT_SPEED_RAD_S = 0.3
 
 
 def load_control_config(cell_path: str | Path) -> tuple[ControlConfig, BusConfig]:

@@ -18,10 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gateway.replay import DEFAULT_SPEED_MM_S, MAX_SPEED_MM_S
-
-#: joint speed limit of a processed export, as the control process replays [rad/s]
-EXPORT_MAX_JOINT_SPEED_RAD_S = 0.3
+from gateway.replay import DEFAULT_SPEED_MM_S, MAX_JOINT_SPEED_RAD_S, MAX_SPEED_MM_S
 
 
 def configure_parser(p: argparse.ArgumentParser) -> None:
@@ -85,7 +82,7 @@ def _export(args: argparse.Namespace) -> int:
     try:
         pieces = replay_trajectory(
             prog, desc, prog.q_rad[0], args.period_s, args.speed_mm_s / 1000.0,
-            max_joint_speed_rad_s=EXPORT_MAX_JOINT_SPEED_RAD_S,
+            max_joint_speed_rad_s=MAX_JOINT_SPEED_RAD_S,
         )  # fmt: skip
     except ValueError as exc:
         raise LeadthroughError(f"{args.program}: {exc}") from None

@@ -22,6 +22,9 @@ from gateway.errors import LeadthroughError
 DEFAULT_SPEED_MM_S = 100.0
 #: highest tool speed a replay may ask for [mm/s] (ISO 10218-1 reduced speed)
 MAX_SPEED_MM_S = 250.0
+#: no joint of a replay (its approaches included) moves faster [rad/s]: ~17 °/s, 0.3 m/s at
+#: 1 m from the axis; a taught segment that would need more is slowed down as a whole
+MAX_JOINT_SPEED_RAD_S = 0.3
 
 
 def replay_plan(program: Path, speed_mm_s: float, plan_id: str | None = None) -> dict:
