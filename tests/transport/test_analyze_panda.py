@@ -82,7 +82,12 @@ def test_panda_held_out_rms_is_near_the_reference_fit(tmp_path, friction):
         print(f"effect {e['name']} joints {e['joints']} ({e['appeared']}): {e['parameters']}")
     assert s["base_parameters"] == 48  # 43 (Gaz et al.) + 5 separable armatures
     assert np.all(before <= TOLERANCE * README_SIMPLE_FIT_RMS_NM), before / README_SIMPLE_FIT_RMS_NM
-    assert np.all(after <= TOLERANCE * README_SIMPLE_FIT_RMS_NM), after / README_SIMPLE_FIT_RMS_NM
+    # the acceptance: at or below the README's plain fit on all seven joints, and never worse
+    # than the summary's own plain least squares (per joint, an offset column: a harder bar)
+    assert np.all(after <= README_SIMPLE_FIT_RMS_NM), after / README_SIMPLE_FIT_RMS_NM
+    plain = np.asarray(s["rms_plain_ls"])
+    assert np.all(after <= plain * (1 + 1e-3)), after / plain
+    assert all(s["after_le_plain_ls"])
     assert np.sum(after**2) <= np.sum(before**2) * 1.05
     assert (out / "report.md").is_file() and (out / "model.json").is_file()
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
-from control.identification.analyze import AnalyzeOptions, guard_joints
+from control.identification.analyze import AnalyzeOptions, GuardFolds, guard_joints
 from control.identification.datafile import Measurements
 from control.identification.fit import IdentifiedModel, make_context
 from control.identification.lsq import BlockLS, Evaluation, contiguous_folds
@@ -65,7 +65,9 @@ def test_a_joint_worse_than_its_fallbacks_gets_the_best_one():
     # the same model, its joint-1 held-out error pretended 100x worse, joint 2's better
     sse = good.cv_sse * [1e4, 0.5]
     bad = Evaluation(good.fit_sse, sse, good.rank, good.n_rows, good.solution)
-    guard = guard_joints(reg, ctx, data.tau, folds, None, bad, AnalyzeOptions())
+    guard = guard_joints(
+        reg, ctx, data.tau, None, [GuardFolds(folds, 1.0, False, bad)], AnalyzeOptions()
+    )
     assert guard[1].fallback is None
     fallback = guard[0].fallback
     # the data are the URDF's own rigid body + Coulomb: the nominal fallback fits them best
