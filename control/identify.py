@@ -31,6 +31,7 @@ from control.identification.inner_loop import (
 )
 from control.robot.description import load_description
 from control.robot.urdf import to_urdf
+from drivers.can.current_zero import write_stored_zero
 from gateway.bus import BusConfig, bus_config_from
 from gateway.config import load_toml
 from gateway.errors import LeadthroughError
@@ -128,6 +129,34 @@ def run_plan(bus: BusConfig, plan: dict[str, Any], out: Path, timeout_s: float) 
     if rec.error:
         raise LeadthroughError(f"recording failed: {rec.error}")
     return mcap
+
+
+#: the CAN driver's name in its health key (drivers.can.driver.PROCESS_NAME, which imports
+#: python-can: a test keeps the two equal)
+CAN_DRIVER = "can_driver"
+
+
+def write_current_zero(mcap: Path, key: str, out: Path) -> Path | None:
+    """The current sensors' zero the CAN driver ran with during the recording (its newest
+    health on ``key``), written to ``out/current_zero.json`` for ``[can] current_zero_file``
+    (:mod:`drivers.can.current_zero`): the model is identified from currents corrected by that
+    zero, so the driver keeps it. None when the driver measured no zero (it is off)."""
+    last: dict[str, Any] | None = None
+    for topic, _t, payload in iter_mcap(mcap):
+        if topic == key:
+            msg = decode_json(payload, "health")
+            if msg.get("current_zero_ready") and msg.get("current_zero_samples"):
+                last = msg
+    if last is None:
+        return None
+    path = out / "current_zero.json"
+    write_stored_zero(
+        path,
+        np.array(last["current_zero_a"], dtype=float),
+        int(last["current_zero_samples"]),
+        np.array(last.get("current_zero_noise_a") or [0.0] * len(last["current_zero_a"])),
+    )
+    return path
 
 
 def finished_report(mcap: Path, key: str, plan_id: str) -> dict[str, Any]:
@@ -243,6 +272,10 @@ def cli_main(args: argparse.Namespace) -> int:
     desc = load_description()
     gains = [j.drive_gain_nm_per_a for j in desc.joints]
     report = finished_report(mcap, bus.keys.experiment, plan["plan_id"])
+    zero = write_current_zero(mcap, bus.keys.health(CAN_DRIVER), out)
+    if zero is not None:
+        print(f"current sensors' zero the model is identified with: {zero}; in the cell "
+              f'config\'s [can] set\n  current_zero_file = "{zero.resolve()}"')  # fmt: skip
     recorded = read_states(mcap)  # once: the inner loop and every segment are cut from it
     inner = fit_inner_loop_segments(mcap, report, recorded, gains, out)
     if inner is not None:

@@ -5,8 +5,9 @@ comes from `leadthrough identify`, run on the virtual cell in lock-step (faster 
 through the whole product, exactly as on the real cell: the gateway identifies, the control
 process plays :data:`control.identify.QUICK_PLAN` (friction sweeps, inner-loop velocity steps,
 multi-sines), the CAN driver forwards it, the bus is recorded and fitted. The output folder holds
-``model.json`` (the dynamic model) and ``inner_loop.json`` (ω and Υ_I of eq. 21), which
-``[control] model`` and ``[control] inner_loop`` point at.
+``model.json`` (the dynamic model), ``inner_loop.json`` (ω and Υ_I of eq. 21) and
+``current_zero.json`` (the current sensors' zero the model was identified with), which
+``[control] model``, ``[control] inner_loop`` and ``[can] current_zero_file`` point at.
 
 :func:`commissioned` keeps one such folder per plant seed and *code version* (a digest of every
 source file of the product and of the virtual cell, and of the plan): a change to either builds
@@ -61,6 +62,12 @@ class Commissioned:
     @property
     def inner_loop(self) -> Path:
         return self.folder / "inner_loop.json"
+
+    @property
+    def current_zero(self) -> Path | None:
+        """The current sensors' zero the identification ran with (None: the zero was off)."""
+        path = self.folder / "current_zero.json"
+        return path if path.exists() else None
 
     @property
     def summary(self) -> dict[str, Any]:

@@ -113,13 +113,16 @@ class Stack:
         plant_seed: int = 0,
         model: str | Path | None = COMMISSIONED,
         inner_loop: str | Path | None = None,
+        current_zero: str | Path | None = None,
     ) -> None:
         """``plant_seed``: the virtual robot drawn (:mod:`sim_bridge.truth`; 0 is the truth
         file as written). ``model``: what the control process compensates: the plant's
         commissioned model and inner-loop estimate (:func:`.commission.commissioned`, built
         by `leadthrough identify` on this plant seed when not cached), a ``model.json`` path
         (with the ``inner_loop.json`` of the same identification, or None), or None for a cell
-        that is not commissioned yet (it identifies but refuses to teach)."""
+        that is not commissioned yet (it identifies but refuses to teach). ``current_zero``:
+        the ``current_zero.json`` of that identification (the CAN driver keeps the current
+        sensors' zero the model was identified with; None: it measures one now)."""
         self.workdir = Path(workdir)
         self.workdir.mkdir(parents=True, exist_ok=True)
         self.lockstep = lockstep
@@ -133,6 +136,9 @@ class Stack:
 
             done = commissioned(plant_seed)
             model, inner_loop = done.model, done.inner_loop
+            current_zero = done.current_zero
+        if current_zero is not None:
+            cell["can"]["current_zero_file"] = str(current_zero)
         for key, path in (("model", model), ("inner_loop", inner_loop)):
             if path is not None:
                 cell["control"][key] = str(path)

@@ -21,6 +21,7 @@ A virtual controller on another machine serves socketcand instead: ``interface =
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -28,7 +29,7 @@ from typing import Any
 
 from drivers.can.seqpacket import address_problem
 from gateway.bus import BusConfig, bus_config_from
-from gateway.config import from_mapping, load_toml, require, require_count
+from gateway.config import from_mapping, load_toml, require, require_count, resolve_path
 
 _TRANSPORT_SCALARS = (str, int, float, bool)
 #: Keyword arguments SeqpacketBus takes; anything else would be silently ignored, so refuse it.
@@ -77,6 +78,10 @@ class CanDriverConfig:
     current_zero_cycles: int = 0
     #: Cycles skipped after the servo power goes off before they count towards the zero.
     current_zero_settle_cycles: int = 5
+    #: The zero `leadthrough identify` ran with (its ``current_zero.json``; relative to the
+    #: cell config): used from the start instead of the one measured now, so the currents
+    #: agree with the identified model (current_zero.py). "": none, measure it.
+    current_zero_file: str = ""
 
     def __post_init__(self) -> None:
         where = "[can]"
@@ -182,5 +187,8 @@ def load_can_config(cell_config_path: str | Path) -> tuple[CanDriverConfig, BusC
     """The ``[can]`` and ``[bus]`` sections of a cell config file (absent sections: defaults)."""
     doc = load_toml(cell_config_path)
     can_cfg = from_mapping(CanDriverConfig, doc.get("can", {}), f"{cell_config_path} [can]")
+    if can_cfg.current_zero_file:
+        zero_file = resolve_path(cell_config_path, can_cfg.current_zero_file)
+        can_cfg = dataclasses.replace(can_cfg, current_zero_file=str(zero_file))
     bus_cfg = bus_config_from(doc, str(cell_config_path))
     return can_cfg, bus_cfg

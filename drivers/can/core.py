@@ -143,6 +143,7 @@ class HostCore:
         adapter: CanAdapter,
         note: Note | None = None,
         health_period_s: float = 0.1,
+        stored_zero: tuple[np.ndarray, int, np.ndarray] | None = None,
     ) -> None:
         self.config = config
         self.adapter = adapter
@@ -163,7 +164,7 @@ class HostCore:
         # controller
         #: the current sensors' zero, measured with the servo power off
         self.current_zero = CurrentZero(
-            n, config.current_zero_cycles, config.current_zero_settle_cycles
+            n, config.current_zero_cycles, config.current_zero_settle_cycles, stored_zero
         )
         self.feedback: CycleFeedback | None = None
         self._last_cycle_rx_s = -np.inf
@@ -519,6 +520,30 @@ class HostCore:
         level = logging.INFO if reason.startswith("blocked_") else logging.WARNING
         self._note(level, reason, f"JointCommand not forwarded ({reason}): {detail}")
 
+    def _zero_health(self) -> dict[str, Any]:
+        """The current zero's part of the health (current_zero.py), and a warning when the
+        fresh zero has drifted from the commissioning's."""
+        zero = self.current_zero
+        drift = zero.drift_a
+        if zero.drift_significant():
+            assert drift is not None
+            self._note(
+                logging.WARNING,
+                "zero-drift",
+                "the current sensors' zero measured now differs from the commissioning's by "
+                f"{np.round(drift, 4).tolist()} A, more than noise explains: commission again "
+                "(`leadthrough identify`)",
+            )
+        return {
+            "current_zero_a": [round(float(v), 4) for v in zero.offset_a],
+            "current_zero_source": zero.source,
+            "current_zero_samples": zero.samples,
+            "current_zero_ready": zero.ready,
+            "current_zero_measured_a": [round(float(v), 4) for v in zero.measured_a],
+            "current_zero_noise_a": [round(float(v), 5) for v in zero.noise_a()],
+            "current_zero_drift_a": None if drift is None else [round(float(v), 4) for v in drift],
+        }
+
     def health(self, now: float) -> dict[str, Any]:
         fb, stats = self.feedback, self.adapter.stats
         return {
@@ -536,7 +561,5 @@ class HostCore:
             "incomplete_cycles": stats.incomplete_cycles,
             "corrupt_cycles": stats.corrupt_cycles,
             "bad_inputs": self.bad_inputs,
-            "current_zero_a": [round(float(v), 4) for v in self.current_zero.offset_a],
-            "current_zero_samples": self.current_zero.samples,
-            "current_zero_ready": self.current_zero.ready,
+            **self._zero_health(),
         }

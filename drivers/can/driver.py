@@ -29,6 +29,7 @@ import can
 from drivers.can.adapter import ADAPTER_GROUP, CanAdapter
 from drivers.can.config import CanDriverConfig, load_can_config
 from drivers.can.core import COMMAND, REJECT_REASONS, HostCore
+from drivers.can.current_zero import StoredZeroError, read_stored_zero
 from drivers.registry import load_adapter
 from gateway.bus import BusConfig, declare_loop_publisher, open_peer, undeclare_all
 from gateway.config import require
@@ -146,11 +147,18 @@ class CanDriver:
             "within that",
         )
         self._rlog = RateLimitedLog(log, self.LOG_PERIOD_S, clock)
+        stored_zero = None
+        if config.current_zero_file:
+            try:
+                stored_zero = read_stored_zero(config.current_zero_file, config.joints)
+            except StoredZeroError as exc:
+                raise ConfigError(f"[can].current_zero_file: {exc}") from None
         self.core = HostCore(
             config,
             adapter,
             note=lambda level, key, msg: self._rlog(level, key, "%s", msg),
             health_period_s=self.HEALTH_PERIOD_S,
+            stored_zero=stored_zero,
         )
 
         self._bus = can_bus

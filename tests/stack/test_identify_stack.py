@@ -105,6 +105,20 @@ def test_commissioning_a_drawn_plant_reaches_the_noise_floor_and_its_inner_loop(
           f"effects {[(e['name'], e['joints']) for e in summary['effects']]}")  # fmt: skip
     assert np.all(rms <= 2.0 * floor), f"held-out RMS {rms} above 2× noise floor {floor}"
     assert_inner_loop_within_20_percent(done.inner_loop, plant_seed)
+    assert_current_zero_measures_the_offsets(done.current_zero, plant_seed)
+
+
+def assert_current_zero_measures_the_offsets(path: Path | None, plant_seed: int) -> None:
+    """The zero the identification ran with (current_zero.json) against the drawn plant's
+    current-sensor offsets (read only to judge): within 5 standard errors of its mean."""
+    assert path is not None, "identify wrote no current_zero.json"
+    doc = json.loads(path.read_text())
+    sensors = draw(dataclasses.replace(load_sim_config(), plant_seed=plant_seed)).sensors
+    zero, offset = np.array(doc["current_zero_a"]), np.array(sensors.current_offset_a)
+    se = sensors.current_noise_a / np.sqrt(doc["samples"])
+    print(f"seed {plant_seed}: current zero {zero} A, sensor offsets {offset} A")
+    assert np.all(np.abs(zero - offset) <= 5 * se + 1e-4), (zero, offset, se)
+    assert np.any(offset != 0), "the drawn plant has no current offsets to measure"
 
 
 def test_identification_names_a_hose_spring_and_a_gear_ripple(tmp_path):
@@ -146,7 +160,7 @@ def test_identification_names_a_spray_gun_mounted_between_training_and_test(tmp_
     ident = tmp_path / "ident"
     with Stack(
         tmp_path / "teach", sim_overrides={"effects": gun}, model=ident / "model.json",
-        inner_loop=ident / "inner_loop.json",
+        inner_loop=ident / "inner_loop.json", current_zero=ident / "current_zero.json",
     ) as stack:  # fmt: skip
         stack.start()
         stack.start_teaching()
