@@ -24,6 +24,7 @@ bench: $(STAMP)
 	$(BIN)/python -m gateway.zenoh_bench --n 3000
 	$(BIN)/python -m drivers.can.codec_bench
 	$(BIN)/python -m control.identification.bench
+	$(BIN)/leadthrough teach-bench --plant-seed 0 --out bench_out/teach_bench
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

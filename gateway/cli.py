@@ -32,6 +32,10 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "control": ("control.process", "run the control process (started by the gateway)"),
     "sim": ("sim_bridge.sim", "run the virtual robot cell (MuJoCo + virtual controller)"),
     "demo": ("sim_bridge.demo", "run the whole product on the virtual cell and report"),
+    "teach-bench": (
+        "sim_bridge.teach_bench",
+        "benchmark lead-through strategies on a raster spray path (virtual cell)",
+    ),
     "bench": ("sim_bridge.bench", "measure wire-to-wire loop latency on the virtual cell"),
     "identify": ("control.identify", "run identification experiments on the cell and fit"),
     "record": ("gateway.recorder", "record everything on the bus into an MCAP file"),

@@ -286,9 +286,19 @@ class OperatorScript:
     #: after onset: times the teach handle's mark button is pressed, for ``mark_press_s`` each
     mark_at_s: tuple[float, ...] = ()
     mark_press_s: float = 0.2
+    #: mode path: the hand's physiological tremor, amplitude per axis [m] and frequency [Hz]
+    #: (the axes at 1, 1.13 and 0.87 times it, so the tremor traces no straight line)
+    tremor_m: float = 0.0
+    tremor_hz: float = 9.0
 
     def __post_init__(self) -> None:
         require(self.mode in ("none", "force", "path"), "[operator].mode", f"{self.mode!r}")
+        require(
+            0 <= self.tremor_m <= 0.01, "[operator].tremor_m", f"{self.tremor_m} not in 0..0.01 m"
+        )
+        require(
+            0 < self.tremor_hz <= 50, "[operator].tremor_hz", f"{self.tremor_hz} not in (0, 50] Hz"
+        )
         if self.mode == "path":
             require(len(self.path) >= 2, "[operator].path", "needs at least 2 waypoints")
             times = [w[0] for w in self.path]

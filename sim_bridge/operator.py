@@ -18,6 +18,11 @@ if TYPE_CHECKING:
     from sim_bridge.plant import Plant
 
 
+#: the tremor's frequency per axis, relative, and phases [rad] (:attr:`OperatorScript.tremor_m`)
+_TREMOR_AXES = np.array([1.0, 1.13, 0.87])
+_TREMOR_PHASES = np.array([0.0, 2.1, 4.2])
+
+
 class Operator:
     def __init__(self, script: OperatorScript) -> None:
         self.s = script
@@ -56,6 +61,9 @@ class Operator:
             return None
         tau = t_s - self.onset_s
         offset = np.array([np.interp(tau, self._t, self._xyz[:, k]) for k in range(3)])
+        if self.s.tremor_m:
+            w = 2.0 * np.pi * self.s.tremor_hz * tau
+            offset += self.s.tremor_m * np.sin(w * _TREMOR_AXES + _TREMOR_PHASES)
         return self.origin_m + offset
 
     def hand(self, plant: Plant) -> np.ndarray:

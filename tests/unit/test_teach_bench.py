@@ -1,0 +1,69 @@
+"""The teach benchmark's path and figures (sim_bridge/teach_bench.py), on synthetic traces."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sim_bridge.teach_bench import (
+    DWELL_S,
+    SPEED_M_S,
+    _distance_to_polyline,
+    _target,
+    metrics,
+    raster_path,
+)
+
+
+def test_the_raster_zig_zags_on_the_vertical_plane_at_the_painters_speed():
+    path = np.array(raster_path(width_m=1.0, height_m=0.6, passes=4))
+    assert np.all(np.diff(path[:, 0]) >= 0) and np.all(path[:, 1] == 0.0)  # y-z plane
+    corners = path[2::2, 2:]  # each corner once (the dwell repeats it)
+    np.testing.assert_allclose(corners[:2], [[-0.5, 0.3], [0.5, 0.3]])
+    np.testing.assert_allclose(corners[-1], [-0.5, -0.3])
+    assert {round(z, 9) for z in corners[:, 1]} == {0.3, 0.1, -0.1, -0.3}
+    legs = np.linalg.norm(np.diff(path[:, 2:], axis=0), axis=1)
+    length = legs.sum()
+    assert length == pytest.approx(np.hypot(0.5, 0.3) + 4 * 1.0 + 3 * 0.2)
+    moving_s = np.diff(path[:, 0])[legs > 0].sum()
+    assert moving_s == pytest.approx(length / SPEED_M_S)
+    assert path[-1][0] == pytest.approx(1.0 + moving_s + 8 * DWELL_S)
+    with pytest.raises(ValueError):
+        raster_path(passes=1)
+
+
+def test_distance_to_a_polyline():
+    v = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0]])
+    p = np.array([[0.5, 0.2, 0.0], [1.3, 0.5, 0.0], [-1.0, 0.0, 0.0], [1.0, 1.0, 0.4]])
+    np.testing.assert_allclose(_distance_to_polyline(p, v), [0.2, 0.3, 1.0, 0.4])
+
+
+def _trace(path, follow_until_s=None, lag_m=0.0):
+    tau = np.arange(0.0, path[-1][0] + 2.0, 0.004)
+    origin = np.array([1.0, 0.1, 2.0])
+    shown = tau if follow_until_s is None else np.minimum(tau, follow_until_s)
+    tool = origin + _target(path, shown) + np.array([lag_m, 0.0, 0.0])
+    force = np.zeros((tau.size, 3))
+    moving = np.linalg.norm(np.gradient(_target(path, tau), tau, axis=0), axis=1) > 1e-3
+    force[moving, 1] = 4.0  # pushes while the target moves
+    force[~moving, 1] = 1.0
+    flange = tool + np.array([0.0, 0.0, 0.25])
+    return tau, tool, origin, force, flange
+
+
+def test_a_painter_who_follows_the_path_completes_it():
+    path = raster_path()
+    m = metrics(path, *_trace(path, lag_m=0.002))
+    assert m["completed"]
+    assert m["path_error_mm"] == pytest.approx(2.0, abs=0.01)
+    assert m["mean_force_n"] == pytest.approx(4.0) and m["peak_force_n"] == pytest.approx(4.0)
+    assert m["dwell_mean_force_n"] == pytest.approx(1.0, abs=0.05)
+    assert m["mean_moment_nm"] == pytest.approx(4.0 * 0.25)  # |r x F|, r 0.25 m along z
+    assert m["moving_s"] == pytest.approx(path[-1][0] - 1.0 - 8 * DWELL_S, abs=0.1)
+
+
+def test_a_painter_who_stops_halfway_has_not_completed():
+    path = raster_path()
+    m = metrics(path, *_trace(path, follow_until_s=path[-1][0] / 2))
+    assert not m["completed"]
+    assert m["path_error_mm"] < 1e-6  # it stayed on the path: it just did not get to the end
