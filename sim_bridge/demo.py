@@ -203,7 +203,7 @@ def cli_main(args: argparse.Namespace) -> int:
     print("starting the virtual cell, the drivers, the control process and the gateway ...")
     with Stack(
         out / "run", sim_overrides={"operator": operator}, plant_seed=args.plant_seed,
-        model=done.model, inner_loop=done.inner_loop,
+        model=done.model, inner_loop=done.inner_loop, current_zero=done.current_zero,
     ) as stack:  # fmt: skip
         stack.start()
         status = stack.start_teaching()
