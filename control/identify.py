@@ -92,11 +92,10 @@ QUICK_PLAN: dict[str, Any] = {
 
 def _last_report(mcap: Path, key: str, plan_id: str) -> dict[str, Any]:
     last: dict[str, Any] | None = None
-    for topic, _t, payload in iter_mcap(mcap):
-        if topic == key:
-            msg = decode_json(payload, "experiment")
-            if msg.get("plan_id") == plan_id:
-                last = msg
+    for _topic, _t, payload in iter_mcap(mcap, [key]):
+        msg = decode_json(payload, "experiment")
+        if msg.get("plan_id") == plan_id:
+            last = msg
     if last is None:
         raise LeadthroughError(f"{mcap}: no progress of plan {plan_id} was recorded")
     return last
@@ -142,11 +141,10 @@ def write_current_zero(mcap: Path, key: str, out: Path) -> Path | None:
     (:mod:`drivers.can.current_zero`): the model is identified from currents corrected by that
     zero, so the driver keeps it. None when the driver measured no zero (it is off)."""
     last: dict[str, Any] | None = None
-    for topic, _t, payload in iter_mcap(mcap):
-        if topic == key:
-            msg = decode_json(payload, "health")
-            if msg.get("current_zero_ready") and msg.get("current_zero_samples"):
-                last = msg
+    for _topic, _t, payload in iter_mcap(mcap, [key]):
+        msg = decode_json(payload, "health")
+        if msg.get("current_zero_ready") and msg.get("current_zero_samples"):
+            last = msg
     if last is None:
         return None
     path = out / "current_zero.json"

@@ -119,11 +119,13 @@ class BusRecorder:
                 self._thread.join(30.0)
 
 
-def iter_mcap(path: Path) -> Iterator[tuple[str, int, bytes]]:
-    """(key, log_time_ns, payload) of every message, in log-time order."""
+def iter_mcap(path: Path, topics: list[str] | None = None) -> Iterator[tuple[str, int, bytes]]:
+    """(key, log_time_ns, payload) of every message (of ``topics`` only, when given), in
+    log-time order."""
     try:
         with Path(path).open("rb") as fh:
-            for _schema, channel, message in make_reader(fh).iter_messages(log_time_order=True):
+            reader = make_reader(fh)
+            for _schema, channel, message in reader.iter_messages(topics, log_time_order=True):
                 yield channel.topic, message.log_time, message.data
     except FileNotFoundError:
         raise DataFileError(f"{path}: recording not found") from None

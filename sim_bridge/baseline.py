@@ -23,10 +23,14 @@ from sim_bridge.plant import Plant
 RECORD_EVERY_S = 0.004
 
 
-def run_baseline(
+def drag_released(
     cfg: SimConfig, path: list[list[float]], hand: dict[str, float], duration_s: float
 ) -> dict[str, Any]:
-    """Drag the released arm along ``path`` for ``duration_s``; the operator force figures."""
+    """Drag the released arm along ``path`` for ``duration_s`` with a hand of settings
+    ``hand`` (:class:`.config.OperatorScript` fields); every :data:`RECORD_EVERY_S`: time ``t_s``
+    (T,) and (T, 3) ``tool``, ``force`` (the hand's, world), ``target`` (where the hand wants
+    the tool) and ``flange`` (the last link's origin) [m, N]; ``origin`` the tool at onset,
+    ``script`` the operator's settings."""
     script = dataclasses.replace(
         cfg.operator,
         mode="path",
@@ -41,22 +45,45 @@ def run_baseline(
     plant.hand = op.hand
     op.mark_onset(plant.t_s, plant.tool_position_m())
     every = max(1, round(RECORD_EVERY_S / plant.cfg.timestep_s))
-    force, tool, target = [], [], []
+    rows = []
     for k in range(round(duration_s / plant.cfg.timestep_s)):
         plant.step(None, None, brakes_released=op.brakes_released(plant.t_s))
         if k % every == 0:
-            force.append(float(np.linalg.norm(plant.hand_force_n)))
-            tool.append(plant.tool_position_m())
-            target.append(op.target_m(plant.t_s))
-    f = np.array(force)
-    miss = np.linalg.norm(np.array(tool) - np.array(target), axis=1)
+            rows.append(
+                np.r_[
+                    plant.t_s,
+                    plant.tool_position_m(),
+                    plant.hand_force_n,
+                    op.target_m(plant.t_s),
+                    plant.data.xpos[plant.last_body],
+                ]
+            )
+    a = np.array(rows)
     return {
-        "plant_seed": plant.cfg.plant_seed,
+        "t_s": a[:, 0],
+        "tool": a[:, 1:4],
+        "force": a[:, 4:7],
+        "target": a[:, 7:10],
+        "flange": a[:, 10:13],
+        "origin": op.origin_m,
+        "script": script,
+    }
+
+
+def run_baseline(
+    cfg: SimConfig, path: list[list[float]], hand: dict[str, float], duration_s: float
+) -> dict[str, Any]:
+    """Drag the released arm along ``path`` for ``duration_s``; the operator force figures."""
+    trace = drag_released(cfg, path, hand, duration_s)
+    f = np.linalg.norm(trace["force"], axis=1)
+    miss = np.linalg.norm(trace["tool"] - trace["target"], axis=1)
+    return {
+        "plant_seed": cfg.plant_seed,
         "duration_s": duration_s,
         "mean_force_n": float(f.mean()),
         "peak_force_n": float(f.max()),
-        "force_saturated_share": float(np.mean(f >= 0.999 * script.max_force_n)),
+        "force_saturated_share": float(np.mean(f >= 0.999 * trace["script"].max_force_n)),
         "max_tool_off_path_m": float(miss.max()),
         "mean_tool_off_path_m": float(miss.mean()),
-        "pressures_bar": list(plant.cfg.cylinders.initial_bar),
+        "pressures_bar": list(cfg.cylinders.initial_bar),
     }

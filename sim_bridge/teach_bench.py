@@ -45,10 +45,10 @@ from typing import Any
 import mujoco
 import numpy as np
 
+from sim_bridge.baseline import drag_released
 from sim_bridge.commission import commissioned
 from sim_bridge.config import load_sim_config
 from sim_bridge.harness import Stack
-from sim_bridge.operator import Operator
 from sim_bridge.plant import Plant
 
 #: the raster: horizontal width, covered height [m], horizontal passes
@@ -63,8 +63,6 @@ HAND = {"hand_stiffness_n_per_m": 1500.0, "hand_damping_n_s_per_m": 300.0, "max_
 TREMOR_M, TREMOR_HZ = 0.0005, 9.0
 #: the operator got to the end when the tool ends this close to the path's last point [m]
 COMPLETED_WITHIN_M = 0.05
-#: the figures' sample period of the in-process baseline [s]
-RECORD_EVERY_S = 0.004
 #: the target is moving when it moves faster than this [m/s]
 MOVING_M_S = 1e-3
 STRATEGIES = ("offservo", "best")
@@ -171,20 +169,6 @@ def metrics(
     }
 
 
-def _script(cfg_operator: Any, path: list[list[float]], **extra: Any) -> Any:
-    return dataclasses.replace(
-        cfg_operator,
-        mode="path",
-        path=tuple(tuple(float(v) for v in w) for w in path),
-        enabling_after_s=0.0,
-        release_after_s=None,
-        tremor_m=TREMOR_M,
-        tremor_hz=TREMOR_HZ,
-        **HAND,
-        **extra,
-    )
-
-
 def balancing_bar(cfg: Any) -> tuple[list[float], list[float]]:
     """The cylinder pressures [bar] that best carry the gravity torque of joints 2 and 3 at
     the arm's start pose (least squares, clipped to 0..10 bar), from the plant's own physics
@@ -210,22 +194,10 @@ def run_offservo(plant_seed: int, path: list[list[float]], tail_s: float = 2.0) 
     cfg = dataclasses.replace(
         cfg, cylinders=dataclasses.replace(cfg.cylinders, initial_bar=tuple(bar))
     )
-    script = _script(cfg.operator, path, brake_release_after_s=0.0)
-    plant = Plant(dataclasses.replace(cfg, operator=script))
-    op = Operator(script)
-    plant.hand = op.hand
-    op.mark_onset(plant.t_s, plant.tool_position_m())
-    assert op.origin_m is not None
-    every = max(1, round(RECORD_EVERY_S / plant.cfg.timestep_s))
-    rows: list[np.ndarray] = []
-    steps = round((path[-1][0] + tail_s) / plant.cfg.timestep_s)
-    for k in range(steps):
-        plant.step(None, None, brakes_released=op.brakes_released(plant.t_s))
-        if k % every == 0:
-            flange = plant.data.xpos[plant.last_body]
-            rows.append(np.r_[plant.t_s, plant.tool_position_m(), plant.hand_force_n, flange])
-    a = np.array(rows)
-    out = metrics(path, a[:, 0] - a[0, 0], a[:, 1:4], op.origin_m, a[:, 4:7], a[:, 7:10])
+    hand = {**HAND, "tremor_m": TREMOR_M, "tremor_hz": TREMOR_HZ}
+    trace = drag_released(cfg, path, hand, path[-1][0] + tail_s)
+    t = trace["t_s"]
+    out = metrics(path, t - t[0], trace["tool"], trace["origin"], trace["force"], trace["flange"])
     out["cylinders_bar"] = bar
     out["gravity_left_at_start_nm"] = unbalanced
     return out

@@ -58,7 +58,7 @@ from control.identification.fit import (
     plain_key,
     remove_cylinders,
 )
-from control.identification.folds import CONTIGUOUS, gcv_factor, plan_folds
+from control.identification.folds import CONTIGUOUS, Scheme, gcv_factor, plan_folds
 from control.identification.lsq import BlockLS, Evaluation, contiguous_folds
 from control.identification.preprocess import (
     DEFAULT_POSITION_CUTOFF_HZ,
@@ -422,12 +422,10 @@ def _evaluate_on(
 
 @dataclass(frozen=True)
 class GuardFolds:
-    """One fold scheme of the guard: its folds, the share of the test it stands for, whether
-    it is the in-sample fit (:mod:`.folds`), and the model judged on those folds."""
+    """One fold scheme of the guard (:class:`.folds.Scheme`: its folds, the share of the test
+    it stands for, whether it is the in-sample fit) and the model judged on those folds."""
 
-    folds: Sequence[Any]
-    share: float
-    in_sample: bool
+    scheme: Scheme
     model_eval: Evaluation
 
 
@@ -462,7 +460,8 @@ def guard_joints(
     rigid_nominal = np.einsum("jtb,b->tj", ctx.y_base, beta_nominal)
     n_rows = np.maximum(schemes[0].model_eval.n_rows, 1.0)
     mixed = {kind: np.zeros(n) for kind in (MODEL, PLAIN_LS, NOMINAL, ZERO)}
-    for scheme in schemes:
+    for guard_folds in schemes:
+        scheme = guard_folds.scheme
         plain_eval = plain_least_squares(ctx, y, scheme.folds, mask)
         nominal = BlockLS(y - rigid_nominal, scheme.folds, mask)
         names = []
@@ -472,7 +471,7 @@ def guard_joints(
         nominal_eval = nominal.evaluate(names, np.ones(n))
         zero_sse = BlockLS(y, scheme.folds, mask).evaluate([], np.ones(n)).cv_sse
         for kind, ev in (
-            (MODEL, scheme.model_eval),
+            (MODEL, guard_folds.model_eval),
             (PLAIN_LS, plain_eval),
             (NOMINAL, nominal_eval),
         ):
@@ -721,9 +720,7 @@ def _analyze(
     plan = plan_folds(train.q, train.dq, train.rate_hz, test.q, test.dq, options.search.folds)
     schemes = [
         GuardFolds(
-            sch.folds,
-            sch.share,
-            sch.in_sample,
+            sch,
             train_eval
             if sch.name == CONTIGUOUS
             else _evaluate_on(ls, names, base_fit.weights, sch.folds, sliding_train),

@@ -524,8 +524,8 @@ class HostCore:
         """The current zero's part of the health (current_zero.py), and a warning when the
         fresh zero has drifted from the commissioning's."""
         zero = self.current_zero
-        drift = zero.drift_a
-        if zero.drift_significant():
+        drift, noise = zero.drift_a, zero.noise_a()
+        if zero.drift_significant(noise):
             assert drift is not None
             self._note(
                 logging.WARNING,
@@ -540,7 +540,7 @@ class HostCore:
             "current_zero_samples": zero.samples,
             "current_zero_ready": zero.ready,
             "current_zero_measured_a": [round(float(v), 4) for v in zero.measured_a],
-            "current_zero_noise_a": [round(float(v), 5) for v in zero.noise_a()],
+            "current_zero_noise_a": [round(float(v), 5) for v in noise],
             "current_zero_drift_a": None if drift is None else [round(float(v), 4) for v in drift],
         }
 

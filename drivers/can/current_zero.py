@@ -159,14 +159,16 @@ class CurrentZero:
             return None
         return self.measured_a - self.stored[0]
 
-    def drift_significant(self) -> bool:
+    def drift_significant(self, noise_a: np.ndarray | None = None) -> bool:
         """The fresh zero differs from the stored one by more than :data:`DRIFT_SIGMAS`
-        standard errors of the two means on some joint."""
+        standard errors of the two means on some joint (``noise_a``: :meth:`noise_a`, when
+        the caller has it already)."""
         drift = self.drift_a
         if drift is None or self.stored is None:
             return False
         _, n_stored, noise_stored = self.stored
-        se = np.sqrt(noise_stored**2 / n_stored + self.noise_a() ** 2 / self.samples)
+        noise = self.noise_a() if noise_a is None else noise_a
+        se = np.sqrt(noise_stored**2 / n_stored + noise**2 / self.samples)
         return bool(np.any(np.abs(drift) > DRIFT_SIGMAS * np.maximum(se, 1e-12)))
 
     def update(self, current_a: np.ndarray, servo_power: bool) -> None:

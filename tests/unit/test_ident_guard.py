@@ -11,6 +11,7 @@ import pinocchio as pin
 from control.identification.analyze import AnalyzeOptions, GuardFolds, guard_joints
 from control.identification.datafile import Measurements
 from control.identification.fit import IdentifiedModel, make_context
+from control.identification.folds import CONTIGUOUS, Scheme
 from control.identification.lsq import BlockLS, Evaluation, contiguous_folds
 from control.identification.preprocess import prepare
 from control.identification.rigid import RobotRegressor
@@ -66,7 +67,12 @@ def test_a_joint_worse_than_its_fallbacks_gets_the_best_one():
     sse = good.cv_sse * [1e4, 0.5]
     bad = Evaluation(good.fit_sse, sse, good.rank, good.n_rows, good.solution)
     guard = guard_joints(
-        reg, ctx, data.tau, None, [GuardFolds(folds, 1.0, False, bad)], AnalyzeOptions()
+        reg,
+        ctx,
+        data.tau,
+        None,
+        [GuardFolds(Scheme(CONTIGUOUS, folds, None, 0.0, 1.0), bad)],
+        AnalyzeOptions(),
     )
     assert guard[1].fallback is None
     fallback = guard[0].fallback
