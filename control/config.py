@@ -63,6 +63,14 @@ class ControlConfig:
     #: the held arm's motor torque and the model's static load beyond the model's breakaway
     #: friction, per joint [N·m]; empty: none beyond the friction
     load_check_margin_nm: tuple[float, ...] = ()
+    #: rest hold (control/rest_hold.py): the arm sticks where it is left until pushed harder
+    #: than a band per joint: ``rest_hold_rms_factor`` × the model's held-out RMS, at least
+    #: ``rest_hold_nm`` [N·m] (empty: no floor; a model without a held-out RMS and no floor:
+    #: no hold)
+    rest_hold_nm: tuple[float, ...] = ()
+    rest_hold_rms_factor: float = 2.0
+    #: the hold's stiffness is band / deflection [rad]
+    rest_hold_deflection_rad: float = 1e-3
 
     @property
     def uncommissioned(self) -> str | None:
@@ -104,6 +112,21 @@ class ControlConfig:
             f"needs {n} values >= 0 (or none)",
         )
         require(all(v > 0 for v in self.upsilon_i_per_s), "[control].upsilon_i_per_s", "> 0")
+        require(
+            len(self.rest_hold_nm) in (0, n) and all(v >= 0 for v in self.rest_hold_nm),
+            "[control].rest_hold_nm",
+            f"needs {n} values >= 0 (or none)",
+        )
+        require(
+            0 <= self.rest_hold_rms_factor <= 10,
+            "[control].rest_hold_rms_factor",
+            f"{self.rest_hold_rms_factor} not in [0, 10]",
+        )
+        require(
+            0 < self.rest_hold_deflection_rad <= 0.1,
+            "[control].rest_hold_deflection_rad",
+            f"{self.rest_hold_deflection_rad} not in (0, 0.1] rad",
+        )
         require(
             self.omega_adaptation_per_s >= 0,
             "[control].omega_adaptation_per_s",

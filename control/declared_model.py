@@ -49,6 +49,8 @@ class DeclaredModel:
     def __init__(self, desc: RobotDescription, friction: list[FrictionParams]) -> None:
         self.desc = desc
         self.n = len(desc.joints)
+        #: the model's held-out RMS error per joint [N·m], when it was measured (identified)
+        self.heldout_rms_nm: tuple[float, ...] | None = None
         self.rigid = RigidBodyModel.from_description(desc)
         self.friction = Eq15Friction(friction)
         self.cylinders = CylinderTorques(desc, self.n)
@@ -126,6 +128,10 @@ class IdentifiedControlModel(DeclaredModel):
             raise ConfigError(f"{path}: model has {self.identified.n} joints, robot {self.n}")
         self._zeros = np.zeros(self.n)
         self.cylinders = CylinderTorques(self.desc, self.n)
+        rms = self.identified.metadata.get("heldout_rms_nm")
+        self.heldout_rms_nm = None if rms is None else tuple(float(v) for v in rms)
+        if rms is not None and (len(rms) != self.n or not all(v >= 0 for v in rms)):
+            raise ConfigError(f"{path}: heldout_rms_nm {rms} is not {self.n} values >= 0")
 
     def gravity_nm(self, q_rad: np.ndarray) -> np.ndarray:
         return self.identified.torque_nm(q_rad, self._zeros, self._zeros)

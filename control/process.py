@@ -29,6 +29,7 @@ from control.experiments import build_plan
 from control.identification.inner_loop import read_outer_loop_gains
 from control.load_check import REST_RAD_S, LoadCheck, static_load_check
 from control.outer_loop import HoldAverage, OmegaAdaptation, OuterLoop
+from control.rest_hold import RestHold, hold_band_nm
 from control.robot.description import RobotDescription, load_description
 from control.taught_path import replay_trajectory
 from gateway.bus import (
@@ -149,6 +150,11 @@ class ZeroMomentController:
         self._waited = 0
         self.last_cycle: int | None = None
         self._tau_d_nm: list[float] = [0.0] * n
+        band = hold_band_nm(
+            cfg.rest_hold_nm or [0.0] * n, cfg.rest_hold_rms_factor, model.heldout_rms_nm
+        )
+        self.rest_hold = RestHold(band, cfg.rest_hold_deflection_rad)
+        self._no_hold = [0.0] * n
 
     @property
     def tau_d_nm(self) -> np.ndarray:
@@ -158,13 +164,17 @@ class ZeroMomentController:
     def desired_torque(self, q: np.ndarray, dq: np.ndarray, p_bar: np.ndarray) -> np.ndarray:
         """Zero-moment torque: what the motors must give so the operator feels no load.
 
-        The reference form of the physics; each cycle computes it in :meth:`cycle_command`.
+        The reference form of the physics; each cycle computes it in :meth:`cycle_command`,
+        which adds the rest hold (control/rest_hold.py: it depends on the path of q, so it has
+        no reference form here).
         """
         m = self.model
         tau = m.gravity_nm(q) - m.cylinder_nm(q, p_bar)
         dead = self.cfg.friction_deadband_rad_s
         dq_f = np.sign(dq) * np.maximum(np.abs(dq) - dead, 0.0)
-        tau = tau + self.cfg.friction_compensation * m.friction_nm(q, dq_f)
+        friction = m.friction_nm(q, dq_f)
+        friction = np.where(friction * dq > 0.0, friction, 0.0)  # it opposes motion, or nothing
+        tau = tau + self.cfg.friction_compensation * friction
         tau = tau - self.damping * dq
         k = self.cfg.wall_stiffness_nm_per_rad
         tau = tau - k * np.maximum(q - self.upper, 0.0) + k * np.maximum(self.lower - q, 0.0)
@@ -240,6 +250,7 @@ class ZeroMomentController:
             self.hold.clear()
             self.loop.reset(st.q_cmd_rad - st.q_rad)
             self.predictor.reset()
+            self.rest_hold.reset()
             self.engaged = True
             self.last_cycle = st.cycle - 1
         gap = st.cycle - (self.last_cycle if self.last_cycle is not None else st.cycle - 1)
@@ -279,10 +290,12 @@ class ZeroMomentController:
         gain = self.cfg.friction_compensation
         k = self.cfg.wall_stiffness_nm_per_rad
         tau = []
-        for qj, dqj, s, f, c, lo, up in zip(
-            q, dq, static, friction, self._damping, self._lower, self._upper, strict=True
+        hold = self.rest_hold.torque_nm(q) if self.rest_hold.active else self._no_hold
+        for qj, dqj, s, f, c, lo, up, h in zip(
+            q, dq, static, friction, self._damping, self._lower, self._upper, hold, strict=True
         ):
-            t = s + gain * f - c * dqj
+            # friction opposes motion: a model that says otherwise there is not compensated
+            t = s + (gain * f if f * dqj > 0.0 else 0.0) - c * dqj + h
             if qj > up:  # soft joint limits: a spring pushes back inside
                 t -= k * (qj - up)
             if qj < lo:

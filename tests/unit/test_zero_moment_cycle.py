@@ -285,3 +285,33 @@ def test_the_predictors_inverse_inertia_is_recomputed_only_after_the_arm_moved(c
     np.testing.assert_allclose(
         again, np.linalg.inv(rigid.mass_matrix(moved, include_armature=True)), rtol=1e-12
     )
+
+
+class _NegatedFriction:
+    """``model`` whose friction pushes along the motion (an identification's artefact, as a
+    negative static friction fitted on a wrist from one slow run): never compensated."""
+
+    def __init__(self, model: DeclaredModel) -> None:
+        self._m = model
+
+    def __getattr__(self, name):
+        return getattr(self._m, name)
+
+    def friction_nm(self, q, dq):
+        return -self._m.friction_nm(q, dq)
+
+    def cycle_torques_nm(self, q, dq, p):
+        static, friction = self._m.cycle_torques_nm(q, dq, p)
+        return static, [-f for f in friction]
+
+
+def test_friction_that_does_not_oppose_motion_is_not_compensated(cfg, model):
+    bad = _NegatedFriction(model)
+    ctl = ZeroMomentController(cfg, bad)
+    rng = np.random.default_rng(8)
+    for q, dq, p in random_states(model, rng, 200):
+        q = np.clip(q, ctl.lower, ctl.upper)  # away from the walls: the load and damping only
+        want = model.gravity_nm(q) - model.cylinder_nm(q, p) - ctl.damping * dq
+        np.testing.assert_allclose(ctl.desired_torque(q, dq, p), want, rtol=RTOL, atol=ATOL)
+        ctl.cycle_command(q, dq, p.tolist(), 0.004)
+        np.testing.assert_allclose(ctl.tau_d_nm, want, rtol=RTOL, atol=ATOL)
