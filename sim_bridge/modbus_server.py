@@ -127,7 +127,7 @@ def sim_modbus_section_toml(host: str = "127.0.0.1", port: int = 5020, device_id
         f'host = "{host}"\n'
         f"port = {port}\n"
         f"device_id = {device_id}\n"
-        "timeout_s = 0.2\n"
+        "timeout_s = 0.1\n"
         "poll_period_s = 0.02\n"
         "max_setpoint_bar = 10.0\n"
         "\n" + _SIM_POINTS_TOML

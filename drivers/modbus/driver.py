@@ -10,7 +10,8 @@ A poll that fails in any way (no link, timeout, exception response, a value that
 decode or is implausible) publishes **nothing**. Consumers age IoState and treat stale I/O as
 "enabling device released", so silence is the safe answer; a stale or guessed value is not.
 The error is logged (rate-limited) and counted in the health message; link errors close the
-connection and reconnect with exponential backoff.
+connection and reconnect: at once after the first failure of a healthy link, then with
+exponential backoff.
 
 Set-points arrive in a zenoh callback, which must not block: it only decodes and checks them
 (finite, ``0 <= p <= max_setpoint_bar``) and drops them into a one-slot mailbox (newest wins);
@@ -154,6 +155,8 @@ class ModbusDriver:
         self._sub: zenoh.Subscriber | None = None
         self._connected = False
         self._backoff_s = self.RECONNECT_MIN_S
+        #: the last poll succeeded (its link's next failure reconnects at once)
+        self._healthy = False
         self._next_connect_s = -math.inf
         self._next_health_s = -math.inf
         self._last_written: tuple[float, float] | None = None
@@ -311,6 +314,7 @@ class ModbusDriver:
             self._log("recovered", logging.INFO, f"I/O polling healthy ({self.config.host})")
             self._log.reset("read")
         self.link_ok = True
+        self._healthy = True
         self._backoff_s = self.RECONNECT_MIN_S
         return state
 
@@ -340,11 +344,19 @@ class ModbusDriver:
             except Exception as exc:
                 log.debug("adapter close failed: %r", exc)
             self._connected = False
-            self._next_connect_s = self._clock() + self._backoff_s
-            message += f"; reconnecting in {self._backoff_s:.2f} s"
-            # Reset only by a successful poll: a module that accepts connections but never
-            # answers must not be hammered at the minimum period.
-            self._backoff_s = min(2.0 * self._backoff_s, self.RECONNECT_MAX_S)
+            if self._healthy:
+                # The first failure of a healthy link (one lost or late reply) reconnects at
+                # the next poll: waiting the backoff on top of the reply timeout would outlast
+                # the readers' I/O timeout and fault the cell for a single reply.
+                self._healthy = False
+                self._next_connect_s = self._clock()
+                message += "; reconnecting now"
+            else:
+                self._next_connect_s = self._clock() + self._backoff_s
+                message += f"; reconnecting in {self._backoff_s:.2f} s"
+                # Reset only by a successful poll: a module that accepts connections but
+                # never answers must not be hammered at the minimum period.
+                self._backoff_s = min(2.0 * self._backoff_s, self.RECONNECT_MAX_S)
         self._log(kind, logging.ERROR, message)
 
     def _log_rejects(self) -> None:

@@ -115,12 +115,28 @@ def test_reconnect_backs_off_exponentially_and_resets_after_a_good_poll(driver, 
         clock.t += 0.01
     assert driver.link_ok
     adapter.up = False
-    driver.step()  # the link drops: the first retry comes after the minimum again
-    t_drop = clock.t
-    while adapter.count("connect") == len(attempts_at) + 1:
+    connects = adapter.count("connect")
+    driver.step()  # the link of a healthy module drops: the next poll reconnects at once
+    clock.t += 0.01
+    driver.step()
+    assert adapter.count("connect") == connects + 1
+    t_fail = clock.t  # ... and, failing, backs off from the minimum again
+    while adapter.count("connect") == connects + 1:
         clock.t += 0.01
         driver.step()
-    assert clock.t - t_drop == pytest.approx(driver.RECONNECT_MIN_S, abs=0.011)
+    assert clock.t - t_fail == pytest.approx(driver.RECONNECT_MIN_S, abs=0.011)
+
+
+def test_one_late_reply_of_a_healthy_module_costs_one_poll(driver, clock, adapter):
+    """A single timed-out read reconnects at the next poll, so the readers' I/O timeout
+    (0.25 s) outlasts it; a module that stays silent still backs off."""
+    assert driver.step() is not None
+    adapter.read_error = ModbusTimeoutError("no reply within 0.1 s")
+    assert driver.step() is None
+    adapter.read_error = None
+    clock.t += 0.02
+    assert driver.step() is not None, "the poll after one late reply did not reconnect"
+    assert adapter.count("connect") == 2
 
 
 def test_decode_error_publishes_nothing_but_keeps_the_connection(driver, adapter):
