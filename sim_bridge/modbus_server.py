@@ -335,19 +335,24 @@ class VirtualIoServer:
         0 here); editing it in place changes what this request reads.
         """
         if function_code == _FC_READ_IR:
-            p2, p3, _, _, _ = self._inputs
+            p2, p3, _, _, _ = self._current_inputs()
             registers[0:_N_INPUT] = [*_float32_abcd(p2), _mbar_uint16(p3)]
         elif function_code == _FC_READ_DI:
-            _, _, enabling, estop_ok, mark = self._inputs
+            _, _, enabling, estop_ok, mark = self._current_inputs()
             registers[0] = int(enabling) | (int(estop_ok) << 1) | (int(mark) << 2)
         elif function_code in _FC_WRITE_HR and set_values is not None:
             # The hook runs before pymodbus stores the values: apply them to a copy to decode.
             regs = list(registers[0:_N_HOLDING])
             first = address - start_address
             regs[first : first + len(set_values)] = [int(v) for v in set_values]
-            self._setpoints = (
-                _cdab_int32(regs[0:2]) / 1000.0,
-                _cdab_int32(regs[2:4]) / 1000.0,
-            )
-            self.setpoint_writes += 1
+            self._store_setpoints(_cdab_int32(regs[0:2]) / 1000.0, _cdab_int32(regs[2:4]) / 1000.0)
         return None
+
+    # Where the inputs come from and the set-points go (VirtualIoProcess: shared memory) ---
+
+    def _current_inputs(self) -> tuple[float, float, bool, bool, bool]:
+        return self._inputs
+
+    def _store_setpoints(self, p2_bar: float, p3_bar: float) -> None:
+        self._setpoints = (p2_bar, p3_bar)
+        self.setpoint_writes += 1

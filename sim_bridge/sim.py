@@ -45,7 +45,7 @@ from sim_bridge.can_endpoint import SocketcandServerBus
 from sim_bridge.can_hub import SeqpacketHubBus
 from sim_bridge.config import Endpoints, Scheduling, SimConfig, load_sim_config
 from sim_bridge.controller import VirtualController, controller_protocol
-from sim_bridge.modbus_server import VirtualIoServer
+from sim_bridge.modbus_process import VirtualIoProcess
 from sim_bridge.operator import Operator
 from sim_bridge.plant import Plant
 
@@ -158,7 +158,7 @@ class VirtualCell:
         self.can: can.BusABC | None = None
         #: a descriptor readable when CAN input waits (None: wait in recv)
         self._can_wait_fd: int | None = None
-        self.io: VirtualIoServer | None = None
+        self.io: VirtualIoProcess | None = None
         self._can_fd = cfg.controller.can_profile == "fd"  #: the segment must carry CAN FD
         self._log: TextIO | None = None
         self._row_format = ",".join(["%.9g"] * len(truth_log_columns(self.n))) + "\n"
@@ -173,7 +173,7 @@ class VirtualCell:
         # The valves power up holding the initial pressures: a 0 bar set-point would let the arm
         # sag onto its brakes before the first set-point arrives.
         p2_set, p3_set = self.cfg.cylinders.initial_bar
-        self.io = VirtualIoServer(
+        self.io = VirtualIoProcess(
             ep.modbus_host, ep.modbus_port, p2_set_bar=p2_set, p3_set_bar=p3_set
         )
         self.io.start()
@@ -202,7 +202,7 @@ class VirtualCell:
                     self.can.shutdown()
             finally:
                 if self.io:
-                    self.io.stop()
+                    self.io.close()
         self.write_summary()
 
     # --- one cycle ----------------------------------------------------------------------

@@ -1,0 +1,65 @@
+"""The virtual I/O module served from its own process (sim_bridge/modbus_process.py): the same
+registers as in-process, set-points back to the simulator, and no server left behind."""
+
+from __future__ import annotations
+
+import socket
+import subprocess
+import sys
+import time
+
+import pytest
+
+from drivers.modbus.client import ModbusLink
+from sim_bridge.modbus_process import VirtualIoProcess
+from sim_bridge.modbus_server import VirtualIoServer
+
+
+def _listening(port: int) -> bool:
+    try:
+        with socket.create_connection(("127.0.0.1", port), timeout=0.2):
+            return True
+    except OSError:
+        return False
+
+
+def test_the_module_answers_from_its_process_with_the_simulators_values():
+    with VirtualIoProcess("127.0.0.1", 0, p2_set_bar=1.5, p3_set_bar=2.0) as io:
+        assert io.port != 0 and io.setpoints() == (1.5, 2.0)
+        io.set_inputs(1.5, 3.25, True, False, True)
+        with ModbusLink("127.0.0.1", io.port, timeout_s=1.0) as link:
+            assert link.read_input_registers(0, 3) == [0x3FC0, 0x0000, 3250]
+            assert link.read_discrete_inputs(0, 3) == [True, False, True]
+            link.write_registers(0, [4500, 0, 0xFFFF & -2500, 0xFFFF])  # 4.5 and -2.5 bar
+            assert link.read_holding_registers(0, 4) == [4500, 0, 0xFFFF & -2500, 0xFFFF]
+        assert io.setpoints() == (4.5, -2.5)
+        assert io.setpoint_writes == 1
+        port = io.port
+    assert not _listening(port)
+    assert io._proc is None
+
+
+def test_a_port_in_use_is_an_error_naming_it():
+    with VirtualIoServer("127.0.0.1", 0) as taken:
+        io = VirtualIoProcess("127.0.0.1", taken.port)
+        with pytest.raises(OSError, match=f"cannot listen on 127.0.0.1:{taken.port}"):
+            io.start()
+        assert io._proc is None
+        io.close()
+
+
+def test_the_module_stops_when_its_simulator_is_killed():
+    code = (
+        "import os, sys\n"
+        "from sim_bridge.modbus_process import VirtualIoProcess\n"
+        "io = VirtualIoProcess('127.0.0.1', 0)\n"
+        "io.start()\n"
+        "print(io.port, flush=True)\n"
+        "os._exit(0)\n"  # no stop(): as SIGKILL would leave it
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=30)
+    port = int(out.stdout.strip())
+    deadline = time.monotonic() + 5.0
+    while _listening(port) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not _listening(port), "the orphaned module still serves"
