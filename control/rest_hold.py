@@ -21,8 +21,9 @@ falls below the band the arm stops. τ_h has no step.
 
 ``band`` per joint is what the model does not know: ``rms_factor`` × the model's held-out RMS
 on that joint (``heldout_rms_nm`` of an identified ``model.json``), at least the configured
-floor. The operator pays it once per start of motion, as breakaway; a band of 2 RMS on the
-GR630ST's J2 is about 2 N·m, a newton at the tool.
+floor. The operator pays it as that Coulomb friction whenever a joint moves; a band of 2 RMS
+on the GR630ST's J2 is about 2 N·m, a newton at the tool, and all six joints together cost
+about 2-4 N of mean force on teach-bench's raster path.
 """
 
 from __future__ import annotations

@@ -155,10 +155,10 @@ class Stack:
             # up to ``lockstep_timeout_s`` (0.25 s) for each answer, so a product process that
             # stalls (a cold start compiling its imports on a loaded machine) pauses the stream
             # that long without anything being wrong with the link. The gateway's watchdog
-            # must outlast that wait, or it faults the cell on the test's own pacing. The
-            # virtual I/O module's server shares the simulator's interpreter, which runs flat
-            # out in lock-step: its I/O watchdogs get the same allowance (commissioning in
-            # `make test` faulted once on a Modbus reply 0.2 s late).
+            # must outlast that wait, or it faults the cell on the test's own pacing. Lock-step
+            # runs the simulator flat out, and the loaded machine answers Modbus polls late
+            # too: the I/O watchdogs get the same allowance (commissioning in `make test`
+            # faulted once on a Modbus reply 0.2 s late).
             wait = LOCKSTEP_STATE_TIMEOUT_S
             cell = deep_merge(
                 cell,

@@ -21,11 +21,12 @@ import argparse
 import ctypes
 import mmap
 import os
+import select
 import subprocess
 import sys
 from typing import IO, Any
 
-from sim_bridge.modbus_server import VirtualIoServer, _mbar_int32
+from sim_bridge.modbus_server import VirtualIoServer, stored_bar
 
 #: shared array layout
 _P2, _P3, _ENABLING, _ESTOP_OK, _MARK, _SP2, _SP3, _WRITES = range(8)
@@ -75,8 +76,7 @@ class VirtualIoProcess:
         self._fd = os.memfd_create("virtual-io", 0)
         os.ftruncate(self._fd, _SIZE)
         self._mm, self._shared = _view(self._fd)
-        self._shared[_SP2] = _mbar_int32(p2_set_bar) / 1000.0
-        self._shared[_SP3] = _mbar_int32(p3_set_bar) / 1000.0
+        self._shared[_SP2], self._shared[_SP3] = stored_bar(p2_set_bar), stored_bar(p3_set_bar)
         self._proc: subprocess.Popen[str] | None = None
 
     def set_inputs(
@@ -149,8 +149,6 @@ class VirtualIoProcess:
 
 
 def _readline(stream: IO[str], timeout_s: float) -> str:
-    import select
-
     ready, _, _ = select.select([stream], [], [], timeout_s)
     return stream.readline() if ready else "error did not start within the timeout"
 

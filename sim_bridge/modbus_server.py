@@ -161,6 +161,11 @@ def _mbar_int32(bar: float) -> int:
     return max(-(2**31), min(2**31 - 1, round(bar * 1000.0)))
 
 
+def stored_bar(bar: float) -> float:
+    """A set-point [bar] as the module holds it: rounded to its int32 mbar register."""
+    return _mbar_int32(bar) / 1000.0
+
+
 class VirtualIoServer:
     """Modbus TCP server for the virtual I/O module (see the module docstring for its registers).
 
@@ -190,10 +195,7 @@ class VirtualIoServer:
         self._initial_holding = _int32_cdab(_mbar_int32(p2_set_bar)) + _int32_cdab(
             _mbar_int32(p3_set_bar)
         )
-        self._setpoints: tuple[float, float] = (
-            _mbar_int32(p2_set_bar) / 1000.0,
-            _mbar_int32(p3_set_bar) / 1000.0,
-        )
+        self._setpoints: tuple[float, float] = (stored_bar(p2_set_bar), stored_bar(p3_set_bar))
         #: Number of write requests that changed the set-points.
         self.setpoint_writes = 0
         self._thread: threading.Thread | None = None
