@@ -90,7 +90,9 @@ class EffectSet:
                 j = int(eff["joint"]) - 1
                 require(0 <= j < n, where, f"joint must be 1..{n}")
                 self.torque_effects.append({**eff, "_j": j})
-        self._history: deque[tuple[np.ndarray, np.ndarray]] = deque(
+        #: the encoders' (q, dq) of the last ticks, appended by the plant every tick when a
+        #: delay is injected
+        self.history: deque[tuple[np.ndarray, np.ndarray]] = deque(
             maxlen=max(self.delay_steps, 1) + 1
         )
 
@@ -131,19 +133,16 @@ class EffectSet:
         return t_s >= float(eff.get("after_s", 0.0))
 
     def advance(self, plant: Plant, dt: float) -> None:
+        """Once per :meth:`Plant.run` of ``dt`` [s]: the time in motion, and payloads due."""
         if np.max(np.abs(plant.data.qvel[: plant.n])) > MOTION_RAD_S:
             self.motion_s += dt
         for item in [p for p in self.pending_payloads if self._active(p[0], plant.t_s)]:
             self.pending_payloads.remove(item)
             _, body, mass, pos = item
             _add_point_mass(self._model, body, mass, pos)  # the gun is mounted now
-        if self.delay_steps:
-            self._history.append(
-                (plant.data.qpos[: plant.n].copy(), plant.data.qvel[: plant.n].copy())
-            )
 
     def measured_kinematics(self, plant: Plant) -> tuple[np.ndarray, np.ndarray]:
         """Joint position and velocity as the encoders report them (delayed if injected)."""
-        if self.delay_steps and len(self._history) == self._history.maxlen:
-            return self._history[0]
+        if self.delay_steps and len(self.history) == self.history.maxlen:
+            return self.history[0]
         return plant.sample_q_rad, plant.sample_dq_rad_s

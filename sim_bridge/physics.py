@@ -6,11 +6,14 @@ model error, not be copied into the "robot".
 
 Friction per joint (joint side [N·m]), with the gear ratio R::
 
-    τ_f = [τ_s exp(-|dq|/q_e) + τ_c + f1 sin(q/R) + f2 cos(q/R) + f3 sin(2q/R) + f4 cos(2q/R)
-           + f5 sin q + f6 cos q] tanh(dq / 2 q_e) + τ_v1 dq + τ_v2 dq |dq|
+    τ_f = [τ_s exp(-|dq|/q_e) + F(q)] tanh(dq / 2 q_e) + τ_v1 dq + τ_v2 dq |dq|,
+    F(q) = τ_c + f1 sin(q/R) + f2 cos(q/R) + f3 sin(2q/R) + f4 cos(2q/R) + f5 sin q + f6 cos q
 
-(the static level τ_s + τ_c decays towards Coulomb τ_c over the Stribeck velocity q_e; every
-term opposes the motion). Assist cylinders push with p·S along their rod: a crank (pivot A,
+(the static level τ_s + F decays towards the Coulomb level F over the Stribeck velocity q_e,
+and tanh(dq / 2 q_e) makes it a steep but smooth function of velocity; every term opposes the
+motion).
+
+Assist cylinders push with p·S along their rod: a crank (pivot A,
 rod end B on the link |AB| from the joint, barrel end C fixed |AC| from it, the angle BAC =
 π - q) turns the joint with the moment arm |AB||AC| sin(BAC) / |BC|; a lever turns it with
 |AB| cos q. By virtual work the rod extends by the moment arm per radian, so a chamber whose gas
@@ -44,23 +47,32 @@ class JointFriction:
         self.v1, self.v2 = col("tau_v1_nm_s_per_rad"), col("tau_v2_nm_s2_per_rad2")
         self.q_e = col("q_e_rad_s")
         self.fourier = np.array([f.fourier_nm for f in joints], dtype=float)  # (n, 6)
+        # f1, f3, f5 multiply sin(q/R), sin(2q/R), sin q; f2, f4, f6 the cosines
+        self._f_sin, self._f_cos = self.fourier[:, 0::2].copy(), self.fourier[:, 1::2].copy()
         self.inv_r = 1.0 / np.asarray(gear_ratio, dtype=float)
+        self.inv_q_e, self.inv_2q_e = 1.0 / self.q_e, 0.5 / self.q_e
+
+    def coulomb_level(self, q: np.ndarray) -> np.ndarray:
+        """F(q) [N·m] at positions ``q`` [rad], (n,): the Coulomb level with its position
+        ripple (module docstring), never below 0. It changes with position only, so the plant
+        evaluates it once per controller cycle."""
+        qr = q * self.inv_r
+        angles = np.concatenate((qr, 2.0 * qr, q)).reshape(3, -1)  # (3, n)
+        ripple = np.einsum("jk,kj->j", self._f_sin, np.sin(angles)) + np.einsum(
+            "jk,kj->j", self._f_cos, np.cos(angles)
+        )
+        return np.maximum(self.tau_c + ripple, 0.0)
+
+    def torque_nm(self, dq: np.ndarray, coulomb: np.ndarray) -> np.ndarray:
+        """Friction torque [N·m] at velocities ``dq`` [rad/s] with the Coulomb level
+        ``coulomb`` (:meth:`coulomb_level`), without the linear viscous term τ_v1 dq (the
+        plant's MuJoCo joint damping), (n,)."""
+        level = self.tau_s * np.exp(-np.abs(dq) * self.inv_q_e) + coulomb
+        return level * np.tanh(dq * self.inv_2q_e) + self.v2 * dq * np.abs(dq)
 
     def __call__(self, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
-        """Friction torque [N·m] at positions ``q`` [rad] and velocities ``dq`` [rad/s], (n,)."""
-        qr = q * self.inv_r
-        f = self.fourier
-        level = (
-            self.tau_s * np.exp(-np.abs(dq) / self.q_e)
-            + self.tau_c
-            + f[:, 0] * np.sin(qr)
-            + f[:, 1] * np.cos(qr)
-            + f[:, 2] * np.sin(2.0 * qr)
-            + f[:, 3] * np.cos(2.0 * qr)
-            + f[:, 4] * np.sin(q)
-            + f[:, 5] * np.cos(q)
-        )
-        return level * np.tanh(dq / (2.0 * self.q_e)) + self.v1 * dq + self.v2 * dq * np.abs(dq)
+        """The whole friction torque τ_f [N·m] at ``q`` [rad], ``dq`` [rad/s], (n,)."""
+        return self.torque_nm(dq, self.coulomb_level(q)) + self.v1 * dq
 
 
 class AssistCylinders:
@@ -95,14 +107,16 @@ class AssistCylinders:
             return -unit.sign * (bc(q_joint) - bc(0.0))
         return unit.sign * unit.ab_m * math.sin(q_joint)
 
-    def gas_columns_m(self, q: np.ndarray) -> np.ndarray:
+    def gas_columns_m(self, q: np.ndarray) -> list[float]:
         """Each chamber's gas volume over its piston area [m] at joint angles ``q``
         (``inf`` for an ideal reservoir, ``gas_length_m`` 0); never below a tenth of L₀."""
-        out = np.full(len(self.units), np.inf)
-        for k, unit in enumerate(self.units):
+        out = []
+        for unit in self.units:
             if unit.gas_length_m > 0:
                 x = self.extension_m(unit, float(q[unit.joint - 1]))
-                out[k] = max(unit.gas_length_m + x, 0.1 * unit.gas_length_m)
+                out.append(max(unit.gas_length_m + x, 0.1 * unit.gas_length_m))
+            else:
+                out.append(math.inf)
         return out
 
     def torque_nm(self, q: np.ndarray, p_bar: np.ndarray) -> np.ndarray:

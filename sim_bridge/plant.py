@@ -1,6 +1,6 @@
-"""The simulated robot: MuJoCo rigid bodies, the vendor's inner PI loop, true friction,
-assist cylinders whose gas is compressed by their stroke and refilled with a lag, current
-sensors with zero offsets, brakes, injected effects and the operator's hand.
+"""The simulated robot: MuJoCo rigid bodies, the vendor's inner PI loop, true friction with a
+Stribeck drop, assist cylinders whose gas is compressed by their stroke and refilled with a lag,
+current sensors with zero offsets, brakes, injected effects and the operator's hand.
 
 Everything here is the plant's own (:mod:`sim_bridge.physics`, :mod:`sim_bridge.truth`, the
 arm's MJCF): it imports nothing of the product's model, so a test of the product's model
@@ -10,13 +10,24 @@ Torque balance per joint (eq. (1) plus the cylinders and the hand):
 
     M(q) ddq + C dq + g(q) + τ_f(q, dq) = K sat(i_c) + T_cyl(q, p) + J(q)ᵀ F_hand + τ_effects
 
-with i_c from eq. (19). MuJoCo supplies M, C, g (``qfrc_bias``) and integrates; everything on
-the right side and the friction enter through ``qfrc_applied``; the hand force enters through
-``xfrc_applied`` of the last link at the tool point.
+with i_c from eq. (19). MuJoCo supplies M, C, g and integrates. One controller cycle is one
+:meth:`Plant.run`: a few servo ticks (1 ms each) with as little Python per tick as the physics
+allows:
+
+- the vendor's PI velocity loop, eq. (19), is MuJoCo's: one actuator per joint with force
+  K·(K_I·q_r(t) + K_p·dq_r) − K·K_I·q − K·K_p·dq, limited to ±K·i_max (the drive's current
+  limit), q_r(t) the controller's reference extrapolated along dq_r (see :func:`_add_drives`);
+- friction, steep near zero velocity, is evaluated every tick from the tick's velocity
+  (:class:`~sim_bridge.physics.JointFriction`), its linear viscous part as MuJoCo joint
+  damping;
+- what changes slowly is evaluated once per cycle from the state at its start and held over
+  it: the friction's position-dependent Coulomb level, the cylinders' gas and torque, injected
+  effects and the hand's force.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 
 import mujoco
@@ -30,14 +41,42 @@ from sim_bridge.truth import arm_spec, draw
 TOOL_SITE = "tool"
 
 
+def _add_drives(spec: mujoco.MjSpec, cfg: SimConfig) -> None:
+    """One actuator per joint running eq. (19): an affine-bias servo whose control input is
+    K·(K_I·q_r + K_p·dq_r) (set every tick by :meth:`Plant.run`), with its force limited to
+    the drive's current limit."""
+    # Semi-implicit Euler: implicitfast would integrate the loop's velocity gain K·K_p (up to
+    # ~4e4 N·m·s/rad) implicitly, which adds h·K·K_p of spurious inertia (~25 kg·m² on J2 at
+    # a 1 ms step) to every acceleration; explicit, the loop is stable (h·K·K_p / J < 2).
+    spec.option.integrator = mujoco.mjtIntegrator.mjINT_EULER
+    k = cfg.drives.gain_nm_per_a
+    for j, joint in enumerate(spec.joints):
+        act = spec.add_actuator()
+        act.name = f"drive{j + 1}"
+        act.target = joint.name
+        act.trntype = mujoco.mjtTrn.mjTRN_JOINT
+        act.gaintype = mujoco.mjtGain.mjGAIN_FIXED
+        act.gainprm[0] = 1.0
+        act.biastype = mujoco.mjtBias.mjBIAS_AFFINE
+        act.biasprm[:3] = [0.0, -k[j] * cfg.inner_loop.ki_a_per_rad[j],
+                           -k[j] * cfg.inner_loop.kp_a_s_per_rad[j]]  # fmt: skip
+        act.ctrllimited = False
+        act.forcelimited = True
+        limit = k[j] * cfg.drives.max_current_a[j]
+        act.forcerange = [-limit, limit]
+
+
 class Plant:
-    """One robot arm, drawn for ``cfg.plant_seed`` (:mod:`sim_bridge.truth`); call :meth:`step`
-    once per physics timestep. :attr:`cfg` is the truth actually drawn."""
+    """One robot arm, drawn for ``cfg.plant_seed`` (:mod:`sim_bridge.truth`); :meth:`run` it
+    one controller cycle at a time (or :meth:`step` one servo tick). :attr:`cfg` is the truth
+    actually drawn."""
 
     def __init__(self, cfg: SimConfig) -> None:
         cfg = draw(cfg)
         self.cfg = cfg
-        self.model = arm_spec(cfg).compile()
+        spec = arm_spec(cfg)
+        _add_drives(spec, cfg)
+        self.model = spec.compile()
         self.n = int(self.model.njnt)
         #: joint limits [rad], (n,) each
         self.lower_rad = self.model.jnt_range[: self.n, 0].copy()
@@ -52,6 +91,7 @@ class Plant:
         self.kp = np.array(cfg.inner_loop.kp_a_s_per_rad)
         self.ki = np.array(cfg.inner_loop.ki_a_per_rad)
         self.friction = JointFriction(cfg.friction, cfg.drives.gear_ratio)
+        self.model.dof_damping[: self.n] = self.friction.v1
         self.cylinders = AssistCylinders(cfg.cylinders.units, self.n)
         self.rng = np.random.default_rng(cfg.seed)
         self.pressure_bar = np.array(cfg.cylinders.initial_bar, dtype=float)
@@ -61,8 +101,9 @@ class Plant:
         offset = cfg.sensors.current_offset_a
         #: the current sensors' zero offsets [A], in every reported current
         self.current_offset_a = np.array(offset, dtype=float) if offset else np.zeros(self.n)
+        #: the motor current over the last :meth:`run` [A] (its mean over the servo ticks)
         self.current_a = np.zeros(self.n)
-        self._current_sum = np.zeros(self.n)
+        self._force_sum = np.zeros(self.n)  #: the drives' torque summed over the ticks [N·m]
         self._current_ticks = 0
         self.brakes = True
         self.hand_force_n = np.zeros(3)
@@ -76,8 +117,9 @@ class Plant:
         #: current a drive reports is its mean over the communication cycle (PROTOCOL.md §2.1)
         self.sample_q_rad = self._encoder(self.data.qpos[: self.n])
         self.sample_dq_rad_s = np.zeros(self.n)
-        #: called each step with the plant, returns the hand force [N] (world frame)
+        #: called each cycle with the plant, returns the hand force [N] (world frame)
         self.hand: Callable[[Plant], np.ndarray] | None = None
+        #: the drives' torque [N·m], mean over the last :meth:`run`
         self.tau_motor_nm = np.zeros(self.n)
         mujoco.mj_forward(self.model, self.data)
 
@@ -86,11 +128,12 @@ class Plant:
             return q.copy()
         return np.round(q / self.encoder_step_rad) * self.encoder_step_rad
 
-    def _sample(self, dt: float) -> None:
-        """The drive's position and velocity at the end of this servo tick."""
+    def _sample(self, q_before_rad: np.ndarray, dt: float) -> None:
+        """The drive's position and velocity at the end of the last servo tick, which began
+        at ``q_before_rad``."""
         q = self._encoder(self.data.qpos[: self.n])
         if self._has_encoder:
-            self.sample_dq_rad_s = (q - self.sample_q_rad) / dt
+            self.sample_dq_rad_s = (q - self._encoder(q_before_rad)) / dt
         else:
             self.sample_dq_rad_s = self.data.qvel[: self.n].copy()
         self.sample_q_rad = q
@@ -122,23 +165,23 @@ class Plant:
         """The current averaged over the servo ticks since the last call, plus noise [A]; the
         drive's current filter, as the feedback frame reports it (PROTOCOL.md §2.1). Resets
         the average."""
-        mean = self._current_sum / max(self._current_ticks, 1)
-        self._current_sum = np.zeros(self.n)
+        mean = self._force_sum / (self.k_nm_per_a * max(self._current_ticks, 1))
+        self._force_sum = np.zeros(self.n)
         self._current_ticks = 0
         noise = self.rng.normal(0.0, self.cfg.sensors.current_noise_a, self.n)
         return mean + self.current_offset_a + noise
 
     def _pressure_step(self, dt: float) -> None:
-        """The chambers' gas over one timestep: isothermal with the rod's motion since the
-        last step, then the regulator's first-order lag towards the set-point."""
+        """The chambers' gas over ``dt``: isothermal with the rod's motion since the last
+        update, then the regulator's first-order lag towards the set-point."""
         gas = self.cylinders.gas_columns_m(self.data.qpos[: self.n])
-        closed = np.isfinite(gas)
-        if closed.any():
-            p_abs = self.pressure_bar[closed] + ATMOSPHERE_BAR
-            self.pressure_bar[closed] = p_abs * self._gas_m[closed] / gas[closed] - ATMOSPHERE_BAR
+        p, p_set, before = self.pressure_bar, self.pressure_set_bar, self._gas_m
+        alpha = min(dt / self.cfg.cylinders.time_constant_s, 1.0)
+        for k, now in enumerate(gas):
+            if now != math.inf:
+                p[k] = (p[k] + ATMOSPHERE_BAR) * before[k] / now - ATMOSPHERE_BAR
+            p[k] += alpha * (p_set[k] - p[k])
         self._gas_m = gas
-        alpha = dt / self.cfg.cylinders.time_constant_s
-        self.pressure_bar += alpha * (self.pressure_set_bar - self.pressure_bar)
 
     def step(
         self,
@@ -146,49 +189,80 @@ class Plant:
         dq_cmd_rad_s: np.ndarray | None,
         brakes_released: bool = False,
     ) -> None:
-        """Advance one timestep. ``None`` commands mean servo off: the brakes hold the joints,
-        unless ``brakes_released`` (the brake-release switch held with the servo off): then
-        the arm moves under gravity, the cylinders, friction and the hand, with no motor
-        torque."""
+        """Advance one servo tick following ``q_cmd_rad`` / ``dq_cmd_rad_s`` (both ``None``:
+        servo off); :meth:`run` with one tick and the reference taken now."""
+        reference = None
+        if q_cmd_rad is not None and dq_cmd_rad_s is not None:
+            reference = (q_cmd_rad, dq_cmd_rad_s, self.t_s)
+        self.run(1, reference, brakes_released)
+
+    def run(
+        self,
+        ticks: int,
+        reference: tuple[np.ndarray, np.ndarray, float] | None,
+        brakes_released: bool = False,
+    ) -> None:
+        """Advance ``ticks`` servo ticks (one controller cycle). ``reference`` is what the
+        inner loop follows, (q_r [rad], dq_r [rad/s], t_r [s]): the position q_r + dq_r·(t -
+        t_r) at time t. ``None`` means servo off: the brakes hold the joints, unless
+        ``brakes_released`` (the brake-release switch held with the servo off): then the arm
+        moves under gravity, the cylinders, friction and the hand, with no motor torque."""
         dt = self.cfg.timestep_s
-        self._pressure_step(dt)
-        d = self.data
-        servo = q_cmd_rad is not None and dq_cmd_rad_s is not None
-        if not servo and not brakes_released:
+        self._pressure_step(ticks * dt)
+        model, d, n = self.model, self.data, self.n
+        if reference is None and not brakes_released:
             # Brakes engaged: joints locked, motor unpowered, the hand can't move it.
             self.brakes = True
             self.hand_force_n = np.zeros(3)
             self.current_a[:] = 0.0
-            self._current_ticks += 1
             self.tau_motor_nm[:] = 0.0
+            self._current_ticks += ticks
             d.qvel[:] = 0.0
-            self._sample(dt)
-            d.time += dt
-            mujoco.mj_kinematics(self.model, d)
-            self.effects.advance(self, dt)
+            self.sample_dq_rad_s = np.zeros(n)
+            d.time += ticks * dt
+            mujoco.mj_kinematics(model, d)
+            self.effects.advance(self, ticks * dt)
             return
         self.brakes = False
-        q, dq = d.qpos[: self.n], d.qvel[: self.n]
-        if servo:
-            # eq. (19) on what the drive measures: its encoder's position and velocity
-            q_m, dq_m = self.sample_q_rad, self.sample_dq_rad_s
-            i_c = -self.kp * (dq_m - dq_cmd_rad_s) - self.ki * (q_m - q_cmd_rad)
-            self.current_a = np.clip(i_c, -self.i_max_a, self.i_max_a)
-        else:
-            self.current_a = np.zeros(self.n)
-        self._current_sum += self.current_a
-        self._current_ticks += 1
-        self.tau_motor_nm = self.k_nm_per_a * self.current_a
-        tau_f = self.friction(q, dq)
+        q, dq = d.qpos[:n], d.qvel[:n]  # views: they follow the ticks
+        friction, coulomb = self.friction, self.friction.coulomb_level(q)
         tau_cyl = self.cylinders.torque_nm(q, self.pressure_bar)
         tau_eff = self.effects.torque(self, q, dq)
         self.hand_force_n = self.hand(self) if self.hand is not None else np.zeros(3)
-        d.qfrc_applied[: self.n] = self.tau_motor_nm - tau_f + tau_cyl + tau_eff
+        held = tau_cyl + tau_eff  # over the cycle
         d.xfrc_applied[:] = 0.0
         if np.any(self.hand_force_n):
             arm = d.site_xpos[self.tool_site] - d.xipos[self.last_body]
             d.xfrc_applied[self.last_body, :3] = self.hand_force_n
             d.xfrc_applied[self.last_body, 3:] = np.cross(arm, self.hand_force_n)
-        mujoco.mj_step(self.model, d)
-        self._sample(dt)
-        self.effects.advance(self, dt)
+        force = np.zeros(n)
+        applied = d.qfrc_applied[:n]
+        history = self.effects.history if self.effects.delay_steps else None
+        servo = reference is not None
+        if servo:
+            model.opt.disableflags &= ~int(mujoco.mjtDisableBit.mjDSBL_ACTUATION)
+            q_r, dq_r, t_r = reference
+            # eq. (19) as the actuator's control input: K (K_I q_r(t) + K_p dq_r)
+            k_ki = self.k_nm_per_a * self.ki
+            at_t_r = k_ki * (q_r - dq_r * t_r) + self.k_nm_per_a * self.kp * dq_r
+            slope = k_ki * dq_r
+        else:
+            model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_ACTUATION)
+        ctrl, act_force = d.ctrl, d.actuator_force
+        for tick in range(ticks):
+            if tick == ticks - 1:
+                q_before = q.copy()
+            np.subtract(held, friction.torque_nm(dq, coulomb), out=applied)
+            if servo:
+                np.add(at_t_r, slope * d.time, out=ctrl)
+            mujoco.mj_step(model, d)
+            if servo:
+                force += act_force
+            if history is not None:
+                history.append((d.qpos[:n].copy(), d.qvel[:n].copy()))
+        self._force_sum += force
+        self._current_ticks += ticks
+        self.tau_motor_nm = force / ticks
+        self.current_a = self.tau_motor_nm / self.k_nm_per_a
+        self._sample(q_before, dt)
+        self.effects.advance(self, ticks * dt)

@@ -248,12 +248,8 @@ class VirtualCell:
         released = not ctrl.servo_on and op.brakes_released(plant.t_s)
         if released:
             op.mark_onset(plant.t_s, plant.tool_position_m())
-        for _ in range(self.substeps):
-            if ctrl.servo_on:
-                q_c, dq_c = ctrl.reference(plant.t_s)
-                plant.step(q_c, dq_c)
-            else:
-                plant.step(None, None, brakes_released=released)
+        reference = (ctrl.q_ref, ctrl.dq_ref, ctrl.t_ref) if ctrl.servo_on else None
+        plant.run(self.substeps, reference, brakes_released=released)
         p_meas = plant.measured_pressure_bar()
         enabling = op.enabling(plant.t_s)
         self.io.set_inputs(
