@@ -180,7 +180,7 @@ class VirtualController:
         if self.state in (ControllerState.HOLD, ControllerState.EXTERNAL):
             if new_set is not None:
                 q_cmd, dq_cmd, hold = new_set
-                if np.any(q_cmd < self.lower_rad) or np.any(q_cmd > self.upper_rad):
+                if (q_cmd < self.lower_rad).any() or (q_cmd > self.upper_rad).any():
                     self._enter_fault(
                         FaultCode.JOINT_LIMIT, f"position command {q_cmd} outside range"
                     )
@@ -211,7 +211,7 @@ class VirtualController:
             self._to_servo.clear()
         if self.state in (ControllerState.HOLD, ControllerState.EXTERNAL):
             err = np.abs(self.reference(now_s)[0] - q_rad)
-            if np.any(err > self.spec.max_following_error_rad):
+            if (err > self.spec.max_following_error_rad).any():
                 self._enter_fault(FaultCode.FOLLOWING_ERROR, f"following error {err.max():.4f} rad")
         self._pending.clear()
         self.cycle = (self.cycle + 1) & 0xFFFF

@@ -134,7 +134,7 @@ class EffectSet:
 
     def advance(self, plant: Plant, dt: float) -> None:
         """Once per :meth:`Plant.run` of ``dt`` [s]: the time in motion, and payloads due."""
-        if np.max(np.abs(plant.data.qvel[: plant.n])) > MOTION_RAD_S:
+        if np.abs(plant.data.qvel[: plant.n]).max() > MOTION_RAD_S:
             self.motion_s += dt
         for item in [p for p in self.pending_payloads if self._active(p[0], plant.t_s)]:
             self.pending_payloads.remove(item)

@@ -47,8 +47,8 @@ class JointFriction:
         self.v1, self.v2 = col("tau_v1_nm_s_per_rad"), col("tau_v2_nm_s2_per_rad2")
         self.q_e = col("q_e_rad_s")
         self.fourier = np.array([f.fourier_nm for f in joints], dtype=float)  # (n, 6)
-        # f1, f3, f5 multiply sin(q/R), sin(2q/R), sin q; f2, f4, f6 the cosines
-        self._f_sin, self._f_cos = self.fourier[:, 0::2].copy(), self.fourier[:, 1::2].copy()
+        # f1, f3, f5 multiply sin(q/R), sin(2q/R), sin q; f2, f4, f6 the cosines; (3, n)
+        self._f_sin, self._f_cos = self.fourier[:, 0::2].T.copy(), self.fourier[:, 1::2].T.copy()
         self.inv_r = 1.0 / np.asarray(gear_ratio, dtype=float)
         self.inv_q_e, self.inv_2q_e = 1.0 / self.q_e, 0.5 / self.q_e
 
@@ -58,9 +58,7 @@ class JointFriction:
         evaluates it once per controller cycle."""
         qr = q * self.inv_r
         angles = np.concatenate((qr, 2.0 * qr, q)).reshape(3, -1)  # (3, n)
-        ripple = np.einsum("jk,kj->j", self._f_sin, np.sin(angles)) + np.einsum(
-            "jk,kj->j", self._f_cos, np.cos(angles)
-        )
+        ripple = (self._f_sin * np.sin(angles) + self._f_cos * np.cos(angles)).sum(axis=0)
         return np.maximum(self.tau_c + ripple, 0.0)
 
     def torque_nm(self, dq: np.ndarray, coulomb: np.ndarray) -> np.ndarray:

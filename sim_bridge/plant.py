@@ -231,7 +231,7 @@ class Plant:
         self.hand_force_n = self.hand(self) if self.hand is not None else np.zeros(3)
         held = tau_cyl + tau_eff  # over the cycle
         d.xfrc_applied[:] = 0.0
-        if np.any(self.hand_force_n):
+        if self.hand_force_n.any():
             arm = d.site_xpos[self.tool_site] - d.xipos[self.last_body]
             d.xfrc_applied[self.last_body, :3] = self.hand_force_n
             d.xfrc_applied[self.last_body, 3:] = np.cross(arm, self.hand_force_n)

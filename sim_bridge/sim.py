@@ -156,8 +156,6 @@ class VirtualCell:
         self._fb_sent_wall: float | None = None
         self._set_arrival_wall: float | None = None
         self.can: can.BusABC | None = None
-        #: a descriptor readable when CAN input waits (None: wait in recv)
-        self._can_wait_fd: int | None = None
         self.io: VirtualIoProcess | None = None
         self._can_fd = cfg.controller.can_profile == "fd"  #: the segment must carry CAN FD
         self._log: TextIO | None = None
@@ -167,9 +165,6 @@ class VirtualCell:
     def open(self) -> None:
         ep = self.cfg.endpoints
         self.can = open_can_endpoint(ep, fd=self._can_fd)
-        # The hub is serviced by this loop and its fileno() says when; the socketcand server
-        # has its own I/O thread and queue, so there the loop waits in recv().
-        self._can_wait_fd = self.can.fileno() if isinstance(self.can, SeqpacketHubBus) else None
         # The valves power up holding the initial pressures: a 0 bar set-point would let the arm
         # sag onto its brakes before the first set-point arrives.
         p2_set, p3_set = self.cfg.cylinders.initial_bar
@@ -210,19 +205,24 @@ class VirtualCell:
         """Wait up to ``timeout_s`` [s] for CAN input, then take every frame there is."""
         bus = self.can
         assert bus is not None
-        if timeout_s <= 0:
-            msg = bus.recv(0.0)
-        elif self._can_wait_fd is not None:
-            wait_readable(self._can_wait_fd, timeout_s)
-            msg = bus.recv(0.0)
-        else:
-            msg = bus.recv(timeout_s)
-        ctrl = self.ctrl
+        # The hub is serviced by this loop and its fileno() says when; the socketcand server
+        # has its own I/O thread and queue, so there the loop waits in recv().
+        if isinstance(bus, SeqpacketHubBus):  # the hub's queue in one call
+            if timeout_s > 0:
+                wait_readable(bus.fileno(), timeout_s)
+            for msg in bus.drain():
+                self._on_frame(msg)
+            return
+        msg = bus.recv(timeout_s) if timeout_s > 0 else bus.recv(0.0)
         while msg is not None:
-            ctrl.on_frame(msg, time.monotonic())
-            if self._set_arrival_wall is None and ctrl.complete_for_cycle == ctrl.cycle:
-                self._set_arrival_wall = time.perf_counter()
+            self._on_frame(msg)
             msg = bus.recv(0.0)
+
+    def _on_frame(self, msg: can.Message) -> None:
+        ctrl = self.ctrl
+        ctrl.on_frame(msg, time.monotonic())
+        if self._set_arrival_wall is None and ctrl.complete_for_cycle == ctrl.cycle:
+            self._set_arrival_wall = time.perf_counter()
 
     def _cycle(self) -> None:
         assert self.can is not None and self.io is not None

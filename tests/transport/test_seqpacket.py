@@ -180,6 +180,25 @@ def test_frames_reach_every_other_node_and_never_their_sender(hub, client):
     assert h.recv(0.05) is None, "the hub does not receive its own frames"
 
 
+def test_drain_returns_every_waiting_frame_in_order_through_the_filters(hub, client):
+    h = hub(can_filters=[{"can_id": 0x201, "can_mask": 0x7FF}])
+    a, b = client(), client()
+    assert h.wait_for_clients(2, SLOW_S)
+    assert h.drain() == []
+    for i in range(20):
+        a.send(numbered(i, 0x201 if i % 2 == 0 else 0x181))
+    got: list[can.Message] = []
+    deadline = time.monotonic() + SLOW_S
+    while len(got) < 10 and time.monotonic() < deadline:
+        select.select([h.fileno()], [], [], 0.05)
+        got += h.drain()
+    assert [number(m) for m in got] == list(range(0, 20, 2))  # 0x181 filtered out
+    assert len(recv_n(b, 20)) == 20, "draining still forwards every frame to the others"
+    h.shutdown()
+    with pytest.raises(can.CanOperationError, match="shut down"):
+        h.drain()
+
+
 def test_ids_and_flags_keep_their_meaning(hub, client):
     h = hub()
     a = client()
