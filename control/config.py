@@ -71,6 +71,16 @@ class ControlConfig:
     rest_hold_rms_factor: float = 2.0
     #: the hold's stiffness is band / deflection [rad]
     rest_hold_deflection_rad: float = 1e-3
+    #: the drives' velocity-loop (servo) rate from their datasheet [Hz], for the online
+    #: inner-loop estimate (control/inner_loop_estimate.py); 0: fast enough to be continuous
+    drive_servo_rate_hz: float = 0.0
+    #: run the online inner-loop estimate while teaching (control/inner_loop_estimate.py;
+    #: telemetry): ~50-80 µs of CPU per cycle, so off unless asked for
+    inner_loop_estimate: bool = False
+    #: per joint, the amplitude [A] of a sinusoidal torque dither (K times it, at 4.0 + 0.4 j
+    #: Hz) added to the desired torque in teaching, so the online inner-loop estimate sees K_p
+    #: apart from K_I (control/inner_loop_estimate.py); () none
+    inner_loop_dither_a: tuple[float, ...] = ()
 
     @property
     def uncommissioned(self) -> str | None:
@@ -121,6 +131,16 @@ class ControlConfig:
             0 <= self.rest_hold_rms_factor <= 10,
             "[control].rest_hold_rms_factor",
             f"{self.rest_hold_rms_factor} not in [0, 10]",
+        )
+        require(
+            all(0.0 <= v <= 1.0 for v in self.inner_loop_dither_a),
+            "[control].inner_loop_dither_a",
+            f"{self.inner_loop_dither_a}: each must be in [0, 1] A",
+        )
+        require(
+            0 <= self.drive_servo_rate_hz <= 1e6,
+            "[control].drive_servo_rate_hz",
+            f"{self.drive_servo_rate_hz} not in [0, 1e6] Hz",
         )
         require(
             0 < self.rest_hold_deflection_rad <= 0.1,

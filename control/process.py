@@ -17,6 +17,7 @@ import math
 import signal
 import threading
 import time
+from collections import deque
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
@@ -27,6 +28,7 @@ from control.declared_model import DeclaredModel
 from control.delay import DelayPredictor
 from control.experiments import build_plan
 from control.identification.inner_loop import read_outer_loop_gains
+from control.inner_loop_estimate import InnerLoopEstimator
 from control.load_check import REST_RAD_S, LoadCheck, static_load_check
 from control.outer_loop import HoldAverage, OmegaAdaptation, OuterLoop
 from control.rest_hold import RestHold, hold_band_nm
@@ -155,6 +157,30 @@ class ZeroMomentController:
         )
         self.rest_hold = RestHold(band, cfg.rest_hold_deflection_rad)
         self._no_hold = [0.0] * n
+        #: online estimate of the drives' K_p, K_I from the measured current (telemetry)
+        self.inner_estimate: InnerLoopEstimator | None = None
+        if cfg.inner_loop_estimate and cfg.omega_rad_s_per_nm:
+            kp0 = 1.0 / (np.array(self._k_nm_per_a) * np.array(cfg.omega_rad_s_per_nm))
+            self.inner_estimate = InnerLoopEstimator(
+                kp0, kp0 * np.array(cfg.upsilon_i_per_s), self._k_nm_per_a
+            )
+        #: commands sent, newest last (the one that drove a cycle is delay + 1 back), and the
+        #: previous state's (q, dq), for the estimate
+        self._sent_cmds: deque[tuple[list[float], list[float]]] = deque(
+            maxlen=cfg.command_delay_cycles + 1
+        )
+        self._prev_state: tuple[np.ndarray, np.ndarray] | None = None
+        #: the dither's torque amplitude per joint [N·m] (control/inner_loop_estimate.py)
+        if cfg.inner_loop_dither_a and len(cfg.inner_loop_dither_a) != n:
+            raise ConfigError(
+                f"[control].inner_loop_dither_a has {len(cfg.inner_loop_dither_a)} values; "
+                f"the robot has {n} joints"
+            )
+        dither_a = cfg.inner_loop_dither_a
+        self._dither_nm = (
+            [a * k for a, k in zip(dither_a, self._k_nm_per_a, strict=True)] if dither_a else []
+        )
+        self._dither_phase = 0.0
 
     @property
     def tau_d_nm(self) -> np.ndarray:
@@ -251,6 +277,8 @@ class ZeroMomentController:
             self.loop.reset(st.q_cmd_rad - st.q_rad)
             self.predictor.reset()
             self.rest_hold.reset()
+            self._sent_cmds.clear()
+            self._prev_state = None
             self.engaged = True
             self.last_cycle = st.cycle - 1
         gap = st.cycle - (self.last_cycle if self.last_cycle is not None else st.cycle - 1)
@@ -259,6 +287,7 @@ class ZeroMomentController:
         # eq. (28): the torque the drive delivered, if it followed the commands as sent
         followed = gap == 1 and not st.flags & (FLAG_PREV_HOLD | FLAG_PREV_COAST)
         self.loop.adapt_floats(self.motor_torque_nm(st) if followed else None, period)
+        self._estimate_inner_loop(st, followed, period)
         q, dq = st.q_rad, st.dq_rad_s
         if self._inertia is not None:
             m_inv = self.inverse_inertia(q)
@@ -270,7 +299,28 @@ class ZeroMomentController:
             q_cmd, dq_cmd = self.cycle_command(q, dq, p_bar, dt)
         except (ValueError, ArithmeticError) as exc:  # where numpy would have given NaN
             raise MessageError(f"cycle {st.cycle}: model torque undefined ({exc})") from None
+        self._sent_cmds.append((q_cmd, dq_cmd))
         return q_cmd, dq_cmd
+
+    def _estimate_inner_loop(self, st: JointState, followed: bool, period_s: float) -> None:
+        """Feed the cycle that just ended to :attr:`inner_estimate` if the drive followed the
+        command that drove it as sent."""
+        est, prev = self.inner_estimate, self._prev_state
+        self._prev_state = (st.q_rad, st.dq_rad_s)
+        if est is None:
+            return
+        if not followed or prev is None:
+            self._sent_cmds.clear()
+            return
+        if len(self._sent_cmds) < self._sent_cmds.maxlen:
+            return
+        q_cmd, dq_cmd = self._sent_cmds[0]
+        rate = self.cfg.drive_servo_rate_hz
+        est.update(
+            q_cmd, dq_cmd, prev[0], st.q_rad, st.current_a, period_s,
+            dq_start=prev[1], dq_end=st.dq_rad_s,
+            ticks=round(period_s * rate) if rate else 0,
+        )  # fmt: skip
 
     def cycle_command(
         self, q_rad: np.ndarray, dq_rad_s: np.ndarray, p_bar: Sequence[float], dt_s: float
@@ -301,8 +351,17 @@ class ZeroMomentController:
             if qj < lo:
                 t += k * (lo - qj)
             tau.append(t)
+        if self._dither_nm:
+            self._dither_phase += 2.0 * math.pi * dt_s
+            for j, d in enumerate(self._dither_nm):
+                tau[j] += d * math.sin((4.0 + 0.4 * j) * self._dither_phase + j)
         self._tau_d_nm = tau
         return self.loop.step_floats(q, dq, tau, dt_s)
+
+
+def _finite_or_none(values: np.ndarray) -> list[float | None]:
+    """5 significant digits, None where not finite (JSON has no NaN)."""
+    return [float(f"{v:.5g}") if math.isfinite(v) else None for v in values.tolist()]
 
 
 class PlanPlayer:
@@ -629,6 +688,15 @@ class ControlProcess:
                     "offset_rad": [round(float(v), 6) for v in self.ctl.loop.offset_rad],
                     "omega_rad_s_per_nm": [float(f"{v:.5g}") for v in self.ctl.loop.omega],
                 }
+                est = self.ctl.inner_estimate
+                if est is not None:
+                    tele["inner_loop_estimate"] = {
+                        "omega_rad_s_per_nm": _finite_or_none(est.omega_rad_s_per_nm),
+                        "upsilon_i_per_s": _finite_or_none(est.upsilon_i_per_s),
+                        "rel_std": [[round(float(v), 4) for v in r] for r in est.rel_std],
+                        "rejected_cycles": est.rejected.tolist(),
+                        "seconds": round(est.seconds, 2),
+                    }
                 s.put(self.keys.control_telemetry, encode_json(tele))
             if self.player.plan_id is not None:
                 s.put(self.keys.experiment, encode_json(self.player.report()))

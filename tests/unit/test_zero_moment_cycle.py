@@ -19,7 +19,7 @@ from example_cell import EXAMPLE_MODEL, example_cell
 from control.declared_model import DeclaredModel
 from control.model.cylinders import CylinderTorques, cylinder_torque_nm
 from control.process import ZeroMomentController, load_control_config
-from gateway.errors import MessageError
+from gateway.errors import ConfigError, MessageError
 from gateway.messages import ControllerState, JointCommand, make_joint_state
 
 #: equal to rounding: a few ulps of torques up to ~1e4 N·m, commands of ~1 rad
@@ -315,3 +315,33 @@ def test_friction_that_does_not_oppose_motion_is_not_compensated(cfg, model):
         np.testing.assert_allclose(ctl.desired_torque(q, dq, p), want, rtol=RTOL, atol=ATOL)
         ctl.cycle_command(q, dq, p.tolist(), 0.004)
         np.testing.assert_allclose(ctl.tau_d_nm, want, rtol=RTOL, atol=ATOL)
+
+
+def test_the_inner_loop_dither_adds_its_sinusoid_to_the_desired_torque(cfg, model):
+    """[control].inner_loop_dither_a: K times that current, at 4.0 + 0.4 j Hz per joint, is
+    added to the desired torque (control/inner_loop_estimate.py); its length is checked."""
+    amp = (0.03, 0.02, 0.03, 0.01, 0.01, 0.05)
+    plain = ZeroMomentController(dataclasses.replace(cfg, inner_loop_dither_a=()), model)
+    dithered = ZeroMomentController(dataclasses.replace(cfg, inner_loop_dither_a=amp), model)
+    k = np.array(plain._k_nm_per_a)
+    q, dq, p, dt = model.desc.lower_rad * 0.0 + 0.1, np.zeros(model.n), [5.0, 3.0], 0.008
+    diffs = []
+    for _ in range(250):  # 2 s
+        plain.cycle_command(q, dq, p, dt)
+        dithered.cycle_command(q, dq, p, dt)
+        diffs.append(np.array(dithered.tau_d_nm) - np.array(plain.tau_d_nm))
+    diffs = np.array(diffs)
+    np.testing.assert_allclose(np.abs(diffs).max(axis=0), k * np.array(amp), rtol=0.02)
+    np.testing.assert_allclose(diffs.mean(axis=0), 0.0, atol=0.05 * k.max() * max(amp))
+    for j in range(model.n):  # the frequency of joint j + 1: zero crossings over 2 s
+        crossings = np.sum(np.diff(np.sign(diffs[:, j])) != 0)
+        assert abs(crossings / 2 / 2.0 - (4.0 + 0.4 * j)) < 0.3
+    with pytest.raises(ConfigError, match="inner_loop_dither_a has 2 values"):
+        ZeroMomentController(dataclasses.replace(cfg, inner_loop_dither_a=(0.1, 0.1)), model)
+
+
+def test_the_online_inner_loop_estimate_runs_only_when_asked_for(cfg, model):
+    assert ZeroMomentController(cfg, model).inner_estimate is None
+    on = ZeroMomentController(dataclasses.replace(cfg, inner_loop_estimate=True), model)
+    assert on.inner_estimate is not None
+    np.testing.assert_allclose(on.inner_estimate.omega_rad_s_per_nm, cfg.omega_rad_s_per_nm)
