@@ -287,7 +287,8 @@ class ZeroMomentController:
         # eq. (28): the torque the drive delivered, if it followed the commands as sent
         followed = gap == 1 and not st.flags & (FLAG_PREV_HOLD | FLAG_PREV_COAST)
         self.loop.adapt_floats(self.motor_torque_nm(st) if followed else None, period)
-        self._estimate_inner_loop(st, followed, period)
+        if self.inner_estimate is not None:
+            self._estimate_inner_loop(st, followed, period)
         q, dq = st.q_rad, st.dq_rad_s
         if self._inertia is not None:
             m_inv = self.inverse_inertia(q)
@@ -299,16 +300,16 @@ class ZeroMomentController:
             q_cmd, dq_cmd = self.cycle_command(q, dq, p_bar, dt)
         except (ValueError, ArithmeticError) as exc:  # where numpy would have given NaN
             raise MessageError(f"cycle {st.cycle}: model torque undefined ({exc})") from None
-        self._sent_cmds.append((q_cmd, dq_cmd))
+        if self.inner_estimate is not None:
+            self._sent_cmds.append((q_cmd, dq_cmd))
         return q_cmd, dq_cmd
 
     def _estimate_inner_loop(self, st: JointState, followed: bool, period_s: float) -> None:
         """Feed the cycle that just ended to :attr:`inner_estimate` if the drive followed the
         command that drove it as sent."""
         est, prev = self.inner_estimate, self._prev_state
+        assert est is not None
         self._prev_state = (st.q_rad, st.dq_rad_s)
-        if est is None:
-            return
         if not followed or prev is None:
             self._sent_cmds.clear()
             return

@@ -68,10 +68,6 @@ class JointFriction:
         level = self.tau_s * np.exp(-np.abs(dq) * self.inv_q_e) + coulomb
         return level * np.tanh(dq * self.inv_2q_e) + self.v2 * dq * np.abs(dq)
 
-    def __call__(self, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
-        """The whole friction torque τ_f [N·m] at ``q`` [rad], ``dq`` [rad/s], (n,)."""
-        return self.torque_nm(dq, self.coulomb_level(q)) + self.v1 * dq
-
 
 class AssistCylinders:
     """Joint torques of the assist cylinders at their chamber pressures."""

@@ -87,9 +87,11 @@ class Plant:
         self.tool_site = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_SITE, TOOL_SITE)
         self.last_body = self.model.site_bodyid[self.tool_site]
         self.k_nm_per_a = np.array(cfg.drives.gain_nm_per_a)
-        self.i_max_a = np.array(cfg.drives.max_current_a)
         self.kp = np.array(cfg.inner_loop.kp_a_s_per_rad)
         self.ki = np.array(cfg.inner_loop.ki_a_per_rad)
+        #: K·K_I and K·K_p [N·m/rad, N·m·s/rad]: eq. (19)'s gains on torque, for the drives'
+        #: control input
+        self._k_ki, self._k_kp = self.k_nm_per_a * self.ki, self.k_nm_per_a * self.kp
         self.friction = JointFriction(cfg.friction, cfg.drives.gear_ratio)
         self.model.dof_damping[: self.n] = self.friction.v1
         self.cylinders = AssistCylinders(cfg.cylinders.units, self.n)
@@ -243,9 +245,8 @@ class Plant:
             model.opt.disableflags &= ~int(mujoco.mjtDisableBit.mjDSBL_ACTUATION)
             q_r, dq_r, t_r = reference
             # eq. (19) as the actuator's control input: K (K_I q_r(t) + K_p dq_r)
-            k_ki = self.k_nm_per_a * self.ki
-            at_t_r = k_ki * (q_r - dq_r * t_r) + self.k_nm_per_a * self.kp * dq_r
-            slope = k_ki * dq_r
+            at_t_r = self._k_ki * (q_r - dq_r * t_r) + self._k_kp * dq_r
+            slope = self._k_ki * dq_r
         else:
             model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_ACTUATION)
         ctrl, act_force = d.ctrl, d.actuator_force

@@ -213,7 +213,7 @@ class VirtualCell:
             for msg in bus.drain():
                 self._on_frame(msg)
             return
-        msg = bus.recv(timeout_s) if timeout_s > 0 else bus.recv(0.0)
+        msg = bus.recv(max(timeout_s, 0.0))
         while msg is not None:
             self._on_frame(msg)
             msg = bus.recv(0.0)
