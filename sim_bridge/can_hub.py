@@ -6,8 +6,11 @@ struct canfd_frame, one per datagram) and the addresses (``@name`` or a file pat
 
 It behaves like one CAN segment: a frame sent by a client reaches every other client and this
 object's :meth:`~can.BusABC.recv`; a frame passed to :meth:`send` reaches every client; nobody
-receives its own frames. Delivery is lossless and in order: writes to a client never block; what
-its socket cannot take waits in a per-client backlog, and a client whose backlog passes
+receives its own frames. A received frame's ``timestamp`` is the kernel's arrival stamp (wall
+clock), as with SocketCAN, so it holds however late the owner's loop reads it.
+
+Delivery is lossless and in order: writes to a client never block; what its socket cannot take
+waits in a per-client backlog, and a client whose backlog passes
 :attr:`SeqpacketHubBus.MAX_BACKLOG_FRAMES` (it stopped reading) is disconnected with a log line.
 A malformed datagram from a client is dropped (not forwarded), counted and logged once.
 
@@ -53,6 +56,11 @@ log = logging.getLogger(__name__)
 _MSG_NOSIGNAL = getattr(socket, "MSG_NOSIGNAL", 0)
 _UCRED = struct.Struct("3i")  # struct ucred: pid, uid, gid
 _READ_EVENTS = select.EPOLLIN
+#: SO_TIMESTAMPNS (Linux; not in Python's socket module): the kernel stamps each datagram on
+#: arrival with CLOCK_REALTIME, as SocketCAN stamps frames
+_SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)
+_TIMESPEC = struct.Struct("qq")  # struct timespec: tv_sec, tv_nsec
+_STAMP_SPACE = socket.CMSG_SPACE(_TIMESPEC.size)
 _WRITE_EVENTS = select.EPOLLIN | select.EPOLLOUT
 
 
@@ -191,6 +199,13 @@ class SeqpacketHubBus(can.BusABC):
     def client_count(self) -> int:
         return len(self._clients)
 
+    @property
+    def forwards(self) -> bool:
+        """True when a client's frames must reach other clients: with two or more connected,
+        the owner's loop should service the hub as frames arrive (:meth:`fileno`), not only
+        when it wants them itself."""
+        return len(self._clients) > 1
+
     def wait_for_clients(self, n: int, timeout_s: float) -> bool:
         """Service the hub until at least ``n`` clients are connected; False on timeout.
 
@@ -292,6 +307,7 @@ class SeqpacketHubBus(can.BusABC):
                 log.error("%s: accept failed: %s", self.channel_info, exc)
                 return
             sock.setblocking(False)
+            sock.setsockopt(socket.SOL_SOCKET, _SO_TIMESTAMPNS, 1)
             self._accepted += 1
             try:
                 pid = _UCRED.unpack(
@@ -311,7 +327,7 @@ class SeqpacketHubBus(can.BusABC):
         rx, own_fd = self._rx, self.fd
         for _ in range(self.READ_BATCH):
             try:
-                datagram = sock.recv(RECV_BYTES)
+                datagram, ancillary, _flags, _addr = sock.recvmsg(RECV_BYTES, _STAMP_SPACE)
             except (BlockingIOError, InterruptedError):
                 return
             except ConnectionResetError:
@@ -323,7 +339,12 @@ class SeqpacketHubBus(can.BusABC):
             if not datagram:
                 self._drop(client, "disconnected")
                 return
-            msg = decode(datagram, channel)
+            stamp = None
+            for level, kind, data in ancillary:
+                if level == socket.SOL_SOCKET and kind == _SO_TIMESTAMPNS:
+                    sec, nsec = _TIMESPEC.unpack(data)
+                    stamp = sec + nsec * 1e-9
+            msg = decode(datagram, channel, stamp)
             if msg is None:
                 self.malformed_frames += 1
                 continue

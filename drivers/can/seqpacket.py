@@ -156,8 +156,11 @@ def encode_frame(msg: can.Message, fd_allowed: bool) -> bytes:
     return CAN_FRAME.pack(can_id, size, 0, 0, len8_dlc, bytes(data))
 
 
-def decode_frame(datagram: bytes, channel: str | None = None) -> can.Message:
-    """A received struct can_frame / canfd_frame as a Message (``is_rx``, stamped now).
+def decode_frame(
+    datagram: bytes, channel: str | None = None, timestamp: float | None = None
+) -> can.Message:
+    """A received struct can_frame / canfd_frame as a Message (``is_rx``), stamped
+    ``timestamp`` (wall clock [s], e.g. the kernel's arrival stamp) or now.
 
     Raises :class:`MalformedFrame` saying what is wrong; never anything else.
     """
@@ -188,7 +191,7 @@ def decode_frame(datagram: bytes, channel: str | None = None) -> can.Message:
     if arbitration_id > CAN_SFF_MASK and not (extended or error):
         raise MalformedFrame(f"standard id 0x{arbitration_id:X} > 0x7FF without CAN_EFF_FLAG")
     return can.Message(
-        timestamp=time.time(),
+        timestamp=time.time() if timestamp is None else timestamp,
         arbitration_id=arbitration_id,
         is_extended_id=extended,
         is_remote_frame=remote,
@@ -237,9 +240,11 @@ class FrameDecoder:
         self.malformed = 0  #: datagrams dropped as malformed
         self.ignored_fd = 0  #: FD frames ignored because FD is off
 
-    def __call__(self, datagram: bytes, channel: str | None) -> can.Message | None:
+    def __call__(
+        self, datagram: bytes, channel: str | None, timestamp: float | None = None
+    ) -> can.Message | None:
         try:
-            msg = decode_frame(datagram, channel)
+            msg = decode_frame(datagram, channel, timestamp)
         except MalformedFrame as exc:
             self.malformed += 1
             if self.malformed == 1:

@@ -199,6 +199,27 @@ def test_drain_returns_every_waiting_frame_in_order_through_the_filters(hub, cli
         h.drain()
 
 
+def test_a_frame_read_late_carries_the_kernels_arrival_stamp(hub, client):
+    h = hub()
+    a = client()
+    assert h.wait_for_clients(1, SLOW_S)
+    assert not h.forwards, "one client: nobody to forward to"
+    before = time.time()
+    a.send(numbered(1, 0x201))
+    sent = time.time()
+    time.sleep(0.05)  # the owner's loop reads it a cycle or more later
+    got: list[can.Message] = []
+    deadline = time.monotonic() + SLOW_S
+    while not got and time.monotonic() < deadline:
+        select.select([h.fileno()], [], [], 0.05)
+        got += h.drain()
+    assert len(got) == 1
+    assert before - 1e-3 <= got[0].timestamp <= sent + 1e-3, "stamped on arrival, not on read"
+    client()
+    assert h.wait_for_clients(2, SLOW_S)
+    assert h.forwards, "two clients: each one's frames must reach the other"
+
+
 def test_ids_and_flags_keep_their_meaning(hub, client):
     h = hub()
     a = client()
