@@ -18,31 +18,51 @@ dies however it dies (no server is left behind, and no multiprocessing resource 
 from __future__ import annotations
 
 import argparse
-import ctypes
+import logging
 import mmap
 import os
 import select
+import struct
 import subprocess
 import sys
 from typing import IO, Any
 
 from sim_bridge.modbus_server import VirtualIoServer, stored_bar
 
+log = logging.getLogger(__name__)
+
 #: shared array layout
 _P2, _P3, _ENABLING, _ESTOP_OK, _MARK, _SP2, _SP3, _WRITES = range(8)
 _N = 8
-_SIZE = _N * ctypes.sizeof(ctypes.c_double)
+_DOUBLE = struct.Struct("d")
+_SIZE = _N * _DOUBLE.size
 
 
-def _view(fd: int) -> tuple[mmap.mmap, Any]:
+class _Shared:
+    """The shared doubles, indexed; reads and writes go through ``struct`` so no buffer of the
+    mapping is ever exported (a ctypes view would keep it from closing)."""
+
+    __slots__ = ("mm",)
+
+    def __init__(self, mm: mmap.mmap) -> None:
+        self.mm = mm
+
+    def __getitem__(self, k: int) -> float:
+        return _DOUBLE.unpack_from(self.mm, 8 * k)[0]
+
+    def __setitem__(self, k: int, value: float) -> None:
+        _DOUBLE.pack_into(self.mm, 8 * k, value)
+
+
+def _view(fd: int) -> tuple[mmap.mmap, _Shared]:
     mm = mmap.mmap(fd, _SIZE)
-    return mm, (ctypes.c_double * _N).from_buffer(mm)
+    return mm, _Shared(mm)
 
 
 class _SharedIoServer(VirtualIoServer):
     """A VirtualIoServer whose inputs and set-points live in the shared array."""
 
-    def __init__(self, shared: Any, *args: Any, **kwargs: Any) -> None:
+    def __init__(self, shared: _Shared, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
         self._shared = shared
 
@@ -78,6 +98,7 @@ class VirtualIoProcess:
         self._mm, self._shared = _view(self._fd)
         self._shared[_SP2], self._shared[_SP3] = stored_bar(p2_set_bar), stored_bar(p3_set_bar)
         self._proc: subprocess.Popen[str] | None = None
+        self.exit_code: int | None = None  #: the child's, once stopped
 
     def set_inputs(
         self, p2_bar: float, p3_bar: float, enabling: bool, estop_ok: bool, mark: bool = False
@@ -130,6 +151,9 @@ class VirtualIoProcess:
             proc.kill()
             proc.wait()
         self._proc = None
+        self.exit_code = proc.returncode
+        if proc.returncode != 0:
+            log.warning("virtual I/O module exited with %s", proc.returncode)
 
     def close(self) -> None:
         """Stop the child and release the shared memory."""
@@ -177,7 +201,6 @@ def main(argv: list[str] | None = None) -> int:
         pass
     finally:
         server.stop()
-        del shared
         mm.close()
     return 0
 

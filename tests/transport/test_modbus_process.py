@@ -37,6 +37,7 @@ def test_the_module_answers_from_its_process_with_the_simulators_values():
         port = io.port
     assert not _listening(port)
     assert io._proc is None
+    assert io.exit_code == 0, "the module stopped cleanly (its shared memory released)"
 
 
 def test_a_port_in_use_is_an_error_naming_it():
