@@ -29,11 +29,22 @@ moving; the corner dwells are reported apart), the moment of the hand's force ab
 flange (where the paper's force sensor sits), the tool's distance from the intended path
 (p95) and whether the operator got to the end of it (:data:`COMPLETED_WITHIN_M`). Writes
 ``OUT/summary.json`` and ``OUT/teach_bench.png``.
+
+``adaptation`` in the summary (from the ``best`` run) compares the loop's estimates with the
+plant's hidden inner gains, which this harness reads for scoring only: ω̂ as the control
+process last published it (eq. 28 adapts it to the measured current on joints that carry
+load) against ω = 1/(K·K_p), and Υ̂_I = ω̂_I (the commissioned value; the control law does not
+adapt it) against K_I/K_p. K is the datasheet torque constant, the one the product measures
+torque with (the plant's own differs by its drawn error). With ``--online-estimate`` the
+control process also runs its online estimate of K_p and K_I (``[control]
+inner_loop_estimate``, with a :data:`DITHER_A` torque dither so that teaching excites K_p) and
+the summary adds its final values.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import itertools
 import json
@@ -45,6 +56,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
+from gateway.bus import open_client
 from sim_bridge.baseline import drag_released
 from sim_bridge.commission import commissioned
 from sim_bridge.config import load_sim_config
@@ -66,6 +78,9 @@ COMPLETED_WITHIN_M = 0.05
 #: the target is moving when it moves faster than this [m/s]
 MOVING_M_S = 1e-3
 STRATEGIES = ("offservo", "best")
+#: ``--online-estimate``: the torque dither that lets the online inner-loop estimate see K_p,
+#: per joint [A] (control/inner_loop_estimate.py)
+DITHER_A = 0.03
 
 
 def raster_path(
@@ -217,11 +232,74 @@ def _flange_positions(plant_seed: int, q: np.ndarray) -> np.ndarray:
     return out
 
 
-def run_best(
-    plant_seed: int, path: list[list[float]], work: Path, tail_s: float = 2.0
+class _LastTelemetry:
+    """The control process's last telemetry message, from a subscriber of its own."""
+
+    def __init__(self) -> None:
+        self.message: dict[str, Any] | None = None
+
+    def __call__(self, sample: Any) -> None:  # zenoh's thread: decode only, never block
+        # the scorer's view only: a bad message leaves the last good one
+        with contextlib.suppress(ValueError):
+            self.message = json.loads(sample.payload.to_bytes())
+
+
+def adaptation_report(
+    telemetry: dict[str, Any] | None, plant_seed: int, inner_loop: dict[str, Any]
 ) -> dict[str, Any]:
-    """The product's zero-moment lead-through on the virtual cell, as separate processes."""
+    """The loop's estimates against the plant's hidden inner gains (module docstring):
+    ``telemetry`` the control process's last message, ``inner_loop`` the commissioned
+    ``inner_loop.json``. Ratios estimate / truth per joint."""
+    nominal = load_sim_config()
+    plant = Plant(dataclasses.replace(nominal, plant_seed=plant_seed))
+    k = np.array(nominal.drives.gain_nm_per_a)  # the datasheet's: the product's torque unit
+    omega_true = 1.0 / (k * plant.kp)
+    omega_i_true = plant.ki / plant.kp
+    omega_i_hat = np.array(inner_loop["upsilon_i_per_s"], dtype=float)
+    omega_hat = (
+        np.array(telemetry["omega_rad_s_per_nm"], dtype=float)
+        if telemetry is not None
+        else np.array(inner_loop["omega_rad_s_per_nm"], dtype=float)
+    )
+    out: dict[str, Any] = {
+        "omega_hat": omega_hat.tolist(),
+        "omega_true": omega_true.tolist(),
+        "omega_i_hat": omega_i_hat.tolist(),
+        "omega_i_true": omega_i_true.tolist(),
+        "omega_ratio": (omega_hat / omega_true).round(4).tolist(),
+        "omega_i_ratio": (omega_i_hat / omega_i_true).round(4).tolist(),
+        "omega_source": "control telemetry" if telemetry is not None else "commissioned",
+    }
+    online = (telemetry or {}).get("inner_loop_estimate")
+    if online:
+        est_omega = np.array([math.nan if v is None else v for v in online["omega_rad_s_per_nm"]])
+        est_ups = np.array([math.nan if v is None else v for v in online["upsilon_i_per_s"]])
+        out["online_estimate"] = {
+            "omega_ratio": [None if math.isnan(v) else round(v, 4) for v in est_omega / omega_true],
+            "omega_i_ratio": [
+                None if math.isnan(v) else round(v, 4) for v in est_ups / omega_i_true
+            ],
+            "seconds": online.get("seconds"),
+        }
+    return out
+
+
+def run_best(
+    plant_seed: int,
+    path: list[list[float]],
+    work: Path,
+    tail_s: float = 2.0,
+    online_estimate: bool = False,
+) -> dict[str, Any]:
+    """The product's zero-moment lead-through on the virtual cell, as separate processes;
+    ``online_estimate`` turns on the control process's online inner-loop estimate."""
     done = commissioned(plant_seed)
+    cell_overrides = None
+    if online_estimate:
+        n = len(load_sim_config().drives.gain_nm_per_a)
+        cell_overrides = {
+            "control": {"inner_loop_estimate": True, "inner_loop_dither_a": [DITHER_A] * n}
+        }
     operator = {
         "enabling_after_s": 0.0,
         "mode": "path",
@@ -230,17 +308,25 @@ def run_best(
         "tremor_hz": TREMOR_HZ,
         **HAND,
     }
+    last = _LastTelemetry()
     with Stack(
-        work, sim_overrides={"operator": operator}, plant_seed=plant_seed, model=done.model,
-        inner_loop=done.inner_loop, current_zero=done.current_zero,
+        work, sim_overrides={"operator": operator}, cell_overrides=cell_overrides,
+        plant_seed=plant_seed, model=done.model, inner_loop=done.inner_loop,
+        current_zero=done.current_zero,
     ) as stack:  # fmt: skip
         stack.start()
-        stack.start_teaching()
-        deadline = time.monotonic() + path[-1][0] + tail_s
-        while time.monotonic() < deadline:  # wait cheaply: the product needs the CPU
-            stack.check_alive()
-            time.sleep(0.5)
-        stack.request("stop")
+        session = open_client(stack.bus)
+        try:
+            subscriber = session.declare_subscriber(stack.bus.keys.control_telemetry, last)
+            stack.start_teaching()
+            deadline = time.monotonic() + path[-1][0] + tail_s
+            while time.monotonic() < deadline:  # wait cheaply: the product needs the CPU
+                stack.check_alive()
+                time.sleep(0.5)
+            stack.request("stop")
+            subscriber.undeclare()
+        finally:
+            session.close()
     truth = stack.truth()
     summary = json.loads(stack.sim_summary.read_text())
     rows = np.flatnonzero(truth["teaching"] > 0.5)
@@ -256,6 +342,8 @@ def run_best(
     out["controller_faults"] = summary.get("faults", [])
     out["completed"] = out["completed"] and not out["controller_faults"]
     out["model"] = str(done.model)
+    inner_loop = json.loads(done.inner_loop.read_text())
+    out["_adaptation"] = adaptation_report(last.message, plant_seed, inner_loop)
     return out
 
 
@@ -278,6 +366,21 @@ def plot(series: dict[str, dict[str, np.ndarray]], out_png: Path) -> None:
     plt.close(fig)
 
 
+def print_adaptation(adaptation: dict[str, Any]) -> None:
+    """Per joint, estimate / truth of ω and ω_I (and of the online estimate, if any)."""
+    rows = [(f"omega ({adaptation['omega_source']})", adaptation["omega_ratio"]),
+            ("omega_I (commissioned)", adaptation["omega_i_ratio"])]  # fmt: skip
+    online = adaptation.get("online_estimate")
+    if online:
+        rows += [(f"omega (online, {online['seconds']} s)", online["omega_ratio"]),
+                 ("omega_I (online)", online["omega_i_ratio"])]  # fmt: skip
+    n = len(adaptation["omega_ratio"])
+    print("\nestimate / truth" + " " * 19 + " ".join(f"{f'J{j + 1}':>7}" for j in range(n)))
+    for label, ratios in rows:
+        cells = " ".join(f"{'-':>7}" if r is None else f"{r:7.3f}" for r in ratios)
+        print(f"{label:>34} {cells}")
+
+
 def configure_parser(p: argparse.ArgumentParser) -> None:
     p.description = (
         "Benchmark lead-through strategies: a simulated painter drags the tool along a raster "
@@ -286,6 +389,12 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--plant-seed", type=int, default=0, help="the virtual robot (0: default)")
     p.add_argument("--out", type=Path, default=Path("teach_bench_out"), help="output folder")
+    p.add_argument(
+        "--online-estimate",
+        action="store_true",
+        help="run the control process's online inner-loop estimate in 'best' (with a "
+        f"{DITHER_A} A torque dither) and report it",
+    )
     p.add_argument(
         "--strategies",
         nargs="+",
@@ -308,7 +417,9 @@ def cli_main(args: argparse.Namespace) -> int:
         if name == "offservo":
             results[name] = run_offservo(args.plant_seed, path)
         else:
-            results[name] = run_best(args.plant_seed, path, out / name)
+            results[name] = run_best(
+                args.plant_seed, path, out / name, online_estimate=args.online_estimate
+            )
         results[name]["wall_time_s"] = time.monotonic() - t0
     summary = {
         "plant_seed": args.plant_seed,
@@ -323,6 +434,9 @@ def cli_main(args: argparse.Namespace) -> int:
         "hand": {**HAND, "tremor_m": TREMOR_M, "tremor_hz": TREMOR_HZ},
         "strategies": results,
     }
+    adaptation = results.get("best", {}).pop("_adaptation", None)
+    if adaptation is not None:
+        summary["adaptation"] = adaptation
     series = {name: r.pop("_series") for name, r in results.items()}
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
     plot(series, out / "teach_bench.png")
@@ -333,6 +447,8 @@ def cli_main(args: argparse.Namespace) -> int:
     for name, r in results.items():
         cells = [f"{r[c]:11.1f}" if isinstance(r[c], float) else f"{r[c]!s:>11}" for c in cols]
         print(f"{name:>11} " + " ".join(cells))
+    if adaptation is not None:
+        print_adaptation(adaptation)
     print(f"\nsummary: {out / 'summary.json'}")
     # offservo is the plant's reference, not the product: only a product strategy that did not
     # get to the end of the path fails the run

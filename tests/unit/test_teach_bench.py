@@ -2,14 +2,19 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
+from sim_bridge.config import load_sim_config
+from sim_bridge.plant import Plant
 from sim_bridge.teach_bench import (
     DWELL_S,
     SPEED_M_S,
     _distance_to_polyline,
     _target,
+    adaptation_report,
     metrics,
     raster_path,
 )
@@ -67,3 +72,31 @@ def test_a_painter_who_stops_halfway_has_not_completed():
     m = metrics(path, *_trace(path, follow_until_s=path[-1][0] / 2))
     assert not m["completed"]
     assert m["path_error_mm"] < 1e-6  # it stayed on the path: it just did not get to the end
+
+
+def test_the_adaptation_report_scores_estimates_against_the_hidden_gains():
+    seed = 3
+    plant = Plant(dataclasses.replace(load_sim_config(), plant_seed=seed))
+    k = np.array(load_sim_config().drives.gain_nm_per_a)
+    omega, ups = 1.0 / (k * plant.kp), plant.ki / plant.kp
+    inner_loop = {"omega_rad_s_per_nm": (1.1 * omega).tolist(), "upsilon_i_per_s": ups.tolist()}
+    online = {
+        "omega_rad_s_per_nm": [None, *(0.9 * omega[1:]).tolist()],
+        "upsilon_i_per_s": (1.05 * ups).tolist(),
+        "seconds": 12.5,
+    }
+    telemetry = {"omega_rad_s_per_nm": omega.tolist(), "inner_loop_estimate": online}
+    out = adaptation_report(telemetry, seed, inner_loop)
+    assert out["omega_source"] == "control telemetry"
+    assert out["omega_ratio"] == pytest.approx([1.0] * 6)
+    assert out["omega_i_ratio"] == pytest.approx([1.0] * 6)
+    assert out["online_estimate"]["omega_ratio"][0] is None
+    assert out["online_estimate"]["omega_ratio"][1:] == pytest.approx([0.9] * 5)
+    assert out["online_estimate"]["omega_i_ratio"] == pytest.approx([1.05] * 6)
+    # without telemetry the commissioned omega is what the law used
+    out = adaptation_report(None, seed, inner_loop)
+    assert out["omega_source"] == "commissioned"
+    assert out["omega_ratio"] == pytest.approx([1.1] * 6)
+    assert "online_estimate" not in out
+    # another seed's gains are not this one's: the report must notice
+    assert adaptation_report(telemetry, 4, inner_loop)["omega_ratio"] != pytest.approx([1.0] * 6)
