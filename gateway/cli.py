@@ -12,7 +12,7 @@ import logging
 import sys
 from pathlib import Path
 
-from gateway.errors import LeadthroughError
+from gateway.errors import EXIT_CONFIG, ConfigError, LeadthroughError
 
 #: name → (module, one-line help)
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
@@ -121,6 +121,9 @@ def main(argv: list[str] | None = None) -> int:
         if args.command in OPERATOR_COMMANDS:
             return _operator_main(args)
         return int(importlib.import_module(SUBCOMMANDS[args.command][0]).cli_main(args) or 0)
+    except ConfigError as exc:
+        print(f"leadthrough {args.command}: configuration refused: {exc}", file=sys.stderr)
+        return EXIT_CONFIG
     except LeadthroughError as exc:
         print(f"leadthrough {args.command}: error: {exc}", file=sys.stderr)
         return 2

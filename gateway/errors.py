@@ -4,6 +4,11 @@ Leaves also subclass the builtin they resemble, so callers that only know Python
 exceptions still catch them (``except ValueError`` catches a bad config value).
 """
 
+#: exit status of a process that refuses its configuration (sysexits' EX_CONFIG): the gateway
+#: does not restart such a child, and the systemd unit does not restart such a gateway
+#: (``RestartPreventExitStatus``), since the same file would be refused again
+EXIT_CONFIG = 78
+
 
 class LeadthroughError(Exception):
     """Root of every error this product raises on purpose."""

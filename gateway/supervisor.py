@@ -3,7 +3,9 @@ owns the lifecycle and answers operator requests.
 
 Children are started as ``python -m gateway.cli <process> --config CELL --bus ENDPOINT``. A child
 that exits is a fault (the robot is stopped) and is restarted after a back-off, so that `reset`
-can bring the cell back once the cause is gone.
+can bring the cell back once the cause is gone. A child that refuses its configuration (exit
+status EXIT_CONFIG) is not restarted: the same file would be refused again every back-off. The
+fault names it and stays; `reset` starts it again (after the file was mended).
 """
 
 from __future__ import annotations
@@ -28,7 +30,7 @@ import zenoh
 
 from gateway.bus import BusConfig, bus_config_from, open_router, undeclare_all
 from gateway.config import from_mapping, load_toml, require, resolve_path
-from gateway.errors import MessageError
+from gateway.errors import EXIT_CONFIG, MessageError
 from gateway.lifecycle import LifecycleMachine, Limits, Observations
 from gateway.messages import (
     LAYOUT_VERSION,
@@ -43,6 +45,7 @@ from gateway.messages import (
     encode_json,
 )
 from gateway.program import ProgramError, TeachRecorder, program_path
+from gateway.sd_notify import Notifier
 
 #: A static-load check older than this (at the control process's last health) does not count [s].
 LOAD_CHECK_MAX_AGE_S = 0.5
@@ -180,6 +183,8 @@ class Child:
     started_s: float = 0.0
     restart_at_s: float | None = None
     exits: list[int] = field(default_factory=list)
+    #: it exited refusing its configuration: not restarted until `reset`
+    config_refused: bool = False
 
 
 class Gateway:
@@ -238,11 +243,17 @@ class Gateway:
                 code = child.proc.returncode
                 child.exits.append(code)
                 child.proc = None
-                child.restart_at_s = now + self.cfg.restart_backoff_s
-                log.error("%s exited with code %s; restarting in %.1f s", child.name, code,
-                          self.cfg.restart_backoff_s)  # fmt: skip
+                if code == EXIT_CONFIG:
+                    child.config_refused = True
+                    reason = (f"process {child.name} refused its configuration (see its log); "
+                              "mend the cell config, then reset")  # fmt: skip
+                    log.error("%s; not restarting it", reason)
+                else:
+                    child.restart_at_s = now + self.cfg.restart_backoff_s
+                    reason = f"process {child.name} exited (code {code})"
+                    log.error("%s; restarting in %.1f s", reason, self.cfg.restart_backoff_s)
                 with self.lock:
-                    self.machine.fault(f"process {child.name} exited (code {code})")
+                    self.machine.fault(reason)
             if child.proc is None:
                 if child.restart_at_s is not None and now >= child.restart_at_s:
                     self._start_child(child)
@@ -453,6 +464,13 @@ class Gateway:
                 self.teach.prepare(path)
                 message += f"; teaching is recorded to {path}"
             return ok, message
+        if command == "reset" and (refused := [c for c in self.children.values()
+                                                if c.config_refused]):  # fmt: skip
+            for child in refused:  # the operator says the file is mended: try it again
+                child.config_refused = False
+                self._start_child(child)
+            names = ", ".join(c.name for c in refused)
+            return False, f"restarted {names}; reset again once it runs"
         return m.command(command, obs)
 
     def _mark(
@@ -538,9 +556,13 @@ class Gateway:
                 self.children[name] = child
                 self._start_child(child)
 
-    def run(self) -> None:
+    def run(self, notifier: Notifier | None = None) -> None:
+        """The supervision loop until :meth:`stop`; pings systemd's watchdog (``notifier``)
+        from each tick, so a loop that hangs gets the service restarted."""
         while not self.stop_event.wait(TICK_S):
             now = time.monotonic()
+            if notifier is not None:
+                notifier.watchdog(now)
             dead = tuple(self._poll_children(now))
             with self.lock:
                 self._take_states()
@@ -599,10 +621,13 @@ def cli_main(args: argparse.Namespace) -> int:
     gw = Gateway(args.config.resolve(), bus.with_overrides(args.bus), cfg, spawn=not args.no_spawn)
     signal.signal(signal.SIGTERM, lambda *_: gw.stop())
     signal.signal(signal.SIGINT, lambda *_: gw.stop())
+    notifier = Notifier()
     gw.open()
     try:
-        gw.run()
+        notifier.ready(f"serving the cell on {gw.bus.endpoint}")
+        gw.run(notifier)
     finally:
+        notifier.stopping()
         gw.close()
     return 0
 

@@ -22,7 +22,6 @@ import logging
 import mmap
 import os
 import select
-import struct
 import subprocess
 import sys
 from typing import IO, Any
@@ -34,24 +33,29 @@ log = logging.getLogger(__name__)
 #: shared array layout
 _P2, _P3, _ENABLING, _ESTOP_OK, _MARK, _SP2, _SP3, _WRITES = range(8)
 _N = 8
-_DOUBLE = struct.Struct("d")
-_SIZE = _N * _DOUBLE.size
+_SIZE = _N * 8  # doubles
 
 
 class _Shared:
-    """The shared doubles, indexed; reads and writes go through ``struct`` so no buffer of the
-    mapping is ever exported (a ctypes view would keep it from closing)."""
+    """The shared doubles, indexed, through a memoryview: each element is read and written as
+    one 8-byte copy, so the other process never sees half a value (``struct.pack_into`` zeroes
+    the bytes before it packs them: a reader caught in between read a pressure of 0 bar), and
+    :meth:`release` lets go of the mapping however many references the server still holds (a
+    ctypes view kept it from closing)."""
 
-    __slots__ = ("mm",)
+    __slots__ = ("view",)
 
     def __init__(self, mm: mmap.mmap) -> None:
-        self.mm = mm
+        self.view = memoryview(mm).cast("d")
 
     def __getitem__(self, k: int) -> float:
-        return _DOUBLE.unpack_from(self.mm, 8 * k)[0]
+        return self.view[k]
 
     def __setitem__(self, k: int, value: float) -> None:
-        _DOUBLE.pack_into(self.mm, 8 * k, value)
+        self.view[k] = value
+
+    def release(self) -> None:
+        self.view.release()
 
 
 def _view(fd: int) -> tuple[mmap.mmap, _Shared]:
@@ -159,7 +163,7 @@ class VirtualIoProcess:
         """Stop the child and release the shared memory."""
         self.stop()
         if self._fd >= 0:
-            del self._shared
+            self._shared.release()
             self._mm.close()
             os.close(self._fd)
             self._fd = -1
@@ -201,6 +205,7 @@ def main(argv: list[str] | None = None) -> int:
         pass
     finally:
         server.stop()
+        shared.release()
         mm.close()
     return 0
 

@@ -33,7 +33,7 @@ from drivers.can.current_zero import StoredZeroError, read_stored_zero
 from drivers.registry import load_adapter
 from gateway.bus import BusConfig, declare_loop_publisher, open_peer, undeclare_all
 from gateway.config import require
-from gateway.errors import ConfigError, LinkTimeoutError
+from gateway.errors import EXIT_CONFIG, ConfigError, LinkTimeoutError
 from gateway.latency import Histogram
 from gateway.messages import HEALTH_RATE_HZ, encode_json
 from gateway.ratelog import RateLimitedLog
@@ -513,7 +513,8 @@ def configure_parser(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
 
 
 def cli_main(args: argparse.Namespace) -> int:
-    """Run from parsed arguments; 0 on a clean stop, 2 for a bad config, 1 for other errors."""
+    """Run from parsed arguments; 0 on a clean stop, EXIT_CONFIG (78) for a bad config, 1 for
+    other errors."""
     if not logging.getLogger().handlers:
         logging.basicConfig(
             level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s"
@@ -522,7 +523,7 @@ def cli_main(args: argparse.Namespace) -> int:
         run(args.config, args.bus)
     except ConfigError as exc:
         log.error("configuration refused: %s", exc)
-        return 2
+        return EXIT_CONFIG
     except Exception as exc:  # anything else: report it, the controller brakes on its own
         log.error("CAN driver failed: %s: %s", type(exc).__name__, exc)
         return 1

@@ -53,7 +53,7 @@ from drivers.modbus.client import ModbusLinkError
 from drivers.modbus.config import ModbusDriverConfig
 from gateway.bus import bus_config_from, open_peer, undeclare_all
 from gateway.config import load_toml
-from gateway.errors import ConfigError, MessageError, ModbusReplyError
+from gateway.errors import EXIT_CONFIG, ConfigError, MessageError, ModbusReplyError
 from gateway.messages import HEALTH_RATE_HZ, IoState, Keys, PressureSetpoint, encode_json
 
 log = logging.getLogger(__name__)
@@ -423,8 +423,8 @@ def configure_parser(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
 
 
 def cli_main(args: argparse.Namespace) -> int:
-    """Run the driver until SIGTERM/SIGINT. Returns 0 on a clean stop, 2 on a bad config,
-    1 on any other failure."""
+    """Run the driver until SIGTERM/SIGINT. Returns 0 on a clean stop, EXIT_CONFIG (78) on a
+    bad config, 1 on any other failure."""
     logging.basicConfig(
         level=getattr(logging, getattr(args, "log_level", "INFO"), logging.INFO),
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",
@@ -436,8 +436,8 @@ def cli_main(args: argparse.Namespace) -> int:
         config = ModbusDriverConfig.from_cell_config(cell, str(args.config))
         adapter = create_adapter(config)
     except ConfigError as exc:
-        log.error("%s", exc)
-        return 2
+        log.error("configuration refused: %s", exc)
+        return EXIT_CONFIG
     if getattr(args, "log_level", "INFO") != "DEBUG":
         # pymodbus logs every failed connect itself; the driver reports those rate-limited.
         logging.getLogger("pymodbus").setLevel(logging.CRITICAL)

@@ -28,7 +28,7 @@ from drivers.can.config import CanDriverConfig
 from drivers.can.driver import CanDriver, cli_main, configure_parser, run
 from drivers.can.ltc import FaultCode, HostRequest, crc8_sae_j1850
 from gateway.bus import BusConfig, open_client, open_router
-from gateway.errors import LinkTimeoutError
+from gateway.errors import EXIT_CONFIG, LinkTimeoutError
 from gateway.messages import (
     FLAG_ESTOP,
     FLAG_PREV_HOLD,
@@ -426,8 +426,8 @@ def test_cli_help_and_bad_config(tmp_path, capsys):
     assert "--config" in help_text and "--bus" in help_text and "brake" in help_text
     bad = tmp_path / "bad.toml"
     bad.write_text('[can]\ndeadline_s = "soon"\n')
-    assert cli_main(parser.parse_args(["--config", str(bad)])) == 2
-    assert cli_main(parser.parse_args(["--config", str(tmp_path / "missing.toml")])) == 2
+    assert cli_main(parser.parse_args(["--config", str(bad)])) == EXIT_CONFIG
+    assert cli_main(parser.parse_args(["--config", str(tmp_path / "missing.toml")])) == EXIT_CONFIG
 
 
 def test_sigterm_stops_the_process_cleanly(make_cell, tmp_path):

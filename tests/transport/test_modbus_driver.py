@@ -23,6 +23,7 @@ import zenoh
 from drivers.modbus.config import ModbusDriverConfig
 from drivers.modbus.driver import ModbusDriver, cli_main, configure_parser
 from gateway.bus import BusConfig, open_client, open_router
+from gateway.errors import EXIT_CONFIG
 from gateway.messages import IoState, PressureSetpoint, decode_json
 from sim_bridge.modbus_server import VirtualIoServer, sim_modbus_section_toml
 
@@ -244,11 +245,11 @@ def test_help_is_readable():
     assert "--config CELL.toml" in text and "--bus ENDPOINT" in text and "SIGTERM" in text
 
 
-def test_bad_config_exits_with_2(tmp_path, caplog):
+def test_bad_config_exits_with_ex_config(tmp_path, caplog):
     cfg = tmp_path / "cell.toml"
     cfg.write_text(sim_modbus_section_toml(port=70000))
     args = configure_parser(argparse.ArgumentParser()).parse_args(["--config", str(cfg)])
-    assert cli_main(args) == 2
+    assert cli_main(args) == EXIT_CONFIG
     assert "[modbus].port: 70000" in caplog.text
 
 

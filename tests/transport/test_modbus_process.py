@@ -3,6 +3,7 @@ registers as in-process, set-points back to the simulator, and no server left be
 
 from __future__ import annotations
 
+import os
 import socket
 import subprocess
 import sys
@@ -11,7 +12,7 @@ import time
 import pytest
 
 from drivers.modbus.client import ModbusLink
-from sim_bridge.modbus_process import VirtualIoProcess
+from sim_bridge.modbus_process import _P2, _SIZE, VirtualIoProcess, _view
 from sim_bridge.modbus_server import VirtualIoServer
 
 
@@ -64,3 +65,40 @@ def test_the_module_stops_when_its_simulator_is_killed():
     while _listening(port) and time.monotonic() < deadline:
         time.sleep(0.1)
     assert not _listening(port), "the orphaned module still serves"
+
+
+def test_a_value_written_by_one_process_is_never_read_half_written_by_the_other():
+    """The simulator writes the pressures every cycle while the module's server reads them:
+    a reader must see the old value or the new one, never a torn or zeroed one (struct's
+    pack_into zeroes the bytes before packing: a poll once read 0 bar)."""
+    fd = os.memfd_create("torn-read-test", 0)
+    try:
+        os.ftruncate(fd, _SIZE)
+        mm, shared = _view(fd)
+        shared[_P2] = 6.0
+        writer = subprocess.Popen(
+            [sys.executable, "-c",
+             "import sys, time\n"
+             "from sim_bridge.modbus_process import _view, _P2\n"
+             "mm, s = _view(int(sys.argv[1]))\n"
+             "end = time.monotonic() + 1.0\n"
+             "while time.monotonic() < end:\n"
+             "    for v in (6.0, 3.5, 6.0, 3.5, 6.0, 3.5, 6.0, 3.5):\n"
+             "        s[_P2] = v\n"
+             "s.release(); mm.close()\n",
+             str(fd)],
+            pass_fds=(fd,),
+        )  # fmt: skip
+        try:
+            seen = set()
+            while writer.poll() is None:
+                for _ in range(1000):
+                    seen.add(shared[_P2])
+        finally:
+            writer.wait(10.0)
+        assert writer.returncode == 0
+        assert seen <= {6.0, 3.5}, f"read values nobody wrote: {seen - {6.0, 3.5}}"
+        shared.release()
+        mm.close()
+    finally:
+        os.close(fd)

@@ -1,0 +1,80 @@
+"""The gateway's supervision of its children (gateway/supervisor.py): a child that crashes is
+restarted after the back-off; one that refuses its configuration (EXIT_CONFIG) is not, the
+fault says why, and `reset` starts it again."""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from gateway.bus import BusConfig
+from gateway.errors import EXIT_CONFIG
+from gateway.lifecycle import Lifecycle
+from gateway.supervisor import Child, Gateway, GatewayConfig
+
+
+def _gateway_with_child(exit_code: int) -> tuple[Gateway, Child]:
+    cfg = GatewayConfig(processes=(), restart_backoff_s=0.05)
+    gw = Gateway(Path("cell.toml"), BusConfig(), cfg, spawn=False)
+    child = Child("control", [sys.executable, "-c", f"import sys; sys.exit({exit_code})"])
+    gw.children[child.name] = child
+    gw._start_child(child)
+    return gw, child
+
+
+def _poll_until_exited(gw: Gateway, child: Child, n: int) -> None:
+    deadline = time.monotonic() + 10.0
+    while len(child.exits) < n:
+        assert time.monotonic() < deadline, "the child did not exit"
+        gw._poll_children(time.monotonic())
+        time.sleep(0.01)
+
+
+def _reap(child: Child) -> None:
+    if child.proc is not None:
+        child.proc.wait(10.0)
+        child.proc = None
+
+
+def test_a_crashed_child_is_restarted_after_the_backoff():
+    gw, child = _gateway_with_child(1)
+    try:
+        _poll_until_exited(gw, child, 1)
+        assert gw.machine.state == Lifecycle.FAULT
+        assert "exited (code 1)" in gw.machine.reason
+        time.sleep(0.06)
+        assert gw._poll_children(time.monotonic()) == []  # restarted, not dead
+        assert child.proc is not None
+    finally:
+        _reap(child)
+
+
+def test_a_child_that_refuses_its_config_stays_down_until_reset():
+    gw, child = _gateway_with_child(EXIT_CONFIG)
+    try:
+        _poll_until_exited(gw, child, 1)
+        assert gw.machine.state == Lifecycle.FAULT
+        assert "refused its configuration" in gw.machine.reason
+        time.sleep(0.2)  # four back-offs
+        assert gw._poll_children(time.monotonic()) == ["control"]
+        assert child.proc is None and child.exits == [EXIT_CONFIG], "it was restarted"
+        ok, message = gw._command("reset", None, None, gw.observations(time.monotonic()))
+        assert not ok and "restarted control" in message
+        assert child.proc is not None and not child.config_refused
+        _poll_until_exited(gw, child, 2)  # the file is still bad: refused again, stays down
+        assert child.config_refused and child.proc is None
+    finally:
+        _reap(child)
+
+
+@pytest.mark.parametrize("code", [0, 2])
+def test_other_exits_are_restarted(code):
+    gw, child = _gateway_with_child(code)
+    try:
+        _poll_until_exited(gw, child, 1)
+        assert not child.config_refused and child.restart_at_s is not None
+    finally:
+        _reap(child)
