@@ -3,7 +3,10 @@
 MCAP layout: one channel per key expression (topic = the key), message encoding
 ``leadthrough/<Type>`` for the binary layouts of gateway/messages.py and ``json`` for the JSON
 ones; log time = receive time on the recorder [ns, monotonic clock]. Zenoh callbacks only
-enqueue; a writer thread owns the file, so a slow disk never stalls the bus.
+enqueue; a writer thread owns the file, so a slow disk never stalls the bus. The writer closes
+its chunk, flushes and fsyncs at least every :data:`FLUSH_PERIOD_S`, so a crash, a power cut or
+``kill -9`` loses at most that much: :func:`iter_mcap` reads a cut file (no summary, a partial
+last record) up to its last complete record and says so.
 
 CSV export (the measurement format of control/identification/datafile.py): one row per
 JointState, ``t`` counted from the first exported cycle in controller time
@@ -18,6 +21,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import os
 import queue
 import signal
 import threading
@@ -29,6 +33,8 @@ from typing import Any
 
 import numpy as np
 from mcap.reader import make_reader
+from mcap.records import Channel, Message
+from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
 from gateway.bus import BusConfig, bus_config_from, open_client, undeclare_all
@@ -53,6 +59,8 @@ _BINARY = {
     PressureSetpoint.MAGIC: "PressureSetpoint",
 }
 _STOP = object()
+#: the longest a received message waits in memory before it is on disk [s]
+FLUSH_PERIOD_S = 1.0
 
 
 def _encoding(payload: bytes) -> str:
@@ -91,15 +99,29 @@ class BusRecorder:
                 if self.metadata:
                     writer.add_metadata("leadthrough", self.metadata)
                 schema = writer.register_schema("leadthrough", "", b"")
-                while (item := self._queue.get()) is not _STOP:
-                    key, t_ns, payload = item
-                    enc = _encoding(payload)
-                    ch = channels.get((key, enc))
-                    if ch is None:
-                        ch = writer.register_channel(key, enc, schema)
-                        channels[(key, enc)] = ch
-                    writer.add_message(ch, t_ns, payload, t_ns, self.count)
-                    self.count += 1
+                due: float | None = None  #: when the oldest message not on disk must be
+                while True:
+                    wait = None if due is None else max(due - time.monotonic(), 0.0)
+                    try:
+                        item = self._queue.get(timeout=wait)
+                    except queue.Empty:
+                        item = None
+                    if item is _STOP:
+                        break
+                    if item is not None:
+                        key, t_ns, payload = item
+                        enc = _encoding(payload)
+                        ch = channels.get((key, enc))
+                        if ch is None:
+                            ch = writer.register_channel(key, enc, schema)
+                            channels[(key, enc)] = ch
+                        writer.add_message(ch, t_ns, payload, t_ns, self.count)
+                        self.count += 1
+                        if due is None:
+                            due = time.monotonic() + FLUSH_PERIOD_S
+                    if due is not None and time.monotonic() >= due:
+                        _to_disk(writer, fh)
+                        due = None
                 writer.finish()
         except BaseException as exc:  # keep the recording error for stop() to report
             self.error = exc
@@ -119,18 +141,63 @@ class BusRecorder:
                 self._thread.join(30.0)
 
 
+def _to_disk(writer: Writer, fh: Any) -> None:
+    """Close the open chunk (mcap 1.6 has no public call for it; without it a chunk is written
+    only when it is full, ~1 MiB or ~14 s of a 250 Hz cell), flush and fsync."""
+    finalize = getattr(writer, "_Writer__finalize_chunk", None)
+    if finalize is not None:
+        finalize()
+    fh.flush()
+    os.fsync(fh.fileno())
+
+
 def iter_mcap(path: Path, topics: list[str] | None = None) -> Iterator[tuple[str, int, bytes]]:
     """(key, log_time_ns, payload) of every message (of ``topics`` only, when given), in
-    log-time order."""
+    log-time order. A recording cut short (the recorder killed: no summary, the last record
+    partial) is read up to its last complete record, with a warning."""
+    path = Path(path)
     try:
-        with Path(path).open("rb") as fh:
-            reader = make_reader(fh)
-            for _schema, channel, message in reader.iter_messages(topics, log_time_order=True):
+        with path.open("rb") as fh:
+            try:
+                reader = make_reader(fh)
+                messages = reader.iter_messages(topics, log_time_order=True)
+                first = next(messages, None)
+            except Exception as exc:  # no footer/summary: read it as a stream
+                log.warning("%s: recording was cut short (%s); reading what is complete",
+                            path, exc)  # fmt: skip
+                fh.seek(0)
+                yield from _iter_cut(fh, path, topics)
+                return
+            if first is not None:
+                yield first[1].topic, first[2].log_time, first[2].data
+            for _schema, channel, message in messages:
                 yield channel.topic, message.log_time, message.data
     except FileNotFoundError:
         raise DataFileError(f"{path}: recording not found") from None
+    except DataFileError:
+        raise
     except Exception as exc:
         raise DataFileError(f"{path}: not a readable MCAP recording: {exc}") from exc
+
+
+def _iter_cut(fh: Any, path: Path, topics: list[str] | None) -> Iterator[tuple[str, int, bytes]]:
+    """The complete messages of a cut recording, in log-time order."""
+    topic_of: dict[int, str] = {}
+    out: list[tuple[int, int, str, bytes]] = []
+    try:
+        for record in StreamReader(fh, emit_chunks=False).records:
+            if isinstance(record, Channel):
+                topic_of[record.id] = record.topic
+            elif isinstance(record, Message):
+                topic = topic_of.get(record.channel_id)
+                if topic is not None and (topics is None or topic in topics):
+                    out.append((record.log_time, len(out), topic, record.data))
+    except Exception as exc:  # the cut: a partial record, or a chunk that was never closed
+        if not out and not topic_of:
+            raise DataFileError(f"{path}: not a readable MCAP recording: {exc}") from exc
+    out.sort()
+    for t_ns, _, topic, data in out:
+        yield topic, t_ns, data
 
 
 #: After a cycle the CAN driver answered with something other than the control process's

@@ -1,6 +1,8 @@
 """Bus recording (MCAP) and its CSV export, over a real zenoh router."""
 
 import json
+import subprocess
+import sys
 import time
 
 import numpy as np
@@ -14,10 +16,11 @@ from gateway.messages import (
     FLAG_SERVO_POWER,
     ControllerState,
     IoState,
+    JointState,
     encode_json,
     make_joint_state,
 )
-from gateway.recorder import BusRecorder, export_csv, iter_mcap
+from gateway.recorder import FLUSH_PERIOD_S, BusRecorder, export_csv, iter_mcap
 
 
 @pytest.fixture
@@ -104,3 +107,51 @@ def test_missing_or_corrupt_recording_is_a_clear_error(tmp_path):
     bad.write_bytes(b"\x89MCAP0\r\n truncated")
     with pytest.raises(DataFileError, match="not a readable MCAP"):
         list(iter_mcap(bad))
+
+
+def test_a_recorder_killed_with_sigkill_leaves_a_readable_file_missing_at_most_a_second(
+    router, tmp_path
+):
+    keys = router.keys
+    path = tmp_path / "cut.mcap"
+    child = subprocess.Popen(
+        [sys.executable, "-c",
+         "import sys, time\n"
+         "from pathlib import Path\n"
+         "from gateway.bus import BusConfig\n"
+         "from gateway.recorder import BusRecorder\n"
+         "rec = BusRecorder(BusConfig(endpoint=sys.argv[1]), Path(sys.argv[2]))\n"
+         "rec.start()\n"
+         "print('recording', flush=True)\n"
+         "time.sleep(60)\n",
+         router.endpoint, str(path)],
+        stdout=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    pub = open_client(router)
+    try:
+        assert child.stdout is not None and child.stdout.readline().strip() == "recording"
+        time.sleep(0.5)  # let the subscription reach the router
+        sent: list[tuple[int, float]] = []
+        k, end = 0, time.monotonic() + 3.0
+        while time.monotonic() < end:
+            q = np.full(6, 0.001 * k)
+            st = make_joint_state(k, 1.0, ControllerState.EXTERNAL, 2, q, q * 0, np.ones(6), q,
+                                  q * 0, 0.004)  # fmt: skip
+            pub.put(keys.joint_state, st.to_bytes())
+            sent.append((k, time.monotonic()))
+            k += 1
+            time.sleep(0.004)
+        killed_s = time.monotonic()
+        child.kill()  # SIGKILL: no finish(), no summary, a chunk left open
+        child.wait(10.0)
+    finally:
+        pub.close()
+        if child.poll() is None:
+            child.kill()
+            child.wait(10.0)
+        child.stdout.close()
+    got = {JointState.from_bytes(p).cycle for _, _, p in iter_mcap(path)}
+    older = [c for c, t in sent if t < killed_s - FLUSH_PERIOD_S - 0.2]
+    assert len(older) >= 100, "too few states to judge (a loaded machine sends fewer)"
+    missing = sorted(set(older) - got)
+    assert not missing, f"{len(missing)} states older than a second lost, e.g. {missing[:5]}"
