@@ -39,7 +39,9 @@ class Observations:
     dead_processes: tuple[str, ...] = ()
     stale_processes: tuple[str, ...] = ()
     max_speed_rad_s: float | None = None  #: fastest joint in the latest joint state
-    still_for_s: float = 0.0  #: how long every joint has been below the standstill speed
+    #: how long the arm has been still: no joint left a band of standstill_rad_s·standstill_s
+    #: and none read faster than 10 standstill speeds (gateway/supervisor.py JointStateWatch)
+    still_for_s: float = 0.0
     #: why the model does not match the arm's static load (control/load_check.py); None: it does
     load_problem: str | None = None
 
@@ -50,10 +52,11 @@ class Limits:
     io_timeout_s: float = 0.25
     #: teaching (and identification) start only from standstill: after servo-on the arm first
     #: settles onto the vendor loop's position error, and a weightless arm would keep any
-    #: velocity it has at takeover [rad/s], for at least ``standstill_s`` [s]. A vendor loop
-    #: holding on a quantised encoder dithers by 1-2 mrad/s without going anywhere (measured
-    #: on the virtual cell: ±1.4 mrad/s on J4 for 15 s, the position still to 0.1 mrad), so
-    #: below 5e-4 teaching could wait forever; 2e-3 is also the control's own "at rest"
+    #: velocity it has at takeover. Still: for ``standstill_s`` [s] no joint moved farther
+    #: than ``standstill_rad_s`` [rad/s] would take it, and no state read a joint faster than
+    #: 10 times that. A vendor loop holding on a quantised encoder dithers by 1-2 mrad/s
+    #: without going anywhere (measured on the virtual cell: ±1.4 mrad/s on J4 for 15 s, the
+    #: position still to 0.1 mrad), which is why positions, not the newest speed, decide.
     standstill_rad_s: float = 2e-3
     standstill_s: float = 0.3
 
@@ -166,12 +169,10 @@ class LifecycleMachine:
         return False, f"unknown command {name!r}; use start, stop, status or reset"
 
     def _still(self, obs: Observations) -> bool:
-        speed = obs.max_speed_rad_s
-        return (
-            speed is not None
-            and speed <= self.limits.standstill_rad_s
-            and obs.still_for_s >= self.limits.standstill_s
-        )
+        """The arm has been still for ``standstill_s``, as the joint-state watch judges it
+        from positions (gateway/supervisor.py ``JointStateWatch``): not from the newest
+        measured speed, whose noise and a hold's dither would keep teaching waiting."""
+        return obs.max_speed_rad_s is not None and obs.still_for_s >= self.limits.standstill_s
 
     def identify(self, plan: dict, obs: Observations) -> tuple[bool, str]:
         """Start an excitation plan (operator command `identify`)."""

@@ -67,10 +67,11 @@ _STATE_HEAD = JointState._HEAD  #: magic, version, n, cycle, stamp, state, flags
 _CONTROLLER_STATES = {int(s): s for s in ControllerState}
 
 
-def joint_state_summary(data: bytes) -> tuple[ControllerState, float, float]:
-    """Controller state, driver stamp [s] and fastest joint speed max|dq| [rad/s] of a JointState
-    payload, checked as :meth:`JointState.from_bytes` checks it (layout, every value finite)
-    but without building one. Raises MessageError naming what is wrong."""
+def joint_state_summary(data: bytes) -> tuple[ControllerState, float, float, np.ndarray]:
+    """Controller state, driver stamp [s], fastest joint speed max|dq| [rad/s] and the joint
+    positions [rad] (a read-only view of ``data``) of a JointState payload, checked as
+    :meth:`JointState.from_bytes` checks it (layout, every value finite) but without building
+    one. Raises MessageError naming what is wrong."""
     if len(data) < _STATE_HEAD.size:
         raise MessageError(f"JointState: payload is {len(data)} bytes, shorter than its header")
     magic, version, n, _, stamp_s, state, _, period_s = _STATE_HEAD.unpack_from(data)
@@ -86,7 +87,7 @@ def joint_state_summary(data: bytes) -> tuple[ControllerState, float, float]:
     body = np.frombuffer(data, dtype="<f8", count=5 * n, offset=_STATE_HEAD.size)
     if not np.isfinite(body).all():
         raise MessageError("JointState: a value is not finite")
-    return controller_state, stamp_s, float(np.abs(body[n : 2 * n]).max())
+    return controller_state, stamp_s, float(np.abs(body[n : 2 * n]).max()), body[:n]
 
 
 class JointStateWatch:
@@ -104,13 +105,27 @@ class JointStateWatch:
       stamps it before publishing, on the same CLOCK_MONOTONIC). The joint-state age is
       never under-reported, so a stream that stops is seen at the first tick more than
       ``joint_state_timeout_s`` after its last state, as when each state was stamped on arrival.
-    * ``moving_s``, the last time a joint moved faster than ``standstill_rad_s`` (or the first
-      state), is an upper bound: the time of the fold that saw it. Every received state counts,
-      so standstill is never over-reported.
+    * ``moving_s``, the last time the arm was seen moving (or the first state), is an upper
+      bound: the time of the fold that saw it. Every received state counts, so standstill is
+      never over-reported.
+
+    "Moving" is judged as a drive's measurements allow. A measured speed is an encoder
+    difference, noisy, and a vendor loop holding on a quantised encoder hunts by a few mrad/s
+    without going anywhere; a joint's position is exact to the encoder step. So the arm moves
+    when a joint leaves the band of ``standstill_rad_s · standstill_s`` it has kept since the
+    last motion (its mean speed over the standstill time is then above ``standstill_rad_s``),
+    or when one state shows a joint faster than ``FAST_FACTOR · standstill_rad_s``, which no
+    hold's dither reaches. The lifecycle also asks the newest state's speed to be below
+    ``standstill_rad_s``: a weightless arm keeps the velocity it has when teaching takes over.
     """
 
-    def __init__(self, standstill_rad_s: float, start_s: float) -> None:
+    #: one state faster than this many standstill speeds is a motion, whatever the band says
+    FAST_FACTOR = 10.0
+
+    def __init__(self, standstill_rad_s: float, start_s: float, standstill_s: float = 0.3) -> None:
         self.standstill_rad_s = standstill_rad_s
+        self.band_rad = standstill_rad_s * standstill_s
+        self.fast_rad_s = self.FAST_FACTOR * standstill_rad_s
         self.rx_s: float | None = None
         self.moving_s: float | None = None
         self.controller_state: ControllerState | None = None
@@ -118,6 +133,27 @@ class JointStateWatch:
         self._fold_s = start_s
         self._raw: bytes | None = None
         self._state: JointState | None = None
+        self._lo: np.ndarray | None = None  #: each joint's lowest position since the motion
+        self._hi: np.ndarray | None = None  #: ... and its highest
+
+    def _moved(self, speed: float, q: np.ndarray) -> bool:
+        """Take in one state; True if it shows a motion (and the band restarts at ``q``)."""
+        if self._lo is None or self._hi is None or speed > self.fast_rad_s:
+            self._lo, self._hi = q.copy(), q.copy()
+            return speed > self.fast_rad_s
+        np.minimum(self._lo, q, out=self._lo)
+        np.maximum(self._hi, q, out=self._hi)
+        if float(np.max(self._hi - self._lo)) > self.band_rad:
+            self._lo, self._hi = q.copy(), q.copy()
+            return True
+        return False
+
+    @property
+    def band_used_rad(self) -> float:
+        """The widest joint excursion since the last motion [rad] (0 before the first state)."""
+        if self._lo is None or self._hi is None:
+            return 0.0
+        return float(np.max(self._hi - self._lo))
 
     def fold(
         self, payloads: Iterable[bytes], start_s: float, end_s: float | None = None
@@ -135,10 +171,10 @@ class JointStateWatch:
                 problems.append(str(exc))
                 continue
             newest = data, summary
-            moved = moved or summary[2] > self.standstill_rad_s
+            moved = self._moved(summary[2], summary[3]) or moved
         if newest is None:
             return problems
-        self._raw, (self.controller_state, stamp_s, self.max_speed_rad_s) = newest
+        self._raw, (self.controller_state, stamp_s, self.max_speed_rad_s, _) = newest
         self._state = None
         self.rx_s = max(since_s, min(stamp_s, now_s))
         if moved or self.moving_s is None:
@@ -204,7 +240,7 @@ class Gateway:
         self.lock = threading.Lock()
         self.stop_event = threading.Event()
         self.spawn = spawn
-        self.watch = JointStateWatch(cfg.standstill_rad_s, time.monotonic())
+        self.watch = JointStateWatch(cfg.standstill_rad_s, time.monotonic(), cfg.standstill_s)
         self._state_sub = None  #: joint states, in a ring channel the tick drains
         self._requests = None  #: operator requests, in a channel the tick serves
         self.io: IoState | None = None
@@ -373,6 +409,12 @@ class Gateway:
             "load_problem": obs.load_problem,
             "joint_state_age_s": obs.joint_state_age_s,
             "io_age_s": obs.io_age_s,
+            # what teaching waits for after servo-on (Limits.standstill_*)
+            "standstill": {
+                "speed_rad_s": obs.max_speed_rad_s,
+                "still_for_s": round(obs.still_for_s, 3),
+                "band_rad": round(self.watch.band_used_rad, 7),
+            },
             "processes": {
                 n: {
                     "running": c.proc is not None,

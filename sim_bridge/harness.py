@@ -236,7 +236,29 @@ class Stack:
             if predicate(last):
                 return last
             time.sleep(0.1)
-        raise TimeoutError(f"waited {timeout_s} s for {what}; last status: {last}")
+        raise TimeoutError(
+            f"waited {timeout_s} s for {what}; last status: {last}; {self._truth_tail()}"
+        )
+
+    def _truth_tail(self, seconds: float = 1.0) -> str:
+        """What the simulator's truth says the arm did in the last ``seconds`` (for a failure
+        message: the product's own view of it is in the status)."""
+        try:
+            truth = self.truth()
+        except (OSError, ValueError) as exc:
+            return f"no truth log: {exc}"
+        t = truth["t_s"]
+        if t.size == 0:
+            return "the truth log is empty"
+        recent = t >= t[-1] - seconds
+        dq = np.stack([truth[f"dq{j + 1}"][recent] for j in range(6)], axis=1)
+        q = np.stack([truth[f"q{j + 1}"][recent] for j in range(6)], axis=1)
+        return (
+            f"truth over the last {seconds} s (sim t {t[-1]:.2f} s, controller state "
+            f"{truth['ctrl_state'][-1]:.0f}): max |dq| {np.round(np.abs(dq).max(0), 5).tolist()} "
+            f"rad/s, q span {np.round(np.ptp(q, 0), 6).tolist()} rad, "
+            f"hand force {np.round([truth[k][-1] for k in ('f_x', 'f_y', 'f_z')], 1).tolist()} N"
+        )
 
     def start_teaching(self, timeout_s: float = 40.0) -> dict[str, Any]:
         """Wait until the cell can start, send `start`, wait for TEACHING."""

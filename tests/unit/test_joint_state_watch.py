@@ -1,6 +1,8 @@
 """The gateway takes joint states in once per tick, in a batch, and still sees every one of them:
 a lost stream is found within joint_state_timeout_s (plus one tick), a motion between two ticks
-still restarts the standstill clock, and a malformed state is refused as the decoder refuses it."""
+still restarts the standstill clock, and a malformed state is refused as the decoder refuses it.
+Standstill is judged as a drive measures: a hold that hunts or a noisy velocity does not keep
+teaching waiting, a creep faster than the standstill speed does."""
 
 from __future__ import annotations
 
@@ -54,8 +56,9 @@ def test_summary_reads_what_the_decoder_reads():
         data = payload(k, 10.0 + k, q=rng.normal(0, 1, 6), dq=dq,
                        controller_state=ControllerState(k % 4))  # fmt: skip
         st = JointState.from_bytes(data)
-        state, stamp, speed = joint_state_summary(data)
+        state, stamp, speed, q = joint_state_summary(data)
         assert (state, stamp, speed) == (st.controller_state, st.stamp_s, np.abs(dq).max())
+        np.testing.assert_array_equal(q, st.q_rad)
 
 
 def _corruptions(good: bytes) -> dict[str, bytes]:
@@ -94,14 +97,15 @@ class Cell:
     """States arriving at 250 Hz, folded at each gateway tick, observed by the lifecycle."""
 
     def __init__(self, limits: Limits) -> None:
-        self.watch = JointStateWatch(limits.standstill_rad_s, 0.0)
+        self.watch = JointStateWatch(limits.standstill_rad_s, 0.0, limits.standstill_s)
         self.machine = LifecycleMachine(limits)
         self.pending: list[bytes] = []
         self.cycle = 0
 
-    def arrive(self, t_s: float, speed: float = 0.0) -> None:
+    def arrive(self, t_s: float, speed: float = 0.0, **joints: np.ndarray) -> None:
+        """A state stamped ``t_s``: joint 4 at ``speed``, or the ``q`` / ``dq`` given."""
         self.cycle += 1
-        self.pending.append(payload(self.cycle, t_s - TRANSIT_S, speed))
+        self.pending.append(payload(self.cycle, t_s - TRANSIT_S, speed, **joints))
 
     def tick(self, now_s: float) -> Lifecycle:
         batch, self.pending = self.pending, []
@@ -233,3 +237,60 @@ def test_gateway_observes_and_reports_the_newest_state_of_each_tick():
     assert obs.joint_state_age_s == pytest.approx(after + 0.005 - (t0 + 3 * PERIOD_S))
     status = gw.status(after)
     assert status["controller_state"] == "hold" and len(status["q_rad"]) == 6
+
+
+def _first_teaching(limits: Limits, duration_s: float, joints) -> float | None:
+    """Stream ``joints(k, t) -> (q, dq)`` for ``duration_s``; when teaching began (None: never)."""
+    cell, next_tick = Cell(limits), TICK_S
+    for k in range(round(duration_s / PERIOD_S)):
+        t = k * PERIOD_S
+        while next_tick <= t:
+            if cell.tick(next_tick) == Lifecycle.TEACHING:
+                return next_tick
+            next_tick += TICK_S
+        q, dq = joints(k, t)
+        cell.arrive(t, q=q, dq=dq)
+    return None
+
+
+def test_a_hold_that_hunts_with_a_noisy_velocity_does_not_keep_teaching_waiting():
+    """A vendor loop on a quantised encoder dithers by a few standstill speeds, and the drive's
+    velocity is noisy (std = the standstill speed); the position stays within a few µrad."""
+    limits = Limits(joint_state_timeout_s=0.1, standstill_rad_s=STILL, standstill_s=0.3)
+    rng = np.random.default_rng(3)
+    q0 = np.linspace(-0.5, 0.5, 6)
+
+    def hunting(k: int, t: float):
+        dq = 3 * STILL * np.sin(2 * np.pi * 5.0 * t + np.arange(6)) + rng.normal(0, STILL, 6)
+        return q0 + 3 * STILL / (2 * np.pi * 5.0) * np.sin(2 * np.pi * 5.0 * t), dq
+
+    began = _first_teaching(limits, 3.0, hunting)
+    assert began is not None, "a hold's dither kept teaching from starting"
+    assert began <= limits.standstill_s + 0.2
+
+
+@pytest.mark.parametrize("speed_factor, teaches", [(0.5, True), (1.5, False), (4.0, False)])
+def test_a_creep_faster_than_the_standstill_speed_is_motion_however_quiet_its_velocity(
+    speed_factor: float, teaches: bool
+):
+    """Joint 2 creeps at ``speed_factor`` standstill speeds while its velocity reads near zero
+    (a drive that filters it): the positions decide."""
+    limits = Limits(joint_state_timeout_s=0.1, standstill_rad_s=STILL, standstill_s=0.3)
+    q0 = np.linspace(-0.5, 0.5, 6)
+
+    def creeping(k: int, t: float):
+        q = q0.copy()
+        q[1] += speed_factor * STILL * t
+        return q, np.full(6, 0.1 * STILL)
+
+    began = _first_teaching(limits, 3.0, creeping)
+    assert (began is not None) == teaches, began
+
+
+def test_one_state_far_above_the_standstill_speed_restarts_the_clock_at_any_position():
+    w = JointStateWatch(STILL, 0.0, 0.3)
+    w.fold([payload(1, 0.001)], 0.01)
+    w.fold([payload(2, 0.005)], 0.5)
+    assert w.moving_s == 0.01
+    w.fold([payload(3, 0.505, speed=JointStateWatch.FAST_FACTOR * STILL * 1.01)], 0.51)
+    assert w.moving_s == 0.51 and w.band_used_rad == 0.0

@@ -97,7 +97,7 @@ def test_seq_increments_on_every_change():
 def test_teaching_waits_for_standstill_after_servo_on():
     m = LifecycleMachine()
     m.command("start", healthy())
-    assert m.update(healthy(enabling=True, max_speed_rad_s=0.01)) == Lifecycle.READY
+    assert m.update(healthy(enabling=True, still_for_s=0.0)) == Lifecycle.READY
     assert m.update(healthy(enabling=True, max_speed_rad_s=None)) == Lifecycle.READY
     assert (
         m.update(healthy(enabling=True, max_speed_rad_s=1e-4, still_for_s=0.1)) == Lifecycle.READY
