@@ -7,6 +7,9 @@ from pathlib import Path
 
 from gateway.config import require, require_count
 
+#: the lead-through laws (``[control].strategy``)
+STRATEGIES = ("zero_moment", "admittance")
+
 
 @dataclass(frozen=True)
 class ControlConfig:
@@ -52,6 +55,18 @@ class ControlConfig:
     engage_rest_states: int = 32
     #: ... or after this many states of waiting for rest, whatever the arm does [states]
     engage_max_wait_states: int = 125
+    #: the lead-through law: "zero_moment" (the paper's, eq. 21 with the model's torque) or
+    #: "admittance" (control/admittance.py: the hand's torque from the motor current, the arm
+    #: on a reference of ``admittance_mass_fraction`` of its inertia and the damping above)
+    strategy: str = "zero_moment"
+    admittance_mass_fraction: float = 0.3
+    #: the admittance's low-pass on the hand torque estimate [Hz]: measured on the virtual
+    #: cell (teach-bench, seed 0), 8 Hz is stable, 15 Hz is not, nor 8 Hz with half the damping
+    admittance_filter_hz: float = 5.0
+    #: its dead zone per joint: this × the model's held-out RMS, at least ``rest_hold_nm``
+    admittance_band_rms_factor: float = 1.0
+    #: the damping while no joint is pushed beyond its dead zone, × ``damping_nm_s_per_rad``
+    admittance_rest_damping_factor: float = 10.0
     #: cylinder pressure set-points sent to the valves [bar]
     pressure_setpoint_bar: tuple[float, float] = (6.0, 4.0)
     #: I/O older than this: no command is published (the CAN driver then holds) [s]
@@ -169,6 +184,31 @@ class ControlConfig:
             f"{self.command_delay_cycles} not in 0..10",
         )
         require(all(v > 0 for v in self.max_offset_rad), "[control].max_offset_rad", "> 0")
+        require(
+            self.strategy in STRATEGIES,
+            "[control].strategy",
+            f"{self.strategy!r} not one of {STRATEGIES}",
+        )
+        require(
+            0.0 < self.admittance_mass_fraction <= 2.0,
+            "[control].admittance_mass_fraction",
+            f"{self.admittance_mass_fraction} not in (0, 2]",
+        )
+        require(
+            0.0 <= self.admittance_band_rms_factor <= 10.0,
+            "[control].admittance_band_rms_factor",
+            f"{self.admittance_band_rms_factor} not in [0, 10]",
+        )
+        require(
+            1.0 <= self.admittance_rest_damping_factor <= 1000.0,
+            "[control].admittance_rest_damping_factor",
+            f"{self.admittance_rest_damping_factor} not in [1, 1000]",
+        )
+        require(
+            0.0 < self.admittance_filter_hz <= 100.0,
+            "[control].admittance_filter_hz",
+            f"{self.admittance_filter_hz} not in (0, 100] Hz",
+        )
         require(
             0.0 <= self.friction_compensation <= 1.0,
             "[control].friction_compensation",

@@ -92,6 +92,13 @@ class HoldAverage:
     def __len__(self) -> int:
         return len(self._rows)
 
+    def torque_std(self) -> list[float]:
+        """The held motor torque's standard deviation per joint [N·m] (its noise at rest);
+        raises ValueError with fewer than two states."""
+        if len(self._rows) < 2:
+            raise ValueError("fewer than two held states")
+        return np.std([t for _, t in self._rows], axis=0, ddof=1).tolist()
+
     def mean(self) -> tuple[list[float], list[float]]:
         """(offset, torque) averaged per joint; raises ValueError when empty."""
         if not self._rows:

@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from control.admittance import Admittance
 from control.config import ControlConfig
 from control.declared_model import DeclaredModel
 from control.delay import DelayPredictor
@@ -70,6 +71,8 @@ MAX_REPLAY_SPEED_M_S = MAX_SPEED_MM_S / 1000.0
 PRESSURE_PUBLISH_PERIOD_S = 0.1
 #: the static-load check runs at most this often [s] (the gateway accepts one up to 0.5 s old)
 LOAD_CHECK_PERIOD_S = 0.1
+#: the admittance measures its estimate's noise on at least this many held states
+MIN_NOISE_STATES = 16
 #: the delay predictor's M(q)⁻¹ is recomputed after a joint moved this much [rad]
 INERTIA_STEP_RAD = 0.02
 
@@ -360,6 +363,132 @@ class ZeroMomentController:
         return self.loop.step_floats(q, dq, tau, dt_s)
 
 
+class AdmittanceController(ZeroMomentController):
+    """Sensorless admittance (control/admittance.py) behind the controller's interface.
+
+    Engages as :class:`ZeroMomentController` does (after the arm has rested in the driver's
+    hold): the hold's mean offset and current calibrate ω̂ (the offset that makes the vendor
+    loop give a torque) and the residual b of (A1). Then each cycle: τ̂_h from the motor
+    current of the cycle that just ended and the reference acceleration that drove it, the
+    reference of (A2), and the command ``q_r + ω̂ (τ_model − b) / Υ̂_I``, ``q̇_r``. ω̂ does not
+    adapt here: the hand's torque is in the current, so eq. (28) would learn it.
+    """
+
+    def __init__(self, cfg: ControlConfig, model: DeclaredModel) -> None:
+        super().__init__(cfg, model)
+        if self._inertia is None:
+            from control.model.dynamics import RigidBodyModel
+
+            self._inertia = RigidBodyModel.from_description(model.desc)
+        band = hold_band_nm(
+            cfg.rest_hold_nm or [0.0] * model.n,
+            cfg.admittance_band_rms_factor,
+            model.heldout_rms_nm,
+        )
+        self.admittance = Admittance(
+            cfg.admittance_mass_fraction,
+            cfg.damping_nm_s_per_rad,
+            band,
+            cfg.admittance_filter_hz,
+            cfg.max_velocity_rad_s,
+            cfg.admittance_rest_damping_factor,
+        )
+        self._bias = np.zeros(model.n)
+        self._max_offset = np.array(cfg.max_offset_rad)
+        #: reference accelerations sent, newest last: the current of a state was measured over
+        #: the cycle the one ``delay + 1`` back drove
+        self._sent_ddq: deque[np.ndarray] = deque(maxlen=cfg.command_delay_cycles + 1)
+        self._mass: tuple[np.ndarray, np.ndarray] | None = None
+
+    def mass(self, q: np.ndarray) -> np.ndarray:
+        """M̂(q), recomputed after a joint moved INERTIA_STEP_RAD: the identified model's
+        (in the unit its torques and the drives' currents share), or the nominal rigid body's
+        with rotor inertias where the model has none or its M̂ is not positive definite."""
+        cached = self._mass
+        if cached is None or float(np.max(np.abs(q - cached[0]))) > INERTIA_STEP_RAD:
+            cached = self._mass = (q.copy(), self._mass_at(q))
+        return cached[1]
+
+    def _mass_at(self, q: np.ndarray) -> np.ndarray:
+        identified = getattr(self.model, "identified", None)
+        if identified is not None:
+            n = self.model.n
+            ddq = np.vstack([np.zeros(n), np.eye(n)])
+            tau = identified.torque_nm(np.tile(q, (n + 1, 1)), np.zeros((n + 1, n)), ddq)
+            m = (tau[1:] - tau[0]).T
+            m = 0.5 * (m + m.T)
+            if np.isfinite(m).all() and np.linalg.eigvalsh(m).min() > 0:
+                return m
+        assert self._inertia is not None
+        return self._inertia.mass_matrix(q, include_armature=True)
+
+    def model_torque(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray, p_bar) -> np.ndarray:
+        """What the drives must give for the arm to move so, without a hand [N·m]: M̂ q̈ +
+        gravity − cylinders + the model's friction where it opposes the motion, at the speed
+        beyond the friction deadband (as the zero-moment law: at rest the arm stands on its
+        own friction, and a creep never earns a push)."""
+        dead = self.cfg.friction_deadband_rad_s
+        dq_f = np.sign(dq) * np.maximum(np.abs(dq) - dead, 0.0)
+        static, friction = self.model.cycle_torques_nm(q, dq_f.tolist(), [float(v) for v in p_bar])
+        f = np.array(friction)
+        f = np.where(f * dq_f > 0.0, self.cfg.friction_compensation * f, 0.0)
+        return np.array(static) + f + self.mass(q) @ ddq
+
+    def answer(self, st: JointState, p_bar: Sequence[float]) -> tuple[list[float], list[float]]:
+        period = st.cycle_period_s or self.cfg.default_cycle_period_s
+        n = self.model.n
+        if not self.engaged:
+            self.observe_hold(st)
+            cfg = self.cfg
+            resting = len(self.hold) >= cfg.engage_rest_states
+            if not resting and self._waited < cfg.engage_max_wait_states:
+                self._waited += 1
+                return st.q_cmd_rad.tolist(), [0.0] * n
+            self._waited = 0
+            zeros = np.zeros(n)
+            noise = None
+            if len(self.hold):
+                offset, tau_m = self.hold.mean()
+                self.loop.calibrate_from_hold(offset, tau_m)
+                if len(self.hold) >= MIN_NOISE_STATES:
+                    noise = self.admittance.filtered_noise(np.array(self.hold.torque_std()), period)
+            else:
+                tau_m = self.motor_torque_nm(st)
+            self._bias = self.model_torque(st.q_rad, zeros, zeros, p_bar) - np.array(tau_m)
+            self.hold.clear()
+            self.admittance.reset(st.q_rad, noise)
+            log.info("admittance engaged: dead zone %s N·m",
+                     np.round(self.admittance.band, 3).tolist())  # fmt: skip
+            self._sent_ddq.clear()
+            self.engaged = True
+            self.last_cycle = st.cycle - 1
+        gap = st.cycle - (self.last_cycle if self.last_cycle is not None else st.cycle - 1)
+        dt = period * max(1, min(gap, 50))
+        self.last_cycle = st.cycle
+        q = st.q_rad
+        adm = self.admittance
+        drove = self._sent_ddq[0] if len(self._sent_ddq) == self._sent_ddq.maxlen else adm.ddq_r
+        tau_m = np.array(self.motor_torque_nm(st))
+        # the friction the arm met is at its measured speed, not at the reference's
+        tau_h = self.model_torque(q, st.dq_rad_s, drove, p_bar) - self._bias - tau_m
+        k = self.cfg.wall_stiffness_nm_per_rad
+        walls = -k * np.maximum(q - self.upper, 0.0) + k * np.maximum(self.lower - q, 0.0)
+        if not (np.isfinite(tau_h).all() and np.isfinite(walls).all()):
+            raise MessageError(f"cycle {st.cycle}: hand torque estimate undefined")
+        q_r, dq_r = adm.step(tau_h, walls, self.mass(adm.q_r), dt)
+        self._sent_ddq.append(adm.ddq_r.copy())
+        tau = self.model_torque(q_r, dq_r, adm.ddq_r, p_bar) - self._bias
+        self._tau_d_nm = tau.tolist()
+        offset = np.clip(self.loop.omega * tau / self.loop.upsilon_i, -self._max_offset,
+                         self._max_offset)  # fmt: skip
+        # the command may lead the arm by at most the offset limit (the controller faults at
+        # a larger following error): a hand pushing a joint into a stop cannot wind it up
+        q_cmd = np.clip(q_r + offset, q - self._max_offset, q + self._max_offset)
+        if not np.array_equal(q_cmd, q_r + offset):
+            adm.q_r = q_cmd - offset
+        return q_cmd.tolist(), dq_r.tolist()
+
+
 def _finite_or_none(values: np.ndarray) -> list[float | None]:
     """5 significant digits, None where not finite (JSON has no NaN)."""
     return [float(f"{v:.5g}") if math.isfinite(v) else None for v in values.tolist()]
@@ -513,7 +642,8 @@ class ControlProcess:
         self.ctl: ZeroMomentController | None = None
         if cfg.uncommissioned is None:
             assert cfg.model is not None
-            self.ctl = ZeroMomentController(cfg, DeclaredModel.load(cfg.model))
+            law = AdmittanceController if cfg.strategy == "admittance" else ZeroMomentController
+            self.ctl = law(cfg, DeclaredModel.load(cfg.model))
         joints = load_description().joints if self.ctl is None else self.ctl.model.desc.joints
         self.n = len(joints)
         if len(cfg.max_offset_rad) != self.n:
@@ -689,6 +819,11 @@ class ControlProcess:
                     "offset_rad": [round(float(v), 6) for v in self.ctl.loop.offset_rad],
                     "omega_rad_s_per_nm": [float(f"{v:.5g}") for v in self.ctl.loop.omega],
                 }
+                if isinstance(self.ctl, AdmittanceController):
+                    adm = self.ctl.admittance
+                    tele["hand_torque_nm"] = [round(float(v), 3) for v in adm.tau_h]
+                    tele["hand_band_nm"] = [round(float(v), 3) for v in adm.band]
+                    tele["reference_speed_rad_s"] = [round(float(v), 6) for v in adm.dq_r]
                 est = self.ctl.inner_estimate
                 if est is not None:
                     tele["inner_loop_estimate"] = {

@@ -1,0 +1,59 @@
+"""The sensorless admittance (``[control] strategy = "admittance"``) on the virtual cell, every
+part its own process: without a hand the arm stays where it is; a push moves the tool along
+the push and, once the hand lets go, the arm stops and stays. Judged from the simulator's truth
+log (the hand's force and the tool's position are the plant's)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sim_bridge.harness import Stack
+
+pytestmark = pytest.mark.stack
+
+ADMITTANCE = {"control": {"strategy": "admittance"}}
+
+
+def _tool(truth: dict[str, np.ndarray], rows: np.ndarray) -> np.ndarray:
+    return np.stack([truth[f"tool_{a}"][rows] for a in "xyz"], axis=1)
+
+
+def _teaching(truth: dict[str, np.ndarray]) -> np.ndarray:
+    rows = np.flatnonzero(truth["teaching"] > 0.5)
+    assert rows.size, "the robot never followed the control process's commands"
+    return rows
+
+
+def test_without_a_hand_the_admittance_holds_the_arm_within_a_millimetre(tmp_path):
+    with Stack(tmp_path, cell_overrides=ADMITTANCE) as stack:
+        stack.start()
+        stack.start_teaching()
+        truth = stack.wait_teaching(5.2, 30.0)
+        stack.request("stop")
+    rows = _teaching(truth)
+    t = truth["t_s"][rows]
+    xyz = _tool(truth, rows[t - t[0] <= 5.0])
+    drift_m = np.linalg.norm(xyz - xyz[0], axis=1).max()
+    print(f"admittance: tool drift in 5 s without operator force: {drift_m * 1e3:.3f} mm")
+    assert drift_m < 1e-3, f"tool drifted {drift_m * 1e3:.3f} mm in 5 s"
+
+
+def test_a_push_moves_the_tool_along_it_and_the_arm_stops_when_the_hand_lets_go(tmp_path):
+    operator = {"mode": "force", "force_n": [0.0, 20.0, 0.0], "start_s": 0.5, "duration_s": 2.0}
+    with Stack(tmp_path, sim_overrides={"operator": operator}, cell_overrides=ADMITTANCE) as stack:
+        stack.start()
+        stack.start_teaching()
+        truth = stack.wait_teaching(6.6, 40.0)
+        stack.request("stop")
+    rows = _teaching(truth)
+    t = truth["t_s"][rows] - truth["t_s"][rows[0]]
+    at = {s: rows[t <= s][-1] for s in (0.5, 2.6, 4.5, 6.5)}
+    d = _tool(truth, [at[2.6]])[0] - _tool(truth, [at[0.5]])[0]
+    print(f"tool displacement after a 2 s, 20 N push along +y: {np.round(d * 1e3, 1)} mm")
+    assert d[1] > 0.01, f"tool moved {d * 1e3} mm under a 20 N +y push"
+    assert d[1] / np.linalg.norm(d) > 0.7, f"motion {d * 1e3} mm is far off +y"
+    # the push (its ramp ends at 2.5 s) left the arm at ~0.5 rad/s on J1: stopped within 2 s
+    after = _tool(truth, [at[6.5]])[0] - _tool(truth, [at[4.5]])[0]
+    print(f"tool motion 2-4 s after the push ended: {np.round(after * 1e3, 2)} mm")
+    assert np.linalg.norm(after) < 1e-3, "the arm kept moving after the hand let go"

@@ -1,0 +1,140 @@
+"""The sensorless admittance (control/admittance.py): the reference it integrates, and the
+controller that estimates the hand's torque from the motor current and commands the vendor loop
+with it."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from example_cell import example_cell
+
+from control.admittance import Admittance
+from control.declared_model import DeclaredModel
+from control.process import AdmittanceController, load_control_config
+from gateway.errors import ConfigError
+from gateway.messages import ControllerState, make_joint_state
+
+N = 6
+DT = 0.004
+
+
+def law(**kw) -> Admittance:
+    args = {"mass_fraction": 0.5, "damping": [20.0] * N, "band_nm": [2.0] * N,
+            "filter_hz": 5.0, "max_velocity": [1.0] * N} | kw  # fmt: skip
+    return Admittance(**args)
+
+
+def test_a_hand_torque_inside_the_dead_zone_leaves_the_arm_where_it_is():
+    a = law()
+    q0 = np.linspace(-0.3, 0.3, N)
+    a.reset(q0)
+    rng = np.random.default_rng(1)
+    mass = np.diag([50.0, 200.0, 80.0, 1.0, 1.0, 0.3])
+    for _ in range(2000):  # 8 s of noise and a steady error, each below the band
+        a.step(rng.uniform(-1.9, 1.9, N), np.zeros(N), mass, DT)
+    np.testing.assert_array_equal(a.q_r, q0)
+    np.testing.assert_array_equal(a.dq_r, np.zeros(N))
+
+
+def test_a_steady_push_reaches_the_speed_the_damping_allows_beyond_the_band():
+    a = law()
+    a.reset(np.zeros(N))
+    mass = np.diag([50.0, 40.0, 80.0, 1.0, 1.0, 0.3])
+    push = np.array([0.0, 12.0, 0.0, -4.0, 0.0, 0.0])
+    for _ in range(round(8.0 / DT)):  # time constant α M / D: 1 s on J2; filter 0.03 s
+        a.step(push, np.zeros(N), mass, DT)
+    want = np.sign(push) * np.maximum(np.abs(push) - 2.0, 0.0) / 20.0
+    np.testing.assert_allclose(a.dq_r, want, atol=0.01 * np.abs(want).max())
+    assert a.q_r[1] > 0 and a.q_r[3] < 0 and a.q_r[0] == 0.0
+
+
+def test_the_implicit_damping_is_stable_at_any_step_and_the_speed_is_capped():
+    a = law(mass_fraction=0.01, max_velocity=[0.5] * N)
+    a.reset(np.zeros(N))
+    mass = np.eye(N)
+    for dt in (0.004, 0.1, 1.0):
+        for _ in range(50):
+            a.step(np.full(N, 7.0), np.zeros(N), mass, dt)
+            assert np.all(np.abs(a.dq_r) <= 0.5)
+    a.reset(np.zeros(N))
+    for _ in range(500):
+        a.step(np.full(N, 1e4), np.zeros(N), mass, DT)
+    np.testing.assert_allclose(a.dq_r, 0.5)
+
+
+def test_a_wall_pushes_back_with_no_hand():
+    a = law()
+    a.reset(np.zeros(N))
+    walls = np.zeros(N)
+    walls[2] = -30.0
+    for _ in range(100):
+        a.step(np.zeros(N), walls, np.eye(N) * 10, DT)
+    assert a.dq_r[2] < 0 and np.count_nonzero(a.dq_r) == 1
+
+
+BAD_SETTINGS = [{"mass_fraction": 0.0}, {"filter_hz": float("nan")}, {"band_nm": [1.0] * 5},
+                {"damping": [-1.0] * N}]  # fmt: skip
+
+
+@pytest.mark.parametrize("kw", BAD_SETTINGS)
+def test_bad_settings_are_refused(kw):
+    with pytest.raises(ValueError):
+        law(**kw)
+
+
+@pytest.fixture(scope="module")
+def cell(tmp_path_factory):
+    return example_cell(tmp_path_factory.mktemp("cell"))
+
+
+@pytest.fixture(scope="module")
+def cfg(cell):
+    base = load_control_config(cell)[0]
+    return dataclasses.replace(base, strategy="admittance", engage_rest_states=0)
+
+
+def state(k: int, q, current, q_cmd=None):
+    q = np.asarray(q, dtype=float)
+    return make_joint_state(k, 0.004 * k, ControllerState.EXTERNAL, 0, q, np.zeros(N),
+                            np.asarray(current), q if q_cmd is None else q_cmd, np.zeros(N),
+                            0.004)  # fmt: skip
+
+
+def test_the_controller_holds_still_when_the_current_carries_the_model_and_follows_a_lift(cfg):
+    """The drives' current carries exactly the model's static load: no hand, no motion, and
+    the command leads the arm by the offset the vendor loop holds that load with. Then J2's
+    current drops by 40 N·m (a hand lifting the arm): the reference moves J2 up (+), and only
+    J2 and the joints its inertia couples to."""
+    model = DeclaredModel.load(cfg.model)
+    ctl = AdmittanceController(cfg, model)
+    k_nm_per_a = np.array([j.drive_gain_nm_per_a for j in model.desc.joints])
+    q0 = np.array([0.0, 0.15, 0.25, 0.0, -0.4, 0.0])
+    p = (6.0, 4.0)
+    static = model.gravity_nm(q0) - model.cylinder_nm(q0, np.array(p))
+    current = static / k_nm_per_a
+    for k in range(1, 200):
+        q_cmd, dq_cmd = ctl.answer(state(k, q0, current), p)
+    offset = ctl.loop.omega * static / ctl.loop.upsilon_i
+    np.testing.assert_allclose(q_cmd, q0 + offset, atol=1e-12)
+    np.testing.assert_allclose(dq_cmd, 0.0, atol=1e-12)
+    lifted = current.copy()
+    lifted[1] -= 40.0 / k_nm_per_a[1]
+    for k in range(200, 300):
+        q_cmd, dq_cmd = ctl.answer(state(k, q0, lifted), p)
+    assert dq_cmd[1] > 1e-3, dq_cmd
+    assert ctl.admittance.q_r[1] > q0[1]
+    # never more than the offset limit ahead of the arm (the controller faults beyond it)
+    assert np.all(np.abs(np.array(q_cmd) - q0) <= np.array(cfg.max_offset_rad) + 1e-12)
+
+
+def test_a_cell_config_naming_an_unknown_strategy_is_refused(cell, tmp_path):
+    text = cell.read_text().replace("[control]", '[control]\nstrategy = "telepathy"', 1)
+    bad = tmp_path / "cell.toml"
+    bad.write_text(text)
+    for f in cell.parent.iterdir():
+        if f.name != "cell.toml" and f.is_file():
+            (tmp_path / f.name).write_bytes(f.read_bytes())
+    with pytest.raises(ConfigError, match="strategy"):
+        load_control_config(bad)
