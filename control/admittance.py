@@ -22,7 +22,8 @@ static and a kinetic width: a joint at rest breaks away only when the push excee
 currents while the arm rests in the hold before teaching engages; at least the configured
 band), so noise alone seldom moves it; once one joint moves, the arm is being guided and every
 joint follows every push beyond the configured band (the model's held-out RMS), which is all
-the painter pays while guiding the tool, until every joint is back inside it. The reference
+the painter pays while guiding the tool, until every joint is back inside it or the reference
+has crept slower than :data:`SETTLE_RAD_S` for :data:`SETTLE_S`. The reference
 then follows
 
     α M̂(q) q̈_r + D q̇_r = dz(τ̂_h) + τ_walls                                           (A2)
@@ -44,7 +45,7 @@ stable for any dt and any D ≥ 0.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
@@ -53,6 +54,12 @@ import numpy as np
 #: cycle, against the rest damping); 2 σ (the first setting tried) let the reference random-walk
 #: 6 mm in 5 s on the virtual cell
 NOISE_SIGMAS = 3.5
+
+
+#: a guided arm whose reference has been slower than SETTLE_RAD_S [rad/s] on every joint for
+#: SETTLE_S [s] is at rest again (it needs the static dead zone to break away): a painter's
+#: guided tool moves at centimetres per second, a model error's creep at a millimetre
+SETTLE_RAD_S, SETTLE_S = 2e-3, 0.3
 
 
 class Admittance:
@@ -93,10 +100,13 @@ class Admittance:
         #: the arm is guided: a joint broke away (pushed beyond :attr:`band`) and not every
         #: joint is back inside :attr:`base_band` since
         self.moving = False
+        self._slow_s = 0.0  #: how long the guided reference has been slower than SETTLE_RAD_S
         self.q_r = np.zeros(n)
         self.dq_r = np.zeros(n)
         self.ddq_r = np.zeros(n)
         self.tau_h = np.zeros(n)  #: the low-passed hand torque estimate [N·m]
+        #: ``(q, dq) -> scale`` in (0, 1] that keeps a Cartesian speed limit (None: none)
+        self.speed_limit: Callable[[np.ndarray, np.ndarray], float] | None = None
 
     def filtered_noise(self, raw_std_nm: np.ndarray, dt_s: float) -> np.ndarray:
         """The standard deviation of τ̂_h after the low-pass, for white noise of
@@ -111,6 +121,7 @@ class Admittance:
         :data:`NOISE_SIGMAS` of it, so the noise alone seldom moves the arm."""
         self.band = self.base_band.copy()
         self.moving = False
+        self._slow_s = 0.0
         if noise_std_nm is not None:
             self.band = np.maximum(self.band, NOISE_SIGMAS * np.asarray(noise_std_nm))
         self.q_r = np.array(q_rad, dtype=float)
@@ -146,7 +157,17 @@ class Admittance:
         lhs = m + dt_s * np.diag(damping)
         dq_new = np.linalg.solve(lhs, m @ self.dq_r + dt_s * drive)
         dq_new = np.clip(dq_new, -self.max_velocity, self.max_velocity)
+        if self.speed_limit is not None:
+            dq_new = dq_new * self.speed_limit(self.q_r, dq_new)
         self.ddq_r = (dq_new - self.dq_r) / dt_s
         self.q_r = self.q_r + dt_s * 0.5 * (self.dq_r + dq_new)
         self.dq_r = dq_new
+        # a guided arm that has crept slower than SETTLE_RAD_S for SETTLE_S is at rest again:
+        # a model error past the kinetic band at a new pose does not keep it creeping
+        if self.moving and float(np.max(np.abs(dq_new))) < SETTLE_RAD_S:
+            self._slow_s += dt_s
+            if self._slow_s >= SETTLE_S:
+                self.moving = False
+        else:
+            self._slow_s = 0.0
         return self.q_r, self.dq_r

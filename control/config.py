@@ -67,6 +67,11 @@ class ControlConfig:
     admittance_band_rms_factor: float = 1.0
     #: the damping while no joint is pushed beyond its dead zone, × ``damping_nm_s_per_rad``
     admittance_rest_damping_factor: float = 10.0
+    #: the speed limit of hand guiding on the tool point and the flange [m/s], kept by the
+    #: admittance's reference (the zero-moment law has no reference to limit); 0: none.
+    #: ISO 10218-1 allows 250 mm/s; the arm follows a reference at 250 mm/s with up to
+    #: 252 mm/s (virtual cell, a 20 N push), so the default keeps 4 % below it
+    max_tool_speed_m_s: float = 0.24
     #: cylinder pressure set-points sent to the valves [bar]
     pressure_setpoint_bar: tuple[float, float] = (6.0, 4.0)
     #: I/O older than this: no command is published (the CAN driver then holds) [s]
@@ -203,6 +208,11 @@ class ControlConfig:
             1.0 <= self.admittance_rest_damping_factor <= 1000.0,
             "[control].admittance_rest_damping_factor",
             f"{self.admittance_rest_damping_factor} not in [1, 1000]",
+        )
+        require(
+            0.0 <= self.max_tool_speed_m_s <= 2.0,
+            "[control].max_tool_speed_m_s",
+            f"{self.max_tool_speed_m_s} not in [0, 2] m/s",
         )
         require(
             0.0 < self.admittance_filter_hz <= 100.0,

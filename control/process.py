@@ -393,12 +393,29 @@ class AdmittanceController(ZeroMomentController):
             cfg.max_velocity_rad_s,
             cfg.admittance_rest_damping_factor,
         )
+        if cfg.max_tool_speed_m_s > 0:
+            self.admittance.speed_limit = self.tool_speed_scale
+        #: the tool point in the link-6 frame [m]: the flange is that far back along it
+        self._tool_in_6 = np.array(model.desc.tool.position_in_link6_m)
         self._bias = np.zeros(model.n)
         self._max_offset = np.array(cfg.max_offset_rad)
         #: reference accelerations sent, newest last: the current of a state was measured over
         #: the cycle the one ``delay + 1`` back drove
         self._sent_ddq: deque[np.ndarray] = deque(maxlen=cfg.command_delay_cycles + 1)
         self._mass: tuple[np.ndarray, np.ndarray] | None = None
+
+    def tool_speed_scale(self, q: np.ndarray, dq: np.ndarray) -> float:
+        """The factor (≤ 1) on ``dq`` that keeps the tool point and the flange within
+        ``max_tool_speed_m_s`` (nominal kinematics)."""
+        assert self._inertia is not None
+        jac = self._inertia.tool_jacobian_world(q)
+        twist = jac @ dq
+        v_tool, omega = twist[:3], twist[3:]
+        rot = self._inertia.world_T_tool(q)[:3, :3]
+        v_flange = v_tool - np.cross(omega, rot @ self._tool_in_6)
+        fastest = max(float(np.linalg.norm(v_tool)), float(np.linalg.norm(v_flange)))
+        limit = self.cfg.max_tool_speed_m_s
+        return 1.0 if fastest <= limit else limit / fastest
 
     def mass(self, q: np.ndarray) -> np.ndarray:
         """M̂(q), recomputed after a joint moved INERTIA_STEP_RAD: the identified model's

@@ -138,3 +138,60 @@ def test_a_cell_config_naming_an_unknown_strategy_is_refused(cell, tmp_path):
             (tmp_path / f.name).write_bytes(f.read_bytes())
     with pytest.raises(ConfigError, match="strategy"):
         load_control_config(bad)
+
+
+def test_the_reference_keeps_the_tool_and_the_flange_under_the_hand_guiding_speed(cfg):
+    """A push far beyond anything a hand does: the reference's joint speeds would carry the
+    tool at metres per second; the tool point and the flange stay at the configured limit."""
+    from control.model.dynamics import RigidBodyModel
+
+    model = DeclaredModel.load(cfg.model)
+    ctl = AdmittanceController(cfg, model)
+    kin = RigidBodyModel.from_description(model.desc)
+    k_nm_per_a = np.array([j.drive_gain_nm_per_a for j in model.desc.joints])
+    q0 = np.array([0.0, 0.15, 0.25, 0.0, -0.4, 0.0])
+    p = (6.0, 4.0)
+    static = model.gravity_nm(q0) - model.cylinder_nm(q0, np.array(p))
+    current = static / k_nm_per_a
+    for k in range(1, 50):
+        ctl.answer(state(k, q0, current), p)
+    shoved = current - np.array([400.0, 0.0, 0.0, 0.0, 30.0, 10.0]) / k_nm_per_a
+    fastest = 0.0
+    for k in range(50, 400):
+        ctl.answer(state(k, q0, shoved), p)
+        q_r, dq_r = ctl.admittance.q_r, ctl.admittance.dq_r
+        twist = kin.tool_jacobian_world(q_r) @ dq_r
+        rot = kin.world_T_tool(q_r)[:3, :3]
+        flange = twist[:3] - np.cross(
+            twist[3:], rot @ np.array(model.desc.tool.position_in_link6_m)
+        )
+        fastest = max(fastest, np.linalg.norm(twist[:3]), np.linalg.norm(flange))
+    assert fastest == pytest.approx(cfg.max_tool_speed_m_s, rel=1e-6)
+    assert cfg.max_tool_speed_m_s == 0.24
+
+
+def test_a_guided_arm_that_only_creeps_settles_and_then_needs_the_static_zone_again():
+    """Static zone 5 N·m (the noise), kinetic 2 N·m (the model): a 6 N·m push breaks J2
+    away; a 2.2 N·m push after it (a model error at the new pose, say) creeps below
+    SETTLE_RAD_S, so within SETTLE_S the arm is at rest and stays."""
+    from control.admittance import SETTLE_S
+
+    a = law(rest_factor=10.0)
+    a.reset(np.zeros(N), noise_std_nm=np.full(N, 5.0 / 3.5))
+    np.testing.assert_allclose(a.band, 5.0)
+    mass = np.eye(N) * 20.0
+    push = np.zeros(N)
+    push[1] = 6.0
+    for _ in range(250):
+        a.step(push, np.zeros(N), mass, DT)
+    assert a.moving and a.dq_r[1] > 0.05
+    push[1] = 2.2
+    steps = 0
+    while a.moving and steps < 2000:
+        a.step(push, np.zeros(N), mass, DT)
+        steps += 1
+    assert not a.moving, "the creep kept the arm guided"
+    assert steps * DT < 2.0 + SETTLE_S
+    for _ in range(500):
+        a.step(push, np.zeros(N), mass, DT)
+    assert a.dq_r[1] == pytest.approx(0.0, abs=1e-9)
