@@ -68,7 +68,8 @@ class ControlConfig:
     #: the damping while no joint is pushed beyond its dead zone, × ``damping_nm_s_per_rad``
     admittance_rest_damping_factor: float = 10.0
     #: the speed limit of hand guiding on the tool point and the flange [m/s], kept by the
-    #: admittance's reference (the zero-moment law has no reference to limit); 0: none.
+    #: admittance's reference, and by the zero-moment law's velocity command (scaled down
+    #: where it would exceed it, so the vendor loop brakes the arm); 0: none.
     #: ISO 10218-1 allows 250 mm/s; the arm follows a reference at 250 mm/s with up to
     #: 252 mm/s (virtual cell, a 20 N push), so the default keeps 4 % below it
     max_tool_speed_m_s: float = 0.24

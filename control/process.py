@@ -135,7 +135,9 @@ class ZeroMomentController:
         #: nominal rigid body (with rotor inertias) for M(q)
         self.predictor = DelayPredictor(cfg.command_delay_cycles)
         self._inertia = None
-        if cfg.command_delay_cycles:
+        #: the tool point in the link-6 frame [m]: the flange is that far back along it
+        self._tool_in_6 = np.array(model.desc.tool.position_in_link6_m)
+        if cfg.command_delay_cycles or cfg.max_tool_speed_m_s > 0:
             from control.model.dynamics import RigidBodyModel
 
             self._inertia = RigidBodyModel.from_description(model.desc)
@@ -229,6 +231,19 @@ class ZeroMomentController:
             cached = self._m_inv = (q.copy(), np.linalg.inv(m))
         return cached[1]
 
+    def tool_speed_scale(self, q: np.ndarray, dq: np.ndarray) -> float:
+        """The factor (≤ 1) on ``dq`` that keeps the tool point and the flange within
+        ``max_tool_speed_m_s`` (nominal kinematics)."""
+        assert self._inertia is not None
+        jac = self._inertia.tool_jacobian_world(q)
+        twist = jac @ dq
+        v_tool, omega = twist[:3], twist[3:]
+        rot = self._inertia.world_T_tool(q)[:3, :3]
+        v_flange = v_tool - np.cross(omega, rot @ self._tool_in_6)
+        fastest = max(float(np.linalg.norm(v_tool)), float(np.linalg.norm(v_flange)))
+        limit = self.cfg.max_tool_speed_m_s
+        return 1.0 if fastest <= limit else limit / fastest
+
     def disengage(self) -> None:
         self.engaged = False
         self._waited = 0
@@ -303,6 +318,13 @@ class ZeroMomentController:
             q_cmd, dq_cmd = self.cycle_command(q, dq, p_bar, dt)
         except (ValueError, ArithmeticError) as exc:  # where numpy would have given NaN
             raise MessageError(f"cycle {st.cycle}: model torque undefined ({exc})") from None
+        if self.cfg.max_tool_speed_m_s > 0:
+            # Hand guiding's speed limit, in the command path: a velocity command the tool
+            # or the flange would exceed it with is scaled down, and the vendor loop's
+            # velocity gain brakes the arm to it (the operator meets a wall at the limit).
+            scale = self.tool_speed_scale(q, np.array(dq_cmd))
+            if scale < 1.0:
+                dq_cmd = [v * scale for v in dq_cmd]
         if self.inner_estimate is not None:
             self._sent_cmds.append((q_cmd, dq_cmd))
         return q_cmd, dq_cmd
@@ -395,27 +417,12 @@ class AdmittanceController(ZeroMomentController):
         )
         if cfg.max_tool_speed_m_s > 0:
             self.admittance.speed_limit = self.tool_speed_scale
-        #: the tool point in the link-6 frame [m]: the flange is that far back along it
-        self._tool_in_6 = np.array(model.desc.tool.position_in_link6_m)
         self._bias = np.zeros(model.n)
         self._max_offset = np.array(cfg.max_offset_rad)
         #: reference accelerations sent, newest last: the current of a state was measured over
         #: the cycle the one ``delay + 1`` back drove
         self._sent_ddq: deque[np.ndarray] = deque(maxlen=cfg.command_delay_cycles + 1)
         self._mass: tuple[np.ndarray, np.ndarray] | None = None
-
-    def tool_speed_scale(self, q: np.ndarray, dq: np.ndarray) -> float:
-        """The factor (≤ 1) on ``dq`` that keeps the tool point and the flange within
-        ``max_tool_speed_m_s`` (nominal kinematics)."""
-        assert self._inertia is not None
-        jac = self._inertia.tool_jacobian_world(q)
-        twist = jac @ dq
-        v_tool, omega = twist[:3], twist[3:]
-        rot = self._inertia.world_T_tool(q)[:3, :3]
-        v_flange = v_tool - np.cross(omega, rot @ self._tool_in_6)
-        fastest = max(float(np.linalg.norm(v_tool)), float(np.linalg.norm(v_flange)))
-        limit = self.cfg.max_tool_speed_m_s
-        return 1.0 if fastest <= limit else limit / fastest
 
     def mass(self, q: np.ndarray) -> np.ndarray:
         """M̂(q), recomputed after a joint moved INERTIA_STEP_RAD: the identified model's

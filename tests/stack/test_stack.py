@@ -164,3 +164,23 @@ def test_teaching_is_refused_while_the_arm_carries_a_load_the_model_lacks(tmp_pa
     held = truth["ctrl_state"] > 0.5
     xyz = tool_xyz(truth, held)
     assert np.linalg.norm(xyz - xyz[-1], axis=1)[-100:].max() < 1e-3  # held still at the end
+
+
+def test_a_hard_push_never_moves_the_tool_faster_than_hand_guiding_allows(tmp_path):
+    """Zero-moment mode, 40 N for 3 s at the tool: a weightless arm would reach metres per
+    second; the velocity command is scaled to max_tool_speed_m_s (0.24 m/s) and the vendor loop
+    brakes the arm to it, under ISO 10218-1's 250 mm/s for hand guiding."""
+    operator = {"mode": "force", "force_n": [0.0, 40.0, 0.0], "start_s": 0.5, "duration_s": 3.0}
+    with Stack(tmp_path, sim_overrides={"operator": operator}) as stack:
+        stack.start()
+        stack.start_teaching()
+        truth = stack.wait_teaching(4.0, 40.0)
+        stack.request("stop")
+    rows = teaching_rows(truth)
+    t = truth["t_s"][rows]
+    xyz = tool_xyz(truth, rows)
+    span = 5
+    speed = np.linalg.norm(xyz[span:] - xyz[:-span], axis=1) / (t[span:] - t[:-span])
+    print(f"zero moment, 40 N push: tool speed max {speed.max() * 1e3:.0f} mm/s")
+    assert speed.max() > 0.15, "the push never got the tool near the limit"
+    assert speed.max() <= 0.25, f"the tool reached {speed.max() * 1e3:.0f} mm/s"

@@ -115,6 +115,8 @@ def test_cycle_command_equals_desired_torque_then_eq21_over_a_run(cfg, model):
 
 
 def test_update_answers_with_the_reference_command(at_once, model):
+    """The law itself: the tool speed limit (which scales a fast command) is off here."""
+    at_once = dataclasses.replace(at_once, max_tool_speed_m_s=0.0)
     ctl = ZeroMomentController(at_once, model)
     ref = ZeroMomentController(at_once, model)
     rng = np.random.default_rng(6)
@@ -345,3 +347,33 @@ def test_the_online_inner_loop_estimate_runs_only_when_asked_for(cfg, model):
     on = ZeroMomentController(dataclasses.replace(cfg, inner_loop_estimate=True), model)
     assert on.inner_estimate is not None
     np.testing.assert_allclose(on.inner_estimate.omega_rad_s_per_nm, cfg.omega_rad_s_per_nm)
+
+
+def test_a_velocity_command_past_the_tool_speed_limit_is_scaled_down_to_it(at_once, model):
+    """Hand guiding's limit in the command path: whatever the law asks, the velocity command
+    sent never moves the tool point or the flange faster than max_tool_speed_m_s, and a slow
+    one passes unchanged."""
+    from control.model.dynamics import RigidBodyModel
+
+    kin = RigidBodyModel.from_description(model.desc)
+    free = dataclasses.replace(at_once, max_tool_speed_m_s=0.0)
+    rng = np.random.default_rng(8)
+    limited = 0
+    for cycle, (q, dq, p) in enumerate(random_states(model, rng, 200), start=100):
+        ctl, ref = ZeroMomentController(at_once, model), ZeroMomentController(free, model)
+        st = make_joint_state(cycle, 1.0, ControllerState.EXTERNAL, 2, q, dq, np.zeros(6),
+                              q + 0.001, dq, 0.004)  # fmt: skip
+        got = np.array(ctl.update(st, tuple(p), 2.0).dq_cmd_rad_s)
+        want = np.array(ref.update(st, tuple(p), 2.0).dq_cmd_rad_s)
+        twist = kin.tool_jacobian_world(q) @ got
+        rot = kin.world_T_tool(q)[:3, :3]
+        tool = np.array(model.desc.tool.position_in_link6_m)
+        flange = twist[:3] - np.cross(twist[3:], rot @ tool)
+        fastest = max(np.linalg.norm(twist[:3]), np.linalg.norm(flange))
+        assert fastest <= at_once.max_tool_speed_m_s * (1 + 1e-9)
+        if np.allclose(got, want, rtol=RTOL, atol=ATOL):
+            continue
+        limited += 1
+        assert fastest == pytest.approx(at_once.max_tool_speed_m_s, rel=1e-9)
+        np.testing.assert_allclose(got, want * (got @ want) / (want @ want), rtol=1e-9)
+    assert 20 < limited < 200, limited
