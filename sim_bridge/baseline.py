@@ -24,7 +24,11 @@ RECORD_EVERY_S = 0.004
 
 
 def drag_released(
-    cfg: SimConfig, path: list[list[float]], hand: dict[str, float], duration_s: float
+    cfg: SimConfig,
+    path: list[list[float]],
+    hand: dict[str, float],
+    duration_s: float,
+    gravity: bool = True,
 ) -> dict[str, Any]:
     """Drag the released arm along ``path`` for ``duration_s`` with a hand of settings
     ``hand`` (:class:`.config.OperatorScript` fields); every :data:`RECORD_EVERY_S`: time ``t_s``
@@ -41,6 +45,8 @@ def drag_released(
         **hand,
     )
     plant = Plant(dataclasses.replace(cfg, operator=script))
+    if not gravity:  # a weightless arm: only its inertia (and what cfg leaves) resists the hand
+        plant.model.opt.gravity[:] = 0.0
     op = Operator(script)
     plant.hand = op.hand
     op.mark_onset(plant.t_s, plant.tool_position_m())

@@ -18,6 +18,10 @@ Strategies:
   path starts; the plant alone, in this process, faster than real time. On the GR630ST's
   start pose joint 2's crank cylinder has almost no moment arm (about -11 N·m per bar against
   466 N·m of gravity), so no pressure balances it there and the hand cannot keep up;
+- ``inertia``: the floor no law can beat: the plant's own arm with gravity, friction, the
+  cylinders and every injected effect taken away, dragged through the same hand (the plant
+  alone, faster than real time). What it costs is the arm's inertia (and the hand's own
+  spring-damper), which a law can only lower by rendering less than the arm's mass;
 - ``best``: the product's zero-moment lead-through (the whole product on the virtual cell as
   separate processes, real time, the controller applying each command one cycle late);
 - ``admittance``: the product's sensorless admittance (``[control] strategy = "admittance"``,
@@ -79,7 +83,7 @@ TREMOR_M, TREMOR_HZ = 0.0005, 9.0
 COMPLETED_WITHIN_M = 0.05
 #: the target is moving when it moves faster than this [m/s]
 MOVING_M_S = 1e-3
-STRATEGIES = ("offservo", "best", "admittance")
+STRATEGIES = ("offservo", "inertia", "best", "admittance")
 #: the ``[control]`` settings of each product strategy
 PRODUCT_STRATEGIES = {"best": {}, "admittance": {"strategy": "admittance"}}
 #: ``--online-estimate``: the torque dither that lets the online inner-loop estimate see K_p,
@@ -220,6 +224,44 @@ def run_offservo(plant_seed: int, path: list[list[float]], tail_s: float = 2.0) 
     out["cylinders_bar"] = bar
     out["gravity_left_at_start_nm"] = unbalanced
     return out
+
+
+def inertia_config(plant_seed: int) -> Any:
+    """The plant of ``plant_seed`` with only its inertia left (:func:`run_inertia`); the
+    caller also turns gravity off (``drag_released(..., gravity=False)``)."""
+    nominal = load_sim_config()
+    # the plant draws the seed's friction as factors on these (zero stays zero), the cylinders
+    # hold no pressure whatever their stroke, and its inertials (drawn from the seed) are all
+    # that is left
+    frictionless = tuple(
+        dataclasses.replace(f, tau_s_nm=0.0, tau_c_nm=0.0, tau_v1_nm_s_per_rad=0.0,
+                            tau_v2_nm_s2_per_rad2=0.0, fourier_nm=(0.0,) * 6)
+        for f in nominal.friction
+    )  # fmt: skip
+    return dataclasses.replace(
+        nominal,
+        plant_seed=plant_seed,
+        friction=frictionless,
+        effects=(),
+        cylinders=dataclasses.replace(
+            nominal.cylinders,
+            initial_bar=(0.0, 0.0),
+            noise_bar=0.0,
+            # an ideal reservoir at 0 bar: no stroke compresses a gas to a pressure
+            units=tuple(dataclasses.replace(u, gas_length_m=0.0) for u in nominal.cylinders.units),
+        ),
+    )
+
+
+def run_inertia(plant_seed: int, path: list[list[float]], tail_s: float = 2.0) -> dict[str, Any]:
+    """The floor (module docstring): the plant's arm of ``plant_seed`` weightless,
+    frictionless, without cylinders or effects, dragged along ``path``."""
+    hand = {**HAND, "tremor_m": TREMOR_M, "tremor_hz": TREMOR_HZ}
+    trace = drag_released(
+        inertia_config(plant_seed), path, hand, path[-1][0] + tail_s, gravity=False
+    )
+    t = trace["t_s"]
+    return metrics(path, t - t[0], trace["tool"], trace["origin"], trace["force"], trace["flange"])
 
 
 def _flange_positions(plant_seed: int, q: np.ndarray) -> np.ndarray:
@@ -439,6 +481,8 @@ def cli_main(args: argparse.Namespace) -> int:
         print(f"{name} ...", flush=True)
         if name == "offservo":
             results[name] = run_offservo(args.plant_seed, path)
+        elif name == "inertia":
+            results[name] = run_inertia(args.plant_seed, path)
         else:
             results[name] = run_best(
                 args.plant_seed,
@@ -480,6 +524,6 @@ def cli_main(args: argparse.Namespace) -> int:
     if adaptation is not None:
         print_adaptation(adaptation)
     print(f"\nsummary: {out / 'summary.json'}")
-    # offservo is the plant's reference, not the product: only a product strategy that did not
-    # get to the end of the path fails the run
-    return 0 if all(r["completed"] for n, r in results.items() if n != "offservo") else 1
+    # offservo and inertia are the plant's references, not the product: only a product
+    # strategy that did not get to the end of the path fails the run
+    return 0 if all(r["completed"] for n, r in results.items() if n in PRODUCT_STRATEGIES) else 1

@@ -15,8 +15,11 @@ from sim_bridge.teach_bench import (
     _distance_to_polyline,
     _target,
     adaptation_report,
+    inertia_config,
     metrics,
     raster_path,
+    run_inertia,
+    run_offservo,
 )
 
 
@@ -100,3 +103,27 @@ def test_the_adaptation_report_scores_estimates_against_the_hidden_gains():
     assert "online_estimate" not in out
     # another seed's gains are not this one's: the report must notice
     assert adaptation_report(telemetry, 4, inner_loop)["omega_ratio"] != pytest.approx([1.0] * 6)
+
+
+@pytest.mark.parametrize("seed", [0, 3])
+def test_the_inertia_floor_leaves_the_plant_nothing_but_its_inertia(seed):
+    """The floor's plant: whatever the stroke, the cylinders hold no pressure and give no
+    torque; no friction; its masses are the seed's own."""
+    plant = Plant(inertia_config(seed))
+    plant.model.opt.gravity[:] = 0.0
+    plant.data.qvel[:6] = [0.0, 0.3, -0.3, 0.0, 0.0, 0.0]
+    for _ in range(400):
+        plant.step(None, None, brakes_released=True)
+    assert np.all(plant.pressure_bar == 0.0)
+    assert not plant.cylinders.torque_nm(plant.q_rad, plant.pressure_bar).any()
+    coulomb = plant.friction.coulomb_level(plant.q_rad)
+    np.testing.assert_allclose(plant.friction.torque_nm(np.full(6, 0.2), coulomb), 0.0)
+    full = Plant(dataclasses.replace(load_sim_config(), plant_seed=seed))
+    np.testing.assert_array_equal(plant.model.body_mass, full.model.body_mass)
+
+
+def test_the_inertia_floor_is_below_the_cylinders_baseline_on_a_short_raster():
+    path = raster_path(width_m=0.3, height_m=0.1, passes=2, start_s=0.5)
+    floor = run_inertia(0, path, tail_s=0.5)
+    baseline = run_offservo(0, path, tail_s=0.5)
+    assert floor["completed"] and 0.1 < floor["mean_force_n"] < baseline["mean_force_n"]
