@@ -264,6 +264,19 @@ class ZeroMomentController:
         else:
             self.hold.clear()
 
+    def _still_waiting(self, st: JointState) -> bool:
+        """Before engaging: take ``st`` into the hold's average; True while the arm has not
+        rested long enough to calibrate ω̂ (and at most ``engage_max_wait_states``): the
+        caller then holds on where the driver holds."""
+        self.observe_hold(st)
+        cfg = self.cfg
+        resting = len(self.hold) >= cfg.engage_rest_states
+        if not resting and self._waited < cfg.engage_max_wait_states:
+            self._waited += 1
+            return True
+        self._waited = 0
+        return False
+
     def update(
         self, st: JointState, p_bar: Sequence[float], now_s: float, state_rx_s: float = 0.0
     ) -> JointCommand:
@@ -280,14 +293,8 @@ class ZeroMomentController:
         """
         period = st.cycle_period_s or self.cfg.default_cycle_period_s
         if not self.engaged:
-            self.observe_hold(st)
-            cfg = self.cfg
-            resting = len(self.hold) >= cfg.engage_rest_states
-            if not resting and self._waited < cfg.engage_max_wait_states:
-                # Not at rest long enough to calibrate ω̂: hold on where the driver holds.
-                self._waited += 1
+            if self._still_waiting(st):
                 return st.q_cmd_rad.tolist(), [0.0] * len(st.q_cmd_rad)
-            self._waited = 0
             # Bumpless: start from the command the robot follows now (the driver's hold).
             if len(self.hold):  # the held offsets and currents measure the drive's K K_I
                 self.loop.calibrate_from_hold(*self.hold.mean())
@@ -462,13 +469,8 @@ class AdmittanceController(ZeroMomentController):
         period = st.cycle_period_s or self.cfg.default_cycle_period_s
         n = self.model.n
         if not self.engaged:
-            self.observe_hold(st)
-            cfg = self.cfg
-            resting = len(self.hold) >= cfg.engage_rest_states
-            if not resting and self._waited < cfg.engage_max_wait_states:
-                self._waited += 1
+            if self._still_waiting(st):
                 return st.q_cmd_rad.tolist(), [0.0] * n
-            self._waited = 0
             zeros = np.zeros(n)
             noise = None
             if len(self.hold):
