@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -35,6 +36,10 @@ class ControlConfig:
     #: instead of floating on velocity quantization noise; above it the compensation uses
     #: |dq| − deadband [rad/s]
     friction_deadband_rad_s: float = 5e-4
+    #: above the deadband the compensated share of the model friction grows linearly to all of
+    #: it over this many times the speed the friction's torque gives the joint's effective
+    #: inertia in the loop's delay (control/process.py, ``friction_ramps``; 0: all at once)
+    friction_ramp_factor: float = 2.0
     #: soft joint limits: a virtual spring pushes back this far inside the hard range [rad]
     soft_limit_margin_rad: float = 0.05
     wall_stiffness_nm_per_rad: float = 2000.0
@@ -229,6 +234,11 @@ class ControlConfig:
             self.friction_deadband_rad_s >= 0,
             "[control].friction_deadband_rad_s",
             f"{self.friction_deadband_rad_s} must be >= 0",
+        )
+        require(
+            math.isfinite(self.friction_ramp_factor) and self.friction_ramp_factor >= 0,
+            "[control].friction_ramp_factor",
+            f"{self.friction_ramp_factor} must be a number >= 0",
         )
         require(
             all(0 <= p <= 10 for p in self.pressure_setpoint_bar),

@@ -102,6 +102,10 @@ def load_control_config(cell_path: str | Path) -> tuple[ControlConfig, BusConfig
     return cfg, bus
 
 
+#: speeds [rad/s] at which :meth:`ZeroMomentController.friction_level_nm` reads the model
+FRICTION_LEVEL_SPEEDS_RAD_S = (0.002, 0.005, 0.01, 0.02)
+
+
 class ZeroMomentController:
     """The computation, free of I/O: JointState (+ pressures) → JointCommand.
 
@@ -137,7 +141,7 @@ class ZeroMomentController:
         self._inertia = None
         #: the tool point in the link-6 frame [m]: the flange is that far back along it
         self._tool_in_6 = np.array(model.desc.tool.position_in_link6_m)
-        if cfg.command_delay_cycles or cfg.max_tool_speed_m_s > 0:
+        if cfg.command_delay_cycles or cfg.max_tool_speed_m_s > 0 or cfg.friction_ramp_factor:
             from control.model.dynamics import RigidBodyModel
 
             self._inertia = RigidBodyModel.from_description(model.desc)
@@ -151,6 +155,10 @@ class ZeroMomentController:
         self.lower = np.array([j.lower_rad for j in model.desc.joints]) + cfg.soft_limit_margin_rad
         self.upper = np.array([j.upper_rad for j in model.desc.joints]) - cfg.soft_limit_margin_rad
         self._damping = self.damping.tolist()
+        #: per joint: the speed [rad/s] over which the friction compensation ramps in
+        #: (:meth:`friction_ramps`), and the model's friction level at low speed [N·m]
+        self._ramps: list[float] = [0.0] * n
+        self._friction_level = np.zeros(n)
         self._lower, self._upper = self.lower.tolist(), self.upper.tolist()
         self.engaged = False
         #: states answered with a hold while waiting for the arm to rest before engaging
@@ -205,7 +213,10 @@ class ZeroMomentController:
         dq_f = np.sign(dq) * np.maximum(np.abs(dq) - dead, 0.0)
         friction = m.friction_nm(q, dq_f)
         friction = np.where(friction * dq > 0.0, friction, 0.0)  # it opposes motion, or nothing
-        tau = tau + self.cfg.friction_compensation * friction
+        ramp = np.array(self._ramps)
+        share = np.minimum(np.abs(dq_f) / np.where(ramp > 0.0, ramp, 1.0), 1.0)
+        share = np.where(ramp > 0.0, share, 1.0)  # friction_ramps
+        tau = tau + self.cfg.friction_compensation * share * friction
         tau = tau - self.damping * dq
         k = self.cfg.wall_stiffness_nm_per_rad
         tau = tau - k * np.maximum(q - self.upper, 0.0) + k * np.maximum(self.lower - q, 0.0)
@@ -243,6 +254,33 @@ class ZeroMomentController:
         fastest = max(float(np.linalg.norm(v_tool)), float(np.linalg.norm(v_flange)))
         limit = self.cfg.max_tool_speed_m_s
         return 1.0 if fastest <= limit else limit / fastest
+
+    def friction_level_nm(self, q: np.ndarray) -> np.ndarray:
+        """The model's friction at ``q`` just above rest [N·m], per joint: the most of it over
+        a few low speeds both ways (its static level, where the model has a Stribeck rise)."""
+        n = self.model.n
+        level = np.zeros(n)
+        for v in FRICTION_LEVEL_SPEEDS_RAD_S:
+            for sign in (1.0, -1.0):
+                f = self.model.friction_nm(q, np.full(n, sign * v))
+                level = np.maximum(level, np.abs(np.nan_to_num(f)))
+        return level
+
+    def friction_ramps(self, m_inv: np.ndarray, period_s: float) -> list[float]:
+        """Per joint, the speed [rad/s] over which the friction compensation ramps in.
+
+        Compensation switched on by a measured velocity acts a loop delay T late (the state's
+        age plus the command delay, ``(delay + 1)`` cycles): a joint of effective inertia
+        1/(M⁻¹)ⱼⱼ that a friction level f compensates in full when it starts to slide is
+        already f T (M⁻¹)ⱼⱼ faster by the time the compensation sees it stop. A plant with
+        stiction then chatters around zero speed (the wrists of the virtual cell did, ±20-40
+        mrad/s, drifting millimetres in seconds). Ramping the compensation in over
+        ``friction_ramp_factor`` times that speed keeps the loop's slope below the delay's
+        limit; the operator pays the missing share at the start of each motion."""
+        factor = self.cfg.friction_ramp_factor
+        lag = (self.cfg.command_delay_cycles + 1) * period_s
+        diag = np.diag(m_inv)
+        return (factor * lag * self._friction_level * diag).tolist()
 
     def disengage(self) -> None:
         self.engaged = False
@@ -304,6 +342,8 @@ class ZeroMomentController:
             self.rest_hold.reset()
             self._sent_cmds.clear()
             self._prev_state = None
+            if self.cfg.friction_ramp_factor:
+                self._friction_level = self.friction_level_nm(st.q_rad)
             self.engaged = True
             self.last_cycle = st.cycle - 1
         gap = st.cycle - (self.last_cycle if self.last_cycle is not None else st.cycle - 1)
@@ -317,6 +357,8 @@ class ZeroMomentController:
         q, dq = st.q_rad, st.dq_rad_s
         if self._inertia is not None:
             m_inv = self.inverse_inertia(q)
+            if self.cfg.friction_ramp_factor:
+                self._ramps = self.friction_ramps(m_inv, period)
             q, dq = self.predictor.predict(
                 q, dq, st.q_cmd_rad, st.dq_cmd_rad_s, period, gap == 1, m_inv,
                 1.0 / self.loop.omega, self.loop.upsilon_i,
@@ -374,11 +416,13 @@ class ZeroMomentController:
         k = self.cfg.wall_stiffness_nm_per_rad
         tau = []
         hold = self.rest_hold.torque_nm(q) if self.rest_hold.active else self._no_hold
-        for qj, dqj, s, f, c, lo, up, h in zip(
-            q, dq, static, friction, self._damping, self._lower, self._upper, hold, strict=True
-        ):
+        for qj, dqj, vf, s, f, c, lo, up, h, ramp in zip(
+            q, dq, dq_f, static, friction, self._damping, self._lower, self._upper, hold,
+            self._ramps, strict=True,
+        ):  # fmt: skip
             # friction opposes motion: a model that says otherwise there is not compensated
-            t = s + (gain * f if f * dqj > 0.0 else 0.0) - c * dqj + h
+            share = gain if ramp <= 0.0 else gain * min(1.0, abs(vf) / ramp)
+            t = s + (share * f if f * dqj > 0.0 else 0.0) - c * dqj + h
             if qj > up:  # soft joint limits: a spring pushes back inside
                 t -= k * (qj - up)
             if qj < lo:

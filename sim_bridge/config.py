@@ -326,6 +326,9 @@ class SimConfig:
     lockstep_timeout_s: float = 0.25  #: lock-step: wall time to wait for a command set
     initial_q_rad: tuple[float, ...] = (0.0,) * 6
     seed: int = 1
+    #: dry friction as true stiction (a joint at rest holds up to its static level) instead
+    #: of the smooth law that creeps under any torque (:mod:`sim_bridge.physics`)
+    stiction: bool = False
     cylinders: CylinderTruth = field(default_factory=CylinderTruth)
     sensors: SensorTruth = field(default_factory=SensorTruth)
     controller: ControllerSpec = field(default_factory=ControllerSpec)

@@ -6,12 +6,17 @@ model error, not be copied into the "robot".
 
 Friction per joint (joint side [N·m]), with the gear ratio R::
 
-    τ_f = [τ_s exp(-|dq|/q_e) + F(q)] tanh(dq / 2 q_e) + τ_v1 dq + τ_v2 dq |dq|,
+    τ_f = [τ_s exp(-|dq|/q_e) + F(q)] s(dq) + τ_v1 dq + τ_v2 dq |dq|,
     F(q) = τ_c + f1 sin(q/R) + f2 cos(q/R) + f3 sin(2q/R) + f4 cos(2q/R) + f5 sin q + f6 cos q
 
-(the static level τ_s + F decays towards the Coulomb level F over the Stribeck velocity q_e,
-and tanh(dq / 2 q_e) makes it a steep but smooth function of velocity; every term opposes the
-motion).
+(the static level τ_s + F decays towards the Coulomb level F over the Stribeck velocity q_e;
+every term opposes the motion). The truth's ``stiction`` chooses s:
+
+- ``false`` (the default plant): s = tanh(dq / 2 q_e), a steep but smooth function of
+  velocity; a joint under half its static level creeps at ~10 mrad/s;
+- ``true``: s = sign(dq) sliding, and at rest |τ_f| ≤ τ_s + F(q), whatever holds the joint
+  still: a joint at rest stays until the torque on it exceeds the static level. The plant
+  solves it as MuJoCo's joint friction loss, a constraint (:class:`sim_bridge.plant.Plant`).
 
 Assist cylinders push with p·S along their rod: a crank (pivot A,
 rod end B on the link |AB| from the joint, barrel end C fixed |AC| from it, the angle BAC =
@@ -50,7 +55,8 @@ class JointFriction:
         # f1, f3, f5 multiply sin(q/R), sin(2q/R), sin q; f2, f4, f6 the cosines; (3, n)
         self._f_sin, self._f_cos = self.fourier[:, 0::2].T.copy(), self.fourier[:, 1::2].T.copy()
         self.inv_r = 1.0 / np.asarray(gear_ratio, dtype=float)
-        self.inv_q_e, self.inv_2q_e = 1.0 / self.q_e, 0.5 / self.q_e
+        self.inv_q_e, self._minus_inv_q_e = 1.0 / self.q_e, -1.0 / self.q_e
+        self._inv_2q_e = 0.5 / self.q_e
 
     def coulomb_level(self, q: np.ndarray) -> np.ndarray:
         """F(q) [N·m] at positions ``q`` [rad], (n,): the Coulomb level with its position
@@ -61,12 +67,35 @@ class JointFriction:
         ripple = (self._f_sin * np.sin(angles) + self._f_cos * np.cos(angles)).sum(axis=0)
         return np.maximum(self.tau_c + ripple, 0.0)
 
+    def dry_level_nm(self, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
+        """The dry friction's level [N·m] at ``q`` [rad], ``dq`` [rad/s], (n,): the static
+        level τ_s + F(q) at rest, decaying towards the Coulomb level F(q) over the Stribeck
+        velocity. At rest it is the most the joint holds against (stiction); sliding, the
+        torque it opposes the motion with."""
+        return self.tau_s * np.exp(-np.abs(dq) * self.inv_q_e) + self.coulomb_level(q)
+
     def torque_nm(self, dq: np.ndarray, coulomb: np.ndarray) -> np.ndarray:
-        """Friction torque [N·m] at velocities ``dq`` [rad/s] with the Coulomb level
-        ``coulomb`` (:meth:`coulomb_level`), without the linear viscous term τ_v1 dq (the
-        plant's MuJoCo joint damping), (n,)."""
+        """The smooth law's friction torque [N·m] at velocities ``dq`` [rad/s] with the
+        Coulomb level ``coulomb`` (:meth:`coulomb_level`), without the linear viscous term
+        τ_v1 dq (the plant's MuJoCo joint damping), (n,): the dry level times
+        tanh(dq / 2 q_e), which lets a joint under any torque creep (module docstring)."""
         level = self.tau_s * np.exp(-np.abs(dq) * self.inv_q_e) + coulomb
-        return level * np.tanh(dq * self.inv_2q_e) + self.v2 * dq * np.abs(dq)
+        return level * np.tanh(dq * self._inv_2q_e) + self.v2 * dq * np.abs(dq)
+
+    def stribeck_into(self, dq: np.ndarray, coulomb: np.ndarray, out: np.ndarray) -> None:
+        """:meth:`dry_level_nm` at velocities ``dq`` with the Coulomb level ``coulomb`` (at the
+        same position) into ``out``: the plant's per-tick update, so the level drops as a
+        joint breaks away, not a cycle later."""
+        np.abs(dq, out=out)
+        out *= self._minus_inv_q_e
+        np.exp(out, out=out)
+        out *= self.tau_s
+        out += coulomb
+
+    def damping_nm_s_per_rad(self, dq: np.ndarray) -> np.ndarray:
+        """The viscous terms τ_v1 dq + τ_v2 dq |dq| as a damping coefficient at ``dq``
+        [rad/s]: τ_v1 + τ_v2 |dq| [N·m·s/rad], (n,)."""
+        return self.v1 + self.v2 * np.abs(dq)
 
 
 class AssistCylinders:

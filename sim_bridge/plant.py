@@ -17,12 +17,18 @@ allows:
 - the vendor's PI velocity loop, eq. (19), is MuJoCo's: one actuator per joint with force
   K·(K_I·q_r(t) + K_p·dq_r) − K·K_I·q − K·K_p·dq, limited to ±K·i_max (the drive's current
   limit), q_r(t) the controller's reference extrapolated along dq_r (see :func:`_add_drives`);
-- friction, steep near zero velocity, is evaluated every tick from the tick's velocity
-  (:class:`~sim_bridge.physics.JointFriction`), its linear viscous part as MuJoCo joint
-  damping;
+- dry friction is the smooth law (:meth:`~sim_bridge.physics.JointFriction.torque_nm`,
+  evaluated every tick from the tick's velocity, as an applied torque) or, with the truth's
+  ``stiction``, MuJoCo's joint friction loss, a constraint that holds a joint
+  at rest against any torque up to the static level and opposes sliding with the level of the
+  Stribeck curve (:class:`~sim_bridge.physics.JointFriction`), the level set every tick from
+  the tick's velocity, so it drops as a joint breaks away; with a reference time of two
+  servo ticks and an impedance of 0.99 it is nearly hard: a joint under half its static level
+  creeps by hundredths of a mrad/s;
 - what changes slowly is evaluated once per cycle from the state at its start and held over
-  it: the friction's position-dependent Coulomb level, the cylinders' gas and torque, injected
-  effects and the hand's force.
+  it: the dry friction's position ripple, the viscous friction as joint damping
+  τ_v1 + τ_v2 |dq|, the cylinders' gas and torque, injected effects and the
+  hand's force. Per tick there is only the friction, the drives' control input and ``mj_step``.
 """
 
 from __future__ import annotations
@@ -94,6 +100,15 @@ class Plant:
         self._k_ki, self._k_kp = self.k_nm_per_a * self.ki, self.k_nm_per_a * self.kp
         self.friction = JointFriction(cfg.friction, cfg.drives.gear_ratio)
         self.model.dof_damping[: self.n] = self.friction.v1
+        self.stiction = bool(cfg.stiction)
+        if self.stiction:
+            # friction loss as stiff as the step allows (MuJoCo's safe minimum: 2 timesteps),
+            # its impedance near a hard constraint: half the static level creeps ~0.03 mrad/s
+            self.model.dof_solref[: self.n] = [2.0 * cfg.timestep_s, 1.0]
+            self.model.dof_solimp[: self.n, :2] = [0.99, 0.99]
+            self.model.dof_frictionloss[: self.n] = self.friction.dry_level_nm(
+                np.asarray(cfg.initial_q_rad, dtype=float), np.zeros(self.n)
+            )
         self.cylinders = AssistCylinders(cfg.cylinders.units, self.n)
         self.rng = np.random.default_rng(cfg.seed)
         self.pressure_bar = np.array(cfg.cylinders.initial_bar, dtype=float)
@@ -228,6 +243,10 @@ class Plant:
         self.brakes = False
         q, dq = d.qpos[:n], d.qvel[:n]  # views: they follow the ticks
         friction, coulomb = self.friction, self.friction.coulomb_level(q)
+        stiction = self.stiction
+        if stiction:
+            dry = model.dof_frictionloss[:n]  # a view: MuJoCo reads it every step
+            model.dof_damping[:n] = friction.damping_nm_s_per_rad(dq)
         tau_cyl = self.cylinders.torque_nm(q, self.pressure_bar)
         tau_eff = self.effects.torque(self, q, dq)
         self.hand_force_n = self.hand(self) if self.hand is not None else np.zeros(3)
@@ -239,6 +258,7 @@ class Plant:
             d.xfrc_applied[self.last_body, 3:] = np.cross(arm, self.hand_force_n)
         force = np.zeros(n)
         applied = d.qfrc_applied[:n]
+        applied[:] = held
         history = self.effects.history if self.effects.delay_steps else None
         servo = reference is not None
         if servo:
@@ -253,7 +273,10 @@ class Plant:
         for tick in range(ticks):
             if tick == ticks - 1:
                 q_before = q.copy()
-            np.subtract(held, friction.torque_nm(dq, coulomb), out=applied)
+            if stiction:
+                friction.stribeck_into(dq, coulomb, dry)
+            else:
+                np.subtract(held, friction.torque_nm(dq, coulomb), out=applied)
             if servo:
                 np.add(at_t_r, slope * d.time, out=ctrl)
             mujoco.mj_step(model, d)

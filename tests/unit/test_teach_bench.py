@@ -116,8 +116,8 @@ def test_the_inertia_floor_leaves_the_plant_nothing_but_its_inertia(seed):
         plant.step(None, None, brakes_released=True)
     assert np.all(plant.pressure_bar == 0.0)
     assert not plant.cylinders.torque_nm(plant.q_rad, plant.pressure_bar).any()
-    coulomb = plant.friction.coulomb_level(plant.q_rad)
-    np.testing.assert_allclose(plant.friction.torque_nm(np.full(6, 0.2), coulomb), 0.0)
+    np.testing.assert_allclose(plant.friction.dry_level_nm(plant.q_rad, np.zeros(6)), 0.0)
+    np.testing.assert_allclose(plant.friction.damping_nm_s_per_rad(np.full(6, 0.2)), 0.0)
     full = Plant(dataclasses.replace(load_sim_config(), plant_seed=seed))
     np.testing.assert_array_equal(plant.model.body_mass, full.model.body_mass)
 

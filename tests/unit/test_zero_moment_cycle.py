@@ -128,6 +128,7 @@ def test_update_answers_with_the_reference_command(at_once, model):
             ref.loop.reset(st.q_cmd_rad - st.q_rad)
             ref.engaged = True
         ref.loop.adapt_floats([0.0] * 6, 0.004)  # eq. (28) on the (zero) reported current
+        ref._ramps = ctl._ramps  # the friction ramps of this cycle's pose (friction_ramps)
         want = ref.loop.step(q, dq, ref.desired_torque(q, dq, p), 0.004)
         assert (cmd.cycle, cmd.state_stamp_s, cmd.sent_stamp_s) == (cycle, 1.0, 2.0)
         np.testing.assert_allclose(cmd.q_cmd_rad, want.q_cmd_rad, rtol=RTOL, atol=ATOL)
@@ -377,3 +378,42 @@ def test_a_velocity_command_past_the_tool_speed_limit_is_scaled_down_to_it(at_on
         assert fastest == pytest.approx(at_once.max_tool_speed_m_s, rel=1e-9)
         np.testing.assert_allclose(got, want * (got @ want) / (want @ want), rtol=1e-9)
     assert 20 < limited < 200, limited
+
+
+def test_friction_compensation_ramps_in_over_the_speed_the_loop_delay_allows(at_once, model):
+    """friction_ramps: per joint, factor × (delay + 1) cycles × the model's friction level ×
+    (M⁻¹)ⱼⱼ; a joint at half its ramp above the deadband gets half the model's friction,
+    one past it all of it, and a factor of 0 compensates in full at once."""
+    cfg = dataclasses.replace(at_once, max_tool_speed_m_s=0.0, friction_ramp_factor=2.0)
+    ctl = ZeroMomentController(cfg, model)
+    q = np.array([0.0, 0.15, 0.25, 0.0, -0.4, 0.0])
+    st = make_joint_state(1, 1.0, ControllerState.EXTERNAL, 2, q, np.zeros(6), np.zeros(6),
+                          q + 0.001, np.zeros(6), 0.004)  # fmt: skip
+    ctl.update(st, (6.0, 4.0), 2.0)
+    level = ctl.friction_level_nm(q)
+    assert np.all(level > 0.0)
+    m_inv = ctl.inverse_inertia(q)
+    lag = (cfg.command_delay_cycles + 1) * 0.004
+    ramps = np.array(ctl.friction_ramps(m_inv, 0.004))
+    np.testing.assert_allclose(ramps, 2.0 * lag * level * np.diag(m_inv))
+    assert np.all(ramps > 0.0)
+    dead = cfg.friction_deadband_rad_s
+    p = np.array([6.0, 4.0])
+    ctl.damping[:] = 0.0
+    off = dataclasses.replace(cfg, friction_ramp_factor=0.0)
+    full = ZeroMomentController(off, model)
+    full.damping[:] = 0.0
+    for j in range(6):
+        for fraction, share in ((0.5, 0.5), (1.5, 1.0)):
+            dq = np.zeros(6)
+            dq[j] = dead + fraction * ramps[j]
+            got = ctl.desired_torque(q, dq, p) - ctl.desired_torque(q, np.zeros(6), p)
+            want = full.desired_torque(q, dq, p) - full.desired_torque(q, np.zeros(6), p)
+            assert got[j] == pytest.approx(share * want[j], rel=1e-9, abs=1e-12)
+    assert full._ramps == [0.0] * 6
+
+
+def test_a_negative_friction_ramp_factor_is_refused(tmp_path):
+    cell = example_cell(tmp_path, friction_ramp_factor=-1.0)
+    with pytest.raises(ConfigError, match="friction_ramp_factor"):
+        load_control_config(cell)
