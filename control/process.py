@@ -68,6 +68,9 @@ log = logging.getLogger("leadthrough.control")
 
 #: fastest tool speed a replay may ask for [m/s] (gateway.replay's bound, ISO 10218-1)
 MAX_REPLAY_SPEED_M_S = MAX_SPEED_MM_S / 1000.0
+#: no point of the tool or the flange moves faster in a replay [m/s]: 4 % under the CAN
+#: driver's speed monitor (250 mm/s), for the vendor loop's following error
+MAX_REPLAY_POINT_SPEED_M_S = 0.24
 PRESSURE_PUBLISH_PERIOD_S = 0.1
 #: the static-load check runs at most this often [s] (the gateway accepts one up to 0.5 s old)
 LOAD_CHECK_PERIOD_S = 0.1
@@ -644,6 +647,7 @@ class PlanPlayer:
         segments = replay_trajectory(
             program, self.desc, q0, period_s, speed,
             max_joint_speed_rad_s=MAX_REPLAY_JOINT_SPEED_RAD_S,
+            max_point_speed_m_s=MAX_REPLAY_POINT_SPEED_M_S,
         )  # fmt: skip
         return [(label, "replay", q, dq) for label, q, dq in segments]
 

@@ -31,12 +31,12 @@ from itertools import pairwise
 from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
-from scipy.interpolate import PchipInterpolator
+from scipy.interpolate import CubicHermiteSpline, PchipInterpolator
 from scipy.signal import butter, sosfiltfilt
 from scipy.spatial import cKDTree
 
 from control.robot.description import RobotDescription
-from control.robot.kinematics import dh_world_T_tool
+from control.robot.kinematics import dh_tool_and_flange, dh_world_T_tool
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -200,6 +200,52 @@ def tool_path(desc: RobotDescription, q_rad: np.ndarray) -> np.ndarray:
     :func:`control.robot.kinematics.dh_world_T_tool`."""
     q = _joint_array(q_rad, desc.n_dof, "q_rad")
     return np.array([dh_world_T_tool(desc, x)[:3, 3] for x in q]).reshape(-1, 3)
+
+
+def fastest_point_m_s(desc: RobotDescription, q_rad: np.ndarray, dt_s: float) -> float:
+    """The highest speed [m/s] of the tool point or the flange along joint samples (T, n)
+    [rad] ``dt_s`` apart (from positions, as the CAN driver's speed monitor measures it);
+    0 for fewer than two samples."""
+    if len(q_rad) < 2:
+        return 0.0
+    tool, flange = dh_tool_and_flange(desc, q_rad)
+    step = max(
+        float(np.max(np.linalg.norm(np.diff(tool, axis=0), axis=1))),
+        float(np.max(np.linalg.norm(np.diff(flange, axis=0), axis=1))),
+    )
+    return step / dt_s
+
+
+def slow_down(
+    desc: RobotDescription, q_rad: np.ndarray, dq_rad_s: np.ndarray, dt_s: float, limit_m_s: float
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """The same joint path played slower, uniformly in time, so that neither the tool point
+    nor the flange passes ``limit_m_s`` [m/s]: (q, dq, factor), factor >= 1 the time stretch
+    (1: unchanged). Rest-to-rest stays rest-to-rest (cubic Hermite through the samples and
+    their velocities, resampled at ``dt_s``)."""
+    factor = 1.0
+    q, dq = q_rad, dq_rad_s
+    for _ in range(4):  # the resampled curve can bulge a little: check again
+        fastest = fastest_point_m_s(desc, q, dt_s)
+        if fastest <= limit_m_s:
+            return q, dq, factor
+        stretch = fastest / limit_m_s * 1.01
+        k = len(q_rad) - 1
+        samples = max(1, math.ceil(k * factor * stretch - 1e-9))
+        factor = samples / k
+        t = np.arange(k + 1) * dt_s
+        spline = CubicHermiteSpline(t, q_rad, dq_rad_s, axis=0)
+        t_new = np.arange(samples + 1) * dt_s / factor
+        t_new[-1] = t[-1]
+        q = spline(t_new)
+        dq = spline.derivative()(t_new) / factor
+        q[0], q[-1], dq[0], dq[-1] = (
+            q_rad[0],
+            q_rad[-1],
+            dq_rad_s[0] / factor,
+            dq_rad_s[-1] / factor,
+        )
+    raise ValueError(f"cannot slow the path under {limit_m_s} m/s (still {fastest:.3g} m/s)")
 
 
 def path_error_m(desc: RobotDescription, q_taught: np.ndarray, q_replayed: np.ndarray) -> float:
@@ -757,6 +803,7 @@ def replay_trajectory(
     max_joint_speed_rad_s: float | Sequence[float] | np.ndarray,
     accel_m_s2: float = DEFAULT_ACCEL_M_S2,
     max_joint_accel_rad_s2: float | Sequence[float] | np.ndarray = DEFAULT_JOINT_ACCEL_RAD_S2,
+    max_point_speed_m_s: float | None = None,
 ) -> list[ReplaySegment]:
     """A taught program as replay segments sampled every ``dt_s`` [s]: ``approach/1`` from
     ``q_now`` [rad] to the start of teaching segment 1, ``taught/1`` (:func:`constant_speed`
@@ -768,6 +815,11 @@ def replay_trajectory(
     ``max_joint_speed_rad_s``. Raises ValueError (naming the segment, sample and joint) for a
     program that does not fit this robot, a non-finite value, or ``q_now`` outside the limits.
     The notes of :func:`constant_speed` (slow-downs, stops) are logged as warnings.
+
+    With ``max_point_speed_m_s``, a segment on which the tool point or the flange would pass
+    it (an approach's joint move far from the base; a taught stroke whose tool turns, which
+    swings the flange about the tool point) is played that much slower (:func:`slow_down`),
+    with a warning: the CAN driver's speed monitor stops a replay that passes 250 mm/s.
     """
     n = desc.n_dof
     if len(program.joints) != n or program.q_rad.shape[1:] != (n,):
@@ -800,9 +852,17 @@ def replay_trajectory(
         q_a, dq_a = approach(
             here, played.q_rad[0], dt_s, max_joint_speed_rad_s, max_joint_accel_rad_s2
         )
-        if len(q_a):
-            out.append(ReplaySegment(f"approach/{k}", q_a, dq_a))
-        out.append(ReplaySegment(f"taught/{k}", played.q_rad, played.dq_rad_s))
+        pieces = [(f"approach/{k}", q_a, dq_a), (f"taught/{k}", played.q_rad, played.dq_rad_s)]
+        for label, q, dq in pieces:
+            if not len(q):
+                continue
+            if max_point_speed_m_s is not None:
+                q, dq, factor = slow_down(desc, q, dq, dt_s, max_point_speed_m_s)
+                if factor > 1.0:
+                    log.warning("%s: %s played %.2f times slower: the tool or the flange would "
+                                "pass %.3g m/s", program.path, label, factor,
+                                max_point_speed_m_s)  # fmt: skip
+            out.append(ReplaySegment(label, q, dq))
         here = played.q_rad[-1]
     return out
 

@@ -44,6 +44,8 @@ class Observations:
     still_for_s: float = 0.0
     #: why the model does not match the arm's static load (control/load_check.py); None: it does
     load_problem: str | None = None
+    #: the CAN driver's speed monitor tripped (drivers/can/speed_monitor.py): what it measured
+    speed_trip: str | None = None
 
 
 @dataclass(frozen=True)
@@ -103,6 +105,8 @@ class LifecycleMachine:
             problems.append("e-stop chain open")
         if obs.controller_state == ControllerState.FAULT:
             problems.append("robot controller reports FAULT")
+        if obs.speed_trip:
+            problems.append(f"CAN driver's speed monitor: {obs.speed_trip}")
         return problems
 
     def update(self, obs: Observations) -> Lifecycle:

@@ -248,6 +248,8 @@ class Gateway:
         self.health_rx_s: dict[str, float] = {}
         #: the control process's static-load check (control/load_check.py) as last reported
         self.load_check: dict | None = None
+        #: the CAN driver's speed monitor trip, from its health (None: not tripped)
+        self.speed_trip: str | None = None
         self.children: dict[str, Child] = {}
         self.session = None
         self._decls: list = []
@@ -337,18 +339,20 @@ class Gateway:
 
     def _on_health(self, sample) -> None:
         name = str(sample.key_expr).rsplit("/", 1)[-1]
-        load_check = None
-        if name == "control":
+        body: dict = {}
+        if name in ("control", "can_driver"):
             try:
-                load_check = decode_json(sample.payload.to_bytes(), "control health").get(
-                    "load_check"
-                )
+                body = decode_json(sample.payload.to_bytes(), f"{name} health")
             except MessageError as exc:
-                log.warning("control health unreadable: %s", exc)
+                log.warning("%s health unreadable: %s", name, exc)
         with self.lock:
             self.health_rx_s[name] = time.monotonic()
             if name == "control":
+                load_check = body.get("load_check")
                 self.load_check = load_check if isinstance(load_check, dict) else None
+            elif name == "can_driver" and body:  # an unreadable one changes nothing
+                trip = body.get("speed_trip")
+                self.speed_trip = None if trip is None else str(trip)
 
     @property
     def joint_state(self) -> JointState | None:
@@ -380,6 +384,7 @@ class Gateway:
             max_speed_rad_s=w.max_speed_rad_s,
             still_for_s=0.0 if w.moving_s is None else now - w.moving_s,
             load_problem=self._load_problem(),
+            speed_trip=self.speed_trip,
         )
 
     def _load_problem(self) -> str | None:

@@ -115,6 +115,36 @@ def dh_world_T_tool(desc: RobotDescription, q_rad: np.ndarray) -> np.ndarray:
     return dh_frames(desc, q_rad)[-1] @ link_T_tool
 
 
+def dh_tool_and_flange(desc: RobotDescription, q_rad: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The tool point and the flange (link 6's origin) in the world, (T, 3) each [m], at the
+    joint positions (T, n) [rad]: :func:`dh_world_T_tool` for many samples at once."""
+    q = np.atleast_2d(np.asarray(q_rad, dtype=float))
+    frame = np.broadcast_to(np.eye(4), (q.shape[0], 4, 4)).copy()
+    for k, j in enumerate(desc.joints):
+        theta = q[:, k] + j.theta_offset_rad
+        ct, st = np.cos(theta), np.sin(theta)
+        ca, sa = math.cos(j.alpha_rad), math.sin(j.alpha_rad)
+        step = np.zeros_like(frame)
+        step[:, 0, 0], step[:, 0, 1], step[:, 0, 2], step[:, 0, 3] = (
+            ct,
+            -st * ca,
+            st * sa,
+            j.a_m * ct,
+        )
+        step[:, 1, 0], step[:, 1, 1], step[:, 1, 2], step[:, 1, 3] = (
+            st,
+            ct * ca,
+            -ct * sa,
+            j.a_m * st,
+        )
+        step[:, 2, 1], step[:, 2, 2], step[:, 2, 3] = sa, ca, j.d_m
+        step[:, 3, 3] = 1.0
+        frame = frame @ step
+    flange = frame[:, :3, 3]
+    tool = flange + frame[:, :3, :3] @ np.asarray(desc.tool.position_in_link6_m, dtype=float)
+    return tool, flange
+
+
 def matrix_to_rpy(rotation: np.ndarray) -> tuple[float, float, float]:
     """URDF roll-pitch-yaw [rad] with ``R = Rz(yaw) Ry(pitch) Rx(roll)``."""
     r = np.asarray(rotation, dtype=float)

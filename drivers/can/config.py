@@ -82,6 +82,10 @@ class CanDriverConfig:
     #: cell config): used from the start instead of the one measured now, so the currents
     #: agree with the identified model (current_zero.py). "": none, measure it.
     current_zero_file: str = ""
+    #: Hand guiding's speed limit for the tool point and the flange [m/s], monitored from the
+    #: measured positions while teaching or replaying (speed_monitor.py): past it the driver
+    #: holds every cycle and reports the trip; the gateway faults. 0: no monitor.
+    hand_guiding_max_speed_m_s: float = 0.25
 
     def __post_init__(self) -> None:
         where = "[can]"
@@ -102,6 +106,12 @@ class CanDriverConfig:
                 f"{where}.{name}",
                 f"{value!r} s outside ({lo}, {hi}]",
             )
+        limit = self.hand_guiding_max_speed_m_s
+        require(
+            isinstance(limit, int | float) and math.isfinite(limit) and 0.0 <= limit <= 1.0,
+            f"{where}.hand_guiding_max_speed_m_s",
+            f"{limit!r} m/s outside 0..1 (ISO 10218-1: 0.25; 0 turns the monitor off)",
+        )
         for name in ("current_zero_cycles", "current_zero_settle_cycles"):
             require_count(getattr(self, name), f"{where}.{name}", 100_000, "cycles")
         require(

@@ -46,6 +46,7 @@ import numpy as np
 from drivers.can.adapter import CanAdapter, CycleFeedback, HostRequest
 from drivers.can.config import CanDriverConfig
 from drivers.can.current_zero import CurrentZero
+from drivers.can.speed_monitor import Points, SpeedMonitor, datasheet_points
 from gateway.errors import FrameError, MessageError
 from gateway.messages import (
     COMMANDING,
@@ -61,6 +62,9 @@ from gateway.messages import (
     LifecycleMsg,
 )
 
+#: lifecycle states in which the arm moves at hand-guiding speeds: the speed monitor applies
+MONITORED = (Lifecycle.TEACHING, Lifecycle.REPLAYING)
+
 log = logging.getLogger("drivers.can.driver")
 
 #: Why a JointCommand was not forwarded (the keys of the health message's "rejected").
@@ -72,6 +76,7 @@ REJECT_REASONS = (
     "bad_message",  # undecodable payload, NaN, wrong joint count
     "out_of_range",  # following error, velocity, or a value the protocol cannot carry
     "late_cycle",  # not for the current cycle, or that cycle was already answered
+    "blocked_speed",  # the speed monitor tripped (speed_monitor.py) and the lifecycle still runs
 )
 
 #: How a cycle was answered.
@@ -144,6 +149,7 @@ class HostCore:
         note: Note | None = None,
         health_period_s: float = 0.1,
         stored_zero: tuple[np.ndarray, int, np.ndarray] | None = None,
+        speed_points: Points | None = None,
     ) -> None:
         self.config = config
         self.adapter = adapter
@@ -182,6 +188,13 @@ class HostCore:
         self._last_forward: tuple[float, int, np.ndarray, np.ndarray, float] | None = None
         self._hold_q: np.ndarray | None = None
         self._holding = False
+        #: hand guiding's speed monitor (speed_monitor.py); ``speed_points`` the tool point and
+        #: flange of q (default: the datasheet's kinematics)
+        self.speed: SpeedMonitor | None = None
+        if config.hand_guiding_max_speed_m_s > 0:
+            self.speed = SpeedMonitor(
+                speed_points or datasheet_points(), config.hand_guiding_max_speed_m_s
+            )
         # counters (monotonic, reported in health)
         self.rejected = dict.fromkeys(REJECT_REASONS, 0)
         self.cycles = 0
@@ -306,6 +319,7 @@ class HostCore:
             budget_s = min(budget_s, self.config.answer_by_period_fraction * fb.cycle_period_s)
         pending = Cycle(cycle, fb.counter, now, now + budget_s, fb.q_rad)
         self.pending = pending
+        self._monitor_speed(fb, cycle, now)
         q_list = fb.q_rad.tolist()
         q_cmd = q_list if self._last_sent_q is None else self._last_sent_q
         dq_cmd = self._zeros_list if self._last_sent_dq is None else self._last_sent_dq
@@ -331,6 +345,32 @@ class HostCore:
         if self.blocked(now) is not None:
             frames = self._hold(pending)
         return FrameResult(state, frames)
+
+    def _monitor_speed(self, fb: CycleFeedback, cycle: int, now: float) -> None:
+        """Hand guiding's speed from this cycle's measured positions, while the lifecycle
+        teaches or replays and the controller servos; anything else resets the monitor (and
+        clears a trip: the gateway has left the state the trip stopped)."""
+        monitor = self.speed
+        if monitor is None:
+            return
+        lc = self._lifecycle
+        applies = (
+            lc is not None
+            and lc.state in MONITORED
+            and _fresh(lc.stamp_s, self._lifecycle_rx_s, now, self.config.lifecycle_timeout_s)
+        )
+        if not applies:
+            if monitor.trip is not None:
+                log.info("speed monitor cleared: lifecycle %s", None if lc is None else lc.state)
+            monitor.reset()
+            return
+        if fb.controller_state not in _SERVOING or fb.cycle_period_s <= 0:
+            monitor.gap()
+            return
+        tripped = monitor.trip is not None
+        trip = monitor.update(cycle, fb.q_rad, fb.cycle_period_s)
+        if trip is not None and not tripped:
+            self._note(logging.ERROR, "speed", f"speed monitor: {trip.message()}; holding")
 
     # --- time -----------------------------------------------------------------------------
     def on_tick(self, now: float) -> list[can.Message]:
@@ -439,6 +479,8 @@ class HostCore:
         fb = self.feedback
         if fb is None or fb.controller_state not in _SERVOING or not self.link_ok(now):
             return "blocked_controller"
+        if self.speed is not None and self.speed.trip is not None:
+            return "blocked_speed"
         return None
 
     def _check_command(self, cmd: JointCommand, now: float) -> tuple[str, str] | None:
@@ -544,6 +586,16 @@ class HostCore:
             "current_zero_drift_a": None if drift is None else [round(float(v), 4) for v in drift],
         }
 
+    def _speed_health(self) -> dict[str, Any]:
+        monitor = self.speed
+        if monitor is None:
+            return {"speed_trip": None, "speed_peak_m_s": None}
+        trip = monitor.trip
+        return {
+            "speed_trip": None if trip is None else trip.message(),
+            "speed_peak_m_s": round(monitor.peak_m_s, 4),
+        }
+
     def health(self, now: float) -> dict[str, Any]:
         fb, stats = self.feedback, self.adapter.stats
         return {
@@ -561,5 +613,6 @@ class HostCore:
             "incomplete_cycles": stats.incomplete_cycles,
             "corrupt_cycles": stats.corrupt_cycles,
             "bad_inputs": self.bad_inputs,
+            **self._speed_health(),
             **self._zero_health(),
         }

@@ -74,6 +74,41 @@ def test_weightless_arm_on_a_plant_with_stiction_rests_without_chattering(tmp_pa
     assert np.all(truth["ctrl_state"][window] == 2)
 
 
+def test_the_can_drivers_speed_monitor_stops_an_arm_the_law_lets_run(tmp_path):
+    """The CAN driver's own speed monitor (drivers/can/speed_monitor.py), from measured
+    positions: with the control law's speed limit taken away ([control] max_tool_speed_m_s =
+    0), a 40 N push runs the weightless arm past 250 mm/s; the driver holds, the arm stops and
+    the gateway faults naming the speed, and stays stopped until a reset."""
+    operator = {"mode": "force", "force_n": [0.0, 40.0, 0.0], "start_s": 0.5, "duration_s": 3.0}
+    with Stack(
+        tmp_path, sim_overrides={"operator": operator},
+        cell_overrides={"control": {"max_tool_speed_m_s": 0.0}},
+    ) as stack:  # fmt: skip
+        stack.start()
+        stack.start_teaching()
+        status = stack.wait_status(lambda s: s.get("state") == "fault", 15.0, "the speed fault")
+        time.sleep(1.0)
+        truth = stack.truth()
+        still = stack.request("status")
+    assert "speed monitor" in status["reason"] and "mm/s" in status["reason"], status["reason"]
+    assert still["state"] == "fault"
+    rows = teaching_rows(truth)
+    t = truth["t_s"][rows]
+    xyz = tool_xyz(truth, rows)
+    span = 5
+    speed = np.linalg.norm(xyz[span:] - xyz[:-span], axis=1) / (t[span:] - t[:-span])
+    tripped = int(np.argmax(speed > 0.25))
+    after_ms = (t[-1] - t[tripped + span]) * 1e3
+    print(f"speed monitor: the tool reached {speed.max() * 1e3:.0f} mm/s; "
+          f"{after_ms:.0f} ms of teaching after it passed 250 mm/s")  # fmt: skip
+    assert speed.max() > 0.25, "the push never outran the limit: nothing was tested"
+    assert speed.max() < 0.4, f"the arm reached {speed.max() * 1e3:.0f} mm/s before it stopped"
+    # after the trip the arm is held: the tool rests once the hold has braked it
+    tail = np.flatnonzero(truth["t_s"] >= truth["t_s"][-1] - 0.5)
+    moved = np.linalg.norm(tool_xyz(truth, tail)[-1] - tool_xyz(truth, tail)[0])
+    assert moved < 1e-3, f"the tool moved {moved * 1e3:.1f} mm in the last 0.5 s"
+
+
 def test_20N_push_along_x_moves_the_tool_along_x(tmp_path):
     operator = {"mode": "force", "force_n": [20.0, 0.0, 0.0], "start_s": 0.5, "duration_s": 2.0}
     with Stack(tmp_path, sim_overrides={"operator": operator}) as stack:

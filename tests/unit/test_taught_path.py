@@ -15,9 +15,11 @@ from control.taught_path import (
     TREMOR_CUTOFF_HZ,
     approach,
     constant_speed,
+    fastest_point_m_s,
     path_error_m,
     remove_tremor,
     replay_trajectory,
+    slow_down,
     tool_path,
 )
 from gateway.program import Program
@@ -480,3 +482,30 @@ def test_path_error_search_is_exact_against_brute_force():
     points = vertices[rng.integers(0, 400, 300)] + rng.normal(0, 0.05, (300, 3))
     brute = _segment_distance(points[:, None], vertices[None, :-1], np.diff(vertices, axis=0))
     np.testing.assert_allclose(_polyline_distance(vertices, points), brute.min(axis=1))
+
+
+def test_a_replay_never_moves_the_tool_or_the_flange_past_the_point_limit():
+    """An approach of 0.2 rad on every joint at 0.8 rad/s, and strokes at 0.3 m/s: with a
+    0.24 m/s point limit every segment is played slower where it must be, along the same
+    joint path, still from rest to rest; without it the same plan is faster than that."""
+    program = _program(_two_segments())
+    here = Q0 + 0.2
+    free = replay_trajectory(program, DESC, here, DT, 0.3, max_joint_speed_rad_s=OMEGA)
+    assert max(fastest_point_m_s(DESC, p.q_rad, DT) for p in free) > 0.26
+    parts = replay_trajectory(program, DESC, here, DT, 0.3, max_joint_speed_rad_s=OMEGA,
+                              max_point_speed_m_s=0.24)  # fmt: skip
+    assert [p.label for p in parts] == [p.label for p in free]
+    for slow, fast in zip(parts, free, strict=True):
+        assert fastest_point_m_s(DESC, slow.q_rad, DT) <= 0.24, slow.label
+        assert len(slow.q_rad) >= len(fast.q_rad)
+        np.testing.assert_array_equal(slow.q_rad[[0, -1]], fast.q_rad[[0, -1]])
+        np.testing.assert_allclose(slow.dq_rad_s[[0, -1]], 0.0, atol=1e-12)
+        # the same path: every slow sample lies on the fast one's joint polyline
+        assert path_error_m(DESC, fast.q_rad, slow.q_rad) < 1e-4, slow.label
+
+
+def test_slow_down_leaves_a_slow_path_alone():
+    q = np.linspace(Q0, Q0 + 0.001, 50)
+    dq = np.gradient(q, DT, axis=0)
+    out_q, out_dq, factor = slow_down(DESC, q, dq, DT, 0.24)
+    assert factor == 1.0 and out_q is q and out_dq is dq
