@@ -237,6 +237,14 @@ class OuterLoop:
         if len(self._sent) > self.adaptation.delay_cycles + 1:
             del self._sent[0]
 
+    def taint_last(self) -> None:
+        """The command just computed is not sent as eq. (21) gave it (the tool speed limit
+        scaled its velocity): the drive will not deliver ω̂ τ_d K* in the cycle it drives, so
+        eq. (28) must not learn from that cycle."""
+        if self._sent:
+            tau, _clean = self._sent[-1]
+            self._sent[-1] = (tau, False)
+
     def step(
         self, q_rad: np.ndarray, dq_rad_s: np.ndarray, tau_d_nm: np.ndarray, dt_s: float
     ) -> OuterLoopCommand:

@@ -377,6 +377,7 @@ class ZeroMomentController:
             scale = self.tool_speed_scale(q, np.array(dq_cmd))
             if scale < 1.0:
                 dq_cmd = [v * scale for v in dq_cmd]
+                self.loop.taint_last()  # not eq. (21)'s command: eq. (28) skips its cycle
         if self.inner_estimate is not None:
             self._sent_cmds.append((q_cmd, dq_cmd))
         return q_cmd, dq_cmd

@@ -86,6 +86,10 @@ class CanDriverConfig:
     #: measured positions while teaching or replaying (speed_monitor.py): past it the driver
     #: holds every cycle and reports the trip; the gateway faults. 0: no monitor.
     hand_guiding_max_speed_m_s: float = 0.25
+    #: A command with a position closer than this to a joint's limit (the robot description's,
+    #: the datasheet's) is rejected and the cycle held [rad]: the driver's own joint limits,
+    #: behind the control law's soft walls ([control] soft_limit_margin_rad, further inside).
+    joint_limit_margin_rad: float = 0.01
 
     def __post_init__(self) -> None:
         where = "[can]"
@@ -111,6 +115,12 @@ class CanDriverConfig:
             isinstance(limit, int | float) and math.isfinite(limit) and 0.0 <= limit <= 1.0,
             f"{where}.hand_guiding_max_speed_m_s",
             f"{limit!r} m/s outside 0..1 (ISO 10218-1: 0.25; 0 turns the monitor off)",
+        )
+        margin = self.joint_limit_margin_rad
+        require(
+            isinstance(margin, int | float) and math.isfinite(margin) and 0.0 <= margin <= 0.2,
+            f"{where}.joint_limit_margin_rad",
+            f"{margin!r} rad outside 0..0.2",
         )
         for name in ("current_zero_cycles", "current_zero_settle_cycles"):
             require_count(getattr(self, name), f"{where}.{name}", 100_000, "cycles")

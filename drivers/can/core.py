@@ -47,7 +47,7 @@ from drivers.can.adapter import CanAdapter, CycleFeedback, HostRequest
 from drivers.can.config import CanDriverConfig
 from drivers.can.current_zero import CurrentZero
 from drivers.can.speed_monitor import Points, SpeedMonitor, datasheet_points
-from gateway.errors import FrameError, MessageError
+from gateway.errors import ConfigError, FrameError, MessageError
 from gateway.messages import (
     COMMANDING,
     FLAG_ESTOP,
@@ -135,6 +135,16 @@ class CommandResult(NamedTuple):
     command: JointCommand | None  #: the decoded command (None if undecodable)
 
 
+def _datasheet_limits(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """The joint limits of the robot description (the datasheet's) [rad], ``n`` joints."""
+    from control.robot.description import load_description
+
+    desc = load_description()
+    if desc.n_dof != n:
+        raise ConfigError(f"[can].joints = {n}, but the robot description has {desc.n_dof}")
+    return np.array(desc.lower_rad), np.array(desc.upper_rad)
+
+
 class HostCore:
     """The CAN host's decisions. Not thread-safe: the driver calls it under one lock.
 
@@ -150,6 +160,7 @@ class HostCore:
         health_period_s: float = 0.1,
         stored_zero: tuple[np.ndarray, int, np.ndarray] | None = None,
         speed_points: Points | None = None,
+        joint_limits_rad: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> None:
         self.config = config
         self.adapter = adapter
@@ -160,6 +171,11 @@ class HostCore:
         self._max_dq = np.array(config.max_velocity_rad_s, dtype=float)
         self._zeros = np.zeros(n)
         self._zeros_list = [0.0] * n
+        #: the joint range a forwarded command stays in [rad]: the description's limits (the
+        #: datasheet's, or ``joint_limits_rad``) less ``joint_limit_margin_rad``
+        lower, upper = joint_limits_rad or _datasheet_limits(n)
+        self._lower = np.asarray(lower, dtype=float) + config.joint_limit_margin_rad
+        self._upper = np.asarray(upper, dtype=float) - config.joint_limit_margin_rad
 
         # inputs from zenoh
         self._lifecycle: LifecycleMsg | None = None
@@ -505,6 +521,13 @@ class HostCore:
             k = int(np.argmax(error - self._max_fe))
             return "out_of_range", (
                 f"joint {k + 1}: |q_cmd - q| = {error[k]:.4f} rad > {self._max_fe[k]:g} rad"
+            )
+        outside = np.maximum(self._lower - cmd.q_cmd_rad, cmd.q_cmd_rad - self._upper)
+        if np.any(outside > 0.0):
+            k = int(np.argmax(outside))
+            return "out_of_range", (
+                f"joint {k + 1}: q_cmd = {cmd.q_cmd_rad[k]:.4f} rad outside the driver's limits "
+                f"[{self._lower[k]:.4f}, {self._upper[k]:.4f}] rad"
             )
         speed = np.abs(cmd.dq_cmd_rad_s)
         if np.any(speed > self._max_dq):

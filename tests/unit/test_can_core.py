@@ -248,3 +248,28 @@ def test_histogram_percentiles_are_within_one_bin_of_numpy():
         assert 0.0 <= h.percentile_s(p) - nearest_rank <= 5e-6 + 1e-12  # its bin's upper edge
     assert h.summary()["max_us"] == pytest.approx(samples.max() * 1e6, abs=0.1)
     assert Histogram().summary()["p50_us"] is None
+
+
+def test_a_command_past_the_drivers_joint_limits_is_refused_and_the_cycle_held():
+    """The driver's own joint limits (the description's less [can] joint_limit_margin_rad),
+    behind the control law's soft walls: a command that would put a joint within the margin
+    of its limit is not forwarded; the cycle is held where the arm is."""
+    from control.robot.description import load_description
+
+    upper = load_description().upper_rad
+    cell = Cell()
+    q = Q0.copy()
+    q[2] = upper[2] - 0.02  # inside the driver's range, near the top of joint 3
+    cell.gateway(Lifecycle.TEACHING)
+    js, _ = cell.cycle(q=q)
+    assert cell.command(js, q)[0] == COMMAND
+    beyond = q.copy()
+    beyond[2] = upper[2] - 0.005  # within 0.01 rad of the limit (and 0.015 from q)
+    cell.t += 0.004
+    cell.gateway(Lifecycle.TEACHING)
+    js, _ = cell.cycle(q=q)
+    answer, frames = cell.command(js, beyond)
+    assert answer == HOLD and cell.core.rejected["out_of_range"] == 1
+    held = commands(frames)
+    assert len(held) == N and all(f.hold for f in held)
+    assert held[2].q_cmd_rad == pytest.approx(q[2], abs=1e-5)

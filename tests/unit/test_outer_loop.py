@@ -129,3 +129,19 @@ def test_a_held_or_missed_cycle_drops_the_history():
     omega = loop.omega
     loop.adapt_floats([400.0, -900.0, 200.0], 0.008)  # its torque belongs to no command
     np.testing.assert_array_equal(loop.omega, omega)
+
+
+def test_a_command_scaled_by_the_speed_limit_teaches_eq28_nothing():
+    """taint_last: the cycle a scaled command drives delivers no ω̂ τ_d K*, so its current is
+    not learnt from; the next clean cycle is."""
+    q = [0.1, -0.2, 0.3]
+    tau_d, tau_m = [300.0, -800.0, 150.0], [400.0, -900.0, 200.0]
+    loop = adapting_loop(1.2, 1.0)
+    loop.step_floats(q, [0.0] * 3, tau_d, 0.008)
+    loop.taint_last()
+    omega = loop.omega
+    loop.adapt_floats(tau_m, 0.008)
+    np.testing.assert_array_equal(loop.omega, omega)
+    loop.step_floats(q, [0.0] * 3, tau_d, 0.008)
+    loop.adapt_floats(tau_m, 0.008)
+    assert np.all(loop.omega != omega)
