@@ -68,9 +68,11 @@ log = logging.getLogger("leadthrough.control")
 
 #: fastest tool speed a replay may ask for [m/s] (gateway.replay's bound, ISO 10218-1)
 MAX_REPLAY_SPEED_M_S = MAX_SPEED_MM_S / 1000.0
-#: no point of the tool or the flange moves faster in a replay [m/s]: 4 % under the CAN
-#: driver's speed monitor (250 mm/s), for the vendor loop's following error
-MAX_REPLAY_POINT_SPEED_M_S = 0.24
+#: no point of the tool or the flange moves faster in a replay [m/s]: 20 % under the CAN
+#: driver's speed monitor (250 mm/s). Planned at 0.24 m/s, one replay on a loaded machine was
+#: measured at 263 mm/s and tripped the monitor (probably the vendor loop catching up after a
+#: held cycle; not traced)
+MAX_REPLAY_POINT_SPEED_M_S = 0.2
 PRESSURE_PUBLISH_PERIOD_S = 0.1
 #: the static-load check runs at most this often [s] (the gateway accepts one up to 0.5 s old)
 LOAD_CHECK_PERIOD_S = 0.1

@@ -31,9 +31,9 @@ def teaching_rows(truth: dict[str, np.ndarray]) -> np.ndarray:
 PROFILES = CAN_PROFILES
 
 
-@pytest.mark.parametrize("profile", sorted(PROFILES))
-def test_weightless_arm_without_operator_drifts_less_than_1mm_in_5s(tmp_path, profile):
-    sim_overrides, cell_overrides = PROFILES[profile]
+def rest_without_operator(tmp_path, sim_overrides=None, cell_overrides=None):
+    """Teach for 5 s with no hand on the tool: (truth, its first 5 s of teaching rows, the
+    tool's largest distance from where it started [m])."""
     with Stack(tmp_path, sim_overrides=sim_overrides, cell_overrides=cell_overrides) as stack:
         stack.start()
         stack.start_teaching()
@@ -43,11 +43,16 @@ def test_weightless_arm_without_operator_drifts_less_than_1mm_in_5s(tmp_path, pr
     t = truth["t_s"][rows]
     window = rows[t - t[0] <= 5.0]
     xyz = tool_xyz(truth, window)
-    drift_m = np.linalg.norm(xyz - xyz[0], axis=1).max()
-    print(f"{profile}: tool drift in 5 s without operator force: {drift_m * 1e3:.3f} mm")
-    assert drift_m < 1e-3, f"tool drifted {drift_m * 1e3:.3f} mm in 5 s"
     # and it really was the control process holding it (weightless), not brakes
     assert np.all(truth["ctrl_state"][window] == 2)
+    return truth, window, float(np.linalg.norm(xyz - xyz[0], axis=1).max())
+
+
+@pytest.mark.parametrize("profile", sorted(PROFILES))
+def test_weightless_arm_without_operator_drifts_less_than_1mm_in_5s(tmp_path, profile):
+    _, _, drift_m = rest_without_operator(tmp_path, *PROFILES[profile])
+    print(f"{profile}: tool drift in 5 s without operator force: {drift_m * 1e3:.3f} mm")
+    assert drift_m < 1e-3, f"tool drifted {drift_m * 1e3:.3f} mm in 5 s"
 
 
 def test_weightless_arm_on_a_plant_with_stiction_rests_without_chattering(tmp_path):
@@ -56,22 +61,12 @@ def test_weightless_arm_on_a_plant_with_stiction_rests_without_chattering(tmp_pa
     (±20-40 mrad/s, J4 and J6 drifting 6 mrad in 5 s); ramped in over the speed the loop's
     delay allows ([control] friction_ramp_factor), the arm rests. The model is the default
     plant's identification: the two plants differ only in how friction holds at rest."""
-    with Stack(tmp_path, sim_overrides={"stiction": True}) as stack:
-        stack.start()
-        stack.start_teaching()
-        truth = stack.wait_teaching(5.2, 30.0)
-        stack.request("stop")
-    rows = teaching_rows(truth)
-    t = truth["t_s"][rows]
-    window = rows[t - t[0] <= 5.0]
-    xyz = tool_xyz(truth, window)
-    drift_m = np.linalg.norm(xyz - xyz[0], axis=1).max()
+    truth, window, drift_m = rest_without_operator(tmp_path, {"stiction": True})
     speed = np.abs(np.stack([truth[f"dq{j + 1}"][window] for j in range(6)], axis=1))
     print(f"stiction: tool drift {drift_m * 1e3:.3f} mm, fastest joint "
           f"{speed.max() * 1e3:.2f} mrad/s in 5 s without operator force")  # fmt: skip
     assert drift_m < 1e-3, f"tool drifted {drift_m * 1e3:.3f} mm in 5 s"
     assert speed.max() < 5e-3, f"a joint chattered at {speed.max() * 1e3:.1f} mrad/s"
-    assert np.all(truth["ctrl_state"][window] == 2)
 
 
 def test_the_can_drivers_speed_monitor_stops_an_arm_the_law_lets_run(tmp_path):
