@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from test_stack import rest_without_operator, teaching_rows, tool_speed, tool_xyz
 
 from sim_bridge.harness import Stack
 
@@ -15,26 +16,8 @@ pytestmark = pytest.mark.stack
 ADMITTANCE = {"control": {"strategy": "admittance"}}
 
 
-def _tool(truth: dict[str, np.ndarray], rows: np.ndarray) -> np.ndarray:
-    return np.stack([truth[f"tool_{a}"][rows] for a in "xyz"], axis=1)
-
-
-def _teaching(truth: dict[str, np.ndarray]) -> np.ndarray:
-    rows = np.flatnonzero(truth["teaching"] > 0.5)
-    assert rows.size, "the robot never followed the control process's commands"
-    return rows
-
-
 def test_without_a_hand_the_admittance_holds_the_arm_within_a_millimetre(tmp_path):
-    with Stack(tmp_path, cell_overrides=ADMITTANCE) as stack:
-        stack.start()
-        stack.start_teaching()
-        truth = stack.wait_teaching(5.2, 30.0)
-        stack.request("stop")
-    rows = _teaching(truth)
-    t = truth["t_s"][rows]
-    xyz = _tool(truth, rows[t - t[0] <= 5.0])
-    drift_m = np.linalg.norm(xyz - xyz[0], axis=1).max()
+    _, _, drift_m = rest_without_operator(tmp_path, None, ADMITTANCE)
     print(f"admittance: tool drift in 5 s without operator force: {drift_m * 1e3:.3f} mm")
     assert drift_m < 1e-3, f"tool drifted {drift_m * 1e3:.3f} mm in 5 s"
 
@@ -46,21 +29,19 @@ def test_a_push_moves_the_tool_along_it_and_the_arm_stops_when_the_hand_lets_go(
         stack.start_teaching()
         truth = stack.wait_teaching(6.6, 40.0)
         stack.request("stop")
-    rows = _teaching(truth)
+    rows = teaching_rows(truth)
     t = truth["t_s"][rows] - truth["t_s"][rows[0]]
     at = {s: rows[t <= s][-1] for s in (0.5, 2.6, 4.5, 6.5)}
-    d = _tool(truth, [at[2.6]])[0] - _tool(truth, [at[0.5]])[0]
+    d = tool_xyz(truth, [at[2.6]])[0] - tool_xyz(truth, [at[0.5]])[0]
     print(f"tool displacement after a 2 s, 20 N push along +y: {np.round(d * 1e3, 1)} mm")
     assert d[1] > 0.01, f"tool moved {d * 1e3} mm under a 20 N +y push"
     assert d[1] / np.linalg.norm(d) > 0.7, f"motion {d * 1e3} mm is far off +y"
     # A 20 N push on a light admittance would run the tool at over 0.5 m/s: the reference is
     # held at 240 mm/s, under hand guiding's 250 mm/s (ISO 10218-1), which the arm must keep.
-    xyz = _tool(truth, rows)
-    span = 5
-    speed = np.linalg.norm(xyz[span:] - xyz[:-span], axis=1) / (t[span:] - t[:-span])
+    speed = tool_speed(truth, rows)
     print(f"tool speed: max {speed.max() * 1e3:.0f} mm/s")
     assert speed.max() <= 0.25, f"the tool reached {speed.max() * 1e3:.0f} mm/s"
     # the push (its ramp ends at 2.5 s) left the tool at 0.24 m/s: stopped within 2 s
-    after = _tool(truth, [at[6.5]])[0] - _tool(truth, [at[4.5]])[0]
+    after = tool_xyz(truth, [at[6.5]])[0] - tool_xyz(truth, [at[4.5]])[0]
     print(f"tool motion 2-4 s after the push ended: {np.round(after * 1e3, 2)} mm")
     assert np.linalg.norm(after) < 1e-3, "the arm kept moving after the hand let go"

@@ -28,6 +28,13 @@ def teaching_rows(truth: dict[str, np.ndarray]) -> np.ndarray:
     return rows
 
 
+def tool_speed(truth: dict[str, np.ndarray], rows: np.ndarray, span: int = 5) -> np.ndarray:
+    """The tool's speed [m/s] over ``span`` truth rows, at each of ``rows`` but the last
+    ``span``."""
+    t, xyz = truth["t_s"][rows], tool_xyz(truth, rows)
+    return np.linalg.norm(xyz[span:] - xyz[:-span], axis=1) / (t[span:] - t[:-span])
+
+
 PROFILES = CAN_PROFILES
 
 
@@ -89,9 +96,8 @@ def test_the_can_drivers_speed_monitor_stops_an_arm_the_law_lets_run(tmp_path):
     assert still["state"] == "fault"
     rows = teaching_rows(truth)
     t = truth["t_s"][rows]
-    xyz = tool_xyz(truth, rows)
     span = 5
-    speed = np.linalg.norm(xyz[span:] - xyz[:-span], axis=1) / (t[span:] - t[:-span])
+    speed = tool_speed(truth, rows, span)
     tripped = int(np.argmax(speed > 0.25))
     after_ms = (t[-1] - t[tripped + span]) * 1e3
     print(f"speed monitor: the tool reached {speed.max() * 1e3:.0f} mm/s; "
@@ -230,11 +236,7 @@ def test_a_hard_push_never_moves_the_tool_faster_than_hand_guiding_allows(tmp_pa
         stack.start_teaching()
         truth = stack.wait_teaching(4.0, 40.0)
         stack.request("stop")
-    rows = teaching_rows(truth)
-    t = truth["t_s"][rows]
-    xyz = tool_xyz(truth, rows)
-    span = 5
-    speed = np.linalg.norm(xyz[span:] - xyz[:-span], axis=1) / (t[span:] - t[:-span])
+    speed = tool_speed(truth, teaching_rows(truth))
     print(f"zero moment, 40 N push: tool speed max {speed.max() * 1e3:.0f} mm/s")
     assert speed.max() > 0.15, "the push never got the tool near the limit"
     assert speed.max() <= 0.25, f"the tool reached {speed.max() * 1e3:.0f} mm/s"
