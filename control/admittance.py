@@ -171,3 +171,77 @@ class Admittance:
         else:
             self._slow_s = 0.0
         return self.q_r, self.dq_r
+
+
+#: the engagement probe's ramps to and from its cruise speed [s]
+PROBE_RAMP_S = 0.05
+#: a probe side needs this many sliding cruise samples for its median
+PROBE_MIN_SAMPLES = 3
+
+
+class EngageProbe:
+    """The residual ``b`` of (A1) without the share of the load stiction carries.
+
+    At rest a joint's friction carries any share of the load up to its static level, so the
+    residual at rest is the model's error *plus* that share; once the joint slides the share
+    is gone, and a ``b`` that kept it reads as a hand pushing along the motion: the arm runs
+    away (1 m in 5 s on the virtual cell with stiction). The probe moves every joint out and
+    back along a trapezoid of velocity (``speed_rad_s`` per joint for most of each half, ramps
+    of :data:`PROBE_RAMP_S`, ``duration_s`` in all, back where it started): the residual on the
+    samples that slid at cruise speed (the command that drove them had no acceleration, and
+    the joint moved the commanded way faster than ``slide_rad_s``) is the model's error minus
+    the friction at that speed one way and plus it the other way, so the mean of the two
+    sides' medians is the model's error alone (friction taken as symmetric). A joint with
+    fewer than :data:`PROBE_MIN_SAMPLES` on a side keeps the residual at rest beyond its
+    friction level.
+    """
+
+    def __init__(
+        self, speed_rad_s: np.ndarray, duration_s: float, period_s: float, slide_rad_s: float
+    ) -> None:
+        speed = np.asarray(speed_rad_s, dtype=float)
+        half = max(2, round(0.5 * duration_s / period_s))
+        t = np.arange(half) * period_s
+        ramp = max(PROBE_RAMP_S, period_s)
+        up = np.clip(np.minimum(t / ramp, (half * period_s - t) / ramp), 0.0, 1.0)
+        shape = np.concatenate([up, -up, [0.0]])
+        #: per probe cycle: +1 / -1 at cruise that way (no acceleration), 0 elsewhere
+        self.cruise = np.concatenate([[0.0], (shape[1:] == shape[:-1]) * np.sign(shape[1:])])
+        #: per probe cycle and joint: the velocity command [rad/s] and the offset from the
+        #: start [rad] (the sum of the velocities before it: back to 0 at the end)
+        self.velocity = shape[:, None] * speed[None, :]
+        self.offset = np.vstack([np.zeros_like(speed), np.cumsum(self.velocity[:-1], 0) * period_s])
+        self.slide_rad_s = float(slide_rad_s)
+        self.n = n = speed.size
+        self._sides: tuple[list[list[float]], ...] = tuple(([], []) for _ in range(n))  # type: ignore[assignment]
+
+    def __len__(self) -> int:
+        return len(self.velocity)
+
+    def observe(self, k: int, dq_rad_s: np.ndarray, residual_nm: np.ndarray) -> None:
+        """The state measured over the cycle the probe's sample ``k`` drove: its velocity
+        and the residual ``model(q, 0, q̈) − K i`` (no friction in the model's part)."""
+        if not 0 <= k < len(self.cruise) or self.cruise[k] == 0.0:
+            return
+        way = self.cruise[k]
+        for j in range(self.n):
+            if way * dq_rad_s[j] > self.slide_rad_s:
+                self._sides[j][0 if way > 0 else 1].append(float(residual_nm[j]))
+
+    def samples(self) -> list[tuple[int, int]]:
+        """(samples sliding +, samples sliding −) per joint."""
+        return [(len(a), len(b)) for a, b in self._sides]
+
+    def bias(self, at_rest_nm: np.ndarray, stick_nm: np.ndarray) -> tuple[np.ndarray, list[int]]:
+        """``b`` per joint, and the joints that did not slide both ways (too few samples):
+        theirs is the residual at rest ``at_rest_nm`` less what friction may have carried
+        there, ``stick_nm`` (towards 0; a stuck joint's residual within it is no error)."""
+        at_rest = np.asarray(at_rest_nm, dtype=float)
+        b = np.sign(at_rest) * np.maximum(np.abs(at_rest) - np.asarray(stick_nm), 0.0)
+        kept = []
+        for j, (pos, neg) in enumerate(self._sides):
+            if min(len(pos), len(neg)) >= PROBE_MIN_SAMPLES:
+                b[j] = 0.5 * (float(np.median(pos)) + float(np.median(neg)))
+            else:
+                kept.append(j)
+        return b, kept

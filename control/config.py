@@ -72,12 +72,24 @@ class ControlConfig:
     admittance_band_rms_factor: float = 1.0
     #: the damping while no joint is pushed beyond its dead zone, × ``damping_nm_s_per_rad``
     admittance_rest_damping_factor: float = 10.0
+    #: the admittance's engagement probe (control/admittance.py, EngageProbe): every joint
+    #: moves out and back at this cruise speed [rad/s] over ``admittance_probe_s`` [s], so
+    #: the residual b is measured sliding both ways, free of the load stiction carries at
+    #: rest (about 1.6 mrad each way); 0: b is the residual at rest (a robot without stiction)
+    admittance_probe_speed_rad_s: float = 0.008
+    admittance_probe_s: float = 0.5
+    #: a joint at rest has its hand torque estimate dead-zoned by this × the model's friction
+    #: level (control/admittance.py, stick zone): its friction then carries any torque up to
+    #: its static level, which the current cannot tell from a hand; 0: none
+    admittance_stick_zone: float = 1.0
     #: the speed limit of hand guiding on the tool point and the flange [m/s], kept by the
     #: admittance's reference, and by the zero-moment law's velocity command (scaled down
     #: where it would exceed it, so the vendor loop brakes the arm); 0: none.
-    #: ISO 10218-1 allows 250 mm/s; the arm follows a reference at 250 mm/s with up to
-    #: 252 mm/s (virtual cell, a 20 N push), so the default keeps 4 % below it
-    max_tool_speed_m_s: float = 0.24
+    #: ISO 10218-1 allows 250 mm/s. The arm followed a reference at 250 mm/s with up to
+    #: 252 mm/s (virtual cell, a 20 N push), and with the limit at 0.24 m/s an 80 N push that
+    #: broke J1's stiction away reached 252 mm/s (the burst as the stuck joint lets go
+    #: outruns the scaled command), so the default keeps 12 % below it
+    max_tool_speed_m_s: float = 0.22
     #: cylinder pressure set-points sent to the valves [bar]
     pressure_setpoint_bar: tuple[float, float] = (6.0, 4.0)
     #: I/O older than this: no command is published (the CAN driver then holds) [s]
@@ -209,6 +221,21 @@ class ControlConfig:
             0.0 <= self.admittance_band_rms_factor <= 10.0,
             "[control].admittance_band_rms_factor",
             f"{self.admittance_band_rms_factor} not in [0, 10]",
+        )
+        require(
+            0.0 <= self.admittance_probe_speed_rad_s <= 0.05,
+            "[control].admittance_probe_speed_rad_s",
+            f"{self.admittance_probe_speed_rad_s} not in [0, 0.05] rad/s",
+        )
+        require(
+            0.0 <= self.admittance_stick_zone <= 3.0,
+            "[control].admittance_stick_zone",
+            f"{self.admittance_stick_zone} not in [0, 3]",
+        )
+        require(
+            0.1 <= self.admittance_probe_s <= 2.0,
+            "[control].admittance_probe_s",
+            f"{self.admittance_probe_s} not in [0.1, 2] s",
         )
         require(
             1.0 <= self.admittance_rest_damping_factor <= 1000.0,

@@ -101,6 +101,27 @@ def _last_report(mcap: Path, key: str, plan_id: str) -> dict[str, Any]:
     return last
 
 
+#: identification starts from standstill (the gateway refuses it before): wait this long for
+#: the arm to be still this long [s]. After servo-on a joint with stiction can hunt around the
+#: hold for a second or two before it sticks.
+SETTLE_WAIT_S, SETTLED_S = 20.0, 0.5
+
+
+def wait_for_standstill(bus: BusConfig, wait_s: float = SETTLE_WAIT_S) -> None:
+    """Wait until the gateway has seen the arm still for :data:`SETTLED_S` (its status's
+    ``standstill``), at most ``wait_s``; the request that follows says why if it never was."""
+    deadline = time.monotonic() + wait_s
+    told = False
+    while time.monotonic() < deadline:
+        still = operator_request(bus, "status").get("standstill") or {}
+        if float(still.get("still_for_s") or 0.0) >= SETTLED_S:
+            return
+        if not told:
+            print("waiting for the robot to settle after servo-on ...")
+            told = True
+        time.sleep(0.2)
+
+
 def run_plan(bus: BusConfig, plan: dict[str, Any], out: Path, timeout_s: float) -> Path:
     """Record the bus while the cell plays ``plan``; returns the MCAP path."""
     out.mkdir(parents=True, exist_ok=True)
@@ -109,6 +130,7 @@ def run_plan(bus: BusConfig, plan: dict[str, Any], out: Path, timeout_s: float) 
     rec.start()
     try:
         time.sleep(0.5)  # let the recorder's subscription reach the router
+        wait_for_standstill(bus)
         reply = operator_request(bus, "identify", plan=plan)
         if not reply.get("ok"):
             raise LeadthroughError(f"the gateway refused to identify: {reply.get('message')}")

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from control.admittance import Admittance
+from control.admittance import Admittance, EngageProbe
 from control.config import ControlConfig
 from control.declared_model import DeclaredModel
 from control.delay import DelayPredictor
@@ -78,6 +78,11 @@ PRESSURE_PUBLISH_PERIOD_S = 0.1
 LOAD_CHECK_PERIOD_S = 0.1
 #: the admittance measures its estimate's noise on at least this many held states
 MIN_NOISE_STATES = 16
+#: the admittance's engagement probe breaks a stuck joint away within this share of a half
+#: of it, at no more than PROBE_MAX_RAD_S (AdmittanceController.probe_speeds)
+PROBE_BREAKAWAY_SHARE, PROBE_MAX_RAD_S = 0.4, 0.05
+#: the admittance's stick zone fades out between rest and this speed [rad/s]
+STICK_RAD_S = 2.0 * REST_RAD_S
 #: the delay predictor's M(q)⁻¹ is recomputed after a joint moved this much [rad]
 INERTIA_STEP_RAD = 0.02
 
@@ -480,6 +485,21 @@ class AdmittanceController(ZeroMomentController):
         #: the cycle the one ``delay + 1`` back drove
         self._sent_ddq: deque[np.ndarray] = deque(maxlen=cfg.command_delay_cycles + 1)
         self._mass: tuple[np.ndarray, np.ndarray] | None = None
+        #: the engagement probe while it runs (control/admittance.py), its first cycle, the
+        #: command it starts from, and the noise measured in the hold before it
+        self._probe: EngageProbe | None = None
+        self._probe_start = 0
+        self._probe_q0 = np.zeros(model.n)
+        self._probe_noise: np.ndarray | None = None
+        #: where the arm was when the probe started: the admittance's reference after it
+        #: (the vendor loop brings back a joint the probe left stuck a little off)
+        self._probe_q = np.zeros(model.n)
+        #: per joint, the hand torque a joint at rest hides in its friction [N·m]
+        self._stick = np.zeros(model.n)
+
+    def disengage(self) -> None:
+        super().disengage()
+        self._probe = None
 
     def mass(self, q: np.ndarray) -> np.ndarray:
         """M̂(q), recomputed after a joint moved INERTIA_STEP_RAD: the identified model's
@@ -531,13 +551,22 @@ class AdmittanceController(ZeroMomentController):
             else:
                 tau_m = self.motor_torque_nm(st)
             self._bias = self.model_torque(st.q_rad, zeros, zeros, p_bar) - np.array(tau_m)
+            self._stick = self.cfg.admittance_stick_zone * self.friction_level_nm(st.q_rad)
             self.hold.clear()
-            self.admittance.reset(st.q_rad, noise)
-            log.info("admittance engaged: dead zone %s N·m",
-                     np.round(self.admittance.band, 3).tolist())  # fmt: skip
             self._sent_ddq.clear()
             self.engaged = True
             self.last_cycle = st.cycle - 1
+            if self.cfg.admittance_probe_speed_rad_s > 0:
+                self._probe = EngageProbe(
+                    self.probe_speeds(st.q_rad), self.cfg.admittance_probe_s, period, REST_RAD_S
+                )
+                self._probe_start, self._probe_q0 = st.cycle, st.q_cmd_rad.copy()
+                self._probe_q = st.q_rad.copy()
+                self._probe_noise = noise
+            else:
+                self._start_admittance(st.q_rad, noise)
+        if self._probe is not None:
+            return self._probe_cycle(st, p_bar)
         gap = st.cycle - (self.last_cycle if self.last_cycle is not None else st.cycle - 1)
         dt = period * max(1, min(gap, 50))
         self.last_cycle = st.cycle
@@ -547,6 +576,10 @@ class AdmittanceController(ZeroMomentController):
         tau_m = np.array(self.motor_torque_nm(st))
         # the friction the arm met is at its measured speed, not at the reference's
         tau_h = self.model_torque(q, st.dq_rad_s, drove, p_bar) - self._bias - tau_m
+        # a joint at rest: its friction carries any torque up to its static level, which the
+        # current cannot tell from a hand (the stick zone, fading out as the joint slides)
+        stuck = self._stick * np.maximum(0.0, 1.0 - np.abs(st.dq_rad_s) / STICK_RAD_S)
+        tau_h = np.sign(tau_h) * np.maximum(np.abs(tau_h) - stuck, 0.0)
         k = self.cfg.wall_stiffness_nm_per_rad
         walls = -k * np.maximum(q - self.upper, 0.0) + k * np.maximum(self.lower - q, 0.0)
         if not (np.isfinite(tau_h).all() and np.isfinite(walls).all()):
@@ -563,6 +596,58 @@ class AdmittanceController(ZeroMomentController):
         if not np.array_equal(q_cmd, q_r + offset):
             adm.q_r = q_cmd - offset
         return q_cmd.tolist(), dq_r.tolist()
+
+    def probe_speeds(self, q: np.ndarray) -> np.ndarray:
+        """The engagement probe's cruise speed per joint [rad/s]: at least the configured
+        one, and fast enough that the command leads a joint stuck at one end of its friction
+        by enough to break it away the other way, ``2 × 2 f / k`` (f the model's friction
+        level, twice for a true static level above it; k = Υ̂_I / ω̂ the vendor loop's
+        position stiffness), within :data:`PROBE_BREAKAWAY_SHARE` of a half of the probe;
+        at most :data:`PROBE_MAX_RAD_S`."""
+        lead = 4.0 * self.friction_level_nm(q) * self.loop.omega / self.loop.upsilon_i
+        half = 0.5 * self.cfg.admittance_probe_s
+        speed = np.maximum(self.cfg.admittance_probe_speed_rad_s,
+                           lead / (PROBE_BREAKAWAY_SHARE * half))  # fmt: skip
+        return np.minimum(speed, PROBE_MAX_RAD_S)
+
+    def _start_admittance(self, q: np.ndarray, noise: np.ndarray | None) -> None:
+        self.admittance.reset(q, noise)
+        log.info("admittance engaged: dead zone %s N·m, residual b %s N·m",
+                 np.round(self.admittance.band, 3).tolist(),
+                 np.round(self._bias, 2).tolist())  # fmt: skip
+        self._sent_ddq.clear()
+
+    def _probe_cycle(
+        self, st: JointState, p_bar: Sequence[float]
+    ) -> tuple[list[float], list[float]]:
+        """One cycle of the engagement probe (:class:`EngageProbe`): take in the state the
+        probe's command ``delay + 1`` cycles back drove, answer with its next command; at
+        its end, ``b`` and the admittance's start."""
+        probe = self._probe
+        assert probe is not None
+        k = st.cycle - self._probe_start
+        drove = k - (self.cfg.command_delay_cycles + 1)
+        self.last_cycle = st.cycle
+        if drove >= 0 and not st.flags & (FLAG_PREV_HOLD | FLAG_PREV_COAST):
+            zeros = np.zeros(self.model.n)
+            residual = self.model_torque(st.q_rad, zeros, zeros, p_bar) - np.array(
+                self.motor_torque_nm(st)
+            )
+            if not np.isfinite(residual).all():
+                raise MessageError(f"cycle {st.cycle}: hand torque estimate undefined")
+            probe.observe(drove, st.dq_rad_s, residual)
+        if drove < len(probe) - 1:
+            i = min(k, len(probe) - 1)
+            return (self._probe_q0 + probe.offset[i]).tolist(), probe.velocity[i].tolist()
+        self._bias, kept = probe.bias(self._bias, self.friction_level_nm(st.q_rad))
+        log.info("admittance probe: sliding samples (+, -) per joint %s", probe.samples())
+        if kept:
+            log.warning("admittance probe: joints %s did not slide both ways; their "
+                        "residual b is the one at rest beyond their friction",
+                        [j + 1 for j in kept])  # fmt: skip
+        self._probe = None
+        self._start_admittance(self._probe_q, self._probe_noise)
+        return self.answer(st, p_bar)
 
 
 def _finite_or_none(values: np.ndarray) -> list[float | None]:

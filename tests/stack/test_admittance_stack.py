@@ -16,10 +16,30 @@ pytestmark = pytest.mark.stack
 ADMITTANCE = {"control": {"strategy": "admittance"}}
 
 
+#: the engagement probe's length ([control] admittance_probe_s) and the time its joints take
+#: to stick after it (the wrists still slid 0.2 s after its end on seed 0) [s]
+PROBE_S = 0.5 + 0.3
+
+
 def test_without_a_hand_the_admittance_holds_the_arm_within_a_millimetre(tmp_path):
-    _, _, drift_m = rest_without_operator(tmp_path, None, ADMITTANCE)
-    print(f"admittance: tool drift in 5 s without operator force: {drift_m * 1e3:.3f} mm")
-    assert drift_m < 1e-3, f"tool drifted {drift_m * 1e3:.3f} mm in 5 s"
+    """The plant has true stiction: a residual b taken at rest held the share of the load
+    friction carried there, and once the joints slid the share read as a hand (1 m in 5 s).
+    The engagement probe measures b sliding both ways; the stick zone keeps the share a
+    joint at rest carries from reading as a hand. The probe moves the tool a few mm and
+    back; after it the arm stays."""
+    truth, window, _ = rest_without_operator(tmp_path, None, ADMITTANCE)
+    t = truth["t_s"][window] - truth["t_s"][window[0]]
+    xyz = tool_xyz(truth, window)
+    probe = np.linalg.norm(xyz[t <= PROBE_S] - xyz[0], axis=1)
+    after = xyz[t >= PROBE_S]
+    drift_m = float(np.linalg.norm(after - after[0], axis=1).max())
+    back_m = float(np.linalg.norm(after[0] - xyz[0]))
+    print(f"admittance: the probe moved the tool {probe.max() * 1e3:.2f} mm and left it "
+          f"{back_m * 1e3:.2f} mm from its start; then {drift_m * 1e3:.3f} mm of drift in "
+          f"{t[-1] - PROBE_S:.1f} s without operator force")  # fmt: skip
+    assert probe.max() < 10e-3, f"the probe moved the tool {probe.max() * 1e3:.1f} mm"
+    assert back_m < 1e-3, f"the probe left the tool {back_m * 1e3:.2f} mm from its start"
+    assert drift_m < 1e-3, f"tool drifted {drift_m * 1e3:.3f} mm after the probe"
 
 
 def test_a_push_moves_the_tool_along_it_and_the_arm_stops_when_the_hand_lets_go(tmp_path):
@@ -37,7 +57,7 @@ def test_a_push_moves_the_tool_along_it_and_the_arm_stops_when_the_hand_lets_go(
     assert d[1] > 0.01, f"tool moved {d * 1e3} mm under a 20 N +y push"
     assert d[1] / np.linalg.norm(d) > 0.7, f"motion {d * 1e3} mm is far off +y"
     # A 20 N push on a light admittance would run the tool at over 0.5 m/s: the reference is
-    # held at 240 mm/s, under hand guiding's 250 mm/s (ISO 10218-1), which the arm must keep.
+    # held at 220 mm/s, under hand guiding's 250 mm/s (ISO 10218-1), which the arm must keep.
     speed = tool_speed(truth, rows)
     print(f"tool speed: max {speed.max() * 1e3:.0f} mm/s")
     assert speed.max() <= 0.25, f"the tool reached {speed.max() * 1e3:.0f} mm/s"

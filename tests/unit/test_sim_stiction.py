@@ -71,9 +71,9 @@ def test_the_viscous_friction_is_joint_damping_at_the_cycle_velocity():
     np.testing.assert_allclose(plant.friction.damping_nm_s_per_rad(v), expected)
 
 
-def test_the_default_plants_smooth_law_creeps_where_stiction_holds():
-    plant = Plant(dataclasses.replace(load_sim_config(), plant_seed=0))
-    assert not plant.stiction
+def test_the_smooth_law_creeps_where_stiction_holds_and_stiction_is_the_default():
+    assert Plant(dataclasses.replace(load_sim_config(), plant_seed=0)).stiction
+    plant = Plant(dataclasses.replace(load_sim_config(), plant_seed=0, stiction=False))
     plant.model.opt.gravity[:] = 0.0
     static = plant.friction.dry_level_nm(plant.q_rad, np.zeros(plant.n))
     _push(plant, 0.5 * static, 1.0)
