@@ -185,13 +185,17 @@ class EngageProbe:
     At rest a joint's friction carries any share of the load up to its static level, so the
     residual at rest is the model's error *plus* that share; once the joint slides the share
     is gone, and a ``b`` that kept it reads as a hand pushing along the motion: the arm runs
-    away (1 m in 5 s on the virtual cell with stiction). The probe moves every joint out and
-    back along a trapezoid of velocity (``speed_rad_s`` per joint for most of each half, ramps
-    of :data:`PROBE_RAMP_S`, ``duration_s`` in all, back where it started): the residual on the
-    samples that slid at cruise speed (the command that drove them had no acceleration, and
-    the joint moved the commanded way faster than ``slide_rad_s``) is the model's error minus
-    the friction at that speed one way and plus it the other way, so the mean of the two
-    sides' medians is the model's error alone (friction taken as symmetric). A joint with
+    away (1 m in 5 s on the virtual cell with stiction). The probe moves every joint out to
+    one side, back, out to the other side and back, a trapezoid of velocity per quarter
+    (``speed_rad_s`` per joint for most of it, ramps of :data:`PROBE_RAMP_S`, ``duration_s``
+    in all, back where it started): the residual on the samples that slid at cruise speed (the
+    command that drove them had no acceleration, and the joint moved the commanded way faster
+    than ``slide_rad_s``) is the model's error minus the friction at that speed one way and
+    plus it the other way, so the mean of the two sides' medians is the model's error alone
+    (friction taken as symmetric). Each way is sampled as much on either side of the start, so
+    a hand holding the tool on a spring (the painter's grip) pulls as much one way as the
+    other and cancels too; the first probe, out and back on one side only, took the grip's
+    pull into b (-5 N·m on J2 and J3 on the teach bench). A joint with
     fewer than :data:`PROBE_MIN_SAMPLES` on a side keeps the residual at rest beyond its
     friction level.
     """
@@ -200,11 +204,11 @@ class EngageProbe:
         self, speed_rad_s: np.ndarray, duration_s: float, period_s: float, slide_rad_s: float
     ) -> None:
         speed = np.asarray(speed_rad_s, dtype=float)
-        half = max(2, round(0.5 * duration_s / period_s))
-        t = np.arange(half) * period_s
+        quarter = max(2, round(0.25 * duration_s / period_s))
+        t = np.arange(quarter) * period_s
         ramp = max(PROBE_RAMP_S, period_s)
-        up = np.clip(np.minimum(t / ramp, (half * period_s - t) / ramp), 0.0, 1.0)
-        shape = np.concatenate([up, -up, [0.0]])
+        up = np.clip(np.minimum(t / ramp, (quarter * period_s - t) / ramp), 0.0, 1.0)
+        shape = np.concatenate([up, -up, -up, up, [0.0]])
         #: per probe cycle: +1 / -1 at cruise that way (no acceleration), 0 elsewhere
         self.cruise = np.concatenate([[0.0], (shape[1:] == shape[:-1]) * np.sign(shape[1:])])
         #: per probe cycle and joint: the velocity command [rad/s] and the offset from the

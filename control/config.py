@@ -73,11 +73,12 @@ class ControlConfig:
     #: the damping while no joint is pushed beyond its dead zone, × ``damping_nm_s_per_rad``
     admittance_rest_damping_factor: float = 10.0
     #: the admittance's engagement probe (control/admittance.py, EngageProbe): every joint
-    #: moves out and back at this cruise speed [rad/s] over ``admittance_probe_s`` [s], so
-    #: the residual b is measured sliding both ways, free of the load stiction carries at
-    #: rest (about 1.6 mrad each way); 0: b is the residual at rest (a robot without stiction)
+    #: moves out and back to either side at this cruise speed [rad/s] (at least; each joint's
+    #: is sized to break its friction away) over ``admittance_probe_s`` [s], so the residual
+    #: b is measured sliding both ways, free of the load stiction carries at rest; 0: b is
+    #: the residual at rest (a robot without stiction)
     admittance_probe_speed_rad_s: float = 0.008
-    admittance_probe_s: float = 0.5
+    admittance_probe_s: float = 0.8
     #: a joint at rest has its hand torque estimate dead-zoned by this × the model's friction
     #: level (control/admittance.py, stick zone): its friction then carries any torque up to
     #: its static level, which the current cannot tell from a hand; 0: none

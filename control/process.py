@@ -78,7 +78,7 @@ PRESSURE_PUBLISH_PERIOD_S = 0.1
 LOAD_CHECK_PERIOD_S = 0.1
 #: the admittance measures its estimate's noise on at least this many held states
 MIN_NOISE_STATES = 16
-#: the admittance's engagement probe breaks a stuck joint away within this share of a half
+#: the admittance's engagement probe breaks a stuck joint away within this share of a quarter
 #: of it, at no more than PROBE_MAX_RAD_S (AdmittanceController.probe_speeds)
 PROBE_BREAKAWAY_SHARE, PROBE_MAX_RAD_S = 0.4, 0.05
 #: the admittance's stick zone fades out between rest and this speed [rad/s]
@@ -491,9 +491,6 @@ class AdmittanceController(ZeroMomentController):
         self._probe_start = 0
         self._probe_q0 = np.zeros(model.n)
         self._probe_noise: np.ndarray | None = None
-        #: where the arm was when the probe started: the admittance's reference after it
-        #: (the vendor loop brings back a joint the probe left stuck a little off)
-        self._probe_q = np.zeros(model.n)
         #: per joint, the hand torque a joint at rest hides in its friction [N·m]
         self._stick = np.zeros(model.n)
 
@@ -561,7 +558,6 @@ class AdmittanceController(ZeroMomentController):
                     self.probe_speeds(st.q_rad), self.cfg.admittance_probe_s, period, REST_RAD_S
                 )
                 self._probe_start, self._probe_q0 = st.cycle, st.q_cmd_rad.copy()
-                self._probe_q = st.q_rad.copy()
                 self._probe_noise = noise
             else:
                 self._start_admittance(st.q_rad, noise)
@@ -602,12 +598,12 @@ class AdmittanceController(ZeroMomentController):
         one, and fast enough that the command leads a joint stuck at one end of its friction
         by enough to break it away the other way, ``2 × 2 f / k`` (f the model's friction
         level, twice for a true static level above it; k = Υ̂_I / ω̂ the vendor loop's
-        position stiffness), within :data:`PROBE_BREAKAWAY_SHARE` of a half of the probe;
+        position stiffness), within :data:`PROBE_BREAKAWAY_SHARE` of a quarter of the probe;
         at most :data:`PROBE_MAX_RAD_S`."""
         lead = 4.0 * self.friction_level_nm(q) * self.loop.omega / self.loop.upsilon_i
-        half = 0.5 * self.cfg.admittance_probe_s
+        quarter = 0.25 * self.cfg.admittance_probe_s
         speed = np.maximum(self.cfg.admittance_probe_speed_rad_s,
-                           lead / (PROBE_BREAKAWAY_SHARE * half))  # fmt: skip
+                           lead / (PROBE_BREAKAWAY_SHARE * quarter))  # fmt: skip
         return np.minimum(speed, PROBE_MAX_RAD_S)
 
     def _start_admittance(self, q: np.ndarray, noise: np.ndarray | None) -> None:
@@ -646,7 +642,10 @@ class AdmittanceController(ZeroMomentController):
                         "residual b is the one at rest beyond their friction",
                         [j + 1 for j in kept])  # fmt: skip
         self._probe = None
-        self._start_admittance(self._probe_q, self._probe_noise)
+        # the reference starts where the arm is: one where the probe began would lead a joint
+        # the probe left stuck a little off by a torque its friction cannot hold (J2: 0.05
+        # mrad is 40 N·m of the vendor loop), which reads as a hand, and J2/J3 hunted
+        self._start_admittance(st.q_rad, self._probe_noise)
         return self.answer(st, p_bar)
 
 

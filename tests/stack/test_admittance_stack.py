@@ -18,7 +18,7 @@ ADMITTANCE = {"control": {"strategy": "admittance"}}
 
 #: the engagement probe's length ([control] admittance_probe_s) and the time its joints take
 #: to stick after it (the wrists still slid 0.2 s after its end on seed 0) [s]
-PROBE_S = 0.5 + 0.3
+PROBE_S = 0.8 + 0.3
 
 
 def test_without_a_hand_the_admittance_holds_the_arm_within_a_millimetre(tmp_path):
@@ -43,16 +43,18 @@ def test_without_a_hand_the_admittance_holds_the_arm_within_a_millimetre(tmp_pat
 
 
 def test_a_push_moves_the_tool_along_it_and_the_arm_stops_when_the_hand_lets_go(tmp_path):
-    operator = {"mode": "force", "force_n": [0.0, 20.0, 0.0], "start_s": 0.5, "duration_s": 2.0}
+    """The hand pushes once the engagement probe is over (a painter waits for it)."""
+    t0 = PROBE_S
+    operator = {"mode": "force", "force_n": [0.0, 20.0, 0.0], "start_s": t0, "duration_s": 2.0}
     with Stack(tmp_path, sim_overrides={"operator": operator}, cell_overrides=ADMITTANCE) as stack:
         stack.start()
         stack.start_teaching()
-        truth = stack.wait_teaching(6.6, 40.0)
+        truth = stack.wait_teaching(t0 + 6.1, 40.0)
         stack.request("stop")
     rows = teaching_rows(truth)
-    t = truth["t_s"][rows] - truth["t_s"][rows[0]]
-    at = {s: rows[t <= s][-1] for s in (0.5, 2.6, 4.5, 6.5)}
-    d = tool_xyz(truth, [at[2.6]])[0] - tool_xyz(truth, [at[0.5]])[0]
+    t = truth["t_s"][rows] - truth["t_s"][rows[0]] - t0
+    at = {s: rows[t <= s][-1] for s in (0.0, 2.1, 4.0, 6.0)}
+    d = tool_xyz(truth, [at[2.1]])[0] - tool_xyz(truth, [at[0.0]])[0]
     print(f"tool displacement after a 2 s, 20 N push along +y: {np.round(d * 1e3, 1)} mm")
     assert d[1] > 0.01, f"tool moved {d * 1e3} mm under a 20 N +y push"
     assert d[1] / np.linalg.norm(d) > 0.7, f"motion {d * 1e3} mm is far off +y"
@@ -61,7 +63,7 @@ def test_a_push_moves_the_tool_along_it_and_the_arm_stops_when_the_hand_lets_go(
     speed = tool_speed(truth, rows)
     print(f"tool speed: max {speed.max() * 1e3:.0f} mm/s")
     assert speed.max() <= 0.25, f"the tool reached {speed.max() * 1e3:.0f} mm/s"
-    # the push (its ramp ends at 2.5 s) left the tool at 0.24 m/s: stopped within 2 s
-    after = tool_xyz(truth, [at[6.5]])[0] - tool_xyz(truth, [at[4.5]])[0]
+    # the push's ramp ends 2 s after it started: the arm stops within 2 s
+    after = tool_xyz(truth, [at[6.0]])[0] - tool_xyz(truth, [at[4.0]])[0]
     print(f"tool motion 2-4 s after the push ended: {np.round(after * 1e3, 2)} mm")
     assert np.linalg.norm(after) < 1e-3, "the arm kept moving after the hand let go"

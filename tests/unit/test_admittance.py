@@ -207,20 +207,23 @@ def test_a_guided_arm_that_only_creeps_settles_and_then_needs_the_static_zone_ag
 
 
 def test_the_probe_takes_the_models_error_free_of_what_friction_carried_at_rest():
-    """J1 slides after sticking a while each way: residual = error − friction · direction
-    (+ noise); J2 never slides: it keeps its residual at rest beyond its friction level."""
+    """J1 slides after sticking a while at each reversal: residual = error − friction ·
+    direction − a hand's spring on the probe's offset (+ noise); J2 never slides: it keeps
+    its residual at rest beyond its friction level."""
     probe = EngageProbe(np.full(2, 0.01), 0.5, DT, 2e-3)
-    assert len(probe) == 2 * 62 + 1 and np.allclose(probe.offset[-1], 0.0, atol=1e-15)
-    assert np.all(np.abs(probe.offset).max(axis=0) < 0.01 * 0.25 + 1e-12)
+    assert len(probe) == 4 * 31 + 1 and np.allclose(probe.offset[-1], 0.0, atol=1e-15)
+    assert np.all(np.abs(probe.offset).max(axis=0) < 0.01 * 0.125 + 1e-12)
+    assert probe.offset[:, 0].max() == pytest.approx(-probe.offset[:, 0].min())
     rng = np.random.default_rng(3)
     error, friction, carried = 4.0, 30.0, -25.0
     lag = 0
     for k, way in enumerate(probe.cruise):
-        lag = lag + 1 if way and lag < 10 else 0 if not way else lag  # stuck the first 10
-        sliding = way != 0 and lag >= 10
+        lag = lag + 1 if way and lag < 4 else 0 if not way else lag  # stuck the first 4
+        sliding = way != 0 and lag >= 4
         dq = np.array([way * 0.01 if sliding else 0.0, 0.0])
         r1 = error - friction * way if sliding else error - carried
-        probe.observe(k, dq, np.array([r1 + rng.normal(0, 0.5), 7.0]))
+        grip = -2e4 * probe.offset[k, 0]  # a hand holding the tool on a spring [N·m/rad]
+        probe.observe(k, dq, np.array([r1 + grip + rng.normal(0, 0.5), 7.0]))
     n_pos, n_neg = probe.samples()[0]
     assert min(n_pos, n_neg) >= PROBE_MIN_SAMPLES and probe.samples()[1] == (0, 0)
     b, kept = probe.bias(np.array([error - carried, 7.0]), np.array([friction, 5.0]))
@@ -244,7 +247,7 @@ def test_with_stiction_a_load_share_the_friction_may_carry_is_no_hand(stiction_c
     error = np.full(N, 5.0)
     dq_cmd = np.zeros(N)
     k = 0
-    while k < 200 and (k < 5 or ctl._probe is not None):
+    while k < 400 and (k < 5 or ctl._probe is not None):
         k += 1
         # the arm follows each command a cycle late (the example cell's delay is 0)
         tau = static + error + level * np.sign(dq_cmd)
