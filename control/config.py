@@ -40,6 +40,11 @@ class ControlConfig:
     #: it over this many times the speed the friction's torque gives the joint's effective
     #: inertia in the loop's delay (control/process.py, ``friction_ramps``; 0: all at once)
     friction_ramp_factor: float = 2.0
+    #: ... but not while the arm is guided: once a positioning joint (J1-J3) slid faster than
+    #: its ramp, every joint's friction is compensated in full until all three have been
+    #: slower than their ramps for this long [s] (control/process.py, ``GuidedFriction``;
+    #: 0: the ramp always applies)
+    friction_ramp_guided_s: float = 0.3
     #: soft joint limits: a virtual spring pushes back this far inside the hard range [rad]
     soft_limit_margin_rad: float = 0.05
     wall_stiffness_nm_per_rad: float = 2000.0
@@ -262,6 +267,11 @@ class ControlConfig:
             self.friction_deadband_rad_s >= 0,
             "[control].friction_deadband_rad_s",
             f"{self.friction_deadband_rad_s} must be >= 0",
+        )
+        require(
+            math.isfinite(self.friction_ramp_guided_s) and 0 <= self.friction_ramp_guided_s <= 5,
+            "[control].friction_ramp_guided_s",
+            f"{self.friction_ramp_guided_s} not in [0, 5] s",
         )
         require(
             math.isfinite(self.friction_ramp_factor) and self.friction_ramp_factor >= 0,

@@ -116,6 +116,45 @@ def load_control_config(cell_path: str | Path) -> tuple[ControlConfig, BusConfig
 FRICTION_LEVEL_SPEEDS_RAD_S = (0.002, 0.005, 0.01, 0.02)
 
 
+class GuidedFriction:
+    """Whether the zero-moment arm is being guided, for its friction compensation.
+
+    The compensation ramps in with speed (:meth:`ZeroMomentController.friction_ramps`) so that
+    an arm at rest does not chatter on its stiction. A guided arm pays for it: on the teach
+    bench's raster (stiction, seed 0) many joints move slower than their ramps or reverse, and
+    the painter pushed 55 N on average with the ramp against 22 N without it. So the ramp
+    applies only to an arm at rest: once one of the positioning joints (the first
+    :data:`POSITIONING_JOINTS`, whose inertia makes a chatter of theirs unlikely: a few mrad/s
+    at rest, against ramps of ~10 mrad/s) slides faster than its ramp, every joint's friction
+    is compensated in full until all of them have been slower than their ramps for
+    ``hold_s``. A painter who only turns the wrist pays the wrists' ramps."""
+
+    POSITIONING_JOINTS = 3
+
+    def __init__(self, hold_s: float) -> None:
+        self.hold_s = float(hold_s)
+        self.guided = False
+        self._slow_s = 0.0
+
+    def update(self, dq_rad_s: np.ndarray, ramps: Sequence[float], dt_s: float) -> bool:
+        """Take in a cycle's measured velocities and the joints' ramp speeds; True while the
+        arm is guided."""
+        if self.hold_s <= 0.0:
+            return False
+        k = self.POSITIONING_JOINTS
+        pairs = zip(dq_rad_s[:k].tolist(), ramps[:k], strict=True)
+        sliding = any(abs(v) > r > 0.0 for v, r in pairs)
+        if sliding:
+            self.guided, self._slow_s = True, 0.0
+        elif self.guided:
+            self._slow_s += dt_s
+            self.guided = self._slow_s < self.hold_s
+        return self.guided
+
+    def reset(self) -> None:
+        self.guided, self._slow_s = False, 0.0
+
+
 class ZeroMomentController:
     """The computation, free of I/O: JointState (+ pressures) → JointCommand.
 
@@ -168,6 +207,8 @@ class ZeroMomentController:
         #: per joint: the speed [rad/s] over which the friction compensation ramps in
         #: (:meth:`friction_ramps`), and the model's friction level at low speed [N·m]
         self._ramps: list[float] = [0.0] * n
+        self._no_ramps: list[float] = [0.0] * n
+        self._guided = GuidedFriction(cfg.friction_ramp_guided_s)
         self._friction_level = np.zeros(n)
         self._lower, self._upper = self.lower.tolist(), self.upper.tolist()
         self.engaged = False
@@ -350,6 +391,7 @@ class ZeroMomentController:
             self.loop.reset(st.q_cmd_rad - st.q_rad)
             self.predictor.reset()
             self.rest_hold.reset()
+            self._guided.reset()
             self._sent_cmds.clear()
             self._prev_state = None
             if self.cfg.friction_ramp_factor:
@@ -369,6 +411,8 @@ class ZeroMomentController:
             m_inv = self.inverse_inertia(q)
             if self.cfg.friction_ramp_factor:
                 self._ramps = self.friction_ramps(m_inv, period)
+                if self._guided.update(st.dq_rad_s, self._ramps, dt):
+                    self._ramps = self._no_ramps
             q, dq = self.predictor.predict(
                 q, dq, st.q_cmd_rad, st.dq_cmd_rad_s, period, gap == 1, m_inv,
                 1.0 / self.loop.omega, self.loop.upsilon_i,

@@ -417,3 +417,20 @@ def test_a_negative_friction_ramp_factor_is_refused(tmp_path):
     cell = example_cell(tmp_path, friction_ramp_factor=-1.0)
     with pytest.raises(ConfigError, match="friction_ramp_factor"):
         load_control_config(cell)
+
+
+def test_friction_is_compensated_in_full_while_a_positioning_joint_slides_past_its_ramp():
+    """GuidedFriction: the wrists' motion alone is no guiding (a chatter of theirs must not
+    switch the ramp off); J2 past its ramp is, until J1-J3 have been slow for hold_s."""
+    from control.process import GuidedFriction
+
+    g = GuidedFriction(0.3)
+    ramps = [0.01, 0.01, 0.01, 0.1, 0.1, 0.1]
+    wrists = np.array([0.0, 0.0, 0.0, 0.5, 0.5, 0.5])
+    assert not any(g.update(wrists, ramps, 0.004) for _ in range(100))
+    j2 = np.array([0.0, 0.02, 0.0, 0.0, 0.0, 0.0])
+    assert g.update(j2, ramps, 0.004)
+    slow = np.array([0.005, 0.005, 0.005, 0.0, 0.0, 0.0])
+    held = [g.update(slow, ramps, 0.004) for _ in range(100)]
+    assert all(held[:74]) and not any(held[75:])
+    assert not GuidedFriction(0.0).update(j2, ramps, 0.004)
