@@ -111,17 +111,27 @@ def state(k: int, q, current, q_cmd=None, dq=None):
                             0.004)  # fmt: skip
 
 
+#: the arm's pose and the cylinders' pressures [bar] of the controller tests
+Q0 = np.array([0.0, 0.15, 0.25, 0.0, -0.4, 0.0])
+P_BAR = (6.0, 4.0)
+
+
+def at_rest(cfg):
+    """(model, controller, drive gains [N·m/A], pose, pressures, the static load there the
+    drives carry with no hand [N·m])."""
+    model = DeclaredModel.load(cfg.model)
+    ctl = AdmittanceController(cfg, model)
+    k_nm_per_a = np.array([j.drive_gain_nm_per_a for j in model.desc.joints])
+    static = model.gravity_nm(Q0) - model.cylinder_nm(Q0, np.array(P_BAR))
+    return model, ctl, k_nm_per_a, Q0.copy(), P_BAR, static
+
+
 def test_the_controller_holds_still_when_the_current_carries_the_model_and_follows_a_lift(cfg):
     """The drives' current carries exactly the model's static load: no hand, no motion, and
     the command leads the arm by the offset the vendor loop holds that load with. Then J2's
     current drops by 40 N·m (a hand lifting the arm): the reference moves J2 up (+), and only
     J2 and the joints its inertia couples to."""
-    model = DeclaredModel.load(cfg.model)
-    ctl = AdmittanceController(cfg, model)
-    k_nm_per_a = np.array([j.drive_gain_nm_per_a for j in model.desc.joints])
-    q0 = np.array([0.0, 0.15, 0.25, 0.0, -0.4, 0.0])
-    p = (6.0, 4.0)
-    static = model.gravity_nm(q0) - model.cylinder_nm(q0, np.array(p))
+    _, ctl, k_nm_per_a, q0, p, static = at_rest(cfg)
     current = static / k_nm_per_a
     for k in range(1, 200):
         q_cmd, dq_cmd = ctl.answer(state(k, q0, current), p)
@@ -154,13 +164,8 @@ def test_the_reference_keeps_the_tool_and_the_flange_under_the_hand_guiding_spee
     tool at metres per second; the tool point and the flange stay at the configured limit."""
     from control.model.dynamics import RigidBodyModel
 
-    model = DeclaredModel.load(cfg.model)
-    ctl = AdmittanceController(cfg, model)
+    model, ctl, k_nm_per_a, q0, p, static = at_rest(cfg)
     kin = RigidBodyModel.from_description(model.desc)
-    k_nm_per_a = np.array([j.drive_gain_nm_per_a for j in model.desc.joints])
-    q0 = np.array([0.0, 0.15, 0.25, 0.0, -0.4, 0.0])
-    p = (6.0, 4.0)
-    static = model.gravity_nm(q0) - model.cylinder_nm(q0, np.array(p))
     current = static / k_nm_per_a
     for k in range(1, 50):
         ctl.answer(state(k, q0, current), p)
@@ -236,12 +241,7 @@ def test_with_stiction_a_load_share_the_friction_may_carry_is_no_hand(stiction_c
     the model, a 5 N·m error and the friction against the motion); then at rest a share of
     the load within the friction level moves nothing, and the same torque read while J2
     slides is a hand."""
-    model = DeclaredModel.load(stiction_cfg.model)
-    ctl = AdmittanceController(stiction_cfg, model)
-    k_nm_per_a = np.array([j.drive_gain_nm_per_a for j in model.desc.joints])
-    q0 = np.array([0.0, 0.15, 0.25, 0.0, -0.4, 0.0])
-    p = (6.0, 4.0)
-    static = model.gravity_nm(q0) - model.cylinder_nm(q0, np.array(p))
+    model, ctl, k_nm_per_a, q0, p, static = at_rest(stiction_cfg)
     level = ctl.friction_level_nm(q0)
     assert level[1] > 2.0, "the example model needs friction on J2 for this test"
     error = np.full(N, 5.0)
