@@ -592,14 +592,20 @@ class AdmittanceController(ZeroMomentController):
             else:
                 tau_m = self.motor_torque_nm(st)
             self._bias = self.model_torque(st.q_rad, zeros, zeros, p_bar) - np.array(tau_m)
-            self._stick = self.cfg.admittance_stick_zone * self.friction_level_nm(st.q_rad)
+            # the model's friction at the engagement pose: the stick zone, the probe's speeds
+            # and the fallback of a joint the probe did not slide
+            self._friction_level = self.friction_level_nm(st.q_rad)
+            self._stick = self.cfg.admittance_stick_zone * self._friction_level
             self.hold.clear()
             self._sent_ddq.clear()
             self.engaged = True
             self.last_cycle = st.cycle - 1
             if self.cfg.admittance_probe_speed_rad_s > 0:
                 self._probe = EngageProbe(
-                    self.probe_speeds(st.q_rad), self.cfg.admittance_probe_s, period, REST_RAD_S
+                    self.probe_speeds(self._friction_level),
+                    self.cfg.admittance_probe_s,
+                    period,
+                    REST_RAD_S,
                 )
                 self._probe_start, self._probe_q0 = st.cycle, st.q_cmd_rad.copy()
                 self._probe_noise = noise
@@ -637,14 +643,14 @@ class AdmittanceController(ZeroMomentController):
             adm.q_r = q_cmd - offset
         return q_cmd.tolist(), dq_r.tolist()
 
-    def probe_speeds(self, q: np.ndarray) -> np.ndarray:
+    def probe_speeds(self, friction_level_nm: np.ndarray) -> np.ndarray:
         """The engagement probe's cruise speed per joint [rad/s]: at least the configured
         one, and fast enough that the command leads a joint stuck at one end of its friction
         by enough to break it away the other way, ``2 × 2 f / k`` (f the model's friction
         level, twice for a true static level above it; k = Υ̂_I / ω̂ the vendor loop's
         position stiffness), within :data:`PROBE_BREAKAWAY_SHARE` of a quarter of the probe;
         at most :data:`PROBE_MAX_RAD_S`."""
-        lead = 4.0 * self.friction_level_nm(q) * self.loop.omega / self.loop.upsilon_i
+        lead = 4.0 * friction_level_nm * self.loop.omega / self.loop.upsilon_i
         quarter = 0.25 * self.cfg.admittance_probe_s
         speed = np.maximum(self.cfg.admittance_probe_speed_rad_s,
                            lead / (PROBE_BREAKAWAY_SHARE * quarter))  # fmt: skip
@@ -679,7 +685,7 @@ class AdmittanceController(ZeroMomentController):
         if drove < len(probe) - 1:
             i = min(k, len(probe) - 1)
             return (self._probe_q0 + probe.offset[i]).tolist(), probe.velocity[i].tolist()
-        self._bias, kept = probe.bias(self._bias, self.friction_level_nm(st.q_rad))
+        self._bias, kept = probe.bias(self._bias, self._friction_level)
         log.info("admittance probe: sliding samples (+, -) per joint %s", probe.samples())
         if kept:
             log.warning("admittance probe: joints %s did not slide both ways; their "

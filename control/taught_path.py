@@ -36,7 +36,7 @@ from scipy.signal import butter, sosfiltfilt
 from scipy.spatial import cKDTree
 
 from control.robot.description import RobotDescription
-from control.robot.kinematics import dh_tool_and_flange, dh_world_T_tool
+from control.robot.kinematics import dh_tool_and_flange
 
 if TYPE_CHECKING:
     from collections.abc import Sequence
@@ -197,9 +197,9 @@ def _odd_extension(y: np.ndarray, window: int, pad: int) -> np.ndarray:
 
 def tool_path(desc: RobotDescription, q_rad: np.ndarray) -> np.ndarray:
     """Tool point in the world (T, 3) [m] at each joint position (T, n) [rad], by
-    :func:`control.robot.kinematics.dh_world_T_tool`."""
+    :func:`control.robot.kinematics.dh_tool_and_flange`."""
     q = _joint_array(q_rad, desc.n_dof, "q_rad")
-    return np.array([dh_world_T_tool(desc, x)[:3, 3] for x in q]).reshape(-1, 3)
+    return dh_tool_and_flange(desc, q.reshape(-1, desc.n_dof))[0]
 
 
 def fastest_point_m_s(desc: RobotDescription, q_rad: np.ndarray, dt_s: float) -> float:

@@ -72,15 +72,18 @@ class JointFriction:
         level τ_s + F(q) at rest, decaying towards the Coulomb level F(q) over the Stribeck
         velocity. At rest it is the most the joint holds against (stiction); sliding, the
         torque it opposes the motion with."""
-        return self.tau_s * np.exp(-np.abs(dq) * self.inv_q_e) + self.coulomb_level(q)
+        return self._level(dq, self.coulomb_level(q))
+
+    def _level(self, dq: np.ndarray, coulomb: np.ndarray) -> np.ndarray:
+        """:meth:`dry_level_nm` with the Coulomb level ``coulomb`` already evaluated."""
+        return self.tau_s * np.exp(-np.abs(dq) * self.inv_q_e) + coulomb
 
     def torque_nm(self, dq: np.ndarray, coulomb: np.ndarray) -> np.ndarray:
         """The smooth law's friction torque [N·m] at velocities ``dq`` [rad/s] with the
         Coulomb level ``coulomb`` (:meth:`coulomb_level`), without the linear viscous term
         τ_v1 dq (the plant's MuJoCo joint damping), (n,): the dry level times
         tanh(dq / 2 q_e), which lets a joint under any torque creep (module docstring)."""
-        level = self.tau_s * np.exp(-np.abs(dq) * self.inv_q_e) + coulomb
-        return level * np.tanh(dq * self._inv_2q_e) + self.v2 * dq * np.abs(dq)
+        return self._level(dq, coulomb) * np.tanh(dq * self._inv_2q_e) + self.v2 * dq * np.abs(dq)
 
     def stribeck_into(self, dq: np.ndarray, coulomb: np.ndarray, out: np.ndarray) -> None:
         """:meth:`dry_level_nm` at velocities ``dq`` with the Coulomb level ``coulomb`` (at the

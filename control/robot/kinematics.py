@@ -44,18 +44,23 @@ def homogeneous(rotation: np.ndarray, translation_m: np.ndarray) -> np.ndarray:
     return out
 
 
-def dh_transform(a_m: float, alpha_rad: float, d_m: float, theta_rad: float) -> np.ndarray:
-    """Standard DH: ``Rz(θ) Tz(d) Tx(a) Rx(α)`` as a 4x4 (Table I rows, read as standard DH)."""
-    ct, st = math.cos(theta_rad), math.sin(theta_rad)
+def dh_transforms(a_m: float, alpha_rad: float, d_m: float, theta_rad: np.ndarray) -> np.ndarray:
+    """Standard DH: ``Rz(θ) Tz(d) Tx(a) Rx(α)`` as (T, 4, 4), one per angle of ``theta_rad``
+    (T,) (Table I rows, read as standard DH)."""
+    theta = np.asarray(theta_rad, dtype=float)
+    ct, st = np.cos(theta), np.sin(theta)
     ca, sa = math.cos(alpha_rad), math.sin(alpha_rad)
-    return np.array(
-        [
-            [ct, -st * ca, st * sa, a_m * ct],
-            [st, ct * ca, -ct * sa, a_m * st],
-            [0.0, sa, ca, d_m],
-            [0.0, 0.0, 0.0, 1.0],
-        ]
-    )
+    out = np.zeros((theta.size, 4, 4))
+    out[:, 0, 0], out[:, 0, 1], out[:, 0, 2], out[:, 0, 3] = ct, -st * ca, st * sa, a_m * ct
+    out[:, 1, 0], out[:, 1, 1], out[:, 1, 2], out[:, 1, 3] = st, ct * ca, -ct * sa, a_m * st
+    out[:, 2, 1], out[:, 2, 2], out[:, 2, 3] = sa, ca, d_m
+    out[:, 3, 3] = 1.0
+    return out
+
+
+def dh_transform(a_m: float, alpha_rad: float, d_m: float, theta_rad: float) -> np.ndarray:
+    """:func:`dh_transforms` for one angle: a 4x4."""
+    return dh_transforms(a_m, alpha_rad, d_m, np.array([theta_rad]))[0]
 
 
 def _d_transform(desc: RobotDescription, i: int) -> np.ndarray:
@@ -121,25 +126,7 @@ def dh_tool_and_flange(desc: RobotDescription, q_rad: np.ndarray) -> tuple[np.nd
     q = np.atleast_2d(np.asarray(q_rad, dtype=float))
     frame = np.broadcast_to(np.eye(4), (q.shape[0], 4, 4)).copy()
     for k, j in enumerate(desc.joints):
-        theta = q[:, k] + j.theta_offset_rad
-        ct, st = np.cos(theta), np.sin(theta)
-        ca, sa = math.cos(j.alpha_rad), math.sin(j.alpha_rad)
-        step = np.zeros_like(frame)
-        step[:, 0, 0], step[:, 0, 1], step[:, 0, 2], step[:, 0, 3] = (
-            ct,
-            -st * ca,
-            st * sa,
-            j.a_m * ct,
-        )
-        step[:, 1, 0], step[:, 1, 1], step[:, 1, 2], step[:, 1, 3] = (
-            st,
-            ct * ca,
-            -ct * sa,
-            j.a_m * st,
-        )
-        step[:, 2, 1], step[:, 2, 2], step[:, 2, 3] = sa, ca, j.d_m
-        step[:, 3, 3] = 1.0
-        frame = frame @ step
+        frame = frame @ dh_transforms(j.a_m, j.alpha_rad, j.d_m, q[:, k] + j.theta_offset_rad)
     flange = frame[:, :3, 3]
     tool = flange + frame[:, :3, :3] @ np.asarray(desc.tool.position_in_link6_m, dtype=float)
     return tool, flange

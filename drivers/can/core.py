@@ -38,7 +38,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import can
 import numpy as np
@@ -61,6 +61,9 @@ from gateway.messages import (
     Lifecycle,
     LifecycleMsg,
 )
+
+if TYPE_CHECKING:
+    from control.robot.description import RobotDescription
 
 #: lifecycle states in which the arm moves at hand-guiding speeds: the speed monitor applies
 MONITORED = (Lifecycle.TEACHING, Lifecycle.REPLAYING)
@@ -135,14 +138,14 @@ class CommandResult(NamedTuple):
     command: JointCommand | None  #: the decoded command (None if undecodable)
 
 
-def _datasheet_limits(n: int) -> tuple[np.ndarray, np.ndarray]:
-    """The joint limits of the robot description (the datasheet's) [rad], ``n`` joints."""
+def _datasheet(n: int) -> RobotDescription:
+    """The robot description (the datasheet's) for ``n`` joints."""
     from control.robot.description import load_description
 
     desc = load_description()
     if desc.n_dof != n:
         raise ConfigError(f"[can].joints = {n}, but the robot description has {desc.n_dof}")
-    return np.array(desc.lower_rad), np.array(desc.upper_rad)
+    return desc
 
 
 class HostCore:
@@ -173,7 +176,14 @@ class HostCore:
         self._zeros_list = [0.0] * n
         #: the joint range a forwarded command stays in [rad]: the description's limits (the
         #: datasheet's, or ``joint_limits_rad``) less ``joint_limit_margin_rad``
-        lower, upper = joint_limits_rad or _datasheet_limits(n)
+        monitored = config.hand_guiding_max_speed_m_s > 0
+        desc = None
+        if joint_limits_rad is None or (monitored and speed_points is None):
+            desc = _datasheet(n)  # loaded once for the limits and the speed monitor
+        if joint_limits_rad is None:
+            assert desc is not None
+            joint_limits_rad = (np.array(desc.lower_rad), np.array(desc.upper_rad))
+        lower, upper = joint_limits_rad
         self._lower = np.asarray(lower, dtype=float) + config.joint_limit_margin_rad
         self._upper = np.asarray(upper, dtype=float) - config.joint_limit_margin_rad
 
@@ -207,9 +217,9 @@ class HostCore:
         #: hand guiding's speed monitor (speed_monitor.py); ``speed_points`` the tool point and
         #: flange of q (default: the datasheet's kinematics)
         self.speed: SpeedMonitor | None = None
-        if config.hand_guiding_max_speed_m_s > 0:
+        if monitored:
             self.speed = SpeedMonitor(
-                speed_points or datasheet_points(), config.hand_guiding_max_speed_m_s
+                speed_points or datasheet_points(desc), config.hand_guiding_max_speed_m_s
             )
         # counters (monotonic, reported in health)
         self.rejected = dict.fromkeys(REJECT_REASONS, 0)

@@ -20,8 +20,12 @@ import math
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from control.robot.description import RobotDescription
 
 #: (q [rad]) -> (tool point, flange point) in the world [m], each (3,)
 Points = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
@@ -43,13 +47,14 @@ class SpeedTrip:
         )
 
 
-def datasheet_points() -> Points:
+def datasheet_points(desc: RobotDescription | None = None) -> Points:
     """The tool point and the flange from the datasheet's kinematics and tool (what the
-    control process's speed limit uses too, computed here on the driver's own model)."""
+    control process's speed limit uses too, computed here on the driver's own model);
+    ``desc`` the robot description when already loaded."""
     from control.model.dynamics import RigidBodyModel
     from control.robot.description import load_description
 
-    desc = load_description()
+    desc = desc or load_description()
     model = RigidBodyModel.from_description(desc)
     tool_in_6 = np.array(desc.tool.position_in_link6_m, dtype=float)
 
