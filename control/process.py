@@ -14,7 +14,6 @@ from __future__ import annotations
 import argparse
 import logging
 import math
-import signal
 import threading
 import time
 from collections import deque
@@ -63,6 +62,7 @@ from gateway.messages import (
 from gateway.program import ProgramError, read_program
 from gateway.replay import MAX_JOINT_SPEED_RAD_S as MAX_REPLAY_JOINT_SPEED_RAD_S
 from gateway.replay import MAX_SPEED_MM_S
+from gateway.signals import StopSignals
 
 log = logging.getLogger("leadthrough.control")
 
@@ -1065,11 +1065,10 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
 def cli_main(args: argparse.Namespace) -> int:
     cfg, bus = load_control_config(args.config)
     proc = ControlProcess(cfg, bus.with_overrides(args.bus))
-    signal.signal(signal.SIGTERM, lambda *_: proc.stop())
-    signal.signal(signal.SIGINT, lambda *_: proc.stop())
-    proc.open()
-    try:
-        proc.run()
-    finally:
-        proc.close()
+    with StopSignals(proc.stop_event):
+        proc.open()
+        try:
+            proc.run()
+        finally:
+            proc.close()
     return 0

@@ -23,7 +23,6 @@ import json
 import logging
 import os
 import queue
-import signal
 import threading
 import time
 from collections.abc import Iterator
@@ -49,6 +48,7 @@ from gateway.messages import (
     Keys,
     PressureSetpoint,
 )
+from gateway.signals import StopSignals
 
 log = logging.getLogger("leadthrough.recorder")
 
@@ -354,12 +354,11 @@ def cli_main(args: argparse.Namespace) -> int:
         bus = bus_config_from(load_toml(args.config), str(args.config))
     rec = BusRecorder(bus.with_overrides(args.bus), args.out)
     stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    signal.signal(signal.SIGINT, lambda *_: stop.set())
-    rec.start()
-    try:
-        stop.wait(args.duration)
-    finally:
-        rec.stop()
+    with StopSignals(stop):
+        rec.start()
+        try:
+            stop.wait(args.duration)
+        finally:
+            rec.stop()
     log.info("%d messages written to %s", rec.count, args.out)
     return 1 if rec.error else 0

@@ -46,6 +46,7 @@ from gateway.messages import (
 )
 from gateway.program import ProgramError, TeachRecorder, program_path
 from gateway.sd_notify import Notifier
+from gateway.signals import StopSignals
 
 #: A static-load check older than this (at the control process's last health) does not count [s].
 LOAD_CHECK_MAX_AGE_S = 0.5
@@ -666,16 +667,15 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
 def cli_main(args: argparse.Namespace) -> int:
     cfg, bus = load_gateway_config(args.config)
     gw = Gateway(args.config.resolve(), bus.with_overrides(args.bus), cfg, spawn=not args.no_spawn)
-    signal.signal(signal.SIGTERM, lambda *_: gw.stop())
-    signal.signal(signal.SIGINT, lambda *_: gw.stop())
     notifier = Notifier()
-    gw.open()
-    try:
-        notifier.ready(f"serving the cell on {gw.bus.endpoint}")
-        gw.run(notifier)
-    finally:
-        notifier.stopping()
-        gw.close()
+    with StopSignals(gw.stop_event):
+        gw.open()
+        try:
+            notifier.ready(f"serving the cell on {gw.bus.endpoint}")
+            gw.run(notifier)
+        finally:
+            notifier.stopping()
+            gw.close()
     return 0
 
 

@@ -9,6 +9,7 @@ like an operator, and tears everything down, child processes included.
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import csv
 import os
@@ -98,6 +99,8 @@ def _wait_port(host: str, port: int, timeout_s: float, proc: subprocess.Popen) -
 
 #: the gateway's joint-state watchdog in lock-step runs [s]: twice the controller's wait
 LOCKSTEP_STATE_TIMEOUT_S = 0.5
+#: how long the gateway's children may take to stop after it did [s]
+STOP_GRACE_S = 5.0
 
 
 class Stack:
@@ -219,11 +222,51 @@ class Stack:
     def request(self, command: str, timeout_s: float = 3.0, **fields: Any) -> dict[str, Any]:
         return operator_request(self.bus, command, timeout_s, **fields)
 
-    def restart_gateway(self) -> None:
-        """Start the gateway again (after a test killed it); the simulator runs on."""
+    def restart_gateway(self, timeout_s: float = 10.0) -> None:
+        """Start the gateway again (after a test killed it); the simulator runs on.
+
+        The killed gateway's children must have stopped first (they get SIGTERM when it
+        dies): one left running would keep the controller's heartbeat alive and answer its
+        cycles next to the new gateway's CAN driver. RuntimeError (after killing them) if
+        any is still running after ``timeout_s``."""
         if self.gateway is not None and self.gateway.poll() is None:
             raise RuntimeError("the gateway is still running")
+        left = self._wait_gone(self.product_pids(), timeout_s)
+        if left:
+            raise RuntimeError(
+                f"the killed gateway's children were still running {timeout_s} s later "
+                f"(killed now): {left}"
+            )
         self.gateway = self._spawn("gateway2", ["gateway", "--config", str(self.cell_path)])
+
+    def product_pids(self) -> dict[int, str]:
+        """Every running process started with this stack's cell config (the gateway and its
+        children, also orphans of a killed gateway): pid → command line."""
+        marker = str(self.cell_path).encode()
+        found = {}
+        for entry in Path("/proc").iterdir():
+            if not entry.name.isdigit() or int(entry.name) == os.getpid():
+                continue
+            try:
+                argv = (entry / "cmdline").read_bytes()
+                state = (entry / "stat").read_text().rsplit(")", 1)[1].split()[0]
+            except OSError:
+                continue
+            if marker in argv.split(b"\0") and state != "Z":
+                found[int(entry.name)] = argv.replace(b"\0", b" ").decode(errors="replace")
+        return found
+
+    def _wait_gone(self, pids: dict[int, str], timeout_s: float) -> dict[int, str]:
+        """Wait up to ``timeout_s`` for ``pids`` to exit; SIGKILL and return those that did
+        not."""
+        deadline = time.monotonic() + timeout_s
+        while pids and time.monotonic() < deadline:
+            time.sleep(0.05)
+            pids = {pid: cmd for pid, cmd in pids.items() if pid in self.product_pids()}
+        for pid in pids:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGKILL)
+        return pids
 
     def wait_status(
         self, predicate: Callable[[dict[str, Any]], bool], timeout_s: float, what: str
@@ -278,12 +321,14 @@ class Stack:
         status = self.request("status")
         return int(status["processes"][name]["pid"])
 
-    def stop(self) -> None:
-        """Stop the gateway (which stops its children) then the simulator; kill stragglers."""
+    def stop(self) -> list[str]:
+        """Stop the gateway (which stops its children) then the simulator; kill stragglers.
+        Returns what had to be killed (empty when everything stopped as it should)."""
+        killed = []
         for proc in (self.gateway, self.sim):
             if proc is not None and proc.poll() is None:
                 proc.send_signal(signal.SIGTERM)
-        for proc in (self.gateway, self.sim):
+        for name, proc in (("gateway", self.gateway), ("sim", self.sim)):
             if proc is None:
                 continue
             try:
@@ -291,10 +336,15 @@ class Stack:
             except subprocess.TimeoutExpired:
                 os.killpg(proc.pid, signal.SIGKILL)
                 proc.wait()
-            # Children of the gateway live in their own sessions: make sure none survive.
+                killed.append(f"{name} (pid {proc.pid}) ignored SIGTERM for 10 s")
+        # The gateway's children live in their own sessions, and an orphan of a killed
+        # gateway is nobody's child: find them by their config.
+        stragglers = self._wait_gone(self.product_pids(), STOP_GRACE_S)
+        killed += [f"pid {pid} still running: {cmd}" for pid, cmd in stragglers.items()]
         for f in self._logs:
             f.close()
         self._logs = []
+        return killed
 
     def truth(self) -> dict[str, np.ndarray]:
         """The simulator's per-cycle truth log as columns."""
@@ -343,5 +393,7 @@ class Stack:
     def __enter__(self) -> Stack:
         return self
 
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
+    def __exit__(self, exc_type: type[BaseException] | None, *exc: object) -> None:
+        killed = self.stop()
+        if killed and exc_type is None:
+            raise RuntimeError(f"the stack did not stop cleanly: {'; '.join(killed)}")

@@ -28,7 +28,6 @@ import json
 import logging
 import math
 import os
-import signal
 import threading
 import time
 from array import array
@@ -41,6 +40,7 @@ import numpy as np
 from drivers.can.seqpacket import wait_readable
 from gateway.errors import ConfigError
 from gateway.messages import ControllerState
+from gateway.signals import StopSignals
 from sim_bridge.can_endpoint import SocketcandServerBus
 from sim_bridge.can_hub import SeqpacketHubBus
 from sim_bridge.config import Endpoints, Scheduling, SimConfig, load_sim_config
@@ -443,14 +443,10 @@ def cli_main(args: argparse.Namespace) -> int:
     cfg = load_sim_config(args.truth, overrides)
     cell = VirtualCell(cfg, args.log, args.summary)
 
-    def _stop(signum: int, frame: object) -> None:
-        cell.stop()
-
-    signal.signal(signal.SIGTERM, _stop)
-    signal.signal(signal.SIGINT, _stop)
-    cell.open()
-    try:
-        cell.run(args.duration)
-    finally:
-        cell.close()
+    with StopSignals(cell.stop_event):
+        cell.open()
+        try:
+            cell.run(args.duration)
+        finally:
+            cell.close()
     return 0

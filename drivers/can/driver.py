@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import logging
-import signal
 import socket
 import threading
 import time
@@ -37,6 +36,7 @@ from gateway.errors import EXIT_CONFIG, ConfigError, LinkTimeoutError
 from gateway.latency import Histogram
 from gateway.messages import HEALTH_RATE_HZ, encode_json
 from gateway.ratelog import RateLimitedLog
+from gateway.signals import StopSignals
 
 log = logging.getLogger(__name__)
 
@@ -467,22 +467,17 @@ def run(
     bus_cfg = bus_cfg.with_overrides(bus_endpoint)
     driver = CanDriver(can_cfg, bus_cfg)
     stop = stop_event or threading.Event()
-    previous: dict[int, Any] = {}
-    if threading.current_thread() is threading.main_thread():
-        for signum in (signal.SIGTERM, signal.SIGINT):
-            previous[signum] = signal.signal(signum, lambda *_: stop.set())
-    try:
-        driver.start()
-        while not stop.wait(0.1):
-            if not driver.running:
-                break
-        if driver.failed is not None:
-            raise driver.failed
-    finally:
-        driver.close()
-        for signum, handler in previous.items():
-            signal.signal(signum, handler)
-        log.info("CAN driver stopped")
+    with StopSignals(stop):
+        try:
+            driver.start()
+            while not stop.wait(0.1):
+                if not driver.running:
+                    break
+            if driver.failed is not None:
+                raise driver.failed
+        finally:
+            driver.close()
+            log.info("CAN driver stopped")
 
 
 def configure_parser(p: argparse.ArgumentParser) -> argparse.ArgumentParser:

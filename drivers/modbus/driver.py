@@ -38,7 +38,6 @@ from __future__ import annotations
 import argparse
 import logging
 import math
-import signal
 import sys
 import threading
 import time
@@ -51,10 +50,11 @@ import zenoh
 from drivers.modbus.adapter import PressureIoAdapter, create_adapter
 from drivers.modbus.client import ModbusLinkError
 from drivers.modbus.config import ModbusDriverConfig
-from gateway.bus import bus_config_from, open_peer, undeclare_all
+from gateway.bus import BusConfig, bus_config_from, open_peer, undeclare_all
 from gateway.config import load_toml
 from gateway.errors import EXIT_CONFIG, ConfigError, MessageError, ModbusReplyError
 from gateway.messages import HEALTH_RATE_HZ, IoState, Keys, PressureSetpoint, encode_json
+from gateway.signals import StopSignals
 
 log = logging.getLogger(__name__)
 
@@ -443,10 +443,14 @@ def cli_main(args: argparse.Namespace) -> int:
         logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
 
     stop = threading.Event()
-    old_handlers: dict[int, Any] = {}
-    if threading.current_thread() is threading.main_thread():
-        for sig in (signal.SIGTERM, signal.SIGINT):
-            old_handlers[sig] = signal.signal(sig, lambda *_: stop.set())
+    with StopSignals(stop):
+        return _serve(config, bus, adapter, stop)
+
+
+def _serve(
+    config: ModbusDriverConfig, bus: BusConfig, adapter: PressureIoAdapter, stop: threading.Event
+) -> int:
+    """Poll the I/O module and publish until ``stop``; the exit code."""
     session: zenoh.Session | None = None
     driver: ModbusDriver | None = None
     try:
@@ -478,8 +482,6 @@ def cli_main(args: argparse.Namespace) -> int:
         finally:
             if session is not None:
                 session.close()
-            for sig, handler in old_handlers.items():
-                signal.signal(sig, handler)
 
 
 def main(argv: list[str] | None = None) -> int:
