@@ -91,6 +91,8 @@ class VirtualController:
         self.complete_for_cycle: int | None = None  #: cycle whose full set has arrived
         self.complete_hold = True
         self._new_set: tuple[np.ndarray, np.ndarray, bool] | None = None
+        self._new_set_in_range = True  #: its positions are within the joint range
+        self._lower, self._upper = lower_rad.tolist(), upper_rad.tolist()  # (plain floats)
         #: reference updates on their way to the servo, oldest first, one per cycle: a set
         #: (q, dq, hold), or None to freeze where the extrapolation has brought it
         self._to_servo: deque[tuple[np.ndarray, np.ndarray, bool] | None] = deque()
@@ -137,10 +139,12 @@ class VirtualController:
         if len(self._pending) == self.n:
             frames = [self._pending[j + 1] for j in range(self.n)]
             self._pending.clear()
-            q = np.array([f.q_cmd_rad for f in frames])
-            dq = np.array([f.dq_cmd_rad_s for f in frames])
+            q = [f.q_cmd_rad for f in frames]
             hold = any(f.hold for f in frames)
-            self._new_set = (q, dq, hold)
+            self._new_set = (np.array(q), np.array([f.dq_cmd_rad_s for f in frames]), hold)
+            self._new_set_in_range = all(
+                lo <= x <= hi for lo, x, hi in zip(self._lower, q, self._upper, strict=True)
+            )  # NaN is not
             self.complete_for_cycle = self.cycle
             self.complete_hold = hold
 
@@ -180,7 +184,7 @@ class VirtualController:
         if self.state in (ControllerState.HOLD, ControllerState.EXTERNAL):
             if new_set is not None:
                 q_cmd, dq_cmd, hold = new_set
-                if (q_cmd < self.lower_rad).any() or (q_cmd > self.upper_rad).any():
+                if not self._new_set_in_range:
                     self._enter_fault(
                         FaultCode.JOINT_LIMIT, f"position command {q_cmd} outside range"
                     )

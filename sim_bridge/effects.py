@@ -134,8 +134,10 @@ class EffectSet:
 
     def advance(self, plant: Plant, dt: float) -> None:
         """Once per :meth:`Plant.run` of ``dt`` [s]: the time in motion, and payloads due."""
-        if np.abs(plant.data.qvel[: plant.n]).max() > MOTION_RAD_S:
+        if np.abs(plant.dq_view).max() > MOTION_RAD_S:
             self.motion_s += dt
+        if not self.pending_payloads:
+            return
         for item in [p for p in self.pending_payloads if self._active(p[0], plant.t_s)]:
             self.pending_payloads.remove(item)
             _, body, mass, pos = item

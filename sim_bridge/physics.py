@@ -57,15 +57,25 @@ class JointFriction:
         self.inv_r = 1.0 / np.asarray(gear_ratio, dtype=float)
         self.inv_q_e, self._minus_inv_q_e = 1.0 / self.q_e, -1.0 / self.q_e
         self._inv_2q_e = 0.5 / self.q_e
+        # The ripple as amplitudes and phases, f_s sin x + f_c cos x = A sin(x + φ), over the
+        # angles x = (q/R, 2q/R, q) of every joint, (3, n): one sine per term per cycle.
+        self._angle_per_rad = np.stack((self.inv_r, 2.0 * self.inv_r, np.ones_like(self.inv_r)))
+        self._ripple_amp = np.hypot(self._f_sin, self._f_cos)
+        self._ripple_phase = np.arctan2(self._f_cos, self._f_sin)
+        self._angles = np.zeros_like(self._ripple_amp)
 
     def coulomb_level(self, q: np.ndarray) -> np.ndarray:
         """F(q) [N·m] at positions ``q`` [rad], (n,): the Coulomb level with its position
         ripple (module docstring), never below 0. It changes with position only, so the plant
         evaluates it once per controller cycle."""
-        qr = q * self.inv_r
-        angles = np.concatenate((qr, 2.0 * qr, q)).reshape(3, -1)  # (3, n)
-        ripple = (self._f_sin * np.sin(angles) + self._f_cos * np.cos(angles)).sum(axis=0)
-        return np.maximum(self.tau_c + ripple, 0.0)
+        angles = self._angles
+        np.multiply(self._angle_per_rad, q, out=angles)
+        angles += self._ripple_phase
+        np.sin(angles, out=angles)
+        angles *= self._ripple_amp
+        level = angles.sum(axis=0)
+        level += self.tau_c
+        return np.maximum(level, 0.0, out=level)
 
     def dry_level_nm(self, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
         """The dry friction's level [N·m] at ``q`` [rad], ``dq`` [rad/s], (n,): the static
@@ -108,6 +118,39 @@ class AssistCylinders:
         self.units = tuple(units)
         self.n = n_joints
         self.area_m2 = [math.pi * u.piston_diameter_m**2 / 4.0 for u in self.units]
+        #: per unit, what :meth:`arms_and_gas` needs: (joint index, crank?, sign, |AB||AC|,
+        #: |AB|² + |AC|², 2|AB||AC|, |BC| at q = 0, |AB|, L₀)
+        self._plain = [
+            (
+                u.joint - 1,
+                u.kind == "crank",
+                float(u.sign),
+                u.ab_m * u.ac_m,
+                u.ab_m**2 + u.ac_m**2,
+                2.0 * u.ab_m * u.ac_m,
+                math.sqrt(u.ab_m**2 + u.ac_m**2 + 2.0 * u.ab_m * u.ac_m),
+                u.ab_m,
+                u.gas_length_m,
+            )
+            for u in self.units
+        ]
+
+    def arms_and_gas(self, q: Sequence[float]) -> tuple[list[float], list[float]]:
+        """Per unit at joint angles ``q`` [rad] (a list of floats): the signed moment arm [m]
+        (:meth:`moment_arm_m`) and the gas column [m] (:meth:`gas_columns_m`), in one pass of
+        plain floats (the plant's per-cycle call)."""
+        arms, gas = [], []
+        for j, crank, sign, ab_ac, sum_sq, two_ab_ac, bc0, ab, gas0 in self._plain:
+            qj = q[j]
+            if crank:  # the angle BAC = π - q: cos BAC = -cos q, sin BAC = sin q
+                bc = math.sqrt(sum_sq + two_ab_ac * math.cos(qj))
+                arms.append(sign * ab_ac * math.sin(qj) / bc)
+                extension = -sign * (bc - bc0)
+            else:
+                arms.append(sign * ab * math.cos(qj))
+                extension = sign * ab * math.sin(qj)
+            gas.append(max(gas0 + extension, 0.1 * gas0) if gas0 > 0 else math.inf)
+        return arms, gas
 
     @staticmethod
     def moment_arm_m(unit: CylinderUnit, q_joint: float) -> float:
@@ -144,6 +187,14 @@ class AssistCylinders:
             else:
                 out.append(math.inf)
         return out
+
+    def torque_from_arms(self, arms: Sequence[float], p_bar: Sequence[float]) -> np.ndarray:
+        """Joint torques [N·m] (n,) from the units' moment arms (:meth:`arms_and_gas`) at
+        chamber pressures ``p_bar``."""
+        tau = [0.0] * self.n
+        for unit, area, arm, p in zip(self._plain, self.area_m2, arms, p_bar, strict=True):
+            tau[unit[0]] += area * p * PA_PER_BAR * arm
+        return np.array(tau)
 
     def torque_nm(self, q: np.ndarray, p_bar: np.ndarray) -> np.ndarray:
         """Joint torques [N·m] (n,), zero on joints without a cylinder."""

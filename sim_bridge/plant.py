@@ -16,7 +16,8 @@ allows:
 
 - the vendor's PI velocity loop, eq. (19), is MuJoCo's: one actuator per joint with force
   K·(K_I·q_r(t) + K_p·dq_r) − K·K_I·q − K·K_p·dq, limited to ±K·i_max (the drive's current
-  limit), q_r(t) the controller's reference extrapolated along dq_r (see :func:`_add_drives`);
+  limit), q_r(t) the controller's reference extrapolated along dq_r, ramped by MuJoCo as the
+  actuator's integrator state (see :func:`_add_drives`);
 - dry friction is the smooth law (:meth:`~sim_bridge.physics.JointFriction.torque_nm`,
   evaluated every tick from the tick's velocity, as an applied torque) or, with the truth's
   ``stiction``, MuJoCo's joint friction loss, a constraint that holds a joint
@@ -28,7 +29,8 @@ allows:
 - what changes slowly is evaluated once per cycle from the state at its start and held over
   it: the dry friction's position ripple, the viscous friction as joint damping
   τ_v1 + τ_v2 |dq|, the cylinders' gas and torque, injected effects and the
-  hand's force. Per tick there is only the friction, the drives' control input and ``mj_step``.
+  hand's force. Per tick there is only the friction level, ``mj_step`` and the sum of the
+  drives' torque for the cycle's mean current.
 """
 
 from __future__ import annotations
@@ -45,22 +47,33 @@ from sim_bridge.physics import ATMOSPHERE_BAR, AssistCylinders, JointFriction
 from sim_bridge.truth import arm_spec, draw
 
 TOOL_SITE = "tool"
+_NO_ACTUATION = int(mujoco.mjtDisableBit.mjDSBL_ACTUATION)
+#: cycles of sensor noise drawn at a time (:meth:`Plant._unit_noise`)
+NOISE_BLOCK_ROWS = 256
 
 
 def _add_drives(spec: mujoco.MjSpec, cfg: SimConfig) -> None:
-    """One actuator per joint running eq. (19): an affine-bias servo whose control input is
-    K·(K_I·q_r + K_p·dq_r) (set every tick by :meth:`Plant.run`), with its force limited to
-    the drive's current limit."""
+    """One actuator per joint running eq. (19): an affine-bias servo whose input is
+    u = K·(K_I·q_r(t) + K_p·dq_r), with its force limited to the drive's current limit.
+
+    u is the actuator's activation, an integrator whose control is its slope K·K_I·dq_r:
+    :meth:`Plant.run` sets both once per cycle, and MuJoCo ramps u along the extrapolated
+    reference q_r(t) = q_r + dq_r (t - t_r) tick by tick (Euler, the force of a tick from
+    its start's activation, as a per-tick control input would give it)."""
     # Semi-implicit Euler: implicitfast would integrate the loop's velocity gain K·K_p (up to
     # ~4e4 N·m·s/rad) implicitly, which adds h·K·K_p of spurious inertia (~25 kg·m² on J2 at
     # a 1 ms step) to every acceleration; explicit, the loop is stable (h·K·K_p / J < 2).
     spec.option.integrator = mujoco.mjtIntegrator.mjINT_EULER
+    # No geom collides (contype 0): skip the collision stage of every step.
+    spec.option.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
     k = cfg.drives.gain_nm_per_a
     for j, joint in enumerate(spec.joints):
         act = spec.add_actuator()
         act.name = f"drive{j + 1}"
         act.target = joint.name
         act.trntype = mujoco.mjtTrn.mjTRN_JOINT
+        act.dyntype = mujoco.mjtDyn.mjDYN_INTEGRATOR
+        act.actlimited = False
         act.gaintype = mujoco.mjtGain.mjGAIN_FIXED
         act.gainprm[0] = 1.0
         act.biastype = mujoco.mjtBias.mjBIAS_AFFINE
@@ -111,6 +124,7 @@ class Plant:
             )
         self.cylinders = AssistCylinders(cfg.cylinders.units, self.n)
         self.rng = np.random.default_rng(cfg.seed)
+        self._noise, self._noise_row = np.zeros((0, self.n + 2)), 0  #: see _unit_noise
         self.pressure_bar = np.array(cfg.cylinders.initial_bar, dtype=float)
         self.pressure_set_bar = self.pressure_bar.copy()
         #: each chamber's gas volume over its piston area [m] (inf: an ideal reservoir)
@@ -128,6 +142,7 @@ class Plant:
         bits = cfg.sensors.encoder_bits
         ratio = np.asarray(cfg.drives.gear_ratio, dtype=float)
         self.encoder_step_rad = 2.0 * np.pi / (2.0**bits * ratio) if bits else np.zeros(self.n)
+        self._counts_per_rad = 1.0 / self.encoder_step_rad if bits else np.zeros(self.n)
         self._has_encoder = bits > 0
         #: position and velocity as the drive has them at the end of the last servo tick
         #: [rad], [rad/s]: the encoder's position, and its difference over that tick; the
@@ -138,19 +153,46 @@ class Plant:
         self.hand: Callable[[Plant], np.ndarray] | None = None
         #: the drives' torque [N·m], mean over the last :meth:`run`
         self.tau_motor_nm = np.zeros(self.n)
+        # Views of MuJoCo's buffers (fixed for the model's life), so a cycle does not look
+        # them up again: the joints' position and velocity, their friction loss and damping,
+        # the applied joint torques, the hand's wrench on the last body, the drives.
+        m, d, n = self.model, self.data, self.n
+        self._q = d.qpos[:n]
+        self.dq_view = d.qvel[:n]  #: the joints' velocity [rad/s], a view that follows the ticks
+        self._frictionloss, self._damping = m.dof_frictionloss[:n], m.dof_damping[:n]
+        self._applied = d.qfrc_applied[:n]
+        self._hand_wrench = d.xfrc_applied[self.last_body]
+        self._act, self._ctrl, self._act_force = d.act, d.ctrl, d.actuator_force
+        self._opt = m.opt
+        self._hand_on = False  #: the hand's wrench is on the last body
+        self._actuation_on = not (m.opt.disableflags & _NO_ACTUATION)
         mujoco.mj_forward(self.model, self.data)
+
+    def _actuation(self, on: bool) -> None:
+        """Drives powered (servo on) or not: MuJoCo's actuation stage on or off."""
+        if on != self._actuation_on:
+            if on:
+                self._opt.disableflags &= ~_NO_ACTUATION
+            else:
+                self._opt.disableflags |= _NO_ACTUATION
+            self._actuation_on = on
 
     def _encoder(self, q: np.ndarray) -> np.ndarray:
         if not self._has_encoder:
             return q.copy()
-        return np.round(q / self.encoder_step_rad) * self.encoder_step_rad
+        counts = np.multiply(q, self._counts_per_rad)
+        np.rint(counts, out=counts)
+        return np.multiply(counts, self.encoder_step_rad, out=counts)
 
     def _sample(self, q_before_rad: np.ndarray, dt: float) -> None:
         """The drive's position and velocity at the end of the last servo tick, which began
         at ``q_before_rad``."""
         q = self._encoder(self.data.qpos[: self.n])
         if self._has_encoder:
-            self.sample_dq_rad_s = (q - self._encoder(q_before_rad)) / dt
+            dq = self._encoder(q_before_rad)
+            np.subtract(q, dq, out=dq)
+            dq /= dt
+            self.sample_dq_rad_s = dq
         else:
             self.sample_dq_rad_s = self.data.qvel[: self.n].copy()
         self.sample_q_rad = q
@@ -175,8 +217,19 @@ class Plant:
         mujoco.mj_jacSite(self.model, self.data, jac, None, self.tool_site)
         return jac @ self.data.qvel
 
+    def _unit_noise(self) -> np.ndarray:
+        """The next row of standard normal draws, (n + 2,): the current sensors', then the
+        pressure transmitters'. Drawn 256 cycles at a time: one generator call per cycle cost
+        more than the draws."""
+        if self._noise_row >= len(self._noise):
+            self._noise = self.rng.standard_normal((NOISE_BLOCK_ROWS, self.n + 2))
+            self._noise_row = 0
+        row = self._noise[self._noise_row]
+        self._noise_row += 1
+        return row
+
     def measured_pressure_bar(self) -> np.ndarray:
-        return self.pressure_bar + self.rng.normal(0.0, self.cfg.cylinders.noise_bar, 2)
+        return self.pressure_bar + self.cfg.cylinders.noise_bar * self._unit_noise()[self.n :]
 
     def measured_current_a(self) -> np.ndarray:
         """The current averaged over the servo ticks since the last call, plus noise [A]; the
@@ -185,19 +238,21 @@ class Plant:
         mean = self._force_sum / (self.k_nm_per_a * max(self._current_ticks, 1))
         self._force_sum = np.zeros(self.n)
         self._current_ticks = 0
-        noise = self.rng.normal(0.0, self.cfg.sensors.current_noise_a, self.n)
-        return mean + self.current_offset_a + noise
+        mean += self.current_offset_a
+        mean += self.cfg.sensors.current_noise_a * self._unit_noise()[: self.n]
+        return mean
 
-    def _pressure_step(self, dt: float) -> None:
-        """The chambers' gas over ``dt``: isothermal with the rod's motion since the last
-        update, then the regulator's first-order lag towards the set-point."""
-        gas = self.cylinders.gas_columns_m(self.data.qpos[: self.n])
-        p, p_set, before = self.pressure_bar, self.pressure_set_bar, self._gas_m
+    def _pressure_step(self, dt: float, gas: list[float]) -> None:
+        """The chambers' gas over ``dt``, now at ``gas`` (:meth:`AssistCylinders.arms_and_gas`):
+        isothermal with the rod's motion since the last update, then the regulator's
+        first-order lag towards the set-point."""
+        p, p_set = self.pressure_bar.tolist(), self.pressure_set_bar.tolist()
         alpha = min(dt / self.cfg.cylinders.time_constant_s, 1.0)
-        for k, now in enumerate(gas):
+        for k, (now, before) in enumerate(zip(gas, self._gas_m, strict=True)):
             if now != math.inf:
-                p[k] = (p[k] + ATMOSPHERE_BAR) * before[k] / now - ATMOSPHERE_BAR
+                p[k] = (p[k] + ATMOSPHERE_BAR) * before / now - ATMOSPHERE_BAR
             p[k] += alpha * (p_set[k] - p[k])
+        self.pressure_bar[:] = p
         self._gas_m = gas
 
     def step(
@@ -225,8 +280,9 @@ class Plant:
         ``brakes_released`` (the brake-release switch held with the servo off): then the arm
         moves under gravity, the cylinders, friction and the hand, with no motor torque."""
         dt = self.cfg.timestep_s
-        self._pressure_step(ticks * dt)
         model, d, n = self.model, self.data, self.n
+        arms, gas = self.cylinders.arms_and_gas(d.qpos[:n].tolist())
+        self._pressure_step(ticks * dt, gas)
         if reference is None and not brakes_released:
             # Brakes engaged: joints locked, motor unpowered, the hand can't move it.
             self.brakes = True
@@ -241,35 +297,41 @@ class Plant:
             self.effects.advance(self, ticks * dt)
             return
         self.brakes = False
-        q, dq = d.qpos[:n], d.qvel[:n]  # views: they follow the ticks
+        q, dq = self._q, self.dq_view  # views: they follow the ticks
         friction, coulomb = self.friction, self.friction.coulomb_level(q)
         stiction = self.stiction
         if stiction:
-            dry = model.dof_frictionloss[:n]  # a view: MuJoCo reads it every step
-            model.dof_damping[:n] = friction.damping_nm_s_per_rad(dq)
-        tau_cyl = self.cylinders.torque_nm(q, self.pressure_bar)
-        tau_eff = self.effects.torque(self, q, dq)
-        self.hand_force_n = self.hand(self) if self.hand is not None else np.zeros(3)
-        held = tau_cyl + tau_eff  # over the cycle
-        d.xfrc_applied[:] = 0.0
-        if self.hand_force_n.any():
-            arm = d.site_xpos[self.tool_site] - d.xipos[self.last_body]
-            d.xfrc_applied[self.last_body, :3] = self.hand_force_n
-            d.xfrc_applied[self.last_body, 3:] = np.cross(arm, self.hand_force_n)
+            dry = self._frictionloss  # MuJoCo reads it every step
+            self._damping[:] = friction.damping_nm_s_per_rad(dq)
+        held = self.cylinders.torque_from_arms(arms, self.pressure_bar.tolist())  # over the cycle
+        if self.effects.torque_effects:
+            held += self.effects.torque(self, q, dq)
+        hand = self.hand(self) if self.hand is not None else None
+        if hand is not None and hand.any():
+            self.hand_force_n, self._hand_on = hand, True
+            ax, ay, az = (d.site_xpos[self.tool_site] - d.xipos[self.last_body]).tolist()
+            fx, fy, fz = hand.tolist()
+            # the force at the tool point, and its moment about the body's centre of mass
+            self._hand_wrench[:] = (fx, fy, fz, ay * fz - az * fy, az * fx - ax * fz,
+                                    ax * fy - ay * fx)  # fmt: skip
+        elif self._hand_on:
+            self.hand_force_n, self._hand_on = np.zeros(3), False
+            self._hand_wrench[:] = 0.0
         force = np.zeros(n)
-        applied = d.qfrc_applied[:n]
+        applied = self._applied
         applied[:] = held
         history = self.effects.history if self.effects.delay_steps else None
         servo = reference is not None
+        self._actuation(servo)
         if servo:
-            model.opt.disableflags &= ~int(mujoco.mjtDisableBit.mjDSBL_ACTUATION)
             q_r, dq_r, t_r = reference
-            # eq. (19) as the actuator's control input: K (K_I q_r(t) + K_p dq_r)
-            at_t_r = self._k_ki * (q_r - dq_r * t_r) + self._k_kp * dq_r
-            slope = self._k_ki * dq_r
-        else:
-            model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_ACTUATION)
-        ctrl, act_force = d.ctrl, d.actuator_force
+            # eq. (19)'s input K (K_I q_r(t) + K_p dq_r) now, ramped by MuJoCo (_add_drives)
+            act = np.multiply(dq_r, d.time - t_r, out=self._act)
+            act += q_r
+            act *= self._k_ki
+            act += self._k_kp * dq_r
+            np.multiply(self._k_ki, dq_r, out=self._ctrl)
+        act_force = self._act_force
         for tick in range(ticks):
             if tick == ticks - 1:
                 q_before = q.copy()
@@ -277,8 +339,6 @@ class Plant:
                 friction.stribeck_into(dq, coulomb, dry)
             else:
                 np.subtract(held, friction.torque_nm(dq, coulomb), out=applied)
-            if servo:
-                np.add(at_t_r, slope * d.time, out=ctrl)
             mujoco.mj_step(model, d)
             if servo:
                 force += act_force

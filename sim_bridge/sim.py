@@ -160,6 +160,8 @@ class VirtualCell:
         self._can_fd = cfg.controller.can_profile == "fd"  #: the segment must carry CAN FD
         self._log: TextIO | None = None
         self._row_format = ",".join(["%.9g"] * len(truth_log_columns(self.n))) + "\n"
+        #: the feedback frame's range of q, dq and i, (3n,)
+        self._fb_limit = np.repeat([Q_FB_LIMIT_RAD, DQ_FB_LIMIT_RAD_S, I_FB_LIMIT_A], self.n)
 
     # --- endpoints ----------------------------------------------------------------------
     def open(self) -> None:
@@ -269,15 +271,13 @@ class VirtualCell:
             float(p_meas[0]), float(p_meas[1]), enabling, not self.estop_open,
             op.mark_pressed(plant.t_s),
         )  # fmt: skip
-        plant.pressure_set_bar = np.array(self.io.setpoints(), dtype=float)
+        plant.pressure_set_bar[:] = self.io.setpoints()
         q_m, dq_m = plant.effects.measured_kinematics(plant)
         i_m = plant.measured_current_a()
-        frames = self.proto.feedback_frames(
-            ctrl.status(),
-            np.clip(q_m, -Q_FB_LIMIT_RAD, Q_FB_LIMIT_RAD),
-            np.clip(dq_m, -DQ_FB_LIMIT_RAD_S, DQ_FB_LIMIT_RAD_S),
-            np.clip(i_m, -I_FB_LIMIT_A, I_FB_LIMIT_A),
-        )
+        # what the frame's signals can carry (q, dq, i in one clip)
+        fb = np.clip(np.concatenate((q_m, dq_m, i_m)), -self._fb_limit, self._fb_limit)
+        n = self.n
+        frames = self.proto.feedback_frames(ctrl.status(), fb[:n], fb[n : 2 * n], fb[2 * n :])
         self._set_arrival_wall = None
         for msg in frames:
             self.can.send(msg)

@@ -23,8 +23,8 @@ def _released_without_gravity(seed: int = 0) -> Plant:
 def _push(plant: Plant, torque_nm: np.ndarray, seconds: float) -> None:
     """Servo off, brakes released, cylinders out of the way: only ``torque_nm`` and friction
     act on the joints (and inertia)."""
-    plant.cylinders.torque_nm = lambda q, p: np.zeros(plant.n)  # type: ignore[method-assign]
-    plant.effects.torque = lambda *a: torque_nm  # type: ignore[method-assign]
+    # the cylinders' torque, which the plant holds over a cycle, replaced by ``torque_nm``
+    plant.cylinders.torque_from_arms = lambda arms, p: torque_nm.copy()  # type: ignore[method-assign]
     for _ in range(round(seconds / (4 * plant.cfg.timestep_s))):
         plant.run(4, None, brakes_released=True)
 
