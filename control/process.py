@@ -19,6 +19,7 @@ import time
 from collections import deque
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -337,6 +338,11 @@ class ZeroMomentController:
         self.engaged = False
         self._waited = 0
 
+    def engagement(self) -> dict[str, Any]:
+        """What the law is doing, for the operator's status: ``{"phase": "idle"}`` (not
+        engaged: the driver holds the arm) or ``"following"`` (the hand guides it)."""
+        return {"phase": "following" if self.engaged else "idle"}
+
     def motor_torque_nm(self, st: JointState) -> list[float]:
         """The motor torque ``st`` reports: datasheet K × measured current [N·m]."""
         return [k * i for k, i in zip(self._k_nm_per_a, st.current_a.tolist(), strict=True)]
@@ -535,12 +541,24 @@ class AdmittanceController(ZeroMomentController):
         self._probe_start = 0
         self._probe_q0 = np.zeros(model.n)
         self._probe_noise: np.ndarray | None = None
+        self._probe_period_s = 0.0
         #: per joint, the hand torque a joint at rest hides in its friction [N·m]
         self._stick = np.zeros(model.n)
 
     def disengage(self) -> None:
         super().disengage()
         self._probe = None
+
+    def engagement(self) -> dict[str, Any]:
+        """As the zero-moment law's, plus ``"probing"`` while the engagement probe moves the
+        arm, with ``left_s``, its time still to run [s] (the painter should hold the tool
+        lightly and not push: a push now is taken for the model's error)."""
+        probe, last = self._probe, self.last_cycle  # the cycle's thread may change them
+        if probe is None or not self.engaged:
+            return super().engagement()
+        done = 0 if last is None else last - self._probe_start
+        left = len(probe) + self.cfg.command_delay_cycles + 1 - done
+        return {"phase": "probing", "left_s": round(max(left, 0) * self._probe_period_s, 2)}
 
     def mass(self, q: np.ndarray) -> np.ndarray:
         """M̂(q), recomputed after a joint moved INERTIA_STEP_RAD: the identified model's
@@ -608,7 +626,10 @@ class AdmittanceController(ZeroMomentController):
                     REST_RAD_S,
                 )
                 self._probe_start, self._probe_q0 = st.cycle, st.q_cmd_rad.copy()
-                self._probe_noise = noise
+                self._probe_noise, self._probe_period_s = noise, period
+                log.info("admittance probe: %.1f s, every joint a few mrad out and back to "
+                         "measure the model's error; the painter holds the tool lightly",
+                         len(self._probe) * period)  # fmt: skip
             else:
                 self._start_admittance(st.q_rad, noise)
         if self._probe is not None:
@@ -1017,6 +1038,7 @@ class ControlProcess:
                 "process": "control",
                 "stamp_s": now,
                 "engaged": self.ctl is not None and self.ctl.engaged,
+                "engagement": None if self.ctl is None else self.ctl.engagement(),
                 **self.stats,
                 "load_check": None
                 if self.load_check is None

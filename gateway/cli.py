@@ -84,6 +84,10 @@ def _operator_main(args: argparse.Namespace) -> int:
         print(f"{'OK' if reply.get('ok') else 'REFUSED'}: {reply.get('message')} [state: {state}]")
         for problem in reply.get("problems", []) if args.command == "status" else []:
             print(f"  - {problem}")
+        engagement = reply.get("engagement") if args.command == "status" else None
+        if isinstance(engagement, dict) and engagement.get("phase") == "probing":
+            print(f"  - the arm is measuring its model's error ({engagement.get('left_s')} s "
+                  "left): hold the tool lightly, do not push yet")  # fmt: skip
     return 0 if reply.get("ok") else 1
 
 

@@ -249,6 +249,8 @@ class Gateway:
         self.health_rx_s: dict[str, float] = {}
         #: the control process's static-load check (control/load_check.py) as last reported
         self.load_check: dict | None = None
+        #: what the control law is doing, from its health (None: not reported)
+        self.engagement: dict | None = None
         #: the CAN driver's speed monitor trip, from its health (None: not tripped)
         self.speed_trip: str | None = None
         self.children: dict[str, Child] = {}
@@ -351,6 +353,8 @@ class Gateway:
             if name == "control":
                 load_check = body.get("load_check")
                 self.load_check = load_check if isinstance(load_check, dict) else None
+                engagement = body.get("engagement")
+                self.engagement = engagement if isinstance(engagement, dict) else None
             elif name == "can_driver" and body:  # an unreadable one changes nothing
                 trip = body.get("speed_trip")
                 self.speed_trip = None if trip is None else str(trip)
@@ -432,6 +436,9 @@ class Gateway:
             "q_rad": None if st is None else [round(float(v), 6) for v in st.q_rad],
             "program": self.teach.status(),
             "plan": self.machine.plan_result,
+            # the control law's phase (control process health): "probing" while the
+            # admittance measures the model's error at engagement
+            "engagement": self.engagement,
         }
 
     def _on_experiment(self, sample) -> None:

@@ -5,6 +5,8 @@ log (the hand's force and the tool's position are the plant's)."""
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import pytest
 from test_stack import rest_without_operator, teaching_rows, tool_speed, tool_xyz
@@ -49,8 +51,16 @@ def test_a_push_moves_the_tool_along_it_and_the_arm_stops_when_the_hand_lets_go(
     with Stack(tmp_path, sim_overrides={"operator": operator}, cell_overrides=ADMITTANCE) as stack:
         stack.start()
         stack.start_teaching()
+        # the operator's status says when the probe runs, and when it is over
+        phases = []
+        while len(phases) < 40 and (not phases or phases[-1] != "following"):
+            engagement = stack.request("status").get("engagement") or {}
+            phases.append(engagement.get("phase"))
+            time.sleep(0.05)
         truth = stack.wait_teaching(t0 + 6.1, 40.0)
         stack.request("stop")
+    print(f"engagement phases in the status: {phases}")
+    assert "probing" in phases and phases[-1] == "following", phases
     rows = teaching_rows(truth)
     t = truth["t_s"][rows] - truth["t_s"][rows[0]] - t0
     at = {s: rows[t <= s][-1] for s in (0.0, 2.1, 4.0, 6.0)}

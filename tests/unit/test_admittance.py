@@ -247,13 +247,20 @@ def test_with_stiction_a_load_share_the_friction_may_carry_is_no_hand(stiction_c
     error = np.full(N, 5.0)
     dq_cmd = np.zeros(N)
     k = 0
+    assert ctl.engagement() == {"phase": "idle"}
+    left = []  # the probe's time still to run, as the operator's status shows it
     while k < 400 and (k < 5 or ctl._probe is not None):
         k += 1
         # the arm follows each command a cycle late (the example cell's delay is 0)
         tau = static + error + level * np.sign(dq_cmd)
         _, dq_new = ctl.answer(state(k, q0, tau / k_nm_per_a, dq=dq_cmd), p)
         dq_cmd = np.array(dq_new)
+        if (phase := ctl.engagement())["phase"] == "probing":
+            left.append(phase["left_s"])
     assert ctl._probe is None, "the probe did not end"
+    assert ctl.engagement() == {"phase": "following"}
+    assert left and left[0] == pytest.approx(stiction_cfg.admittance_probe_s, abs=0.02)
+    assert np.all(np.diff(left) <= 0) and left[-1] <= 0.02, left[-3:]  # (0.01 s steps)
     np.testing.assert_allclose(ctl._bias, -error, atol=1e-9)
     share = np.zeros(N)
     share[1] = 0.8 * level[1]
@@ -266,3 +273,5 @@ def test_with_stiction_a_load_share_the_friction_may_carry_is_no_hand(stiction_c
     for i in range(k + 200, k + 300):
         _, dq_cmd = ctl.answer(state(i, q0, tau / k_nm_per_a, dq=sliding), p)
     assert ctl.admittance.moving and dq_cmd[1] > 0.0
+    ctl.disengage()
+    assert ctl.engagement() == {"phase": "idle"}

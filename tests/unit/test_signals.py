@@ -109,3 +109,16 @@ def test_outside_the_main_thread_it_installs_nothing():
     worker.start()
     worker.join()
     assert seen == [handler]
+
+
+def test_no_process_installs_a_signal_handler_of_its_own():
+    # Every process stops through StopSignals: a handler of its own could take a lock.
+    offenders = []
+    for package in ("gateway", "drivers", "control", "sim_bridge"):
+        for path in sorted((ROOT / package).rglob("*.py")):
+            if path == ROOT / "gateway" / "signals.py":
+                continue
+            for number, line in enumerate(path.read_text().splitlines(), 1):
+                if "signal.signal(" in line:
+                    offenders.append(f"{path.relative_to(ROOT)}:{number}: {line.strip()}")
+    assert not offenders, "use gateway.signals.StopSignals instead:\n" + "\n".join(offenders)
