@@ -136,11 +136,20 @@ def run_plan(bus: BusConfig, plan: dict[str, Any], out: Path, timeout_s: float) 
             raise LeadthroughError(f"the gateway refused to identify: {reply.get('message')}")
         print(f"identification running ({reply.get('message')}); keep the enabling device held")
         deadline = time.monotonic() + timeout_s
+        shown: tuple[int, object] = (-1, None)
         while True:
             status = operator_request(bus, "status")
             if status.get("state") != "identifying":
                 print(f"identification ended: {status.get('reason')}")
                 break
+            plan = status.get("plan") or {}
+            progress = plan.get("progress")
+            if isinstance(progress, int | float):
+                # a line per 10 % and per segment (a 25-minute run on a real cell)
+                now = (int(10 * progress), plan.get("segment"))
+                if now != shown:
+                    print(f"identification {100 * progress:.0f} % ({plan.get('segment')})")
+                    shown = now
             if time.monotonic() > deadline:
                 operator_request(bus, "stop")
                 raise LeadthroughError(f"plan not finished after {timeout_s} s; robot stopped")

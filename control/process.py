@@ -38,6 +38,7 @@ from control.taught_path import replay_trajectory
 from gateway.bus import (
     BusConfig,
     bus_config_from,
+    check_cell_sections,
     declare_loop_publisher,
     open_peer,
     undeclare_all,
@@ -92,6 +93,7 @@ def load_control_config(cell_path: str | Path) -> tuple[ControlConfig, BusConfig
     """The cell config's ``[control]`` and ``[bus]``. With ``[control].inner_loop``, ω and Υ_I
     come from that estimate (`leadthrough identify`) and may not also be written out."""
     raw = load_toml(cell_path)
+    check_cell_sections(raw, str(cell_path))
     section = dict(raw.get("control", {}))
     where = f"{cell_path} [control]"
     if section.get("inner_loop"):

@@ -20,6 +20,7 @@ from typing import Any
 import zenoh
 
 from gateway.config import from_mapping, require
+from gateway.errors import LinkTimeoutError
 from gateway.messages import Keys
 
 log = logging.getLogger(__name__)
@@ -58,7 +59,13 @@ class BusConfig:
         return BusConfig(chosen, self.key_prefix, self.peer_listen)
 
 
-def _zenoh_config(mode: str, listen: list[str], connect: list[str]) -> zenoh.Config:
+#: how long a process keeps trying to reach the router at start-up [s]
+CONNECT_TIMEOUT_S = 10.0
+
+
+def _zenoh_config(
+    mode: str, listen: list[str], connect: list[str], connect_timeout_s: float = CONNECT_TIMEOUT_S
+) -> zenoh.Config:
     cfg = zenoh.Config()
     cfg.insert_json5("mode", json.dumps(mode))
     cfg.insert_json5("scouting/multicast/enabled", "false")
@@ -67,7 +74,7 @@ def _zenoh_config(mode: str, listen: list[str], connect: list[str]) -> zenoh.Con
     cfg.insert_json5("connect/endpoints", json.dumps(connect))
     if connect:
         # Keep retrying the router during start-up instead of failing the first attempt.
-        cfg.insert_json5("connect/timeout_ms", "10000")
+        cfg.insert_json5("connect/timeout_ms", str(max(1, round(connect_timeout_s * 1000))))
         cfg.insert_json5("connect/exit_on_failure", "true")
     return cfg
 
@@ -77,9 +84,18 @@ def open_router(bus: BusConfig) -> zenoh.Session:
     return zenoh.open(_zenoh_config("router", [bus.endpoint], []))
 
 
-def open_client(bus: BusConfig) -> zenoh.Session:
-    """Open a client session connected to the router at ``bus.endpoint`` (short-lived tools)."""
-    return zenoh.open(_zenoh_config("client", [], [bus.endpoint]))
+def open_client(bus: BusConfig, connect_timeout_s: float = CONNECT_TIMEOUT_S) -> zenoh.Session:
+    """Open a client session connected to the router at ``bus.endpoint`` (short-lived tools).
+
+    Raises :class:`~gateway.errors.LinkTimeoutError` when no router answers there within
+    ``connect_timeout_s``."""
+    try:
+        return zenoh.open(_zenoh_config("client", [], [bus.endpoint], connect_timeout_s))
+    except zenoh.ZError as exc:
+        raise LinkTimeoutError(
+            f"no zenoh router (gateway) reachable at {bus.endpoint} within "
+            f"{connect_timeout_s:g} s: is `leadthrough gateway` running there?"
+        ) from exc
 
 
 def open_peer(bus: BusConfig) -> zenoh.Session:
@@ -99,9 +115,27 @@ def declare_loop_publisher(session: zenoh.Session, key: str):
     )
 
 
+#: the sections of a cell config; each process reads its own and the [bus]
+CELL_SECTIONS = ("bus", "can", "control", "gateway", "modbus")
+
+
 def bus_config_from(cell: dict[str, Any], where: str) -> BusConfig:
-    """The ``[bus]`` section of a parsed cell config (defaults when absent)."""
+    """The ``[bus]`` section of a parsed cell config (defaults when absent). Every process
+    and tool reads its cell config through here, so a section nobody reads (a typo: a
+    ``[contorl]`` whose settings would quietly do nothing) is refused here, naming it."""
+    check_cell_sections(cell, where)
     return from_mapping(BusConfig, cell.get("bus", {}), f"{where} [bus]")
+
+
+def check_cell_sections(cell: dict[str, Any], where: str) -> None:
+    """Refuse a cell config with a section nobody reads (ConfigError naming it); each loader
+    of a cell config calls this first."""
+    unknown = sorted(set(cell) - set(CELL_SECTIONS))
+    require(
+        not unknown,
+        where,
+        f"unknown section(s) {unknown}: a cell config has {[f'[{s}]' for s in CELL_SECTIONS]}",
+    )
 
 
 def undeclare_all(entities: Iterable[Any]) -> None:

@@ -1,6 +1,7 @@
 """`leadthrough`: the one command-line entry point; every tool is a subcommand.
 
-Subcommand modules are imported lazily so that `leadthrough status` does not load MuJoCo.
+Subcommand modules are imported lazily: `leadthrough status`, `--help` and `--version` do not
+load MuJoCo.
 """
 
 from __future__ import annotations
@@ -91,7 +92,24 @@ def _operator_main(args: argparse.Namespace) -> int:
     return 0 if reply.get("ok") else 1
 
 
+def _version() -> str:
+    """The installed package's version (the source tree's pyproject.toml when not installed)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("leadthrough")
+    except PackageNotFoundError:
+        import tomllib
+        from pathlib import Path
+
+        pyproject = Path(__file__).resolve().parents[1] / "pyproject.toml"
+        return str(tomllib.loads(pyproject.read_text())["project"]["version"])
+
+
 def build_parser() -> argparse.ArgumentParser:
+    """The top-level parser: the subcommands by name and help only. ``leadthrough COMMAND ...``
+    is parsed by :func:`_single`, which imports that one subcommand's module for its options;
+    so ``--help`` and ``--version`` import none (MuJoCo, SciPy: 2 s)."""
     parser = argparse.ArgumentParser(
         prog="leadthrough",
         description=(
@@ -102,13 +120,10 @@ def build_parser() -> argparse.ArgumentParser:
         ),
     )
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    parser.add_argument("--version", action="version", version=f"leadthrough {_version()}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for name, (module, help_text) in SUBCOMMANDS.items():
-        p = sub.add_parser(name, help=help_text, description=help_text)
-        if name in OPERATOR_COMMANDS:
-            _configure_operator(p, name)
-        else:
-            importlib.import_module(module).configure_parser(p)
+    for name, (_module, help_text) in SUBCOMMANDS.items():
+        sub.add_parser(name, help=help_text, description=help_text)
     return parser
 
 
@@ -136,6 +151,7 @@ def main(argv: list[str] | None = None) -> int:
 def _single(name: str) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="leadthrough")
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    parser.add_argument("--version", action="version", version=f"leadthrough {_version()}")
     sub = parser.add_subparsers(dest="command", required=True)
     module, help_text = SUBCOMMANDS[name]
     p = sub.add_parser(name, help=help_text, description=help_text)

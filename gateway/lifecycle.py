@@ -209,6 +209,13 @@ class LifecycleMachine:
                                 "reason": reason}  # fmt: skip
             self._go(Lifecycle.READY, reason)
 
+    def plan_progress(self, plan_id: str, progress: float, segment: str | None) -> None:
+        """The control process reports how far the running plan is: ``progress`` (0..1) and
+        the segment it plays (for `leadthrough identify`'s progress lines)."""
+        r = self.plan_result
+        if r is not None and r["state"] == "running" and r.get("plan_id") == plan_id:
+            self.plan_result = {**r, "progress": progress, "segment": segment}
+
     def fault(self, reason: str) -> None:
         """Enter FAULT from any state (used by error paths)."""
         self._go(Lifecycle.FAULT, reason)

@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
-from gateway.bus import BusConfig, bus_config_from, open_router, undeclare_all
+from gateway.bus import BusConfig, bus_config_from, check_cell_sections, open_router, undeclare_all
 from gateway.config import from_mapping, load_toml, require, resolve_path
 from gateway.errors import EXIT_CONFIG, MessageError
 from gateway.lifecycle import LifecycleMachine, Limits, Observations
@@ -448,6 +448,16 @@ class Gateway:
         except (MessageError, KeyError) as exc:
             log.warning("ignored experiment message: %s", exc)
             return
+        if state == "running":
+            progress = msg.get("progress")
+            playing = [s.get("label") for s in msg.get("segments") or []
+                       if isinstance(s, dict) and s.get("start_cycle") is not None
+                       and s.get("end_cycle") is None]  # fmt: skip
+            if isinstance(progress, int | float) and math.isfinite(progress):
+                with self.lock:
+                    self.machine.plan_progress(
+                        plan_id, float(progress), str(playing[-1]) if playing else None
+                    )
         if state in ("done", "failed"):
             with self.lock:
                 self.machine.plan_finished(plan_id, state == "done", str(msg.get("reason", "")))
@@ -655,6 +665,7 @@ class Gateway:
 
 def load_gateway_config(cell_path: Path) -> tuple[GatewayConfig, BusConfig]:
     raw = load_toml(cell_path)
+    check_cell_sections(raw, str(cell_path))
     cfg = from_mapping(GatewayConfig, raw.get("gateway", {}), f"{cell_path} [gateway]")
     bus = bus_config_from(raw, str(cell_path))
     return cfg, bus
@@ -687,10 +698,16 @@ def cli_main(args: argparse.Namespace) -> int:
 
 
 def operator_request(bus: BusConfig, command: str, timeout_s: float = 3.0, **fields) -> dict:
-    """Send an operator command (plus ``fields``, e.g. ``plan``) and return the JSON reply."""
+    """Send an operator command (plus ``fields``, e.g. ``plan``) and return the JSON reply;
+    ``{"ok": False, "message": why}`` when no gateway answers within ``timeout_s`` (connecting
+    included)."""
     from gateway.bus import open_client
+    from gateway.errors import LinkTimeoutError
 
-    session = open_client(bus)
+    try:
+        session = open_client(bus, connect_timeout_s=timeout_s)
+    except LinkTimeoutError as exc:
+        return {"ok": False, "message": str(exc)}
     try:
         payload = json.dumps({"command": command, **fields}).encode()
         for reply in session.get(bus.keys.request, payload=payload, timeout=timeout_s):

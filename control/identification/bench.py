@@ -19,8 +19,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
-from control.identification._blas import single_threaded_blas
 from control.identification.analyze import AnalyzeOptions, analyze
 from control.identification.datafile import write_measurements
 from control.identification.rigid import RobotRegressor
@@ -69,7 +69,7 @@ def bench_identify(
         (root / "gr630st.urdf").write_text(urdf_xml)
         t0 = time.perf_counter()
         recordings = {}
-        with single_threaded_blas():
+        with threadpool_limits(limits=1, user_api="blas"):  # as analyze runs
             for name, seconds, base_hz in (
                 ("train", 60.0 * minutes, 0.05),
                 ("test", max(60.0, 12.0 * minutes), 0.07),

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from drivers.modbus.registermap import Point
+from gateway.bus import check_cell_sections
 from gateway.config import from_mapping, require
 
 
@@ -75,5 +76,6 @@ class ModbusDriverConfig:
         cls, cell: dict[str, Any], where: str = "cell config"
     ) -> ModbusDriverConfig:
         """Build from a whole parsed cell config (its ``[modbus]`` table)."""
+        check_cell_sections(cell, where)
         require("modbus" in cell, where, "has no [modbus] section")
         return from_mapping(cls, cell["modbus"], f"{where} [modbus]")

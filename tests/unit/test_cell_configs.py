@@ -69,6 +69,20 @@ def test_unknown_key_is_refused(tmp_path):
         load_gateway_config(path)
 
 
+def test_a_section_nobody_reads_is_refused_by_every_process(tmp_path):
+    raw = load_toml(CELLS[1])
+    raw["contorl"] = raw.pop("control")  # typo: its settings would quietly do nothing
+    path = tmp_path / "cell.toml"
+    path.write_text(tomli_w.dumps(raw))
+
+    def modbus(p: Path) -> ModbusDriverConfig:
+        return ModbusDriverConfig.from_cell_config(load_toml(p), str(p))
+
+    for load in (load_gateway_config, load_control_config, load_can_config, modbus):
+        with pytest.raises(ConfigError, match=r"unknown section\(s\) \['contorl'\]"):
+            load(path)
+
+
 def test_sim_truth_loads_and_is_read_only_by_sim_bridge():
     cfg = load_sim_config()
     assert len(cfg.inner_loop.kp_a_s_per_rad) == 6

@@ -124,10 +124,18 @@ def test_identify_needs_enabling_and_ends_back_in_ready():
     assert not ok and "enabling" in msg
     ok, _ = m.identify({"plan_id": "p"}, healthy(enabling=True))
     assert ok and m.state == Lifecycle.IDENTIFYING
+    # the control process's progress reports reach the status; another plan's do not
+    m.plan_progress("p", 0.25, "multisine/1")
+    m.plan_progress("other", 0.9, "x")
+    assert m.plan_result is not None
+    assert (m.plan_result["progress"], m.plan_result["segment"]) == (0.25, "multisine/1")
     m.plan_finished("other", True, "")
     assert m.state == Lifecycle.IDENTIFYING
     m.plan_finished("p", True, "")
     assert m.state == Lifecycle.READY
+    m.plan_progress("p", 0.5, "late")  # a report after the end changes nothing
+    assert m.plan_result is not None and m.plan_result["state"] == "done"
+    assert "progress" not in m.plan_result
     m.identify({"plan_id": "q"}, healthy(enabling=True))
     assert m.update(healthy(enabling=False)) == Lifecycle.READY
 
