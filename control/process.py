@@ -38,7 +38,6 @@ from control.taught_path import replay_trajectory
 from gateway.bus import (
     BusConfig,
     bus_config_from,
-    check_cell_sections,
     declare_loop_publisher,
     open_peer,
     undeclare_all,
@@ -93,7 +92,7 @@ def load_control_config(cell_path: str | Path) -> tuple[ControlConfig, BusConfig
     """The cell config's ``[control]`` and ``[bus]``. With ``[control].inner_loop``, ω and Υ_I
     come from that estimate (`leadthrough identify`) and may not also be written out."""
     raw = load_toml(cell_path)
-    check_cell_sections(raw, str(cell_path))
+    bus = bus_config_from(raw, str(cell_path))  # first: it refuses an unknown section
     section = dict(raw.get("control", {}))
     where = f"{cell_path} [control]"
     if section.get("inner_loop"):
@@ -111,7 +110,6 @@ def load_control_config(cell_path: str | Path) -> tuple[ControlConfig, BusConfig
     cfg = from_mapping(ControlConfig, section, where)
     if cfg.model is not None:
         cfg = ControlConfig(**{**cfg.__dict__, "model": resolve_path(cell_path, cfg.model)})
-    bus = bus_config_from(raw, str(cell_path))
     return cfg, bus
 
 

@@ -128,8 +128,8 @@ def bus_config_from(cell: dict[str, Any], where: str) -> BusConfig:
 
 
 def check_cell_sections(cell: dict[str, Any], where: str) -> None:
-    """Refuse a cell config with a section nobody reads (ConfigError naming it); each loader
-    of a cell config calls this first."""
+    """Refuse a cell config with a section nobody reads (ConfigError naming it):
+    :func:`bus_config_from` calls it, and a loader that does not read ``[bus]``."""
     unknown = sorted(set(cell) - set(CELL_SECTIONS))
     require(
         not unknown,

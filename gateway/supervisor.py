@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
-from gateway.bus import BusConfig, bus_config_from, check_cell_sections, open_router, undeclare_all
+from gateway.bus import BusConfig, bus_config_from, open_router, undeclare_all
 from gateway.config import from_mapping, load_toml, require, resolve_path
 from gateway.errors import EXIT_CONFIG, MessageError
 from gateway.lifecycle import LifecycleMachine, Limits, Observations
@@ -665,9 +665,8 @@ class Gateway:
 
 def load_gateway_config(cell_path: Path) -> tuple[GatewayConfig, BusConfig]:
     raw = load_toml(cell_path)
-    check_cell_sections(raw, str(cell_path))
+    bus = bus_config_from(raw, str(cell_path))  # first: it refuses an unknown section
     cfg = from_mapping(GatewayConfig, raw.get("gateway", {}), f"{cell_path} [gateway]")
-    bus = bus_config_from(raw, str(cell_path))
     return cfg, bus
 
 

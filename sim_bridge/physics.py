@@ -137,8 +137,11 @@ class AssistCylinders:
 
     def arms_and_gas(self, q: Sequence[float]) -> tuple[list[float], list[float]]:
         """Per unit at joint angles ``q`` [rad] (a list of floats): the signed moment arm [m]
-        (:meth:`moment_arm_m`) and the gas column [m] (:meth:`gas_columns_m`), in one pass of
-        plain floats (the plant's per-cycle call)."""
+        (:meth:`moment_arm_m`) and the gas column [m] (L₀ plus :meth:`extension_m`, never
+        below a tenth of L₀; ``inf`` for an ideal reservoir), in one pass of plain floats with
+        each unit's constants gathered once. :meth:`gas_columns_m` and :meth:`torque_nm` are
+        this; :meth:`moment_arm_m` and :meth:`extension_m` state the geometry one unit at a
+        time (a test keeps the two equal)."""
         arms, gas = [], []
         for j, crank, sign, ab_ac, sum_sq, two_ab_ac, bc0, ab, gas0 in self._plain:
             qj = q[j]
@@ -179,14 +182,7 @@ class AssistCylinders:
     def gas_columns_m(self, q: np.ndarray) -> list[float]:
         """Each chamber's gas volume over its piston area [m] at joint angles ``q``
         (``inf`` for an ideal reservoir, ``gas_length_m`` 0); never below a tenth of L₀."""
-        out = []
-        for unit in self.units:
-            if unit.gas_length_m > 0:
-                x = self.extension_m(unit, float(q[unit.joint - 1]))
-                out.append(max(unit.gas_length_m + x, 0.1 * unit.gas_length_m))
-            else:
-                out.append(math.inf)
-        return out
+        return self.arms_and_gas(np.asarray(q, dtype=float).tolist())[1]
 
     def torque_from_arms(self, arms: Sequence[float], p_bar: Sequence[float]) -> np.ndarray:
         """Joint torques [N·m] (n,) from the units' moment arms (:meth:`arms_and_gas`) at
@@ -198,8 +194,5 @@ class AssistCylinders:
 
     def torque_nm(self, q: np.ndarray, p_bar: np.ndarray) -> np.ndarray:
         """Joint torques [N·m] (n,), zero on joints without a cylinder."""
-        tau = np.zeros(self.n)
-        for unit, area, p in zip(self.units, self.area_m2, p_bar, strict=True):
-            j = unit.joint - 1
-            tau[j] += area * p * PA_PER_BAR * self.moment_arm_m(unit, float(q[j]))
-        return tau
+        arms = self.arms_and_gas(np.asarray(q, dtype=float).tolist())[0]
+        return self.torque_from_arms(arms, np.asarray(p_bar, dtype=float).tolist())

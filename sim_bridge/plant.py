@@ -187,7 +187,7 @@ class Plant:
     def _sample(self, q_before_rad: np.ndarray, dt: float) -> None:
         """The drive's position and velocity at the end of the last servo tick, which began
         at ``q_before_rad``."""
-        q = self._encoder(self.data.qpos[: self.n])
+        q = self._encoder(self._q)
         if self._has_encoder:
             dq = self._encoder(q_before_rad)
             np.subtract(q, dq, out=dq)

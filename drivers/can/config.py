@@ -28,7 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from drivers.can.seqpacket import address_problem
-from gateway.bus import BusConfig, bus_config_from, check_cell_sections
+from gateway.bus import BusConfig, bus_config_from
 from gateway.config import from_mapping, load_toml, require, require_count, resolve_path
 
 _TRANSPORT_SCALARS = (str, int, float, bool)
@@ -206,10 +206,9 @@ class CanDriverConfig:
 def load_can_config(cell_config_path: str | Path) -> tuple[CanDriverConfig, BusConfig]:
     """The ``[can]`` and ``[bus]`` sections of a cell config file (absent sections: defaults)."""
     doc = load_toml(cell_config_path)
-    check_cell_sections(doc, str(cell_config_path))
+    bus_cfg = bus_config_from(doc, str(cell_config_path))  # first: it refuses an unknown section
     can_cfg = from_mapping(CanDriverConfig, doc.get("can", {}), f"{cell_config_path} [can]")
     if can_cfg.current_zero_file:
         zero_file = resolve_path(cell_config_path, can_cfg.current_zero_file)
         can_cfg = dataclasses.replace(can_cfg, current_zero_file=str(zero_file))
-    bus_cfg = bus_config_from(doc, str(cell_config_path))
     return can_cfg, bus_cfg

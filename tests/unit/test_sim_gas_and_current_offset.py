@@ -59,6 +59,24 @@ def test_extension_grows_by_the_moment_arm_per_radian():
             assert slope == pytest.approx(AssistCylinders.moment_arm_m(unit, q), rel=1e-5)
 
 
+def test_the_per_cycle_pass_is_the_geometry_of_each_unit():
+    """AssistCylinders.arms_and_gas (what the plant calls every cycle) against moment_arm_m
+    and extension_m, one unit at a time, over the joints' range."""
+    cfg = load_sim_config()
+    cylinders = AssistCylinders(cfg.cylinders.units, 6)
+    for q in np.random.default_rng(3).uniform(-2.5, 2.5, (200, 6)):
+        arms, gas = cylinders.arms_and_gas(q.tolist())
+        for unit, arm, column in zip(cylinders.units, arms, gas, strict=True):
+            qj = q[unit.joint - 1]
+            assert arm == pytest.approx(AssistCylinders.moment_arm_m(unit, qj), abs=1e-12)
+            if unit.gas_length_m > 0:
+                want = max(unit.gas_length_m + AssistCylinders.extension_m(unit, qj),
+                           0.1 * unit.gas_length_m)  # fmt: skip
+                assert column == pytest.approx(want, abs=1e-12)
+            else:
+                assert column == float("inf")
+
+
 def test_currents_read_the_sensor_offset_with_the_brakes_on():
     cfg = load_sim_config()
     offsets = (0.07, -0.21, 0.15, 0.018, -0.008, 0.006)
