@@ -9,7 +9,7 @@ from pathlib import Path
 from gateway.config import require, require_count
 
 #: the lead-through laws (``[control].strategy``)
-STRATEGIES = ("zero_moment", "admittance")
+STRATEGIES = ("zero_moment", "paper", "admittance")
 
 
 @dataclass(frozen=True)
@@ -65,10 +65,19 @@ class ControlConfig:
     engage_rest_states: int = 32
     #: ... or after this many states of waiting for rest, whatever the arm does [states]
     engage_max_wait_states: int = 125
-    #: the lead-through law: "zero_moment" (the paper's, eq. 21 with the model's torque) or
-    #: "admittance" (control/admittance.py: the hand's torque from the motor current, the arm
-    #: on a reference of ``admittance_mass_fraction`` of its inertia and the damping above)
+    #: the lead-through law: "zero_moment" (the paper's eq. 21 with the model's torque, ω̂
+    #: adapted by the normalised eq. 28 above), "paper" (the same with the paper's eqs. 28
+    #: and 30 adapting ω̂ and Υ̂_I together, control/outer_loop.py) or "admittance"
+    #: (control/admittance.py: the hand's torque from the motor current, the arm on a
+    #: reference of ``admittance_mass_fraction`` of its inertia and the damping above)
     strategy: str = "zero_moment"
+    #: "paper": γ of eqs. (28) and (30) [1/s]
+    paper_adaptation_per_s: float = 1.0
+    #: "paper": Υ̂_I(0) [1/s] on every joint (the paper: 1.2); 0: the commissioned Υ_I
+    paper_upsilon_i0_per_s: float = 0.0
+    #: "paper": per joint, the dead zone's floor on |τ_m - τ_d| [N·m] (3 σ of the torque
+    #: noise measured in the hold widens it); empty: the noise alone
+    paper_dead_zone_nm: tuple[float, ...] = ()
     admittance_mass_fraction: float = 0.3
     #: the admittance's low-pass on the hand torque estimate [Hz]: measured on the virtual
     #: cell (teach-bench, seed 0), 8 Hz is stable, 15 Hz is not, nor 8 Hz with half the damping
@@ -217,6 +226,31 @@ class ControlConfig:
             self.strategy in STRATEGIES,
             "[control].strategy",
             f"{self.strategy!r} not one of {STRATEGIES}",
+        )
+        require(
+            math.isfinite(self.paper_adaptation_per_s) and 0 <= self.paper_adaptation_per_s <= 50,
+            "[control].paper_adaptation_per_s",
+            f"{self.paper_adaptation_per_s} not in [0, 50] 1/s",
+        )
+        require(
+            math.isfinite(self.paper_upsilon_i0_per_s) and 0 <= self.paper_upsilon_i0_per_s <= 1000,
+            "[control].paper_upsilon_i0_per_s",
+            f"{self.paper_upsilon_i0_per_s} not in [0, 1000] 1/s",
+        )
+        require(
+            not self.paper_dead_zone_nm
+            or (
+                len(self.paper_dead_zone_nm) == n
+                and all(math.isfinite(v) and v >= 0 for v in self.paper_dead_zone_nm)
+            ),
+            "[control].paper_dead_zone_nm",
+            f"needs {n} values >= 0 (or none)",
+        )
+        require(
+            self.strategy != "paper"
+            or (self.paper_adaptation_per_s == 0 or len(self.omega_adaptation_min_torque_nm) == n),
+            "[control].omega_adaptation_min_torque_nm",
+            f"needs {n} values > 0: the paper's adaptation uses its floors",
         )
         require(
             0.0 < self.admittance_mass_fraction <= 2.0,

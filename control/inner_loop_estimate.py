@@ -48,6 +48,39 @@ import numpy as np
 REJECT_SIGMA = 5.0
 
 
+def cycle_means(
+    q_cmd: Sequence[float],
+    dq_cmd: Sequence[float],
+    q_start: Sequence[float],
+    q_end: Sequence[float],
+    period_s: float,
+    dq_start: Sequence[float] | None = None,
+    dq_end: Sequence[float] | None = None,
+    ticks: int = 0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(u₁, u₂)`` = (mean(dq_c - dq) [rad/s], mean(q_c - q) [rad]) per joint over the cycle
+    the command (q_cmd, dq_cmd) drove, from the measured positions at its start and end (module
+    docstring); with the drive's servo ``ticks`` per cycle and the measured velocities, the
+    means its PI saw (it samples the state at each tick's start). Non-finite inputs give
+    non-finite means."""
+    qc, dqc = np.asarray(q_cmd, float), np.asarray(dq_cmd, float)
+    q0, q1 = np.asarray(q_start, float), np.asarray(q_end, float)
+    with np.errstate(all="ignore"):
+        u1 = dqc - (q1 - q0) / period_s
+        if ticks and dq_start is not None and dq_end is not None:
+            dq0, dq1 = np.asarray(dq_start, float), np.asarray(dq_end, float)
+            u1 = u1 - (dq0 - dq1) / ticks
+            u2 = (
+                qc
+                + 0.5 * period_s * (1 - 1 / ticks) * dqc
+                - 0.5 * (q0 + q1)
+                + (q1 - q0) / (2 * ticks)
+            )
+        else:
+            u2 = qc + 0.5 * period_s * dqc - 0.5 * (q0 + q1)
+    return u1, u2
+
+
 class InnerLoopEstimator:
     """Per-joint RLS on eq. (19) (module docstring). Feed it one cycle at a time."""
 
@@ -94,22 +127,9 @@ class InnerLoopEstimator:
     ) -> None:
         """One cycle the drive followed as sent: its command, the measured positions at the
         cycle's start and end [rad], the reported mean current [A], the cycle [s]."""
-        qc, dqc = np.asarray(q_cmd, float), np.asarray(dq_cmd, float)
-        q0, q1 = np.asarray(q_start, float), np.asarray(q_end, float)
         i = np.asarray(current_a, float)
+        u1, u2 = cycle_means(q_cmd, dq_cmd, q_start, q_end, period_s, dq_start, dq_end, ticks)
         with np.errstate(all="ignore"):  # a non-finite state is skipped below
-            u1 = dqc - (q1 - q0) / period_s
-            u2 = qc + 0.5 * period_s * dqc - 0.5 * (q0 + q1)
-            if ticks and dq_start is not None and dq_end is not None:
-                # the drive's servo ticks: the PI sees the state at each tick's start
-                dq0, dq1 = np.asarray(dq_start, float), np.asarray(dq_end, float)
-                u1 = u1 - (dq0 - dq1) / ticks
-                u2 = (
-                    qc
-                    + 0.5 * period_s * (1 - 1 / ticks) * dqc
-                    - 0.5 * (q0 + q1)
-                    + (q1 - q0) / (2 * ticks)
-                )
             x = np.stack([self.kp0 * u1, self.ki0 * u2, np.ones_like(u1)], axis=1)  # (n, 3)
         if not (np.all(np.isfinite(x)) and np.all(np.isfinite(i))):
             return

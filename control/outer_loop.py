@@ -37,6 +37,55 @@ cycle c is the mean current over the cycle that command c - 1 - d drove, d the c
 filter settles long before ω̂ moves. The operator's hand does not enter τ_m - τ_d (both are
 motor torques): holding the tool against a stop does not drift ω̂. Υ̂_I and the dynamic
 parameters (eqs. 29, 30) stay at their identified values.
+
+**The paper's laws (28) and (30) together** (:class:`PaperAdaptation`, ``[control] strategy =
+"paper"``). Eq. (23) says the torque the drive delivers is
+
+    τ = τ_d + K* [(ω̂ - ω) τ_d - (Υ̂_I - Υ_I)(q_c - q)],
+
+so with e = τ_m - τ_d (measured minus desired), gradient descent on e²/2 is eq. (28),
+``dω̂/dt = -Λ τ_d e``, and ``dΥ̂_I/dt = +Λ_I (q_c - q) e``. The paper prints eq. (30) with a
+minus sign; with its eq. (26) its Lyapunov derivative (31) is then ``-eᵀe`` plus a cross term
+of either sign, so we take the sign for which V̇ ≤ 0 (only the two laws' relative sign
+matters: the paper's e = τ̂_d - τ_d flips both). Three things keep the laws from being used as
+printed:
+
+- *The drive does not receive eq. (21) as designed.* Commands arrive a cycle late, are held
+  over a cycle and limited, so ``(dq_c - dq) + Υ̂_I (q_c - q) = ω̂ τ_d`` holds only roughly,
+  and a gradient on the designed τ_d and q_c - q learns that mismatch as a gain error (a
+  one-joint simulation of the drive with a one-cycle command delay ended 20-75 % off). So
+  the regressors are the ones the drive actually saw, the cycle means u₁ = mean(dq_c - dq)
+  and u₂ = mean(q_c - q) of the command that drove the cycle (:func:`cycle_means` of
+  control/inner_loop_estimate.py):
+  eq. (19) says ``τ_m = K* (u₁ + Υ_I u₂)``, the estimates predict
+  ``τ̂ = (u₁ + Υ̂_I u₂)/ω̂`` (= τ_d when the command went out as designed, which makes this
+  eqs. 28 and 30), and the laws descend the gradient of ``(τ_m - τ̂)²/2``.
+- *The paper's gains diverge at our rate.* Λ = 0.01 in SI units makes the step of eq. (28)
+  over one 4 ms cycle Λ τ_d² K* T ≈ 10⁴ (J2: τ_d ≈ 500 N·m, K* ≈ 2.6·10⁴ N·m·s/rad), where a
+  discrete gradient diverges beyond 2. The laws run as one normalised gradient in the logs of
+  ω̂ and Υ̂_I (which keeps both positive), the paper's ratio Λ_I/Λ = 2 kept
+  (``upsilon_ratio``): with φ = ∂τ̂/∂(ln ω̂, ln Υ̂_I) = (-τ̂, Υ̂_I u₂ / ω̂) [N·m],
+
+      (ln ω̂, ln Υ̂_I) ← (ln ω̂, ln Υ̂_I) + γ T diag(1, Λ_I/Λ) φ s / |φ|,
+      s = clip((τ_m - τ̂) / |φ|, ±0.5),
+
+  outside a dead zone |τ_m - τ̂| ≤ ν (3 standard deviations of the motor torque measured in
+  the hold before teaching, at least ``dead_zone_nm``: below it the error is the current's
+  noise, the paper's bound ν on the unmodelled part) and with |φ| above the adaptation's
+  torque floor.
+- *ω̂(0) = 0 commands no torque*: the arm would fall while ω̂ grows. ω̂(0) is the hold's
+  calibration (:meth:`OuterLoop.calibrate_from_hold`, which makes the static gain 1 for any
+  Υ̂_I); Υ̂_I(0) is the commissioned value or the paper's 1.2/s. Both stay within
+  ``bound_factor`` of where they started.
+
+**What the gradient cannot do quickly.** K_p enters only through u₁, the velocity error,
+which in teaching is a few per cent of Υ_I u₂ (the offset filter keeps dq_c close to dq; the
+online estimate measured 1-6 % on the virtual cell). φ then points almost along (-1, 1): the
+static gain K K_I = Υ_I/ω converges in seconds, but ω̂ and Υ̂_I apart converge with a time
+constant of about 20 s at u₁ = 10 % of Υ_I u₂, 70 s at 3 % and 200 s at 1 % (γ = 1/s,
+one joint fed eq. 19's torque: tests/unit/test_paper_adaptation.py). Least squares, which
+inverts the regressors' covariance, separates them within seconds where the data allow
+(control/inner_loop_estimate.py).
 """
 
 from __future__ import annotations
@@ -73,6 +122,33 @@ class OmegaAdaptation:
             raise ValueError(f"adaptation min_torque_nm needs {n} values > 0")
         if not 0 <= self.delay_cycles <= 10:
             raise ValueError(f"adaptation delay {self.delay_cycles} not in 0..10 cycles")
+
+
+@dataclass(frozen=True)
+class PaperAdaptation:
+    """Settings of eqs. (28) and (30) together (module docstring, "The paper's laws")."""
+
+    #: γ: how fast the estimates converge [1/s] (the paper's Λ, normalised)
+    rate_per_s: float
+    #: per joint: no adaptation while |φ| is below this [N·m]
+    min_torque_nm: tuple[float, ...]
+    #: Λ_I / Λ (the paper: 0.02 / 0.01)
+    upsilon_ratio: float = 2.0
+    #: per joint: the dead zone's floor on |τ_m - τ̂| [N·m] (the hold's noise may widen it)
+    dead_zone_nm: tuple[float, ...] = ()
+    #: ω̂ and Υ̂_I stay within this factor of where they started
+    bound_factor: float = 50.0
+
+    def check(self, n: int) -> None:
+        OmegaAdaptation(self.rate_per_s, self.min_torque_nm).check(n)
+        if not (math.isfinite(self.upsilon_ratio) and self.upsilon_ratio >= 0):
+            raise ValueError(f"adaptation upsilon_ratio {self.upsilon_ratio} must be >= 0")
+        if self.dead_zone_nm and (
+            len(self.dead_zone_nm) != n or not all(v >= 0 for v in self.dead_zone_nm)
+        ):
+            raise ValueError(f"adaptation dead_zone_nm needs {n} values >= 0")
+        if not (math.isfinite(self.bound_factor) and self.bound_factor > 1):
+            raise ValueError(f"adaptation bound_factor {self.bound_factor} must be > 1")
 
 
 class HoldAverage:
@@ -129,44 +205,61 @@ class OuterLoop:
         upsilon_i: np.ndarray,
         max_offset_rad: np.ndarray,
         max_velocity_rad_s: np.ndarray,
-        adaptation: OmegaAdaptation | None = None,
+        adaptation: OmegaAdaptation | PaperAdaptation | None = None,
     ) -> None:
         self.omega0 = _constant(omega)
-        self.upsilon_i = _constant(upsilon_i)
+        self.upsilon_i0 = _constant(upsilon_i)
         self.max_offset_rad = _constant(max_offset_rad)
         self.max_velocity_rad_s = _constant(max_velocity_rad_s)
         n = self.omega0.shape[0]
-        for name in ("upsilon_i", "max_offset_rad", "max_velocity_rad_s"):
+        for name in ("upsilon_i0", "max_offset_rad", "max_velocity_rad_s"):
             if getattr(self, name).shape != (n,):
                 raise ValueError(f"{name} must have {n} values")
-        if np.any(self.omega0 <= 0) or np.any(self.upsilon_i <= 0):
+        if np.any(self.omega0 <= 0) or np.any(self.upsilon_i0 <= 0):
             raise ValueError("omega and upsilon_i must be positive (eq. 21)")
         self.adaptation = adaptation
         if adaptation is not None:
             adaptation.check(n)
-        #: ω̂ per joint (eq. 28 adapts it)
+        #: ω̂ and Υ̂_I per joint (eq. 28 adapts ω̂; PaperAdaptation both, eqs. 28 and 30)
         self._omega: list[float] = self.omega0.tolist()
-        self._omega_lo = (0.5 * self.omega0).tolist()
-        self._omega_hi = (2.0 * self.omega0).tolist()
+        self._ups: list[float] = self.upsilon_i0.tolist()
+        wide = adaptation.bound_factor if isinstance(adaptation, PaperAdaptation) else 2.0
+        self._omega_lo = (self.omega0 / wide).tolist()
+        self._omega_hi = (self.omega0 * wide).tolist()
+        self._ups_lo = (self.upsilon_i0 / wide).tolist()
+        self._ups_hi = (self.upsilon_i0 * wide).tolist()
+        #: per joint, PaperAdaptation's dead zone [N·m] (:meth:`set_dead_zone`)
+        self._dead_zone: list[float] = [0.0] * n
+        if isinstance(adaptation, PaperAdaptation) and adaptation.dead_zone_nm:
+            self._dead_zone = list(adaptation.dead_zone_nm)
         #: τ_d of the last cycles, newest last, each with whether its command went out as
         #: computed (no limit hit), for eq. (28) (None: no command that cycle)
         self._sent: list[tuple[list[float], bool] | None] = []
-        #: per joint: Υ_I, offset limit, velocity limit
+        #: per joint: offset limit, velocity limit
         self._joints = list(
-            zip(
-                self.upsilon_i.tolist(),
-                self.max_offset_rad.tolist(),
-                self.max_velocity_rad_s.tolist(),
-                strict=True,
-            )
+            zip(self.max_offset_rad.tolist(), self.max_velocity_rad_s.tolist(), strict=True)
         )
-        self._decay: tuple[float, list[float]] = (math.nan, [])  #: (dt, exp(-Υ_I dt)) cached
+        #: (dt, the Υ̂_I, exp(-Υ̂_I dt)) cached
+        self._decay: tuple[float, list[float], list[float]] = (math.nan, [], [])
         self._offset: list[float] = [0.0] * n
 
     @property
     def omega(self) -> np.ndarray:
         """ω̂ per joint now [rad/s per N·m] (a copy)."""
         return np.array(self._omega)
+
+    @property
+    def upsilon_i(self) -> np.ndarray:
+        """Υ̂_I per joint now [1/s] (a copy)."""
+        return np.array(self._ups)
+
+    def set_dead_zone(self, noise_std_nm: list[float]) -> None:
+        """PaperAdaptation's dead zone from the motor torque's noise measured at rest [N·m]:
+        3 standard deviations per joint, at least the configured floor."""
+        a = self.adaptation
+        if isinstance(a, PaperAdaptation):
+            floor = a.dead_zone_nm or (0.0,) * len(self._dead_zone)
+            self._dead_zone = [max(f, 3.0 * s) for f, s in zip(floor, noise_std_nm, strict=True)]
 
     @property
     def offset_rad(self) -> np.ndarray:
@@ -190,7 +283,7 @@ class OuterLoop:
         in this state (K × reported current), or None when the cycle just ended did not follow
         the commands as sent (a hold, a coast, a missed cycle): the history is dropped."""
         a = self.adaptation
-        if a is None:
+        if not isinstance(a, OmegaAdaptation):
             return
         if tau_m_nm is None:
             self._sent = []
@@ -210,6 +303,36 @@ class OuterLoop:
                 r = 0.5 if r > 0.5 else -0.5 if r < -0.5 else r
                 self._project(j, omega[j] * math.exp(-step * r))
 
+    def adapt_paper(
+        self,
+        u1_rad_s: list[float],
+        u2_rad: list[float],
+        tau_m_nm: list[float],
+        dt_s: float,
+    ) -> None:
+        """Eqs. (28) and (30) (PaperAdaptation; module docstring) for a cycle the drive followed
+        as sent: its means u₁ = mean(dq_c - dq) [rad/s] and u₂ = mean(q_c - q) [rad], and the
+        motor torque measured over it [N·m]. No-op with another adaptation."""
+        a = self.adaptation
+        if not isinstance(a, PaperAdaptation):
+            return
+        step = a.rate_per_s * dt_s
+        for j, (u1, u2, tm, floor, nu) in enumerate(
+            zip(u1_rad_s, u2_rad, tau_m_nm, a.min_torque_nm, self._dead_zone, strict=True)
+        ):
+            w, u = self._omega[j], self._ups[j]
+            p2 = u * u2 / w
+            p1 = -(u1 / w + p2)  # -τ̂
+            r = tm + p1  # τ_m - τ̂
+            norm = math.hypot(p1, p2)
+            if not (norm > floor and (r > nu or r < -nu)):  # NaN: no step
+                continue
+            s = r / norm
+            s = 0.5 if s > 0.5 else -0.5 if s < -0.5 else s
+            self._project(j, w * math.exp(step * p1 / norm * s))
+            u *= math.exp(step * a.upsilon_ratio * p2 / norm * s)
+            self._ups[j] = min(max(u, self._ups_lo[j]), self._ups_hi[j])
+
     def calibrate_from_hold(self, offset_rad: list[float], tau_m_nm: list[float]) -> None:
         """ω̂ from the drive holding the arm at rest (module docstring): there eq. (19) is
         ``K i = K K_I (q_c - q)``, so the measured ``tau_m_nm`` over the held offset
@@ -221,17 +344,18 @@ class OuterLoop:
         if a is None:
             return
         for j, (e, tm, floor, ups) in enumerate(
-            zip(offset_rad, tau_m_nm, a.min_torque_nm, self.upsilon_i.tolist(), strict=True)
+            zip(offset_rad, tau_m_nm, a.min_torque_nm, self._ups, strict=True)
         ):
             if (tm > floor or tm < -floor) and e * tm > 0:
                 self._project(j, ups * e / tm)
 
     def _project(self, j: int, omega: float) -> None:
-        """Set ω̂ of joint j to ``omega`` projected onto [ω̂₀/2, 2 ω̂₀]."""
+        """Set ω̂ of joint j to ``omega`` projected onto [ω̂₀/2, 2 ω̂₀] (PaperAdaptation:
+        ``bound_factor`` either side of ω̂₀)."""
         self._omega[j] = min(max(omega, self._omega_lo[j]), self._omega_hi[j])
 
     def _remember(self, tau_d_nm: list[float], clean: bool) -> None:
-        if self.adaptation is None:
+        if not isinstance(self.adaptation, OmegaAdaptation):
             return
         self._sent.append((tau_d_nm, clean))
         if len(self._sent) > self.adaptation.delay_cycles + 1:
@@ -271,13 +395,14 @@ class OuterLoop:
         """:meth:`step` on plain floats, the per-cycle form: returns ``(q_cmd, dq_cmd)`` only
         (no saturation flags) and is equal to :meth:`step` to rounding. NaN passes through the
         limits, as in :meth:`step`, for the message layer to refuse."""
-        if self._decay[0] != dt_s:
-            self._decay = (dt_s, np.exp(-self.upsilon_i * dt_s).tolist())
+        if self._decay[0] != dt_s or self._decay[1] != self._ups:
+            ups = list(self._ups)
+            self._decay = (dt_s, ups, [math.exp(-u * dt_s) for u in ups])
         q_cmd, dq_cmd, offset = [], [], []
         clean = True
-        for e, q, dq, tau, dec, omega, (ups, max_e, max_v) in zip(
-            self._offset, q_rad, dq_rad_s, tau_d_nm, self._decay[1], self._omega, self._joints,
-            strict=True,
+        for e, q, dq, tau, dec, omega, ups, (max_e, max_v) in zip(
+            self._offset, q_rad, dq_rad_s, tau_d_nm, self._decay[2], self._omega, self._ups,
+            self._joints, strict=True,
         ):  # fmt: skip
             target = omega * tau / ups
             e_next = target + (e - target) * dec

@@ -29,9 +29,9 @@ from control.declared_model import DeclaredModel
 from control.delay import DelayPredictor
 from control.experiments import build_plan
 from control.identification.inner_loop import read_outer_loop_gains
-from control.inner_loop_estimate import InnerLoopEstimator
+from control.inner_loop_estimate import InnerLoopEstimator, cycle_means
 from control.load_check import REST_RAD_S, LoadCheck, static_load_check
-from control.outer_loop import HoldAverage, OmegaAdaptation, OuterLoop
+from control.outer_loop import HoldAverage, OmegaAdaptation, OuterLoop, PaperAdaptation
 from control.rest_hold import RestHold, hold_band_nm
 from control.robot.description import RobotDescription, load_description
 from control.taught_path import replay_trajectory
@@ -169,16 +169,29 @@ class ZeroMomentController:
         self.cfg = cfg
         self.model = model
         n = model.n
-        adaptation = None
-        if cfg.omega_adaptation_per_s > 0:
+        adaptation: OmegaAdaptation | PaperAdaptation | None = None
+        omega, upsilon_i = np.array(cfg.omega_rad_s_per_nm), np.array(cfg.upsilon_i_per_s)
+        if cfg.strategy == "paper":
+            if cfg.paper_upsilon_i0_per_s > 0:
+                # the paper's Υ̂_I(0); ω̂(0) keeps the commissioned static gain K K_I = Υ_I/ω
+                # (the hold before teaching then calibrates it, :meth:`answer`)
+                omega = omega * cfg.paper_upsilon_i0_per_s / upsilon_i
+                upsilon_i = np.full(n, cfg.paper_upsilon_i0_per_s)
+            if cfg.paper_adaptation_per_s > 0:
+                adaptation = PaperAdaptation(
+                    cfg.paper_adaptation_per_s,
+                    cfg.omega_adaptation_min_torque_nm,
+                    dead_zone_nm=cfg.paper_dead_zone_nm,
+                )
+        elif cfg.omega_adaptation_per_s > 0:
             adaptation = OmegaAdaptation(
                 cfg.omega_adaptation_per_s,
                 cfg.omega_adaptation_min_torque_nm,
                 cfg.command_delay_cycles,
             )
         self.loop = OuterLoop(
-            np.array(cfg.omega_rad_s_per_nm),
-            np.array(cfg.upsilon_i_per_s),
+            omega,
+            upsilon_i,
             np.array(cfg.max_offset_rad),
             np.array(cfg.max_velocity_rad_s),
             adaptation,
@@ -229,8 +242,20 @@ class ZeroMomentController:
             self.inner_estimate = InnerLoopEstimator(
                 kp0, kp0 * np.array(cfg.upsilon_i_per_s), self._k_nm_per_a
             )
+        self._paper = isinstance(adaptation, PaperAdaptation)
+        #: the drive model of the delay predictor, (K K_p, Υ_I), when it is not the law's
+        #: estimates: the paper's law starts far from the drive (Υ̂_I(0) = 1.2/s against
+        #: ~30/s: a K̂* 26 times the drive's made the predictor's explicit integration
+        #: diverge, |q_cmd - q| of 10⁴ rad on the virtual cell), so the predictor keeps the
+        #: commissioned, measured drive
+        self._drive_model: tuple[np.ndarray, np.ndarray] | None = None
+        if cfg.strategy == "paper":
+            self._drive_model = (
+                1.0 / np.array(cfg.omega_rad_s_per_nm),
+                np.array(cfg.upsilon_i_per_s),
+            )
         #: commands sent, newest last (the one that drove a cycle is delay + 1 back), and the
-        #: previous state's (q, dq), for the estimate
+        #: previous state's (q, dq), for the estimate and the paper's adaptation
         self._sent_cmds: deque[tuple[list[float], list[float]]] = deque(
             maxlen=cfg.command_delay_cycles + 1
         )
@@ -393,6 +418,8 @@ class ZeroMomentController:
             # Bumpless: start from the command the robot follows now (the driver's hold).
             if len(self.hold):  # the held offsets and currents measure the drive's K K_I
                 self.loop.calibrate_from_hold(*self.hold.mean())
+                if len(self.hold) >= 2:  # the paper's dead zone: the torque's noise at rest
+                    self.loop.set_dead_zone(self.hold.torque_std())
             self.hold.clear()
             self.loop.reset(st.q_cmd_rad - st.q_rad)
             self.predictor.reset()
@@ -410,8 +437,8 @@ class ZeroMomentController:
         # eq. (28): the torque the drive delivered, if it followed the commands as sent
         followed = gap == 1 and not st.flags & (FLAG_PREV_HOLD | FLAG_PREV_COAST)
         self.loop.adapt_floats(self.motor_torque_nm(st) if followed else None, period)
-        if self.inner_estimate is not None:
-            self._estimate_inner_loop(st, followed, period)
+        if self.inner_estimate is not None or self._paper:
+            self._cycle_regression(st, followed, period)
         q, dq = st.q_rad, st.dq_rad_s
         if self._inertia is not None:
             m_inv = self.inverse_inertia(q)
@@ -419,10 +446,10 @@ class ZeroMomentController:
                 self._ramps = self.friction_ramps(m_inv, period)
                 if self._guided.update(st.dq_rad_s, self._ramps, dt):
                     self._ramps = self._no_ramps
+            k_star, ups = self._drive_model or (1.0 / self.loop.omega, self.loop.upsilon_i)
             q, dq = self.predictor.predict(
-                q, dq, st.q_cmd_rad, st.dq_cmd_rad_s, period, gap == 1, m_inv,
-                1.0 / self.loop.omega, self.loop.upsilon_i,
-            )  # fmt: skip
+                q, dq, st.q_cmd_rad, st.dq_cmd_rad_s, period, gap == 1, m_inv, k_star, ups
+            )
         try:
             q_cmd, dq_cmd = self.cycle_command(q, dq, p_bar, dt)
         except (ValueError, ArithmeticError) as exc:  # where numpy would have given NaN
@@ -435,15 +462,14 @@ class ZeroMomentController:
             if scale < 1.0:
                 dq_cmd = [v * scale for v in dq_cmd]
                 self.loop.taint_last()  # not eq. (21)'s command: eq. (28) skips its cycle
-        if self.inner_estimate is not None:
+        if self.inner_estimate is not None or self._paper:
             self._sent_cmds.append((q_cmd, dq_cmd))
         return q_cmd, dq_cmd
 
-    def _estimate_inner_loop(self, st: JointState, followed: bool, period_s: float) -> None:
-        """Feed the cycle that just ended to :attr:`inner_estimate` if the drive followed the
-        command that drove it as sent."""
+    def _cycle_regression(self, st: JointState, followed: bool, period_s: float) -> None:
+        """Feed the cycle that just ended to :attr:`inner_estimate` and the paper's
+        adaptation (eqs. 28, 30) if the drive followed the command that drove it as sent."""
         est, prev = self.inner_estimate, self._prev_state
-        assert est is not None
         self._prev_state = (st.q_rad, st.dq_rad_s)
         if not followed or prev is None:
             self._sent_cmds.clear()
@@ -452,11 +478,17 @@ class ZeroMomentController:
             return
         q_cmd, dq_cmd = self._sent_cmds[0]
         rate = self.cfg.drive_servo_rate_hz
-        est.update(
-            q_cmd, dq_cmd, prev[0], st.q_rad, st.current_a, period_s,
-            dq_start=prev[1], dq_end=st.dq_rad_s,
-            ticks=round(period_s * rate) if rate else 0,
-        )  # fmt: skip
+        ticks = round(period_s * rate) if rate else 0
+        if est is not None:
+            est.update(
+                q_cmd, dq_cmd, prev[0], st.q_rad, st.current_a, period_s,
+                dq_start=prev[1], dq_end=st.dq_rad_s, ticks=ticks,
+            )  # fmt: skip
+        if self._paper:
+            u1, u2 = cycle_means(
+                q_cmd, dq_cmd, prev[0], st.q_rad, period_s, prev[1], st.dq_rad_s, ticks
+            )
+            self.loop.adapt_paper(u1.tolist(), u2.tolist(), self.motor_torque_nm(st), period_s)
 
     def cycle_command(
         self, q_rad: np.ndarray, dq_rad_s: np.ndarray, p_bar: Sequence[float], dt_s: float
@@ -1051,6 +1083,7 @@ class ControlProcess:
                     "tau_d_nm": [round(float(v), 3) for v in self.ctl.tau_d_nm],
                     "offset_rad": [round(float(v), 6) for v in self.ctl.loop.offset_rad],
                     "omega_rad_s_per_nm": [float(f"{v:.5g}") for v in self.ctl.loop.omega],
+                    "upsilon_i_per_s": [float(f"{v:.5g}") for v in self.ctl.loop.upsilon_i],
                 }
                 if isinstance(self.ctl, AdmittanceController):
                     adm = self.ctl.admittance

@@ -22,13 +22,19 @@ Strategies:
   cylinders and every injected effect taken away, dragged through the same hand (the plant
   alone, faster than real time). What it costs is the arm's inertia (and the hand's own
   spring-damper), which a law can only lower by rendering less than the arm's mass;
+- ``paper``: the paper's adaptive method, ``[control] strategy = "paper"``: the zero-moment
+  law with eqs. (28) and (30) adapting ω̂ and Υ̂_I together from the measured current
+  (control/outer_loop.py, PaperAdaptation), Υ̂_I starting from the paper's 1.2/s and ω̂ from
+  the same static gain as commissioned, run as ``best`` is;
 - ``best``: the product's zero-moment lead-through (the whole product on the virtual cell as
-  separate processes, real time, the controller applying each command one cycle late);
+  separate processes, real time, the controller applying each command one cycle late; ω̂
+  adapted by the normalised eq. 28 alone, Υ̂_I as commissioned);
 - ``admittance``: the product's sensorless admittance (``[control] strategy = "admittance"``,
   control/admittance.py), run as ``best`` is.
 
-The paper's adaptive method with its own settings (eqs. 28-30) is a further strategy of issue
-9 that the product does not have yet; it is not listed.
+Eq. (29), the adaptation of the dynamic parameters, is not run while teaching: the hand's
+torque is indistinguishable from a model error in the measured current, so it would be learnt
+as part of the robot.
 
 Per strategy: force statistics over the *moving* part of the path (the painter's target
 moving; the corner dwells are reported apart), the moment of the hand's force about the
@@ -36,11 +42,10 @@ flange (where the paper's force sensor sits), the tool's distance from the inten
 (p95) and whether the operator got to the end of it (:data:`COMPLETED_WITHIN_M`). Writes
 ``OUT/summary.json`` and ``OUT/teach_bench.png``.
 
-``adaptation`` in the summary (from the ``best`` run) compares the loop's estimates with the
-plant's hidden inner gains, which this harness reads for scoring only: ω̂ as the control
-process last published it (eq. 28 adapts it to the measured current on joints that carry
-load) against ω = 1/(K·K_p), and Υ̂_I = ω̂_I (the commissioned value; the control law does not
-adapt it) against K_I/K_p. K is the datasheet torque constant, the one the product measures
+``adaptation`` in the summary (from the ``paper`` run, else ``best``) compares the loop's
+estimates with the plant's hidden inner gains, which this harness reads for scoring only: ω̂
+and Υ̂_I = ω̂_I as the control process last published them against ω = 1/(K·K_p) and
+K_I/K_p. K is the datasheet torque constant, the one the product measures
 torque with (the plant's own differs by its drawn error). With ``--online-estimate`` the
 control process also runs its online estimate of K_p and K_I (``[control]
 inner_loop_estimate``, with a :data:`DITHER_A` torque dither so that teaching excites K_p) and
@@ -83,9 +88,14 @@ TREMOR_M, TREMOR_HZ = 0.0005, 9.0
 COMPLETED_WITHIN_M = 0.05
 #: the target is moving when it moves faster than this [m/s]
 MOVING_M_S = 1e-3
-STRATEGIES = ("offservo", "inertia", "best", "admittance")
-#: the ``[control]`` settings of each product strategy
-PRODUCT_STRATEGIES = {"best": {}, "admittance": {"strategy": "admittance"}}
+STRATEGIES = ("offservo", "inertia", "paper", "best", "admittance")
+#: the ``[control]`` settings of each product strategy; "paper" starts Υ̂_I from the paper's
+#: 1.2/s and adapts it with ω̂ (eqs. 28, 30; control/outer_loop.py)
+PRODUCT_STRATEGIES = {
+    "paper": {"strategy": "paper", "paper_upsilon_i0_per_s": 1.2},
+    "best": {},
+    "admittance": {"strategy": "admittance"},
+}
 #: ``--online-estimate``: the torque dither that lets the online inner-loop estimate see K_p,
 #: per joint [A] (control/inner_loop_estimate.py)
 DITHER_A = 0.03
@@ -301,7 +311,10 @@ def adaptation_report(
     k = np.array(nominal.drives.gain_nm_per_a)  # the datasheet's: the product's torque unit
     omega_true = 1.0 / (k * plant.kp)
     omega_i_true = plant.ki / plant.kp
-    omega_i_hat = np.array(inner_loop["upsilon_i_per_s"], dtype=float)
+    adapted_ups = (telemetry or {}).get("upsilon_i_per_s")
+    omega_i_hat = np.array(
+        adapted_ups if adapted_ups is not None else inner_loop["upsilon_i_per_s"], dtype=float
+    )
     omega_hat = (
         np.array(telemetry["omega_rad_s_per_nm"], dtype=float)
         if telemetry is not None
@@ -315,6 +328,7 @@ def adaptation_report(
         "omega_ratio": (omega_hat / omega_true).round(4).tolist(),
         "omega_i_ratio": (omega_i_hat / omega_i_true).round(4).tolist(),
         "omega_source": "control telemetry" if telemetry is not None else "commissioned",
+        "omega_i_source": "control telemetry" if adapted_ups is not None else "commissioned",
     }
     online = (telemetry or {}).get("inner_loop_estimate")
     if online:
@@ -416,7 +430,7 @@ def plot(series: dict[str, dict[str, np.ndarray]], out_png: Path) -> None:
 def print_adaptation(adaptation: dict[str, Any]) -> None:
     """Per joint, estimate / truth of ω and ω_I (and of the online estimate, if any)."""
     rows = [(f"omega ({adaptation['omega_source']})", adaptation["omega_ratio"]),
-            ("omega_I (commissioned)", adaptation["omega_i_ratio"])]  # fmt: skip
+            (f"omega_I ({adaptation['omega_i_source']})", adaptation["omega_i_ratio"])]  # fmt: skip
     online = adaptation.get("online_estimate")
     if online:
         rows += [(f"omega (online, {online['seconds']} s)", online["omega_ratio"]),
@@ -507,8 +521,9 @@ def cli_main(args: argparse.Namespace) -> int:
         "strategies": results,
     }
     reports = {name: r.pop("_adaptation", None) for name, r in results.items()}
-    # the paper's adaptation runs in the zero-moment law; the admittance's ω̂ stays calibrated
-    adaptation = reports.get("best") or reports.get("admittance")
+    # the paper's law adapts ω̂ and Υ̂_I (eqs. 28, 30), best's ω̂ only (eq. 28); the
+    # admittance's ω̂ stays calibrated
+    adaptation = reports.get("paper") or reports.get("best") or reports.get("admittance")
     if adaptation is not None:
         summary["adaptation"] = adaptation
     series = {name: r.pop("_series") for name, r in results.items()}
