@@ -105,8 +105,17 @@ class ControlConfig:
     #: broke J1's stiction away reached 252 mm/s (the burst as the stuck joint lets go
     #: outruns the scaled command), so the default keeps 12 % below it
     max_tool_speed_m_s: float = 0.22
-    #: cylinder pressure set-points sent to the valves [bar]
+    #: cylinder pressure set-points sent to the valves [bar]: always, or with the schedule on,
+    #: during identification (they ramp back to these)
     pressure_setpoint_bar: tuple[float, float] = (6.0, 4.0)
+    #: in teaching and replay, set-points scheduled from the arm's pose: each cylinder asked
+    #: for ``pressure_schedule_share`` of its joint's static load, within
+    #: ``pressure_schedule_range_bar``, moving at most ``pressure_schedule_rate_bar_per_s``
+    #: (control/pressure_schedule.py)
+    pressure_schedule: bool = True
+    pressure_schedule_share: float = 0.8
+    pressure_schedule_range_bar: tuple[float, float] = (0.5, 8.0)
+    pressure_schedule_rate_bar_per_s: float = 2.0
     #: I/O older than this: no command is published (the CAN driver then holds) [s]
     io_timeout_s: float = 0.25
     lifecycle_timeout_s: float = 0.25
@@ -311,6 +320,24 @@ class ControlConfig:
             math.isfinite(self.friction_ramp_factor) and self.friction_ramp_factor >= 0,
             "[control].friction_ramp_factor",
             f"{self.friction_ramp_factor} must be a number >= 0",
+        )
+        require(
+            math.isfinite(self.pressure_schedule_share)
+            and 0.0 <= self.pressure_schedule_share <= 1.0,
+            "[control].pressure_schedule_share",
+            f"{self.pressure_schedule_share} not in [0, 1]",
+        )
+        lo_hi = self.pressure_schedule_range_bar
+        require(
+            len(lo_hi) == 2 and 0.0 <= lo_hi[0] <= lo_hi[1] <= 10.0,
+            "[control].pressure_schedule_range_bar",
+            f"{lo_hi} is not [min, max] within 0-10 bar",
+        )
+        require(
+            math.isfinite(self.pressure_schedule_rate_bar_per_s)
+            and 0.0 < self.pressure_schedule_rate_bar_per_s <= 10.0,
+            "[control].pressure_schedule_rate_bar_per_s",
+            f"{self.pressure_schedule_rate_bar_per_s} not in (0, 10] bar/s",
         )
         require(
             all(0 <= p <= 10 for p in self.pressure_setpoint_bar),

@@ -119,7 +119,8 @@ def truth_log_columns(n: int) -> list[str]:
     cols = ["t_s", "wall_s", "cycle", "ctrl_state", "teaching", "enabling"]
     for name in ("q", "dq", "i"):
         cols += [f"{name}{j + 1}" for j in range(n)]
-    cols += ["tool_x", "tool_y", "tool_z", "f_x", "f_y", "f_z", "p2", "p3", "latency_s"]
+    cols += ["tool_x", "tool_y", "tool_z", "f_x", "f_y", "f_z", "p2", "p3"]
+    cols += ["p2_set", "p3_set", "latency_s"]  # the valves' set-points as received [bar]
     return cols
 
 
@@ -286,7 +287,15 @@ class VirtualCell:
         if self._log:
             # One %-format of plain floats: a third of the cost of formatting each value.
             values = np.concatenate(
-                (q_m, dq_m, i_m, plant.tool_position_m(), plant.hand_force_n, p_meas)
+                (
+                    q_m,
+                    dq_m,
+                    i_m,
+                    plant.tool_position_m(),
+                    plant.hand_force_n,
+                    p_meas,
+                    plant.pressure_set_bar,
+                )
             ).tolist()
             self._log.write(
                 self._row_format

@@ -39,7 +39,10 @@ as part of the robot.
 Per strategy: force statistics over the *moving* part of the path (the painter's target
 moving; the corner dwells are reported apart), the moment of the hand's force about the
 flange (where the paper's force sensor sits), the tool's distance from the intended path
-(p95) and whether the operator got to the end of it (:data:`COMPLETED_WITHIN_M`). Writes
+(p95) and whether the operator got to the end of it (:data:`COMPLETED_WITHIN_M`); for the
+product's strategies also the motor torque's RMS per joint (the datasheet's K × the reported
+current: what the cylinders leave the motors) and the range of the cylinder set-points the
+valves received (``[control] pressure_schedule``). Writes
 ``OUT/summary.json`` and ``OUT/teach_bench.png``.
 
 ``adaptation`` in the summary (from the ``paper`` run, else ``best``) compares the loop's
@@ -400,6 +403,16 @@ def run_best(
     tau = truth["t_s"][rows] - truth["t_s"][rows[0]]
     out = metrics(path, tau, tool, tool[0], force, _flange_positions(plant_seed, q))
     out["commands_missed"] = int(np.sum(np.isnan(truth["latency_s"][rows])))
+    # what the motors carried (the datasheet's K × the reported current), RMS per joint: the
+    # cylinders' share of the load shows here ([control] pressure_schedule)
+    k = np.array(load_sim_config().drives.gain_nm_per_a)
+    current = np.stack([truth[f"i{j + 1}"][rows] for j in range(6)], axis=1)
+    out["motor_torque_rms_nm"] = np.sqrt(np.mean((current * k) ** 2, axis=0)).round(1).tolist()
+    out["pressure_set_bar"] = {
+        f"p{j}": [round(float(v), 2) for v in (truth[f"p{j}_set"][rows].min(),
+                                              truth[f"p{j}_set"][rows].max())]
+        for j in (2, 3)
+    }  # fmt: skip
     out["controller_faults"] = summary.get("faults", [])
     out["completed"] = out["completed"] and not out["controller_faults"]
     out["model"] = str(done.model)
