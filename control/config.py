@@ -116,6 +116,16 @@ class ControlConfig:
     pressure_schedule_share: float = 0.8
     pressure_schedule_range_bar: tuple[float, float] = (0.5, 8.0)
     pressure_schedule_rate_bar_per_s: float = 2.0
+    #: eq. (29): while a program replays (free motion, position mode), a point mass on the
+    #: last link adapts to the measured motor torque, within ``model_adaptation_max_mass_kg``
+    #: at ``model_adaptation_max_reach_m`` from the flange, converging at about
+    #: ``model_adaptation_rate_per_s``; the zero-moment law takes it at the next teaching.
+    #: Never while teaching: the hand is indistinguishable from a payload there
+    #: (control/model_adaptation.py). Needs an identified model with its held-out RMS.
+    model_adaptation: bool = True
+    model_adaptation_rate_per_s: float = 0.5
+    model_adaptation_max_mass_kg: float = 15.0
+    model_adaptation_max_reach_m: float = 0.5
     #: I/O older than this: no command is published (the CAN driver then holds) [s]
     io_timeout_s: float = 0.25
     lifecycle_timeout_s: float = 0.25
@@ -321,6 +331,14 @@ class ControlConfig:
             "[control].friction_ramp_factor",
             f"{self.friction_ramp_factor} must be a number >= 0",
         )
+        for key, most in (
+            ("model_adaptation_rate_per_s", 10.0),
+            ("model_adaptation_max_mass_kg", 100.0),
+            ("model_adaptation_max_reach_m", 2.0),
+        ):
+            v = getattr(self, key)
+            ok = math.isfinite(v) and 0.0 < v <= most
+            require(ok, f"[control].{key}", f"{v} not in (0, {most}]")
         require(
             math.isfinite(self.pressure_schedule_share)
             and 0.0 <= self.pressure_schedule_share <= 1.0,

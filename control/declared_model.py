@@ -18,6 +18,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pinocchio as pin
@@ -27,6 +28,9 @@ from control.model.dynamics import RigidBodyModel
 from control.model.friction import Eq15Friction, FrictionParams
 from control.robot.description import RobotDescription, load_description
 from gateway.config import ConfigError, from_mapping, load_toml, require, resolve_path
+
+if TYPE_CHECKING:
+    from control.identification.fit import IdentifiedModel
 
 MODEL_FORMAT = "leadthrough-model"
 MODEL_VERSION = 1
@@ -116,22 +120,26 @@ class IdentifiedControlModel(DeclaredModel):
     stay on the description's eqs. (10), (12): they were taken out before fitting.
     """
 
-    def __init__(self, path: Path) -> None:
+    def __init__(self, path: Path | IdentifiedModel, desc: RobotDescription | None = None) -> None:
+        """From a ``model.json`` path, or an :class:`IdentifiedModel` already in memory (the
+        model adapted in replay, control/model_adaptation.py)."""
         from control.identification.fit import IdentifiedModel
         from control.identification.point import PointModel
 
-        self.identified = IdentifiedModel.load(path)
+        loaded = isinstance(path, IdentifiedModel)
+        where = "model" if loaded else str(path)
+        self.identified = path if loaded else IdentifiedModel.load(path)
         self.point = PointModel(self.identified)
-        self.desc = load_description()
+        self.desc = desc or load_description()
         self.n = len(self.desc.joints)
         if self.identified.n != self.n:
-            raise ConfigError(f"{path}: model has {self.identified.n} joints, robot {self.n}")
+            raise ConfigError(f"{where}: model has {self.identified.n} joints, robot {self.n}")
         self._zeros = np.zeros(self.n)
         self.cylinders = CylinderTorques(self.desc, self.n)
         rms = self.identified.metadata.get("heldout_rms_nm")
         self.heldout_rms_nm = None if rms is None else tuple(float(v) for v in rms)
         if rms is not None and (len(rms) != self.n or not all(v >= 0 for v in rms)):
-            raise ConfigError(f"{path}: heldout_rms_nm {rms} is not {self.n} values >= 0")
+            raise ConfigError(f"{where}: heldout_rms_nm {rms} is not {self.n} values >= 0")
 
     def gravity_nm(self, q_rad: np.ndarray) -> np.ndarray:
         return self.identified.torque_nm(q_rad, self._zeros, self._zeros)

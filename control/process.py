@@ -25,12 +25,13 @@ import numpy as np
 
 from control.admittance import Admittance, EngageProbe
 from control.config import ControlConfig
-from control.declared_model import DeclaredModel
+from control.declared_model import DeclaredModel, IdentifiedControlModel
 from control.delay import DelayPredictor
 from control.experiments import build_plan
 from control.identification.inner_loop import read_outer_loop_gains
 from control.inner_loop_estimate import InnerLoopEstimator, cycle_means
 from control.load_check import REST_RAD_S, LoadCheck, static_load_check
+from control.model_adaptation import AdaptationSettings, PayloadAdaptation
 from control.outer_loop import HoldAverage, OmegaAdaptation, OuterLoop, PaperAdaptation
 from control.pressure_schedule import PressureSchedule, ScheduleSettings
 from control.rest_hold import RestHold, hold_band_nm
@@ -949,6 +950,25 @@ class ControlProcess:
             self.schedule = PressureSchedule(desc.cylinders, settings, cfg.pressure_setpoint_bar)
         self._last_q: np.ndarray | None = None
         self._last_dq: np.ndarray | None = None
+        #: eq. (29) in replay (control/model_adaptation.py), and the version of it the law
+        #: compensates
+        self.adaptation: PayloadAdaptation | None = None
+        self._adaptation_applied = 0
+        model = None if self.ctl is None else self.ctl.model
+        if cfg.model_adaptation and isinstance(model, IdentifiedControlModel):
+            if model.heldout_rms_nm is None:
+                log.warning("model adaptation off: %s has no held-out RMS", cfg.model)
+            else:
+                self.adaptation = PayloadAdaptation(
+                    model.identified,
+                    model.desc,
+                    model.heldout_rms_nm,
+                    AdaptationSettings(
+                        rate_per_s=cfg.model_adaptation_rate_per_s,
+                        max_mass_kg=cfg.model_adaptation_max_mass_kg,
+                        max_reach_m=cfg.model_adaptation_max_reach_m,
+                    ),
+                )
 
     def open(self) -> None:
         self.session = open_peer(self.bus)
@@ -989,12 +1009,17 @@ class ControlProcess:
             with self._lock:
                 self.lifecycle, self.lifecycle_rx_s = msg, self.clock()
 
-    def _mode(self, now: float) -> Lifecycle | None:
-        """TEACHING, IDENTIFYING or REPLAYING when the gateway says so (fresh), else None."""
+    def _fresh_state(self, now: float) -> Lifecycle | None:
+        """The gateway's lifecycle state if its last message is fresh, else None."""
         lc = self.lifecycle
         if lc is None or now - self.lifecycle_rx_s > self.cfg.lifecycle_timeout_s:
             return None
-        return lc.state if lc.state in COMMANDING else None
+        return lc.state
+
+    def _mode(self, now: float) -> Lifecycle | None:
+        """TEACHING, IDENTIFYING or REPLAYING when the gateway says so (fresh), else None."""
+        state = self._fresh_state(now)
+        return state if state in COMMANDING else None
 
     def _on_state(self, sample) -> None:
         now = self.clock()  # receipt: the command's state_rx_stamp_s
@@ -1035,6 +1060,17 @@ class ControlProcess:
                 cmd = make_joint_command(st.cycle, st.stamp_s, self.clock(), q_cmd, qd[1], now)
                 self._pub_cmd.put(cmd.to_bytes())
                 self.stats["commands"] += 1
+                if (
+                    mode == Lifecycle.REPLAYING
+                    and self.adaptation is not None
+                    and io is not None
+                    and now - io.stamp_s <= self.cfg.io_timeout_s
+                    and ctl is not None
+                ):  # free motion: eq. (29) learns from it (processed on the slow loop)
+                    self.adaptation.add(
+                        st.cycle, st.stamp_s, st.q_rad, st.dq_rad_s, ctl.motor_torque_nm(st),
+                        (io.p2_bar, io.p3_bar),
+                    )  # fmt: skip
             return
         if ctl is None:  # teaching without a model: the gateway refuses it; never command
             return
@@ -1090,8 +1126,7 @@ class ControlProcess:
         if sched is None or ctl is None:
             return self.cfg.pressure_setpoint_bar
         with self._lock:
-            lc, fresh = self.lifecycle, now - self.lifecycle_rx_s <= self.cfg.lifecycle_timeout_s
-        state = lc.state if lc is not None and fresh else None
+            state = self._fresh_state(now)
         if state == Lifecycle.IDENTIFYING:
             return sched.update(None, now)
         moving = dq is not None and float(np.max(np.abs(dq))) > SCHEDULE_MOVING_RAD_S
@@ -1101,11 +1136,36 @@ class ControlProcess:
         if not follow or q is None:
             return sched.hold(now)
         try:
-            static, _ = ctl.model.cycle_torques_nm(q, [0.0] * self.n, [0.0] * len(sched.fixed_bar))
-            target = sched.target_bar(q.tolist(), static)
+            static = ctl.model.gravity_nm(q)  # the torque at rest, without the cylinders
+            target = sched.target_bar(q.tolist(), static.tolist())
         except (ValueError, ArithmeticError):  # the model undefined there: stay
             return sched.hold(now)
         return sched.update(target, now)
+
+    def _adapt_model(self, now: float) -> None:
+        """Eq. (29) on the replay's states collected since the last call; the law takes the
+        adapted model once the arm is neither taught nor replayed (a model never changes
+        under the operator's hand or mid-program)."""
+        adapt, ctl = self.adaptation, self.ctl
+        if adapt is None or ctl is None:
+            return
+        adapt.process()
+        if adapt.version == self._adaptation_applied or ctl.engaged:
+            return
+        with self._lock:
+            state = self._fresh_state(now)
+        if state in (Lifecycle.TEACHING, Lifecycle.REPLAYING):
+            return
+        model = ctl.model
+        assert isinstance(model, IdentifiedControlModel)
+        ctl.model = IdentifiedControlModel(adapt.adapted(), model.desc)
+        self._adaptation_applied = adapt.version
+        before, after = adapt.residual_rms_nm()
+        log.info(
+            "model adapted in replay (eq. 29): %+.2f kg at %s m on the flange; motor torque "
+            "RMS over %d windows, as identified %s, as adapted %s N·m",
+            adapt.mass_kg, adapt.com_m, adapt.windows_used, before, after,
+        )  # fmt: skip
 
     def run(self) -> None:
         s = self.session
@@ -1113,6 +1173,7 @@ class ControlProcess:
         period = 1.0 / HEALTH_RATE_HZ
         while not self.stop_event.wait(min(period, PRESSURE_PUBLISH_PERIOD_S)):
             now = self.clock()
+            self._adapt_model(now)
             p2, p3 = self.pressure_setpoints(now)
             s.put(self.keys.pressure_setpoint, PressureSetpoint(now, p2, p3).to_bytes())
             health = {
@@ -1139,6 +1200,11 @@ class ControlProcess:
                     tele["hand_torque_nm"] = [round(float(v), 3) for v in adm.tau_h]
                     tele["hand_band_nm"] = [round(float(v), 3) for v in adm.band]
                     tele["reference_speed_rad_s"] = [round(float(v), 6) for v in adm.dq_r]
+                if self.adaptation is not None:
+                    tele["model_adaptation"] = {
+                        **self.adaptation.report(),
+                        "applied": self._adaptation_applied == self.adaptation.version,
+                    }
                 est = self.ctl.inner_estimate
                 if est is not None:
                     tele["inner_loop_estimate"] = {

@@ -60,3 +60,6 @@ def test_the_paper_law_moves_with_a_push_stops_after_it_and_adapts_upsilon(tmp_p
     # eq. (30) raised Υ̂_I on the joints that carry load; ω̂ followed it (the static gain
     # K K_I = Υ̂_I/ω̂ stays near the commissioned one, which the hold calibrated)
     assert max(ups[1], ups[2]) > 1.5, f"Υ̂_I did not move from 1.2/s: {ups}"
+    # eq. (29) never learns from teaching: the hand's push is not a payload
+    adapted = last.get("model_adaptation")
+    assert adapted is not None and adapted["windows_seen"] == 0, adapted
