@@ -126,6 +126,9 @@ class ControlConfig:
     model_adaptation_rate_per_s: float = 0.5
     model_adaptation_max_mass_kg: float = 15.0
     model_adaptation_max_reach_m: float = 0.5
+    #: where the adapted mass is kept across restarts (relative to the config; None: not
+    #: kept); one adapted for another model file (re-identified since) is not used
+    model_adaptation_file: Path | None = None
     #: I/O older than this: no command is published (the CAN driver then holds) [s]
     io_timeout_s: float = 0.25
     lifecycle_timeout_s: float = 0.25

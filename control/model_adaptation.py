@@ -48,10 +48,15 @@ appends) and processed in batches on the control process's slow loop
 
 from __future__ import annotations
 
+import hashlib
+import json
 import math
+import os
 import threading
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
+from pathlib import Path
 
 import numpy as np
 
@@ -67,6 +72,9 @@ POINT_MASS_PARAMETERS = 4
 APPEARED = "adapted_in_replay"
 #: most samples kept between two batches (a stalled slow loop must not grow the buffer)
 MAX_PENDING = 4096
+#: ``format`` of the file the adapted mass is kept in across restarts
+STATE_FORMAT = "leadthrough-adapted-payload"
+STATE_VERSION = 1
 
 
 @dataclass(frozen=True)
@@ -290,6 +298,12 @@ class PayloadAdaptation:
             mc = mc * (most / size) if size > 0.0 else mc
         return np.concatenate([[m], mc])
 
+    def restore(self, delta: Sequence[float], windows: int) -> None:
+        """Start from a mass adapted before (:func:`load_state`), projected like any step."""
+        self.delta = self._project(np.asarray(delta, dtype=float))
+        self.windows_used = int(windows)
+        self.version += 1
+
     # --- readers ----------------------------------------------------------------------------
     @property
     def mass_kg(self) -> float:
@@ -354,3 +368,63 @@ def _unbroken_runs(cycles: np.ndarray) -> list[np.ndarray]:
         return []
     breaks = np.flatnonzero(np.diff(cycles) != 1) + 1
     return np.split(np.arange(cycles.size), breaks)
+
+
+def model_sha256(path: str | Path) -> str:
+    """The identity of the model file an adapted mass belongs to."""
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def save_state(path: str | Path, adaptation: PayloadAdaptation, model_sha256: str) -> None:
+    """Keep the adapted mass across restarts: written to a temporary file, flushed to disk and
+    renamed over ``path`` (a crash leaves the old file or the new one, never half of one)."""
+    p = Path(path)
+    doc = {
+        "format": STATE_FORMAT,
+        "version": STATE_VERSION,
+        "model_sha256": model_sha256,
+        "saved_unix_s": round(time.time(), 3),
+        "delta": [float(v) for v in adaptation.delta],
+        "mass_kg": round(adaptation.mass_kg, 4),
+        "com_m": adaptation.com_m,
+        "windows_used": adaptation.windows_used,
+    }
+    tmp = p.with_name(p.name + ".tmp")
+    with tmp.open("w") as f:
+        f.write(json.dumps(doc, indent=1) + "\n")
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, p)
+    fd = os.open(p.parent, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def load_state(path: str | Path, model_sha256: str) -> tuple[list[float], int] | None:
+    """The adapted mass kept in ``path`` for the model ``model_sha256``: (δ, windows), or None
+    when there is none or it belongs to another model (re-identified since). A file that is
+    not one raises ValueError naming what is wrong."""
+    p = Path(path)
+    try:
+        doc = json.loads(p.read_text())
+    except FileNotFoundError:
+        return None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ValueError(f"{p}: not a readable adapted-payload file: {exc}") from None
+    if not isinstance(doc, dict) or doc.get("format") != STATE_FORMAT:
+        raise ValueError(f"{p}: not a {STATE_FORMAT} file")
+    if doc.get("version") != STATE_VERSION:
+        raise ValueError(f"{p}: version {doc.get('version')!r}, this build reads {STATE_VERSION}")
+    if doc.get("model_sha256") != model_sha256:
+        return None
+    delta, windows = doc.get("delta"), doc.get("windows_used", 0)
+    if not (
+        isinstance(delta, list) and len(delta) == POINT_MASS_PARAMETERS
+        and all(isinstance(v, int | float) and math.isfinite(v) for v in delta)
+    ):  # fmt: skip
+        raise ValueError(f"{p}: delta {delta!r} is not {POINT_MASS_PARAMETERS} finite numbers")
+    if not isinstance(windows, int) or windows < 0:
+        raise ValueError(f"{p}: windows_used {windows!r} is not a count")
+    return [float(v) for v in delta], windows

@@ -31,7 +31,13 @@ from control.experiments import build_plan
 from control.identification.inner_loop import read_outer_loop_gains
 from control.inner_loop_estimate import InnerLoopEstimator, cycle_means
 from control.load_check import REST_RAD_S, LoadCheck, static_load_check
-from control.model_adaptation import AdaptationSettings, PayloadAdaptation
+from control.model_adaptation import (
+    AdaptationSettings,
+    PayloadAdaptation,
+    load_state,
+    model_sha256,
+    save_state,
+)
 from control.outer_loop import HoldAverage, OmegaAdaptation, OuterLoop, PaperAdaptation
 from control.pressure_schedule import PressureSchedule, ScheduleSettings
 from control.rest_hold import RestHold, hold_band_nm
@@ -113,8 +119,9 @@ def load_control_config(cell_path: str | Path) -> tuple[ControlConfig, BusConfig
                 section["command_delay_cycles"] = delay
         section["inner_loop"] = str(source)
     cfg = from_mapping(ControlConfig, section, where)
-    if cfg.model is not None:
-        cfg = ControlConfig(**{**cfg.__dict__, "model": resolve_path(cell_path, cfg.model)})
+    for key in ("model", "model_adaptation_file"):
+        if getattr(cfg, key) is not None:
+            cfg = ControlConfig(**{**cfg.__dict__, key: resolve_path(cell_path, getattr(cfg, key))})
     return cfg, bus
 
 
@@ -954,6 +961,11 @@ class ControlProcess:
         #: compensates
         self.adaptation: PayloadAdaptation | None = None
         self._adaptation_applied = 0
+        self._model_sha256 = ""
+        #: why the kept adapted mass could not be used (None: no problem)
+        self.adaptation_problem: str | None = None
+        #: the mass was kept from before this start (``model_adaptation_file``)
+        self._adaptation_restored = False
         model = None if self.ctl is None else self.ctl.model
         if cfg.model_adaptation and isinstance(model, IdentifiedControlModel):
             if model.heldout_rms_nm is None:
@@ -969,6 +981,27 @@ class ControlProcess:
                         max_reach_m=cfg.model_adaptation_max_reach_m,
                     ),
                 )
+                self._restore_adaptation()
+
+    def _restore_adaptation(self) -> None:
+        """Start from the mass adapted before this start, if it was kept for this model."""
+        adapt, ctl, path = self.adaptation, self.ctl, self.cfg.model_adaptation_file
+        if adapt is None or ctl is None or path is None or self.cfg.model is None:
+            return
+        self._model_sha256 = model_sha256(self.cfg.model)
+        try:
+            kept = load_state(path, self._model_sha256)
+        except ValueError as exc:  # the commissioned model, as if never adapted
+            self.adaptation_problem = str(exc)
+            log.error("adapted payload not used: %s", exc)
+            return
+        if kept is None:
+            if path.exists():
+                log.info("%s was adapted for another model (re-identified since): not used", path)
+            return
+        adapt.restore(*kept)
+        self._apply_adaptation(save=False)
+        self._adaptation_restored = True
 
     def open(self) -> None:
         self.session = open_peer(self.bus)
@@ -1156,16 +1189,46 @@ class ControlProcess:
             state = self._fresh_state(now)
         if state in (Lifecycle.TEACHING, Lifecycle.REPLAYING):
             return
+        self._apply_adaptation(save=True)
+
+    def _apply_adaptation(self, save: bool) -> None:
+        """The law (and the load check) compensate the adapted model from now on; ``save``:
+        keep it across restarts (``model_adaptation_file``)."""
+        adapt, ctl = self.adaptation, self.ctl
+        assert adapt is not None and ctl is not None
         model = ctl.model
         assert isinstance(model, IdentifiedControlModel)
         ctl.model = IdentifiedControlModel(adapt.adapted(), model.desc)
         self._adaptation_applied = adapt.version
         before, after = adapt.residual_rms_nm()
         log.info(
-            "model adapted in replay (eq. 29): %+.2f kg at %s m on the flange; motor torque "
-            "RMS over %d windows, as identified %s, as adapted %s N·m",
+            "model %s (eq. 29): %+.2f kg at %s m on the flange; motor torque RMS over %d "
+            "windows of this run, as identified %s, as adapted %s N·m",
+            "adapted in replay" if save else "restored as adapted before",
             adapt.mass_kg, adapt.com_m, adapt.windows_used, before, after,
         )  # fmt: skip
+        path = self.cfg.model_adaptation_file
+        if save and path is not None and self._model_sha256:
+            try:
+                save_state(path, adapt, self._model_sha256)
+                self.adaptation_problem = None
+            except OSError as exc:
+                self.adaptation_problem = f"adapted payload not kept: {path}: {exc}"
+                log.error("%s", self.adaptation_problem)
+
+    def _adaptation_health(self) -> dict | None:
+        """What the operator's status shows of eq. (29): the mass the law compensates."""
+        adapt = self.adaptation
+        if adapt is None:
+            return None
+        com = adapt.com_m
+        return {
+            "mass_kg": round(adapt.mass_kg, 3),
+            "com_m": None if com is None else [round(v, 3) for v in com],
+            "applied": self._adaptation_applied == adapt.version,
+            "restored": self._adaptation_restored,
+            "problem": self.adaptation_problem,
+        }
 
     def run(self) -> None:
         s = self.session
@@ -1185,6 +1248,7 @@ class ControlProcess:
                 "load_check": None
                 if self.load_check is None
                 else {**self.load_check.to_json(), "age_s": round(now - self.load_check_s, 3)},
+                "model_adaptation": self._adaptation_health(),
             }
             s.put(self.keys.health("control"), encode_json(health))
             if self.ctl is not None:

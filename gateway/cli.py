@@ -89,7 +89,25 @@ def _operator_main(args: argparse.Namespace) -> int:
         if isinstance(engagement, dict) and engagement.get("phase") == "probing":
             print(f"  - the arm is measuring its model's error ({engagement.get('left_s')} s "
                   "left): hold the tool lightly, do not push yet")  # fmt: skip
+        adapted = reply.get("model_adaptation") if args.command == "status" else None
+        if isinstance(adapted, dict):
+            for line in adaptation_lines(adapted):
+                print(f"  - {line}")
     return 0 if reply.get("ok") else 1
+
+
+def adaptation_lines(adapted: dict) -> list[str]:
+    """What `leadthrough status` says of the mass eq. (29) added to the model in replay."""
+    out = []
+    mass = adapted.get("mass_kg")
+    if isinstance(mass, int | float) and abs(mass) >= 0.05:
+        where = adapted.get("com_m")
+        at = f" at {where} m from the flange" if isinstance(where, list) else ""
+        state = "compensated" if adapted.get("applied") else "compensated after this run"
+        out.append(f"model: {mass:+.2f} kg{at} learned in replay, {state}")
+    if adapted.get("problem"):
+        out.append(f"model adaptation: {adapted['problem']}")
+    return out
 
 
 def _version() -> str:

@@ -249,6 +249,8 @@ class Gateway:
         self.health_rx_s: dict[str, float] = {}
         #: the control process's static-load check (control/load_check.py) as last reported
         self.load_check: dict | None = None
+        #: the mass eq. (29) added to the model in replay (control/model_adaptation.py)
+        self.model_adaptation: dict | None = None
         #: what the control law is doing, from its health (None: not reported)
         self.engagement: dict | None = None
         #: the CAN driver's speed monitor trip, from its health (None: not tripped)
@@ -355,6 +357,8 @@ class Gateway:
                 self.load_check = load_check if isinstance(load_check, dict) else None
                 engagement = body.get("engagement")
                 self.engagement = engagement if isinstance(engagement, dict) else None
+                adapted = body.get("model_adaptation")
+                self.model_adaptation = adapted if isinstance(adapted, dict) else None
             elif name == "can_driver" and body:  # an unreadable one changes nothing
                 trip = body.get("speed_trip")
                 self.speed_trip = None if trip is None else str(trip)
@@ -439,6 +443,7 @@ class Gateway:
             # the control law's phase (control process health): "probing" while the
             # admittance measures the model's error at engagement
             "engagement": self.engagement,
+            "model_adaptation": self.model_adaptation,
         }
 
     def _on_experiment(self, sample) -> None:

@@ -2,12 +2,15 @@
 lacks (6 kg, mounted on the plant, never declared to the product) blocks teaching at the
 static-load check; one replay of a program teaches the model the gun (control/
 model_adaptation.py), after which the check passes and teaching engages, and while the arm is
-taught the adapted model stays where the replay left it. Judged from the control process's
+taught the adapted model stays where the replay left it; a control process killed and
+restarted by the gateway starts from the kept mass. Judged from the control process's
 telemetry and health and the gateway's status."""
 
 from __future__ import annotations
 
 import json
+import os
+import signal
 import subprocess
 import sys
 import time
@@ -91,6 +94,13 @@ def test_a_replay_teaches_the_model_a_gun_it_lacked_and_teaching_leaves_it(tmp_p
             check = health["load_check"]
             time.sleep(2.0)  # taught (the arm held still, the hand off): nothing adapts
             taught = dict(tele["model_adaptation"])
+
+            # the control process dies; the gateway's new one starts from the kept mass
+            os.kill(stack.child_pid("control"), signal.SIGKILL)
+            restarted = stack.wait_status(
+                lambda s: (s.get("model_adaptation") or {}).get("restored") is True,
+                30.0, "a new control process with the kept mass",
+            )  # fmt: skip
         finally:
             for sub in subs:
                 sub.undeclare()
@@ -104,3 +114,7 @@ def test_a_replay_teaches_the_model_a_gun_it_lacked_and_teaching_leaves_it(tmp_p
     assert check["ok"], check
     assert taught["windows_seen"] == learned["windows_seen"], (learned, taught)
     assert taught["mass_kg"] == learned["mass_kg"]
+    kept = restarted["model_adaptation"]
+    print(f"after the control process was killed: {kept}")
+    assert abs(kept["mass_kg"] - learned["mass_kg"]) < 1e-3, kept
+    assert kept["applied"] and kept["problem"] is None, kept

@@ -31,9 +31,12 @@ def test_every_section_of_the_cell_configs_validates(cell):
 
 
 def test_production_and_virtual_cells_differ_only_in_transport():
-    """... and where the taught programs go (the cell PC's state folder, a folder beside the
-    virtual cell's config)."""
+    """... and where the taught programs and the adapted payload go (the cell PC's state
+    folder, beside the virtual cell's config)."""
     prod, sim = (load_toml(p) for p in CELLS)
+    kept = "model_adaptation_file"
+    assert prod["control"].pop(kept) == "/var/lib/leadthrough/commissioning/adapted_payload.json"
+    assert sim["control"].pop(kept) == "adapted_payload.json"
     assert prod["control"] == sim["control"]
     assert prod["gateway"].pop("program_dir") == "/var/lib/leadthrough/programs"
     assert sim["gateway"].pop("program_dir") == "programs"

@@ -16,7 +16,13 @@ import pytest
 
 from control.identification.fit import IdentifiedModel
 from control.identification.rigid import RobotRegressor
-from control.model_adaptation import APPEARED, AdaptationSettings, PayloadAdaptation
+from control.model_adaptation import (
+    APPEARED,
+    AdaptationSettings,
+    PayloadAdaptation,
+    load_state,
+    save_state,
+)
 from control.robot.description import load_description
 from control.robot.urdf import to_urdf
 
@@ -212,3 +218,52 @@ def test_settings_out_of_range_are_refused(bad):
 
     with pytest.raises(ConfigError, match=next(iter(bad))):
         AdaptationSettings(**bad)
+
+
+def test_the_adapted_mass_is_kept_for_its_model_only(robot, tmp_path):
+    desc, _, identified = robot
+    adapt = PayloadAdaptation(identified, desc, HELDOUT_RMS_NM)
+    adapt.delta = np.array([5.0, 0.1, 0.0, 1.5])
+    adapt.windows_used = 321
+    path = tmp_path / "adapted_payload.json"
+    assert load_state(path, "a" * 64) is None  # nothing kept yet
+    save_state(path, adapt, "a" * 64)
+    assert not (tmp_path / "adapted_payload.json.tmp").exists()
+    assert load_state(path, "a" * 64) == ([5.0, 0.1, 0.0, 1.5], 321)
+    assert load_state(path, "b" * 64) is None  # re-identified since: not this model's
+    again = PayloadAdaptation(identified, desc, HELDOUT_RMS_NM)
+    again.restore([50.0, 0.0, 0.0, 40.0], 3)  # projected like any step
+    assert again.mass_kg == 15.0 and np.linalg.norm(again.delta[1:]) <= 15.0 * 0.5 + 1e-9
+
+
+@pytest.mark.parametrize(
+    ("text", "match"),
+    [
+        ("{not json", "not a readable"),
+        ('{"format": "other"}', "not a leadthrough-adapted-payload file"),
+        ('{"format": "leadthrough-adapted-payload", "version": 9}', "version 9"),
+        ('{"format": "leadthrough-adapted-payload", "version": 1, "model_sha256": "a", '
+         '"delta": [1, 2, NaN, 4]}', "not 4 finite numbers"),
+        ('{"format": "leadthrough-adapted-payload", "version": 1, "model_sha256": "a", '
+         '"delta": [1, 2, 3, 4], "windows_used": -1}', "windows_used -1"),
+    ],
+)  # fmt: skip
+def test_a_damaged_kept_file_is_refused_by_name(tmp_path, text, match):
+    path = tmp_path / "adapted_payload.json"
+    path.write_text(text)
+    with pytest.raises(ValueError, match=match) as err:
+        load_state(path, "a")
+    assert str(path) in str(err.value)
+
+
+def test_status_says_what_the_model_learned():
+    from gateway.cli import adaptation_lines
+
+    assert adaptation_lines({"mass_kg": 0.01, "applied": True, "problem": None}) == []
+    (line,) = adaptation_lines({"mass_kg": 5.7, "com_m": [0.0, 0.1, 0.3], "applied": True})
+    assert (
+        line
+        == "model: +5.70 kg at [0.0, 0.1, 0.3] m from the flange learned in replay, compensated"
+    )
+    lines = adaptation_lines({"mass_kg": 0.0, "problem": "x.json: not a readable file"})
+    assert lines == ["model adaptation: x.json: not a readable file"]
