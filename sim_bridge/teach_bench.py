@@ -292,23 +292,46 @@ def _flange_positions(plant_seed: int, q: np.ndarray) -> np.ndarray:
 
 
 class _LastTelemetry:
-    """The control process's last telemetry message, from a subscriber of its own."""
+    """The control process's last telemetry message, from a subscriber of its own, and the
+    loop's estimates over time: (stamp [s, the control process's monotonic clock], ω̂, Υ̂_I)."""
 
     def __init__(self) -> None:
         self.message: dict[str, Any] | None = None
+        self.history: list[tuple[float, list[float], list[float]]] = []
 
     def __call__(self, sample: Any) -> None:  # zenoh's thread: decode only, never block
         # the scorer's view only: a bad message leaves the last good one
-        with contextlib.suppress(ValueError):
-            self.message = json.loads(sample.payload.to_bytes())
+        with contextlib.suppress(ValueError, KeyError, TypeError):
+            msg = json.loads(sample.payload.to_bytes())
+            self.message = msg
+            self.history.append(
+                (float(msg["stamp_s"]), msg["omega_rad_s_per_nm"], msg["upsilon_i_per_s"])
+            )
+
+
+def settling_time_s(t_s: np.ndarray, ratios: np.ndarray, band: float = 0.05) -> float | None:
+    """From ``t_s[0]``, the time after which every ratio (columns) stays within ``band`` of 1
+    to the last sample; None if the last sample is outside it."""
+    inside = np.all(np.abs(ratios - 1.0) <= band, axis=1)
+    if not inside.size or not inside[-1]:
+        return None
+    outside = np.flatnonzero(~inside)
+    first = 0 if not outside.size else int(outside[-1]) + 1
+    return round(float(t_s[first] - t_s[0]), 2)
 
 
 def adaptation_report(
-    telemetry: dict[str, Any] | None, plant_seed: int, inner_loop: dict[str, Any]
+    telemetry: dict[str, Any] | None,
+    plant_seed: int,
+    inner_loop: dict[str, Any],
+    history: list[tuple[float, list[float], list[float]]] | None = None,
+    teaching_from_s: float | None = None,
 ) -> dict[str, Any]:
     """The loop's estimates against the plant's hidden inner gains (module docstring):
     ``telemetry`` the control process's last message, ``inner_loop`` the commissioned
-    ``inner_loop.json``. Ratios estimate / truth per joint."""
+    ``inner_loop.json``. Ratios estimate / truth per joint. With the estimates' ``history``
+    and the time teaching began (both on the machine's monotonic clock), also the time of
+    guided motion after which every joint's ω̂ and ω̂_I stayed within 5 % of the truth."""
     nominal = load_sim_config()
     plant = Plant(dataclasses.replace(nominal, plant_seed=plant_seed))
     k = np.array(nominal.drives.gain_nm_per_a)  # the datasheet's: the product's torque unit
@@ -333,6 +356,17 @@ def adaptation_report(
         "omega_source": "control telemetry" if telemetry is not None else "commissioned",
         "omega_i_source": "control telemetry" if adapted_ups is not None else "commissioned",
     }
+    if history and teaching_from_s is not None:
+        rows = [h for h in history if h[0] >= teaching_from_s]
+        if rows:
+            t = np.array([teaching_from_s] + [h[0] for h in rows])
+            r = np.array(
+                [np.concatenate([np.array(w) / omega_true, np.array(u) / omega_i_true])
+                 for _, w, u in rows]
+            )  # fmt: skip
+            r = np.vstack([r[:1], r])  # at the start of teaching: the first estimate
+            out["within_5pct_after_s"] = settling_time_s(t, r)
+            out["teaching_s"] = round(float(t[-1] - t[0]), 2)
     online = (telemetry or {}).get("inner_loop_estimate")
     if online:
         est_omega = np.array([math.nan if v is None else v for v in online["omega_rad_s_per_nm"]])
@@ -383,6 +417,7 @@ def run_best(
         try:
             subscriber = session.declare_subscriber(stack.bus.keys.control_telemetry, last)
             stack.start_teaching()
+            teaching_from_s = time.monotonic()
             deadline = time.monotonic() + path[-1][0] + tail_s
             while time.monotonic() < deadline:  # wait cheaply: the product needs the CPU
                 stack.check_alive()
@@ -417,7 +452,9 @@ def run_best(
     out["completed"] = out["completed"] and not out["controller_faults"]
     out["model"] = str(done.model)
     inner_loop = json.loads(done.inner_loop.read_text())
-    out["_adaptation"] = adaptation_report(last.message, plant_seed, inner_loop)
+    out["_adaptation"] = adaptation_report(
+        last.message, plant_seed, inner_loop, last.history, teaching_from_s
+    )
     return out
 
 
@@ -453,6 +490,15 @@ def print_adaptation(adaptation: dict[str, Any]) -> None:
     for label, ratios in rows:
         cells = " ".join(f"{'-':>7}" if r is None else f"{r:7.3f}" for r in ratios)
         print(f"{label:>34} {cells}")
+    if "within_5pct_after_s" in adaptation:
+        settled = adaptation["within_5pct_after_s"]
+        print(
+            f"every joint's omega and omega_I within 5 % of the truth after "
+            f"{settled} s of {adaptation['teaching_s']} s of teaching"
+            if settled is not None
+            else f"not every joint's omega and omega_I within 5 % of the truth at the end of "
+            f"{adaptation['teaching_s']} s of teaching"
+        )
 
 
 def _control_settings(text: str) -> dict[str, Any]:

@@ -11,11 +11,20 @@ linear equation in (K_p, K_I)::
 
     ī = K_p (dq_cmd - <dq>) + K_I (q_cmd + dq_cmd (T - h)/2 - <q>) + i_0
 
-where <·> is the mean over the ticks (taken at each tick's start) computed from the cycle's
-end samples: <dq> = (q_b - q_a)/T - (h/2)(dq_b - dq_a)/T and <q> the cubic (Hermite) mean
-of q less (h/2)(q_b - q_a)/T, T = ``cycle_s``, h = ``servo_s``; i_0 takes a current-sensor
-offset. A velocity step makes the velocity error large for a few cycles, which separates the
-two gains (:func:`control.experiments.velocity_steps`); in smooth motion the velocity error
+where <·> is the mean over the ticks computed from the cycle's end samples, T = ``cycle_s``,
+h = ``servo_s``, and i_0 takes a current-sensor offset. <q> is the cubic (Hermite) mean of q
+less (h/2)(q_b - q_a)/T. <dq> is the cycle's mean velocity (q_b - q_a)/T less c times its
+mean acceleration (dq_b - dq_a)/T, with c how far back within its tick the drive's velocity
+looks: h/2 for the instantaneous velocity at each tick's start, h for a velocity differenced
+from encoder counts over the last tick (or a plant stepped by semi-implicit Euler at the
+tick). The drive's manual does not say, so both are tried, like the delays below, and the
+one that leaves the smaller residual is kept (one for all joints: one drive design; a free
+coefficient per joint let the velocity noise through, J1's K_p off by up to 10 %). With c
+taken as h/2, the virtual robot's K_p read 2-11 % high (J1 the most; K_I within 2.7 %) on
+every plant seed even without noise (tests/unit/test_ident_inner_loop.py).
+
+A velocity step makes the velocity error large for a few cycles, which separates the two
+gains (:func:`control.experiments.velocity_steps`); in smooth motion the velocity error
 stays near the noise and K_p is poorly determined.
 
 A command takes effect some whole number of cycles after the measurement it answers: every
@@ -37,6 +46,9 @@ from gateway.errors import ConfigError
 
 #: Delays tried between a command and the cycle it is followed in [cycles].
 DELAYS = (0, 1, 2, 3)
+#: How far back within its tick the drive's velocity looks, tried, in servo ticks: the
+#: instantaneous velocity at the tick's start (1/2), an encoder difference over the tick (1).
+VELOCITY_LOOKBACKS = (0.5, 1.0)
 
 
 @dataclass(frozen=True)
@@ -53,6 +65,8 @@ class InnerLoopEstimate:
     unexplained: np.ndarray
     delay_cycles: int
     rows: int
+    #: the velocity lookback kept, in servo ticks (:data:`VELOCITY_LOOKBACKS`)
+    velocity_lookback_ticks: float = 0.5
 
     def to_json(self) -> dict[str, object]:
         return {
@@ -64,6 +78,7 @@ class InnerLoopEstimate:
             "unexplained_variance": self.unexplained.tolist(),
             "delay_cycles": self.delay_cycles,
             "rows": self.rows,
+            "velocity_lookback_ticks": self.velocity_lookback_ticks,
         }
 
 
@@ -76,16 +91,19 @@ def _errors(
     cycle_s: float,
     servo_s: float,
 ) -> tuple[np.ndarray, np.ndarray, slice]:
-    """Tick-mean velocity and position errors (T', n) of the commands against the cycle each
-    is followed in, and the slice of measurement rows that closes each of those cycles."""
+    """Per cycle (T', n): the velocity error against the cycle's mean velocity, the tick-mean
+    position error, and the cycle's mean acceleration (the velocity the drive samples at its
+    ticks is the cycle's mean less ``c`` times it, c fitted: module docstring); and the slice
+    of measurement rows that closes each of those cycles."""
     t, h = cycle_s, servo_s
     m = q.shape[0] - delay - 1
     qc, dqc = q_cmd[:m], dq_cmd[:m]
     qa, qb = q[delay : delay + m], q[delay + 1 : delay + 1 + m]
     dqa, dqb = dq[delay : delay + m], dq[delay + 1 : delay + 1 + m]
-    mean_dq = (qb - qa) / t - (h / 2.0) * (dqb - dqa) / t
     mean_q = 0.5 * (qa + qb) - t * (dqb - dqa) / 12.0 - (h / 2.0) * (qb - qa) / t
-    return dqc - mean_dq, qc + dqc * (t - h) / 2.0 - mean_q, slice(delay + 1, delay + 1 + m)
+    ev = dqc - (qb - qa) / t  # the velocity error less the tick sampling's share (docstring)
+    acc = (dqb - dqa) / t
+    return ev, qc + dqc * (t - h) / 2.0 - mean_q, acc, slice(delay + 1, delay + 1 + m)
 
 
 @dataclass(frozen=True)
@@ -153,30 +171,32 @@ def fit_inner_loop_runs(
         raise ValueError(f"need {n} drive gains > 0, got {gains_nm_per_a}")
     if not 0 < servo_s <= cycle_s:
         raise ValueError(f"servo period {servo_s} s must be in (0, cycle {cycle_s} s]")
-    best: tuple[float, int, np.ndarray, np.ndarray, np.ndarray, int] | None = None
+    best: tuple[float, int, np.ndarray, np.ndarray, np.ndarray, int, float] | None = None
     for delay in delays:
         parts = []
         for r in checked:
             if r.q.shape[0] - delay - 1 < 1:
                 continue
-            ev, eq, rows = _errors(r.q_cmd, r.dq_cmd, r.q, r.dq, delay, cycle_s, servo_s)
+            ev, eq, acc, rows = _errors(r.q_cmd, r.dq_cmd, r.q, r.dq, delay, cycle_s, servo_s)
             keep = r.valid[: ev.shape[0]]
-            parts.append((ev[keep], eq[keep], r.current_a[rows][keep]))
-        if sum(len(p[2]) for p in parts) < 10:
+            parts.append((ev[keep], eq[keep], acc[keep], r.current_a[rows][keep]))
+        if sum(len(p[3]) for p in parts) < 10:
             continue
-        ev, eq, i = (np.concatenate([p[k] for p in parts]) for k in range(3))
-        coef, resid = np.zeros((n, 3)), np.zeros(n)
-        for j in range(n):
-            a = np.column_stack([ev[:, j], eq[:, j], np.ones(len(i))])
-            coef[j], *_ = np.linalg.lstsq(a, i[:, j], rcond=None)
-            resid[j] = np.sqrt(np.mean((i[:, j] - a @ coef[j]) ** 2))
-        unexplained = resid**2 / np.maximum(np.var(i, axis=0), 1e-300)
-        score = float(np.sum(unexplained))
-        if best is None or score < best[0]:
-            best = (score, delay, coef, resid, unexplained, len(i))
+        ev, eq, acc, i = (np.concatenate([p[k] for p in parts]) for k in range(4))
+        for lookback in VELOCITY_LOOKBACKS:
+            ev_c = ev + lookback * servo_s * acc
+            coef, resid = np.zeros((n, 3)), np.zeros(n)
+            for j in range(n):
+                a = np.column_stack([ev_c[:, j], eq[:, j], np.ones(len(i))])
+                coef[j], *_ = np.linalg.lstsq(a, i[:, j], rcond=None)
+                resid[j] = np.sqrt(np.mean((i[:, j] - a @ coef[j]) ** 2))
+            unexplained = resid**2 / np.maximum(np.var(i, axis=0), 1e-300)
+            score = float(np.sum(unexplained))
+            if best is None or score < best[0]:
+                best = (score, delay, coef, resid, unexplained, len(i), lookback)
     if best is None:
         raise ValueError("too few cycles to fit the inner loop")
-    _, delay, coef, resid, unexplained, rows_used = best
+    _, delay, coef, resid, unexplained, rows_used, lookback = best
     kp, ki = coef[:, 0], coef[:, 1]
     bad = np.flatnonzero((kp <= 0) | (ki <= 0))
     if bad.size:
@@ -185,7 +205,7 @@ def fit_inner_loop_runs(
             "(need > 0): the data do not excite the inner loop (run the velocity steps)"
         )
     return InnerLoopEstimate(kp, ki, 1.0 / (gains * kp), ki / kp, resid, unexplained,
-                             delay, rows_used)  # fmt: skip
+                             delay, rows_used, lookback)  # fmt: skip
 
 
 def read_outer_loop_gains(path: str | Path, n_joints: int) -> tuple[list[float], list[float], int]:

@@ -39,7 +39,7 @@ def drive(plant: Plant, q_cmd: np.ndarray, dq_cmd: np.ndarray, delay: int) -> di
 
 
 @pytest.mark.parametrize(("seed", "delay"), [(0, 0), (1, 0), (2, 1), (3, 1)])
-def test_velocity_steps_give_the_inner_gains_within_20_percent(seed, delay):
+def test_velocity_steps_give_the_inner_gains_within_5_percent(seed, delay):
     cfg = dataclasses.replace(load_sim_config(), plant_seed=seed)
     plant = Plant(cfg)
     q0 = np.array(cfg.initial_q_rad)
@@ -54,10 +54,12 @@ def test_velocity_steps_give_the_inner_gains_within_20_percent(seed, delay):
     kp, ki = np.array(truth.kp_a_s_per_rad), np.array(truth.ki_a_per_rad)
     print(f"seed {seed}: K_p {est.k_p_a_s_per_rad / kp}, K_I {est.k_i_a_per_rad / ki}")
     assert est.delay_cycles == delay
-    np.testing.assert_allclose(est.k_p_a_s_per_rad, kp, rtol=0.2)
-    np.testing.assert_allclose(est.k_i_a_per_rad, ki, rtol=0.2)
-    np.testing.assert_allclose(est.upsilon_i_per_s, ki / kp, rtol=0.2)
-    np.testing.assert_allclose(est.omega_rad_s_per_nm, 1.0 / (np.array(gains) * kp), rtol=0.2)
+    # the outer loop's estimates must come within 5 % of the drive's (issue 9): with the
+    # tick's velocity sampling taken as h/2, K_p read up to 11 % high here
+    np.testing.assert_allclose(est.k_p_a_s_per_rad, kp, rtol=0.05)
+    np.testing.assert_allclose(est.k_i_a_per_rad, ki, rtol=0.05)
+    np.testing.assert_allclose(est.upsilon_i_per_s, ki / kp, rtol=0.05)
+    np.testing.assert_allclose(est.omega_rad_s_per_nm, 1.0 / (np.array(gains) * kp), rtol=0.05)
 
 
 def test_no_excitation_is_refused_with_a_reason():

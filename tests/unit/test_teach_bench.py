@@ -20,6 +20,7 @@ from sim_bridge.teach_bench import (
     raster_path,
     run_inertia,
     run_offservo,
+    settling_time_s,
 )
 
 
@@ -103,6 +104,32 @@ def test_the_adaptation_report_scores_estimates_against_the_hidden_gains():
     assert "online_estimate" not in out
     # another seed's gains are not this one's: the report must notice
     assert adaptation_report(telemetry, 4, inner_loop)["omega_ratio"] != pytest.approx([1.0] * 6)
+
+
+def test_the_settling_time_is_when_every_estimate_entered_the_band_for_good():
+    t = np.array([10.0, 11.0, 12.0, 13.0, 14.0])
+    r = np.ones((5, 4))
+    assert settling_time_s(t, r) == 0.0
+    r[1, 2] = 1.2  # out at 11 s, in from 12 s
+    assert settling_time_s(t, r) == 2.0
+    r[3, 0] = 0.949  # out again at 13 s
+    assert settling_time_s(t, r) == 4.0
+    r[4, 3] = 1.051  # out at the end: never settled
+    assert settling_time_s(t, r) is None
+
+
+def test_the_adaptation_report_times_the_estimates_from_the_start_of_teaching():
+    seed = 3
+    plant = Plant(dataclasses.replace(load_sim_config(), plant_seed=seed))
+    k = np.array(load_sim_config().drives.gain_nm_per_a)
+    omega, ups = 1.0 / (k * plant.kp), plant.ki / plant.kp
+    inner_loop = {"omega_rad_s_per_nm": omega.tolist(), "upsilon_i_per_s": ups.tolist()}
+    history = [(t, (omega * (1.0 + 0.24 / (1.0 + t - 100.0))).tolist(), ups.tolist())
+               for t in np.arange(99.5, 120.0, 0.5)]  # fmt: skip
+    telemetry = {"omega_rad_s_per_nm": history[-1][1], "upsilon_i_per_s": history[-1][2]}
+    out = adaptation_report(telemetry, seed, inner_loop, history, teaching_from_s=100.0)
+    # 0.24 / (1 + t) <= 0.05 from t = 3.8 s of teaching on: the sample at 4 s
+    assert out["within_5pct_after_s"] == 4.0 and out["teaching_s"] == 19.5
 
 
 @pytest.mark.parametrize("seed", [0, 3])
