@@ -1222,12 +1222,17 @@ class ControlProcess:
         if adapt is None:
             return None
         com = adapt.com_m
+        before, after = adapt.residual_rms_nm()
         return {
             "mass_kg": round(adapt.mass_kg, 3),
             "com_m": None if com is None else [round(v, 3) for v in com],
             "applied": self._adaptation_applied == adapt.version,
             "restored": self._adaptation_restored,
             "problem": self.adaptation_problem,
+            # the model's error on this run's replays (data it was not fitted to)
+            "windows_used": adapt.windows_used,
+            "residual_rms_identified_nm": before,
+            "residual_rms_adapted_nm": after,
         }
 
     def run(self) -> None:

@@ -175,8 +175,8 @@ def baseline_main(out: Path, plant_seed: int) -> int:
     return 0
 
 
-def _fmt(values: list[float]) -> str:
-    return "[" + " ".join(f"{v:.3g}" for v in values) + "]"
+def _fmt(values: list[float | None]) -> str:
+    return "[" + " ".join("-" if v is None else f"{v:.3g}" for v in values) + "]"
 
 
 def cli_main(args: argparse.Namespace) -> int:
@@ -243,6 +243,7 @@ def cli_main(args: argparse.Namespace) -> int:
         ("taught program", f"{m['program']} ({m['marks']} marks)"),
         ("replay at 100 mm/s", f"{m['replay_result']}, {m['replay_duration_s']:.1f} s"),
         ("taught path from the replayed, p95", f"{m['replay_path_error_mm']:.2f} mm"),
+        *_adaptation_rows(m.get("model_adaptation") or {}),
     ]
     width = max(len(r[0]) for r in rows)
     print()
@@ -250,6 +251,20 @@ def cli_main(args: argparse.Namespace) -> int:
         print(f"  {name:<{width}}  {value}")
     print(f"\nplot: {out / 'demo.png'}   summary: {out / 'summary.json'}")
     return 0 if not m["controller_faults"] and m["replay_result"] == "done" else 1
+
+
+def _adaptation_rows(adapted: dict[str, Any]) -> list[tuple[str, str]]:
+    """The summary's lines for eq. (29) in the replay (control/model_adaptation.py)."""
+    if not adapted.get("windows_used"):
+        return []
+    return [
+        ("payload learned in the replay", f"{adapted['mass_kg']:+.2f} kg "
+                                          f"({adapted['windows_used']} windows of 0.1 s)"),
+        ("model error in the replay, as identified",
+         f"{_fmt(adapted['residual_rms_identified_nm'])} N·m RMS"),
+        ("model error in the replay, as adapted",
+         f"{_fmt(adapted['residual_rms_adapted_nm'])} N·m RMS"),
+    ]  # fmt: skip
 
 
 def replay_program(stack: Stack, program: Path) -> dict[str, Any]:
@@ -276,6 +291,9 @@ def replay_program(stack: Stack, program: Path) -> dict[str, Any]:
     )
     duration = time.monotonic() - t0
     stack.request("stop")
+    # eq. (29) took the replay's free motion: the model checked on data it was not fitted to
+    time.sleep(1.0)  # the control process's slow loop processes the last windows
+    adapted = stack.request("status").get("model_adaptation") or {}
     truth = stack.truth()
     q = np.stack([truth[f"q{j + 1}"][first_row:] for j in range(taught.q_rad.shape[1])], axis=1)
     error = path_error_m(load_description(), q, taught.q_rad) if len(q) > 1 else float("nan")
@@ -286,4 +304,5 @@ def replay_program(stack: Stack, program: Path) -> dict[str, Any]:
         "replay_duration_s": duration,
         "replay_path_error_mm": error * 1e3,
         "first_row": first_row,
+        "model_adaptation": adapted,
     }
