@@ -154,8 +154,8 @@ class PayloadAdaptation:
         self.windows_used = 0  #: windows the law took (each ``window_s`` long)
         self.windows_seen = 0
         self.windows_contact = 0
-        #: squared error sums per joint over the samples used, before and after each
-        #: sample's step (the model as identified, and as adapted so far) [N·m²]
+        #: squared error sums per joint over the windows used, before each window's step
+        #: (the model as identified, and as adapted so far) [N·m²], and their counts
         self._sq_identified = np.zeros(n)
         self._sq_adapted = np.zeros(n)
         self._rows = np.zeros(n, dtype=int)
@@ -195,13 +195,17 @@ class PayloadAdaptation:
             self._pending = _Pending.empty()
         if not len(p):
             return 0
-        cycles = np.asarray(p.cycle)
-        runs = _unbroken_runs(cycles)
+        t_all = np.asarray(p.stamp_s)
+        arrays = (
+            t_all, np.asarray(p.q), np.asarray(p.dq), np.asarray(p.tau, dtype=float),
+            np.asarray(p.p_bar, dtype=float),
+        )  # fmt: skip
+        runs = _unbroken_runs(np.asarray(p.cycle))
         used = 0
         for k, run in enumerate(runs):
-            wins = self._windows(np.asarray(p.stamp_s)[run])
+            wins = self._windows(t_all[run])
             for a, b in wins:
-                used += self._adapt_window(p, run[a:b])
+                used += self._adapt_window(*(x[run[a:b]] for x in arrays))
             done = wins[-1][1] if wins else 0
             if k == len(runs) - 1 and done < len(run):  # the last run goes on next time
                 rest = run[done:]
@@ -227,8 +231,16 @@ class PayloadAdaptation:
                 a = b + 1
         return out
 
-    def _adapt_window(self, p: _Pending, idx: np.ndarray) -> int:
-        """One step of the law on the window's means: 1 if it was used, else 0.
+    def _adapt_window(
+        self,
+        t: np.ndarray,
+        q_all: np.ndarray,
+        dq_all: np.ndarray,
+        tau_all: np.ndarray,
+        p_all: np.ndarray,
+    ) -> int:
+        """One step of the law on one window's samples (stamps, joints, motor torques,
+        pressures: rows in time order): 1 if it was used, else 0.
 
         The torque, velocity and pressures are the window's means, the pose its middle
         sample's, the acceleration the velocity's change over it (the mean of M q̈ over a
@@ -236,12 +248,8 @@ class PayloadAdaptation:
         window's length, not by one cycle's)."""
         st = self.settings
         self.windows_seen += 1
-        t = np.asarray(p.stamp_s)[idx]
         if t[-1] < self._contact_until_s:
             return 0
-        q_all = np.asarray(p.q)[idx]
-        dq_all = np.asarray(p.dq)[idx]
-        tau_all = np.asarray(p.tau, dtype=float)[idx]
         if not (
             np.all(np.isfinite(q_all)) and np.all(np.isfinite(dq_all))
             and np.all(np.isfinite(tau_all))
@@ -256,10 +264,10 @@ class PayloadAdaptation:
         )
         if not np.any(sliding):
             return 0
-        q = q_all[len(idx) // 2][None, :]
+        q = q_all[len(t) // 2][None, :]
         dq = dq_all.mean(axis=0)[None, :]
         ddq = ((dq_all[-1] - dq_all[0]) / (t[-1] - t[0]))[None, :]
-        pb = np.asarray(p.p_bar, dtype=float)[idx].mean(axis=0)[None, :]
+        pb = p_all.mean(axis=0)[None, :]
         im = self.identified
         # the motor's torque is the model's minus the cylinders' (model.json excludes them)
         predicted = (im.torque_nm(q, dq, ddq) - cylinder_torque_nm(q, pb, self.desc))[0]
@@ -294,8 +302,8 @@ class PayloadAdaptation:
         mc = delta[1:]
         most = abs(m) * st.max_reach_m
         size = float(np.linalg.norm(mc))
-        if size > most:
-            mc = mc * (most / size) if size > 0.0 else mc
+        if size > most:  # so size > 0
+            mc = mc * (most / size)
         return np.concatenate([[m], mc])
 
     def restore(self, delta: Sequence[float], windows: int) -> None:
@@ -316,9 +324,10 @@ class PayloadAdaptation:
         return None if abs(m) < 0.01 else (self.delta[1:] / m).tolist()
 
     def residual_rms_nm(self) -> tuple[list[float | None], list[float | None]]:
-        """Per joint, the RMS error of the motor torque over the samples used so far, of the
-        model as identified and as adapted up to each sample (each sample is scored before
-        it moves the estimate: an error on data the adaptation had not seen) [N·m]."""
+        """Per joint, the RMS error of the window-mean motor torque over the windows used so
+        far, of the model as identified and as adapted up to each window (each is scored
+        before it moves the estimate: an error on data the adaptation had not seen) [N·m];
+        None for a joint that never slid."""
 
         def rms(sq: np.ndarray) -> list[float | None]:
             return [

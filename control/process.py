@@ -1216,23 +1216,18 @@ class ControlProcess:
                 self.adaptation_problem = f"adapted payload not kept: {path}: {exc}"
                 log.error("%s", self.adaptation_problem)
 
-    def _adaptation_health(self) -> dict | None:
-        """What the operator's status shows of eq. (29): the mass the law compensates."""
+    def _adaptation_report(self) -> dict | None:
+        """Eq. (29) for the health (the operator's status) and the telemetry: the mass the
+        law compensates, and the model's error on this run's replays (data it was not
+        fitted to)."""
         adapt = self.adaptation
         if adapt is None:
             return None
-        com = adapt.com_m
-        before, after = adapt.residual_rms_nm()
         return {
-            "mass_kg": round(adapt.mass_kg, 3),
-            "com_m": None if com is None else [round(v, 3) for v in com],
+            **adapt.report(),
             "applied": self._adaptation_applied == adapt.version,
             "restored": self._adaptation_restored,
             "problem": self.adaptation_problem,
-            # the model's error on this run's replays (data it was not fitted to)
-            "windows_used": adapt.windows_used,
-            "residual_rms_identified_nm": before,
-            "residual_rms_adapted_nm": after,
         }
 
     def run(self) -> None:
@@ -1242,6 +1237,7 @@ class ControlProcess:
         while not self.stop_event.wait(min(period, PRESSURE_PUBLISH_PERIOD_S)):
             now = self.clock()
             self._adapt_model(now)
+            adapted = self._adaptation_report()
             p2, p3 = self.pressure_setpoints(now)
             s.put(self.keys.pressure_setpoint, PressureSetpoint(now, p2, p3).to_bytes())
             health = {
@@ -1253,7 +1249,7 @@ class ControlProcess:
                 "load_check": None
                 if self.load_check is None
                 else {**self.load_check.to_json(), "age_s": round(now - self.load_check_s, 3)},
-                "model_adaptation": self._adaptation_health(),
+                "model_adaptation": adapted,
             }
             s.put(self.keys.health("control"), encode_json(health))
             if self.ctl is not None:
@@ -1269,11 +1265,8 @@ class ControlProcess:
                     tele["hand_torque_nm"] = [round(float(v), 3) for v in adm.tau_h]
                     tele["hand_band_nm"] = [round(float(v), 3) for v in adm.band]
                     tele["reference_speed_rad_s"] = [round(float(v), 6) for v in adm.dq_r]
-                if self.adaptation is not None:
-                    tele["model_adaptation"] = {
-                        **self.adaptation.report(),
-                        "applied": self._adaptation_applied == self.adaptation.version,
-                    }
+                if adapted is not None:
+                    tele["model_adaptation"] = adapted
                 est = self.ctl.inner_estimate
                 if est is not None:
                     tele["inner_loop_estimate"] = {
