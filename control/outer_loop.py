@@ -19,24 +19,31 @@ estimates. A zero-moment arm has nothing else holding it, so a 2 % error in the 
 K_I lets a 1,000 kg arm sink (measured on the virtual cell: 0.6 m in 5 s with a spray gun
 mounted, against 0.5 mm with the exact gains). The drive reports its motor current, so the
 torque it delivered is measured (``τ_m = K i``, K the datasheet's torque constant) and eq. (28),
-``dω̂/dt = -Λ τ_d (τ_m - τ_d)``, drives the error to zero. We take the normalised gradient
-Λ = γ ω̂ / τ_d² per joint, in the log of ω̂, which makes the convergence rate γ independent of
+``dω̂/dt = -Λ τ_d (τ_m - τ_d)``, drives the error to zero. As for the paper's laws below, the
+regressor is the command the drive actually followed, not the designed τ_d: with the cycle
+means u₁ = mean(dq_c - dq) and u₂ = mean(q_c - q) of the command that drove the cycle, the
+estimates predict ``τ̂ = (u₁ + Υ̂_I u₂) / ω̂``, which is τ_d when the arm moved as the delay
+predictor said (control/delay.py). When it did not (the hand pushed, the model's inertia is
+off), τ_d no longer says what the drive was asked for, and a gradient on it learnt the
+mismatch as a gain error (teach-bench, seed 0: J6's ω̂ ended at 0.67 of the drive's after
+59 s of teaching, J1's at 0.93; with τ̂, see the README). We take the normalised gradient
+Λ = γ ω̂ / τ̂² per joint, in the log of ω̂, which makes the convergence rate γ independent of
 the load and keeps ω̂ > 0::
 
-    ω̂ ← ω̂ · exp(-γ dt · clip((τ_m - τ_d) / τ_d, ±0.5)),   projected onto [ω̂₀/2, 2 ω̂₀]
+    ω̂ ← ω̂ · exp(-γ dt · clip((τ_m - τ̂) / τ̂, ±0.5)),   projected onto [ω̂₀/2, 2 ω̂₀]
 
 with ω̂₀ the commissioned value. Before the first cycle, while the drive still holds the arm at
 rest (q_c fixed, dq = dq_c = 0), eq. (19) reads ``K i = K K_I (q_c - q)``: the held offset and
 the reported current measure K K_I, and :meth:`OuterLoop.calibrate_from_hold` sets the ω̂ for
 which the static gain is 1 before the arm is released (from the mean of the hold's last
-states, :class:`HoldAverage`). It adapts only on a cycle whose command the drive followed as
-sent (no hold, no coast, neither limit hit, the cycle after it not missed) and whose |τ_d| is
-above ``min_torque_nm`` (the current's noise would otherwise dominate). τ_m of the state for
-cycle c is the mean current over the cycle that command c - 1 - d drove, d the command delay
-(:attr:`delay_cycles`). γ (``rate_per_s``, about 1/s) is far below Υ_I (~30/s), so the offset
-filter settles long before ω̂ moves. The operator's hand does not enter τ_m - τ_d (both are
-motor torques): holding the tool against a stop does not drift ω̂. Υ̂_I and the dynamic
-parameters (eqs. 29, 30) stay at their identified values.
+states, :class:`HoldAverage`). It adapts only on a cycle the drive followed as sent (no hold,
+no coast, the cycle after it not missed: the caller's business) and whose |τ̂| is above
+``min_torque_nm`` (the current's noise would otherwise dominate). A command the tool speed
+limit scaled is the command the drive followed, so its cycle teaches as any other. γ
+(``rate_per_s``, about 1/s) is far below Υ_I (~30/s), so the offset filter settles long
+before ω̂ moves. The operator's hand does not enter τ_m - τ̂ (both are the drive's torque):
+holding the tool against a stop does not drift ω̂. Υ̂_I and the dynamic parameters (eqs. 29,
+30) stay at their identified values.
 
 **The paper's laws (28) and (30) together** (:class:`PaperAdaptation`, ``[control] strategy =
 "paper"``). Eq. (23) says the torque the drive delivers is
@@ -109,19 +116,14 @@ class OmegaAdaptation:
 
     #: γ: how fast ω̂ converges [1/s]
     rate_per_s: float
-    #: per joint: no adaptation while |τ_d| is below this [N·m]
+    #: per joint: no adaptation while |τ̂| is below this [N·m]
     min_torque_nm: tuple[float, ...]
-    #: cycles between a command and the cycle the drive follows it in (the inner-loop
-    #: estimate's ``delay_cycles``)
-    delay_cycles: int = 0
 
     def check(self, n: int) -> None:
         if not (math.isfinite(self.rate_per_s) and self.rate_per_s >= 0):
             raise ValueError(f"adaptation rate {self.rate_per_s} must be >= 0")
         if len(self.min_torque_nm) != n or not all(v > 0 for v in self.min_torque_nm):
             raise ValueError(f"adaptation min_torque_nm needs {n} values > 0")
-        if not 0 <= self.delay_cycles <= 10:
-            raise ValueError(f"adaptation delay {self.delay_cycles} not in 0..10 cycles")
 
 
 @dataclass(frozen=True)
@@ -232,9 +234,6 @@ class OuterLoop:
         self._dead_zone: list[float] = [0.0] * n
         if isinstance(adaptation, PaperAdaptation) and adaptation.dead_zone_nm:
             self._dead_zone = list(adaptation.dead_zone_nm)
-        #: τ_d of the last cycles, newest last, each with whether its command went out as
-        #: computed (no limit hit), for eq. (28) (None: no command that cycle)
-        self._sent: list[tuple[list[float], bool] | None] = []
         #: per joint: offset limit, velocity limit
         self._joints = list(
             zip(self.max_offset_rad.tolist(), self.max_velocity_rad_s.tolist(), strict=True)
@@ -276,44 +275,21 @@ class OuterLoop:
         self.offset_rad = np.clip(
             np.asarray(offset_rad, dtype=float), -self.max_offset_rad, self.max_offset_rad
         )
-        self._sent = []
 
-    def adapt_floats(self, tau_m_nm: list[float] | None, dt_s: float) -> None:
-        """Eq. (28) for one cycle (module docstring): ``tau_m_nm`` the motor torque measured
-        in this state (K × reported current), or None when the cycle just ended did not follow
-        the commands as sent (a hold, a coast, a missed cycle): the history is dropped."""
-        a = self.adaptation
-        if not isinstance(a, OmegaAdaptation):
-            return
-        if tau_m_nm is None:
-            self._sent = []
-            return
-        lag = a.delay_cycles + 1
-        if len(self._sent) < lag:
-            return
-        then = self._sent[-lag]
-        if then is None or not then[1]:
-            return
-        step = a.rate_per_s * dt_s
-        omega = self._omega
-        for j, (tm, td, floor) in enumerate(zip(tau_m_nm, then[0], a.min_torque_nm,
-                                                strict=True)):  # fmt: skip
-            if td > floor or td < -floor:
-                r = (tm - td) / td
-                r = 0.5 if r > 0.5 else -0.5 if r < -0.5 else r
-                self._project(j, omega[j] * math.exp(-step * r))
-
-    def adapt_paper(
+    def adapt(
         self,
         u1_rad_s: list[float],
         u2_rad: list[float],
         tau_m_nm: list[float],
         dt_s: float,
     ) -> None:
-        """Eqs. (28) and (30) (PaperAdaptation; module docstring) for a cycle the drive followed
-        as sent: its means u₁ = mean(dq_c - dq) [rad/s] and u₂ = mean(q_c - q) [rad], and the
-        motor torque measured over it [N·m]. No-op with another adaptation."""
+        """Eq. (28) (OmegaAdaptation) or eqs. (28) and (30) (PaperAdaptation) for a cycle the
+        drive followed as sent (module docstring): its means u₁ = mean(dq_c - dq) [rad/s] and
+        u₂ = mean(q_c - q) [rad], and the motor torque measured over it [N·m]."""
         a = self.adaptation
+        if isinstance(a, OmegaAdaptation):
+            self._adapt_omega(a, u1_rad_s, u2_rad, tau_m_nm, dt_s)
+            return
         if not isinstance(a, PaperAdaptation):
             return
         step = a.rate_per_s * dt_s
@@ -332,6 +308,28 @@ class OuterLoop:
             self._project(j, w * math.exp(step * p1 / norm * s))
             u *= math.exp(step * a.upsilon_ratio * p2 / norm * s)
             self._ups[j] = min(max(u, self._ups_lo[j]), self._ups_hi[j])
+
+    def _adapt_omega(
+        self,
+        a: OmegaAdaptation,
+        u1_rad_s: list[float],
+        u2_rad: list[float],
+        tau_m_nm: list[float],
+        dt_s: float,
+    ) -> None:
+        """Eq. (28) alone: ω̂ on τ̂ = (u₁ + Υ̂_I u₂) / ω̂ (module docstring)."""
+        step = a.rate_per_s * dt_s
+        for j, (u1, u2, tm, floor) in enumerate(
+            zip(u1_rad_s, u2_rad, tau_m_nm, a.min_torque_nm, strict=True)
+        ):
+            w = self._omega[j]
+            tau_hat = (u1 + self._ups[j] * u2) / w
+            if tau_hat > floor or tau_hat < -floor:  # NaN: no step
+                r = (tm - tau_hat) / tau_hat
+                if r != r:
+                    continue
+                r = 0.5 if r > 0.5 else -0.5 if r < -0.5 else r
+                self._project(j, w * math.exp(-step * r))
 
     def calibrate_from_hold(self, offset_rad: list[float], tau_m_nm: list[float]) -> None:
         """ω̂ from the drive holding the arm at rest (module docstring): there eq. (19) is
@@ -354,21 +352,6 @@ class OuterLoop:
         ``bound_factor`` either side of ω̂₀)."""
         self._omega[j] = min(max(omega, self._omega_lo[j]), self._omega_hi[j])
 
-    def _remember(self, tau_d_nm: list[float], clean: bool) -> None:
-        if not isinstance(self.adaptation, OmegaAdaptation):
-            return
-        self._sent.append((tau_d_nm, clean))
-        if len(self._sent) > self.adaptation.delay_cycles + 1:
-            del self._sent[0]
-
-    def taint_last(self) -> None:
-        """The command just computed is not sent as eq. (21) gave it (the tool speed limit
-        scaled its velocity): the drive will not deliver ω̂ τ_d K* in the cycle it drives, so
-        eq. (28) must not learn from that cycle."""
-        if self._sent:
-            tau, _clean = self._sent[-1]
-            self._sent[-1] = (tau, False)
-
     def step(
         self, q_rad: np.ndarray, dq_rad_s: np.ndarray, tau_d_nm: np.ndarray, dt_s: float
     ) -> OuterLoopCommand:
@@ -386,7 +369,6 @@ class OuterLoop:
         dq_cmd = np.clip(dq_cmd, -self.max_velocity_rad_s, self.max_velocity_rad_s)
         q_cmd = q_rad + e
         self.offset_rad = e_next
-        self._remember(np.asarray(tau_d_nm, dtype=float).tolist(), not np.any(sat | vsat))
         return OuterLoopCommand(q_cmd, dq_cmd, e.copy(), sat | vsat)
 
     def step_floats(
@@ -399,7 +381,6 @@ class OuterLoop:
             ups = list(self._ups)
             self._decay = (dt_s, ups, [math.exp(-u * dt_s) for u in ups])
         q_cmd, dq_cmd, offset = [], [], []
-        clean = True
         for e, q, dq, tau, dec, omega, ups, (max_e, max_v) in zip(
             self._offset, q_rad, dq_rad_s, tau_d_nm, self._decay[2], self._omega, self._ups,
             self._joints, strict=True,
@@ -407,11 +388,8 @@ class OuterLoop:
             target = omega * tau / ups
             e_next = target + (e - target) * dec
             dq_c = dq + (-ups * e + omega * tau)
-            if e_next > max_e or e_next < -max_e or dq_c > max_v or dq_c < -max_v:
-                clean = False
             offset.append(max_e if e_next > max_e else -max_e if e_next < -max_e else e_next)
             dq_cmd.append(max_v if dq_c > max_v else -max_v if dq_c < -max_v else dq_c)
             q_cmd.append(q + e)
         self._offset = offset
-        self._remember(list(tau_d_nm), clean)
         return q_cmd, dq_cmd

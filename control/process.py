@@ -197,9 +197,7 @@ class ZeroMomentController:
                 )
         elif cfg.omega_adaptation_per_s > 0:
             adaptation = OmegaAdaptation(
-                cfg.omega_adaptation_per_s,
-                cfg.omega_adaptation_min_torque_nm,
-                cfg.command_delay_cycles,
+                cfg.omega_adaptation_per_s, cfg.omega_adaptation_min_torque_nm
             )
         self.loop = OuterLoop(
             omega,
@@ -254,7 +252,8 @@ class ZeroMomentController:
             self.inner_estimate = InnerLoopEstimator(
                 kp0, kp0 * np.array(cfg.upsilon_i_per_s), self._k_nm_per_a
             )
-        self._paper = isinstance(adaptation, PaperAdaptation)
+        #: eq. (28), or (28) and (30), adapt on the cycles the drive followed
+        self._adapts = adaptation is not None
         #: the drive model of the delay predictor, (K K_p, Υ_I), when it is not the law's
         #: estimates: the paper's law starts far from the drive (Υ̂_I(0) = 1.2/s against
         #: ~30/s: a K̂* 26 times the drive's made the predictor's explicit integration
@@ -448,8 +447,7 @@ class ZeroMomentController:
         self.last_cycle = st.cycle
         # eq. (28): the torque the drive delivered, if it followed the commands as sent
         followed = gap == 1 and not st.flags & (FLAG_PREV_HOLD | FLAG_PREV_COAST)
-        self.loop.adapt_floats(self.motor_torque_nm(st) if followed else None, period)
-        if self.inner_estimate is not None or self._paper:
+        if self.inner_estimate is not None or self._adapts:
             self._cycle_regression(st, followed, period)
         q, dq = st.q_rad, st.dq_rad_s
         if self._inertia is not None:
@@ -473,14 +471,13 @@ class ZeroMomentController:
             scale = self.tool_speed_scale(q, np.array(dq_cmd))
             if scale < 1.0:
                 dq_cmd = [v * scale for v in dq_cmd]
-                self.loop.taint_last()  # not eq. (21)'s command: eq. (28) skips its cycle
-        if self.inner_estimate is not None or self._paper:
+        if self.inner_estimate is not None or self._adapts:
             self._sent_cmds.append((q_cmd, dq_cmd))
         return q_cmd, dq_cmd
 
     def _cycle_regression(self, st: JointState, followed: bool, period_s: float) -> None:
-        """Feed the cycle that just ended to :attr:`inner_estimate` and the paper's
-        adaptation (eqs. 28, 30) if the drive followed the command that drove it as sent."""
+        """Feed the cycle that just ended to :attr:`inner_estimate` and the loop's adaptation
+        (eq. 28, or eqs. 28 and 30) if the drive followed the command that drove it as sent."""
         est, prev = self.inner_estimate, self._prev_state
         self._prev_state = (st.q_rad, st.dq_rad_s)
         if not followed or prev is None:
@@ -496,11 +493,11 @@ class ZeroMomentController:
                 q_cmd, dq_cmd, prev[0], st.q_rad, st.current_a, period_s,
                 dq_start=prev[1], dq_end=st.dq_rad_s, ticks=ticks,
             )  # fmt: skip
-        if self._paper:
+        if self._adapts:
             u1, u2 = cycle_means(
                 q_cmd, dq_cmd, prev[0], st.q_rad, period_s, prev[1], st.dq_rad_s, ticks
             )
-            self.loop.adapt_paper(u1.tolist(), u2.tolist(), self.motor_torque_nm(st), period_s)
+            self.loop.adapt(u1.tolist(), u2.tolist(), self.motor_torque_nm(st), period_s)
 
     def cycle_command(
         self, q_rad: np.ndarray, dq_rad_s: np.ndarray, p_bar: Sequence[float], dt_s: float

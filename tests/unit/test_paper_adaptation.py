@@ -50,7 +50,7 @@ def excite(loop, seconds, velocity_share, rng, noise_nm=0.0):
         t = c * T
         u2 = 0.004 * np.sin(2 * np.pi * 0.5 * t + np.arange(3)) + 0.002
         u1 = velocity_share * UPS * 0.004 * np.sin(2 * np.pi * 3.1 * t + 1.0 + np.arange(3))
-        loop.adapt_paper(u1.tolist(), u2.tolist(), drive(u1, u2, noise_nm, rng).tolist(), T)
+        loop.adapt(u1.tolist(), u2.tolist(), drive(u1, u2, noise_nm, rng).tolist(), T)
 
 
 def static_gain(loop):
@@ -89,11 +89,11 @@ def test_the_paper_start_with_the_commissioned_static_gain_converges_on_a_held_l
     loop = paper_loop(1.25, 1.0)
     u1, u2 = np.zeros(3), np.array([0.003, -0.004, 0.001])
     for _ in range(round(10.0 / T)):
-        loop.adapt_paper(u1.tolist(), u2.tolist(), drive(u1, u2).tolist(), T)
+        loop.adapt(u1.tolist(), u2.tolist(), drive(u1, u2).tolist(), T)
     np.testing.assert_allclose(static_gain(loop), 1.0, atol=0.005)
     omega, ups = loop.omega, loop.upsilon_i
     for _ in range(round(10.0 / T)):
-        loop.adapt_paper(u1.tolist(), u2.tolist(), drive(u1, u2).tolist(), T)
+        loop.adapt(u1.tolist(), u2.tolist(), drive(u1, u2).tolist(), T)
     np.testing.assert_allclose(loop.omega, omega, rtol=2e-3)
     np.testing.assert_allclose(loop.upsilon_i, ups, rtol=2e-3)
 
@@ -103,7 +103,7 @@ def test_the_dead_zone_and_the_torque_floor_stop_the_adaptation():
     tau = drive(u1, u2)
     loop = paper_loop(1.02, 1.0, dead_zone=(1e4, 0.0, 0.0), floor=(1.0, 1.0, 100.0))
     for _ in range(200):
-        loop.adapt_paper(u1.tolist(), u2.tolist(), tau.tolist(), T)
+        loop.adapt(u1.tolist(), u2.tolist(), tau.tolist(), T)
     assert loop.omega[0] == OMEGA[0] * 1.02  # the error is inside its dead zone
     assert loop.omega[1] != OMEGA[1] * 1.02  # adapted
     assert loop.omega[2] == OMEGA[2] * 1.02  # |φ| under the joint's torque floor
@@ -114,25 +114,29 @@ def test_the_dead_zone_and_the_torque_floor_stop_the_adaptation():
 def test_a_non_finite_cycle_is_no_step_and_the_estimates_stay_within_their_bounds():
     loop = paper_loop(1.0, 1.0, rate=20.0)
     nan = float("nan")
-    loop.adapt_paper([nan] * 3, [0.001] * 3, [10.0] * 3, T)
-    loop.adapt_paper([0.0] * 3, [0.001] * 3, [nan] * 3, T)
+    loop.adapt([nan] * 3, [0.001] * 3, [10.0] * 3, T)
+    loop.adapt([0.0] * 3, [0.001] * 3, [nan] * 3, T)
     np.testing.assert_array_equal(loop.omega, OMEGA)
     # a drive that reports far too much torque, for a long time: ω̂ and Υ̂_I stay in bounds
     for _ in range(round(60.0 / T)):
-        loop.adapt_paper([0.001] * 3, [0.001] * 3, [1e6] * 3, T)
+        loop.adapt([0.001] * 3, [0.001] * 3, [1e6] * 3, T)
     assert np.all(loop.omega >= OMEGA / 50 * (1 - 1e-12))
     assert np.all((loop.upsilon_i <= UPS * 50 * (1 + 1e-12)) & (loop.upsilon_i > 0))
 
 
-def test_eq28_alone_ignores_the_paper_call_and_the_paper_law_ignores_eq28s():
+def test_eq28_alone_moves_only_omega_on_the_same_call():
+    """OmegaAdaptation takes the cycle means the paper's laws take, and adapts ω̂ alone: fed a
+    drive whose gain K* is 10 % above the commissioned one (Υ_I exact), ω̂ converges to 1/K*
+    and Υ̂_I stays where it was."""
     eq28 = OuterLoop(OMEGA, UPS, np.full(3, 0.05), np.full(3, 2.0),
                      OmegaAdaptation(1.0, (1.0,) * 3))  # fmt: skip
-    eq28.adapt_paper([0.01] * 3, [0.001] * 3, [1e4] * 3, T)
-    np.testing.assert_array_equal(eq28.omega, OMEGA)
-    paper = paper_loop(1.0, 1.0)
-    paper.step_floats([0.0] * 3, [0.0] * 3, [100.0] * 3, T)
-    paper.adapt_floats([1e4] * 3, T)
-    np.testing.assert_array_equal(paper.omega, OMEGA)
+    rng = np.random.default_rng(3)
+    for c in range(round(10.0 / T)):
+        u2 = 0.004 * np.sin(2 * np.pi * 0.5 * c * T + np.arange(3)) + 0.002
+        u1 = 0.05 * UPS * 0.004 * np.sin(2 * np.pi * 3.1 * c * T + np.arange(3))
+        eq28.adapt(u1.tolist(), u2.tolist(), (1.1 * drive(u1, u2, 0.5, rng)).tolist(), T)
+    np.testing.assert_allclose(eq28.omega, OMEGA / 1.1, rtol=0.01)
+    np.testing.assert_array_equal(eq28.upsilon_i, UPS)
 
 
 @pytest.fixture(scope="module")
