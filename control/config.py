@@ -45,6 +45,12 @@ class ControlConfig:
     #: slower than their ramps for this long [s] (control/process.py, ``GuidedFriction``;
     #: 0: the ramp always applies)
     friction_ramp_guided_s: float = 0.3
+    #: the zero-moment law's inertia compensation: the drives also give this share of
+    #: M(q) q̈ (the nominal rigid body's inertia, the measured acceleration low-passed at
+    #: ``inertia_compensation_hz``), so the painter accelerates only the rest of the arm's
+    #: mass (control/process.py, ``inertia_torque``); 0: none
+    inertia_compensation: float = 0.6
+    inertia_compensation_hz: float = 10.0
     #: soft joint limits: a virtual spring pushes back this far inside the hard range [rad]
     soft_limit_margin_rad: float = 0.05
     wall_stiffness_nm_per_rad: float = 2000.0
@@ -323,6 +329,17 @@ class ControlConfig:
             self.friction_deadband_rad_s >= 0,
             "[control].friction_deadband_rad_s",
             f"{self.friction_deadband_rad_s} must be >= 0",
+        )
+        require(
+            math.isfinite(self.inertia_compensation) and 0 <= self.inertia_compensation < 1,
+            "[control].inertia_compensation",
+            f"{self.inertia_compensation} not in [0, 1)",
+        )
+        require(
+            math.isfinite(self.inertia_compensation_hz)
+            and 0.5 <= self.inertia_compensation_hz <= 50,
+            "[control].inertia_compensation_hz",
+            f"{self.inertia_compensation_hz} not in [0.5, 50] Hz",
         )
         require(
             math.isfinite(self.friction_ramp_guided_s) and 0 <= self.friction_ramp_guided_s <= 5,

@@ -214,14 +214,19 @@ class ZeroMomentController:
         self._inertia = None
         #: the tool point in the link-6 frame [m]: the flange is that far back along it
         self._tool_in_6 = np.array(model.desc.tool.position_in_link6_m)
-        if cfg.command_delay_cycles or cfg.max_tool_speed_m_s > 0 or cfg.friction_ramp_factor:
+        if (
+            cfg.command_delay_cycles
+            or cfg.max_tool_speed_m_s > 0
+            or cfg.friction_ramp_factor
+            or cfg.inertia_compensation
+        ):
             from control.model.dynamics import RigidBodyModel
 
             self._inertia = RigidBodyModel.from_description(model.desc)
         #: (q it was computed at, M(q)⁻¹) for the predictor: M changes slowly with q, and the
         #: predictor holds with M off by 30 %, so it is recomputed only after a joint moved
         #: more than INERTIA_STEP_RAD (a 6×6 crba and inverse cost half the control law)
-        self._m_inv: tuple[np.ndarray, np.ndarray] | None = None
+        self._m_inv: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         #: the driver's hold at rest before teaching (:meth:`observe_hold`)
         self.hold = HoldAverage()
         self.damping = np.array(cfg.damping_nm_s_per_rad)
@@ -282,6 +287,11 @@ class ZeroMomentController:
             [a * k for a, k in zip(dither_a, self._k_nm_per_a, strict=True)] if dither_a else []
         )
         self._dither_phase = 0.0
+        #: inertia compensation (:meth:`inertia_torque`): the low-passed acceleration, the
+        #: last measured velocity, and the torque added this cycle [N·m]
+        self._ddq_f = np.zeros(n)
+        self._dq_last: np.ndarray | None = None
+        self._tau_inertia: list[float] = [0.0] * n
 
     @property
     def tau_d_nm(self) -> np.ndarray:
@@ -327,8 +337,29 @@ class ZeroMomentController:
         cached = self._m_inv
         if cached is None or float(np.max(np.abs(q - cached[0]))) > INERTIA_STEP_RAD:
             m = self._inertia.mass_matrix(q, include_armature=True)
-            cached = self._m_inv = (q.copy(), np.linalg.inv(m))
+            cached = self._m_inv = (q.copy(), np.linalg.inv(m), m)
         return cached[1]
+
+    def inertia_torque(
+        self, q: np.ndarray, dq: np.ndarray, period_s: float, consecutive: bool
+    ) -> list[float]:
+        """``inertia_compensation`` × M(q) q̈ [N·m]: q̈ the difference of the measured
+        velocities of consecutive states, low-passed (first order) at
+        ``inertia_compensation_hz``; after a gap it starts again from zero."""
+        if not consecutive or self._dq_last is None:
+            self._ddq_f[:] = 0.0
+        else:
+            k = 1.0 - math.exp(-2.0 * math.pi * self.cfg.inertia_compensation_hz * period_s)
+            self._ddq_f += k * ((dq - self._dq_last) / period_s - self._ddq_f)
+        self._dq_last = dq.copy()
+        return (self.cfg.inertia_compensation * (self.inertia(q) @ self._ddq_f)).tolist()
+
+    def inertia(self, q: np.ndarray) -> np.ndarray:
+        """M(q) of the nominal rigid body with rotor inertias, cached as
+        :meth:`inverse_inertia`'s."""
+        self.inverse_inertia(q)
+        assert self._m_inv is not None
+        return self._m_inv[2]
 
     def tool_speed_scale(self, q: np.ndarray, dq: np.ndarray) -> float:
         """The factor (≤ 1) on ``dq`` that keeps the tool point and the flange within
@@ -438,6 +469,9 @@ class ZeroMomentController:
             self._guided.reset()
             self._sent_cmds.clear()
             self._prev_state = None
+            self._dq_last = None
+            self._ddq_f[:] = 0.0
+            self._tau_inertia = self._no_hold
             if self.cfg.friction_ramp_factor:
                 self._friction_level = self.friction_level_nm(st.q_rad)
             self.engaged = True
@@ -457,6 +491,8 @@ class ZeroMomentController:
                 if self._guided.update(st.dq_rad_s, self._ramps, dt):
                     self._ramps = self._no_ramps
             k_star, ups = self._drive_model or (1.0 / self.loop.omega, self.loop.upsilon_i)
+            if self.cfg.inertia_compensation:
+                self._tau_inertia = self.inertia_torque(q, st.dq_rad_s, period, gap == 1)
             q, dq = self.predictor.predict(
                 q, dq, st.q_cmd_rad, st.dq_cmd_rad_s, period, gap == 1, m_inv, k_star, ups
             )
@@ -518,13 +554,13 @@ class ZeroMomentController:
         k = self.cfg.wall_stiffness_nm_per_rad
         tau = []
         hold = self.rest_hold.torque_nm(q) if self.rest_hold.active else self._no_hold
-        for qj, dqj, vf, s, f, c, lo, up, h, ramp in zip(
+        for qj, dqj, vf, s, f, c, lo, up, h, ramp, a in zip(
             q, dq, dq_f, static, friction, self._damping, self._lower, self._upper, hold,
-            self._ramps, strict=True,
+            self._ramps, self._tau_inertia, strict=True,
         ):  # fmt: skip
             # friction opposes motion: a model that says otherwise there is not compensated
             share = gain if ramp <= 0.0 else gain * min(1.0, abs(vf) / ramp)
-            t = s + (share * f if f * dqj > 0.0 else 0.0) - c * dqj + h
+            t = s + (share * f if f * dqj > 0.0 else 0.0) - c * dqj + h + a
             if qj > up:  # soft joint limits: a spring pushes back inside
                 t -= k * (qj - up)
             if qj < lo:

@@ -115,9 +115,11 @@ def test_cycle_command_equals_desired_torque_then_eq21_over_a_run(cfg, model):
 
 
 def test_update_answers_with_the_reference_command(at_once, model):
-    """The law itself: the tool speed limit (which scales a fast command) and eq. (28) (its
-    own tests) are off here."""
-    at_once = dataclasses.replace(at_once, max_tool_speed_m_s=0.0, omega_adaptation_per_s=0.0)
+    """The law itself: the tool speed limit (which scales a fast command), eq. (28) and the
+    inertia compensation (their own tests) are off here."""
+    at_once = dataclasses.replace(
+        at_once, max_tool_speed_m_s=0.0, omega_adaptation_per_s=0.0, inertia_compensation=0.0
+    )
     ctl = ZeroMomentController(at_once, model)
     ref = ZeroMomentController(at_once, model)
     rng = np.random.default_rng(6)
@@ -434,3 +436,50 @@ def test_friction_is_compensated_in_full_while_a_positioning_joint_slides_past_i
     held = [g.update(slow, ramps, 0.004) for _ in range(100)]
     assert all(held[:74]) and not any(held[75:])
     assert not GuidedFriction(0.0).update(j2, ramps, 0.004)
+
+
+def test_inertia_compensation_gives_its_share_of_m_qdd(at_once, model):
+    """``inertia_compensation``: a steady acceleration of the measured velocity earns the
+    configured share of M(q) q̈ once its low-pass has settled; a gap starts it again from zero,
+    and with the share at 0 nothing is added."""
+    share = dataclasses.replace(at_once, inertia_compensation=0.4, inertia_compensation_hz=10.0)
+    ctl = ZeroMomentController(share, model)
+    q = np.array([0.2, -0.3, 0.4, 0.1, -0.2, 0.3])
+    accel = np.array([0.5, -0.3, 0.8, 1.0, -1.0, 2.0])
+    period = 0.004
+    tau = []
+    for k in range(200):  # 0.8 s: 50 time constants of the 10 Hz low-pass
+        tau = ctl.inertia_torque(q, accel * k * period, period, consecutive=True)
+    want = 0.4 * ctl.inertia(q) @ accel
+    np.testing.assert_allclose(tau, want, rtol=1e-6)
+    assert np.all(np.abs(want) > 0.01)
+    # a gap: the acceleration over it is not known, so nothing is compensated at first
+    after_gap = ctl.inertia_torque(q, accel * 500 * period, period, consecutive=False)
+    np.testing.assert_array_equal(after_gap, 0.0)
+    # and the cycle's command carries it: same state, with and without the share
+    plain = ZeroMomentController(
+        dataclasses.replace(at_once, max_tool_speed_m_s=0.0, inertia_compensation=0.0), model
+    )
+    comp = ZeroMomentController(
+        dataclasses.replace(share, max_tool_speed_m_s=0.0, inertia_compensation=0.9), model
+    )
+    for c in range(3):
+        dq = accel * c * period
+        st = make_joint_state(100 + c, 1.0, ControllerState.EXTERNAL, 2, q, dq, np.zeros(6),
+                              q, dq, period)  # fmt: skip
+        plain.update(st, (6.0, 4.0), 2.0)
+        comp.update(st, (6.0, 4.0), 2.0)
+    assert np.all(np.sign(comp.tau_d_nm - plain.tau_d_nm) == np.sign(comp._tau_inertia))
+    assert np.any(np.abs(comp.tau_d_nm - plain.tau_d_nm) > 0.01)
+
+
+def test_inertia_compensation_settings_are_checked(at_once):
+    bad_settings = (
+        {"inertia_compensation": 1.0},
+        {"inertia_compensation": -0.1},
+        {"inertia_compensation_hz": 0.0},
+        {"inertia_compensation": float("nan")},
+    )
+    for bad in bad_settings:
+        with pytest.raises(ConfigError, match="inertia_compensation"):
+            dataclasses.replace(at_once, **bad)
