@@ -97,6 +97,11 @@ PROBE_BREAKAWAY_SHARE, PROBE_MAX_RAD_S = 0.4, 0.05
 STICK_RAD_S = 2.0 * REST_RAD_S
 #: the delay predictor's M(q)⁻¹ is recomputed after a joint moved this much [rad]
 INERTIA_STEP_RAD = 0.02
+#: the tool speed limit's Jacobians are recomputed once a joint moved this far [rad]: over
+#: it a Jacobian changes by about a per cent (tests/unit/test_zero_moment_cycle.py), well
+#: inside the limit's 12 % margin below ISO 10218-1's 250 mm/s, and the CAN driver's speed
+#: monitor keeps its own exact check
+SPEED_JACOBIAN_STEP_RAD = 0.005
 
 
 def load_control_config(cell_path: str | Path) -> tuple[ControlConfig, BusConfig]:
@@ -227,6 +232,8 @@ class ZeroMomentController:
         #: predictor holds with M off by 30 %, so it is recomputed only after a joint moved
         #: more than INERTIA_STEP_RAD (a 6×6 crba and inverse cost half the control law)
         self._m_inv: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        #: (q they were computed at, the tool speed limit's Jacobians), :meth:`speed_jacobians`
+        self._speed_jac: tuple[np.ndarray, np.ndarray] | None = None
         #: the driver's hold at rest before teaching (:meth:`observe_hold`)
         self.hold = HoldAverage()
         self.damping = np.array(cfg.damping_nm_s_per_rad)
@@ -363,16 +370,27 @@ class ZeroMomentController:
 
     def tool_speed_scale(self, q: np.ndarray, dq: np.ndarray) -> float:
         """The factor (≤ 1) on ``dq`` that keeps the tool point and the flange within
-        ``max_tool_speed_m_s`` (nominal kinematics)."""
-        assert self._inertia is not None
-        jac = self._inertia.tool_jacobian_world(q)
-        twist = jac @ dq
-        v_tool, omega = twist[:3], twist[3:]
-        rot = self._inertia.world_T_tool(q)[:3, :3]
-        v_flange = v_tool - np.cross(omega, rot @ self._tool_in_6)
-        fastest = max(float(np.linalg.norm(v_tool)), float(np.linalg.norm(v_flange)))
+        ``max_tool_speed_m_s`` (nominal kinematics; the Jacobians of :meth:`speed_jacobians`)."""
+        v = (self.speed_jacobians(q) @ dq).tolist()
+        fastest = max(math.hypot(v[0], v[1], v[2]), math.hypot(v[3], v[4], v[5]))
         limit = self.cfg.max_tool_speed_m_s
         return 1.0 if fastest <= limit else limit / fastest
+
+    def speed_jacobians(self, q: np.ndarray) -> np.ndarray:
+        """(6, n): the tool point's linear velocity Jacobian over the flange's, world axes,
+        recomputed once a joint has moved :data:`SPEED_JACOBIAN_STEP_RAD` since the last time
+        (two kinematics calls cost a third of the control law). The flange sits ``r = R p``
+        behind the tool point (p the tool point in the link-6 frame), so ``v_flange = v_tool -
+        ω × r = (J_v + [r]× J_ω) dq``."""
+        cached = self._speed_jac
+        if cached is None or float(np.max(np.abs(q - cached[0]))) > SPEED_JACOBIAN_STEP_RAD:
+            assert self._inertia is not None
+            jac = self._inertia.tool_jacobian_world(q)
+            r = self._inertia.world_T_tool(q)[:3, :3] @ self._tool_in_6
+            skew = np.array([[0.0, -r[2], r[1]], [r[2], 0.0, -r[0]], [-r[1], r[0], 0.0]])
+            stacked = np.vstack([jac[:3], jac[:3] + skew @ jac[3:]])
+            cached = self._speed_jac = (q.copy(), stacked)
+        return cached[1]
 
     def friction_level_nm(self, q: np.ndarray) -> np.ndarray:
         """The model's friction at ``q`` just above rest [N·m], per joint: the most of it over

@@ -161,7 +161,9 @@ def test_a_cell_config_naming_an_unknown_strategy_is_refused(cell, tmp_path):
 
 def test_the_reference_keeps_the_tool_and_the_flange_under_the_hand_guiding_speed(cfg):
     """A push far beyond anything a hand does: the reference's joint speeds would carry the
-    tool at metres per second; the tool point and the flange stay at the configured limit."""
+    tool at metres per second; the tool point and the flange stay at the configured limit
+    (within the 2 % the limit's cached Jacobians allow, control/process.py
+    SPEED_JACOBIAN_STEP_RAD)."""
     from control.model.dynamics import RigidBodyModel
 
     model, ctl, k_nm_per_a, q0, p, static = at_rest(cfg)
@@ -180,7 +182,7 @@ def test_the_reference_keeps_the_tool_and_the_flange_under_the_hand_guiding_spee
             twist[3:], rot @ np.array(model.desc.tool.position_in_link6_m)
         )
         fastest = max(fastest, np.linalg.norm(twist[:3]), np.linalg.norm(flange))
-    assert fastest == pytest.approx(cfg.max_tool_speed_m_s, rel=1e-6)
+    assert fastest == pytest.approx(cfg.max_tool_speed_m_s, rel=0.02)
     assert cfg.max_tool_speed_m_s == 0.22
 
 

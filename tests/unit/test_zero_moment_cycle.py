@@ -483,3 +483,37 @@ def test_inertia_compensation_settings_are_checked(at_once):
     for bad in bad_settings:
         with pytest.raises(ConfigError, match="inertia_compensation"):
             dataclasses.replace(at_once, **bad)
+
+
+def test_tool_speed_scale_keeps_the_tool_and_the_flange_under_the_limit(at_once, model):
+    """The speed limit's Jacobians against finite differences of the tool point's and the
+    flange's positions (nominal kinematics): exact where they were computed, and within 2 %
+    of the speed anywhere within SPEED_JACOBIAN_STEP_RAD of there (the cache's reach)."""
+    from control.process import SPEED_JACOBIAN_STEP_RAD
+
+    ctl = ZeroMomentController(at_once, model)
+    kin, p6 = ctl._inertia, np.array(model.desc.tool.position_in_link6_m)
+
+    def points(q):
+        pose = kin.world_T_tool(q)
+        return pose[:3, 3], pose[:3, 3] - pose[:3, :3] @ p6
+
+    def speeds(q, dq, h=1e-6):
+        ahead, behind = points(q + dq * h), points(q - dq * h)
+        return [float(np.linalg.norm(a - b)) / (2 * h) for a, b in zip(ahead, behind, strict=True)]
+
+    rng = np.random.default_rng(11)
+    limit = at_once.max_tool_speed_m_s
+    lower, upper = model.desc.lower_rad, model.desc.upper_rad
+    for _ in range(40):
+        q = rng.uniform(lower, upper)
+        dq = rng.normal(0.0, 0.3, model.n)
+        for moved in (0.0, SPEED_JACOBIAN_STEP_RAD):
+            at = q + rng.uniform(-moved, moved, model.n)
+            fastest = max(speeds(at, dq))
+            scale = ctl.tool_speed_scale(at, dq)
+            want = min(1.0, limit / fastest)
+            np.testing.assert_allclose(scale, want, rtol=1e-5 if moved == 0.0 else 0.02)
+            if scale < 1.0:  # scaled down, the fastest of the two points runs at the limit
+                assert max(speeds(at, dq * scale)) == pytest.approx(limit, rel=0.02)
+        ctl._speed_jac = None  # the next pose is far: computed afresh
