@@ -228,9 +228,10 @@ class ZeroMomentController:
             from control.model.dynamics import RigidBodyModel
 
             self._inertia = RigidBodyModel.from_description(model.desc)
-        #: (q it was computed at, M(q)⁻¹) for the predictor: M changes slowly with q, and the
-        #: predictor holds with M off by 30 %, so it is recomputed only after a joint moved
-        #: more than INERTIA_STEP_RAD (a 6×6 crba and inverse cost half the control law)
+        #: (q it was computed at, M(q)⁻¹, M(q)) for the predictor and the inertia compensation:
+        #: M changes slowly with q, and the predictor holds with M off by 30 %, so it is
+        #: recomputed only after a joint moved more than INERTIA_STEP_RAD (a 6×6 crba and
+        #: inverse cost half the control law)
         self._m_inv: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         #: (q they were computed at, the tool speed limit's Jacobians), :meth:`speed_jacobians`
         self._speed_jac: tuple[np.ndarray, np.ndarray] | None = None
@@ -487,9 +488,7 @@ class ZeroMomentController:
             self._guided.reset()
             self._sent_cmds.clear()
             self._prev_state = None
-            self._dq_last = None
-            self._ddq_f[:] = 0.0
-            self._tau_inertia = self._no_hold
+            self._dq_last = None  # inertia_torque: the acceleration starts again from zero
             if self.cfg.friction_ramp_factor:
                 self._friction_level = self.friction_level_nm(st.q_rad)
             self.engaged = True
