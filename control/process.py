@@ -47,6 +47,7 @@ from gateway.bus import (
     BusConfig,
     bus_config_from,
     declare_loop_publisher,
+    on_receiving_thread,
     open_peer,
     undeclare_all,
 )
@@ -1058,7 +1059,7 @@ class ControlProcess:
         s = self.session
         self._pub_cmd = declare_loop_publisher(s, self.keys.joint_command)
         self._subs = [
-            s.declare_subscriber(self.keys.joint_state, self._on_state),
+            s.declare_subscriber(self.keys.joint_state, on_receiving_thread(self._on_state)),
             s.declare_subscriber(self.keys.io_state, self._on_io),
             s.declare_subscriber(self.keys.lifecycle, self._on_lifecycle),
         ]

@@ -13,7 +13,7 @@ import json
 import logging
 import os
 import re
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import Any
 
@@ -103,6 +103,16 @@ def open_peer(bus: BusConfig) -> zenoh.Session:
     return zenoh.open(_zenoh_config("peer", [bus.peer_listen], [bus.endpoint]))
 
 
+def on_receiving_thread(callback: Callable[[zenoh.Sample], Any]) -> zenoh.handlers.Callback:
+    """A subscriber's callback for the control loop's data, run on the zenoh thread that
+    received the sample. zenoh-python's default runs each subscriber's callbacks on a Python
+    thread of its own, handing every sample over (a wake-up per sample, and the scheduler's
+    latency on a busy core); this takes the hand-off out of the loop. The callback must be
+    quick and never block: the link's next sample waits for it (the loop's callbacks decode,
+    compute and publish in well under one cycle)."""
+    return zenoh.handlers.Callback(callback, indirect=False)
+
+
 def declare_loop_publisher(session: zenoh.Session, key: str):
     """Publisher for the control loop's data: never blocks (a dead or slow peer must not stall
     the loop: the message is dropped and the receiver's deadline handles it), sent at once
@@ -116,7 +126,7 @@ def declare_loop_publisher(session: zenoh.Session, key: str):
 
 
 #: the sections of a cell config; each process reads its own and the [bus]
-CELL_SECTIONS = ("bus", "can", "control", "gateway", "modbus")
+CELL_SECTIONS = ("bus", "can", "control", "gateway", "modbus", "realtime")
 
 
 def bus_config_from(cell: dict[str, Any], where: str) -> BusConfig:

@@ -46,6 +46,8 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     ),
 }
 OPERATOR_COMMANDS = ("start", "stop", "status", "reset", "mark")
+#: the product's processes: each places itself by the cell config's [realtime] when it starts
+PRODUCT_PROCESSES = ("gateway", "can-driver", "modbus-driver", "control")
 
 
 def _configure_operator(p: argparse.ArgumentParser, name: str) -> None:
@@ -157,6 +159,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.command in OPERATOR_COMMANDS:
             return _operator_main(args)
+        if args.command in PRODUCT_PROCESSES:
+            _place(args.command, args.config)
         return int(importlib.import_module(SUBCOMMANDS[args.command][0]).cli_main(args) or 0)
     except ConfigError as exc:
         print(f"leadthrough {args.command}: configuration refused: {exc}", file=sys.stderr)
@@ -164,6 +168,15 @@ def main(argv: list[str] | None = None) -> int:
     except LeadthroughError as exc:
         print(f"leadthrough {args.command}: error: {exc}", file=sys.stderr)
         return 2
+
+
+def _place(process: str, cell_path: Path) -> None:
+    """Apply the cell config's ``[realtime]`` to this process before it opens any link
+    (gateway/realtime.py); a bad section is a ConfigError like any other."""
+    from gateway.config import load_toml
+    from gateway.realtime import apply_realtime, realtime_config_from
+
+    apply_realtime(realtime_config_from(load_toml(cell_path), str(cell_path)), process)
 
 
 def _single(name: str) -> argparse.ArgumentParser:

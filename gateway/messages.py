@@ -37,6 +37,9 @@ class Keys:
         self.prefix = prefix
         #: JointState, published by the CAN driver once per controller cycle.
         self.joint_state = f"{prefix}/state/joints"
+        #: StateWindow, published by the CAN driver every [can] state_window_s: the joint
+        #: states for readers that are not on the cycle (the gateway).
+        self.state_window = f"{prefix}/state/window"
         #: IoState, published by the Modbus driver at its poll rate.
         self.io_state = f"{prefix}/state/io"
         #: JointCommand, published by the control process, one per JointState.
@@ -239,6 +242,50 @@ class JointState:
         q, dq, i_a, q_cmd, dq_cmd = body
         state = _CONTROLLER_STATES[cstate]
         return cls(cycle, stamp, state, flags, q, dq, i_a, q_cmd, dq_cmd, cycle_period_s=period)
+
+
+@dataclass(frozen=True)
+class StateWindow:
+    """The joint states of a window of controller cycles, for a reader that is not on the
+    cycle (the gateway supervises at 100 Hz and has no use for 500 states a second): how many
+    states, the fastest joint speed any of them read, each joint's lowest and highest position
+    among them, and the newest state whole (its JointState bytes, decoded by the reader). The
+    CAN driver publishes one every ``[can] state_window_s`` and at once when the controller's
+    state or its e-stop or servo-power flag changes (drivers/can/core.py StateWindowBuilder)."""
+
+    MAGIC: ClassVar[bytes] = b"LTSW"
+    _HEAD: ClassVar[struct.Struct] = struct.Struct("<4sBBId")  #: magic, version, n, states, speed
+
+    states: int  #: controller cycles in the window (≥ 1)
+    max_speed_rad_s: float  #: the fastest joint's measured speed in any of them [rad/s]
+    q_lo_rad: np.ndarray  #: each joint's lowest measured position in the window [rad]
+    q_hi_rad: np.ndarray  #: ... and its highest [rad]
+    newest: bytes  #: the window's last JointState payload
+
+    def to_bytes(self) -> bytes:
+        n = int(self.q_lo_rad.shape[0])
+        head = self._HEAD.pack(self.MAGIC, LAYOUT_VERSION, n, self.states, self.max_speed_rad_s)
+        bounds = np.concatenate([self.q_lo_rad, self.q_hi_rad]).astype("<f8").tobytes()
+        return head + bounds + bytes(self.newest)
+
+    @classmethod
+    def from_bytes(cls, data: bytes) -> StateWindow:
+        """Check the window's own fields (the newest state is checked by whoever decodes it)."""
+        _check_header(data, cls.MAGIC, "StateWindow", cls._HEAD.size)
+        _, _, n, states, speed = cls._HEAD.unpack_from(data)
+        if not 1 <= n <= 16:
+            raise MessageError(f"StateWindow: joint count {n} outside 1..16")
+        end = cls._HEAD.size + 2 * n * 8
+        if len(data) <= end:
+            raise MessageError(f"StateWindow: {len(data)} bytes, no state after {n} bounds")
+        if states < 1 or not (math.isfinite(speed) and speed >= 0.0):
+            raise MessageError(f"StateWindow: {states} states / max speed {speed} invalid")
+        lo, hi = np.frombuffer(data, dtype="<f8", count=2 * n, offset=cls._HEAD.size).reshape(2, n)
+        _finite("StateWindow.q_lo_rad", lo)
+        _finite("StateWindow.q_hi_rad", hi)
+        if (lo > hi).any():
+            raise MessageError("StateWindow: a joint's lowest position is above its highest")
+        return cls(states, speed, lo, hi, bytes(data[end:]))
 
 
 @dataclass(frozen=True)

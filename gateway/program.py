@@ -13,9 +13,10 @@ A program file (``NAME.jsonl``, UTF-8, one JSON object per line, format
     {"type": "teach", "event": "end", "t": 20.0, "reason": "enabling device released"}
 
 ``t`` is the CAN driver's monotonic clock of the joint state [s], ``cycle`` the controller's
-cycle counter, ``q`` the measured joint positions [rad]. The trace is taken at the gateway's
-tick (100 Hz, the newest joint state each tick) only while TEACHING; a gap between an ``end``
-and the next ``start`` is not part of the path. Marks are numbered from 1 in the order made.
+cycle counter, ``q`` the measured joint positions [rad]. The trace is the newest joint state of
+each of the CAN driver's state windows (``[can] state_window_s``, 50 Hz by default), taken at
+the gateway's tick only while TEACHING; a gap between an ``end`` and the next ``start`` is not
+part of the path. Marks are numbered from 1 in the order made.
 
 Durability: every mark is written, flushed and ``fsync``-ed before the operator's command is
 answered, so killing any process afterwards loses no mark. Trace lines are flushed and

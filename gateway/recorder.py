@@ -47,6 +47,7 @@ from gateway.messages import (
     JointState,
     Keys,
     PressureSetpoint,
+    StateWindow,
 )
 from gateway.signals import StopSignals
 
@@ -57,6 +58,7 @@ _BINARY = {
     JointCommand.MAGIC: "JointCommand",
     IoState.MAGIC: "IoState",
     PressureSetpoint.MAGIC: "PressureSetpoint",
+    StateWindow.MAGIC: "StateWindow",
 }
 _STOP = object()
 #: the longest a received message waits in memory before it is on disk [s]

@@ -41,6 +41,7 @@ from gateway.messages import (
     JointState,
     Lifecycle,
     LifecycleMsg,
+    StateWindow,
     decode_json,
     encode_json,
 )
@@ -58,8 +59,8 @@ TICK_S = 0.01
 STOP_GRACE_S = 0.3  #: after announcing STOPPED on exit, before children are terminated
 TERMINATE_TIMEOUT_S = 3.0
 PR_SET_PDEATHSIG = 1
-#: Joint states the bus keeps for the gateway's next tick (a zenoh ring channel, oldest dropped
-#: first): far more than arrive in one tick at 1 kHz; only a tick stalled that long loses some.
+#: StateWindows the bus keeps for the gateway's next tick (a zenoh ring channel, oldest dropped
+#: first): far more than arrive in one tick; only a tick stalled that long loses some.
 JOINT_STATE_QUEUE = 64
 #: Operator requests waiting for the next tick (a zenoh FIFO channel).
 REQUEST_QUEUE = 16
@@ -92,12 +93,15 @@ def joint_state_summary(data: bytes) -> tuple[ControllerState, float, float, np.
 
 
 class JointStateWatch:
-    """What the lifecycle needs from the joint-state stream, taken in once per gateway tick.
+    """What the lifecycle needs from the joint states, taken in once per gateway tick.
 
-    The CAN driver publishes a JointState every controller cycle (250–500 Hz). The gateway
-    receives them into a zenoh ring channel, so no Python runs per state, and folds the batch
-    in at its tick: every state is checked and its speed read (:func:`joint_state_summary`);
-    the newest valid one is kept as bytes and decoded only when the status asks for it.
+    The CAN driver publishes a JointState every controller cycle (250–500 Hz) for the control
+    process, and for the gateway, which is not on the cycle, one StateWindow every
+    ``[can] state_window_s`` (and at once when the controller's state changes): how many
+    states, the fastest joint speed among them, each joint's lowest and highest position, and
+    the newest state. The gateway receives the windows into a zenoh ring channel, so no Python
+    runs per message, and folds them in at its tick; the newest state is kept as bytes and
+    decoded only when the status asks for it. Every cycle's state still counts.
 
     Arrival times are not known exactly, so each is bounded on the safe side:
 
@@ -107,15 +111,15 @@ class JointStateWatch:
       never under-reported, so a stream that stops is seen at the first tick more than
       ``joint_state_timeout_s`` after its last state, as when each state was stamped on arrival.
     * ``moving_s``, the last time the arm was seen moving (or the first state), is an upper
-      bound: the time of the fold that saw it. Every received state counts, so standstill is
-      never over-reported.
+      bound: the time of the fold that saw it. Every state counts, so standstill is never
+      over-reported.
 
     "Moving" is judged as a drive's measurements allow. A measured speed is an encoder
     difference, noisy, and a vendor loop holding on a quantised encoder hunts by a few mrad/s
     without going anywhere; a joint's position is exact to the encoder step. So the arm moves
     when a joint leaves the band of ``standstill_rad_s · standstill_s`` it has kept since the
     last motion (its mean speed over the standstill time is then above ``standstill_rad_s``),
-    or when one state shows a joint faster than ``FAST_FACTOR · standstill_rad_s``, which no
+    or when a state shows a joint faster than ``FAST_FACTOR · standstill_rad_s``, which no
     hold's dither reaches. The lifecycle also asks the newest state's speed to be below
     ``standstill_rad_s``: a weightless arm keeps the velocity it has when teaching takes over.
     """
@@ -137,13 +141,14 @@ class JointStateWatch:
         self._lo: np.ndarray | None = None  #: each joint's lowest position since the motion
         self._hi: np.ndarray | None = None  #: ... and its highest
 
-    def _moved(self, speed: float, q: np.ndarray) -> bool:
-        """Take in one state; True if it shows a motion (and the band restarts at ``q``)."""
+    def _moved(self, speed: float, lo: np.ndarray, hi: np.ndarray, q: np.ndarray) -> bool:
+        """Take in one window (its fastest speed, each joint's lowest and highest position, the
+        newest position); True if it shows a motion (and the band restarts at ``q``)."""
         if self._lo is None or self._hi is None or speed > self.fast_rad_s:
             self._lo, self._hi = q.copy(), q.copy()
             return speed > self.fast_rad_s
-        np.minimum(self._lo, q, out=self._lo)
-        np.maximum(self._hi, q, out=self._hi)
+        np.minimum(self._lo, lo, out=self._lo)
+        np.maximum(self._hi, hi, out=self._hi)
         if float(np.max(self._hi - self._lo)) > self.band_rad:
             self._lo, self._hi = q.copy(), q.copy()
             return True
@@ -159,20 +164,24 @@ class JointStateWatch:
     def fold(
         self, payloads: Iterable[bytes], start_s: float, end_s: float | None = None
     ) -> list[str]:
-        """Take in the states received since the previous fold, oldest first, taken from the
-        channel after ``start_s`` and before ``end_s`` (default: ``start_s``) [s]. Returns why
-        states were ignored, one line per bad state."""
+        """Take in the StateWindows received since the previous fold, oldest first, taken from
+        the channel after ``start_s`` and before ``end_s`` (default: ``start_s``) [s]. Returns
+        why windows were ignored, one line per bad one."""
         now_s = start_s if end_s is None else end_s
         since_s, self._fold_s = self._fold_s, max(self._fold_s, start_s)
         problems, newest, moved = [], None, False
         for data in payloads:
             try:
-                summary = joint_state_summary(data)
+                window = StateWindow.from_bytes(data)
+                summary = joint_state_summary(window.newest)
+                if summary[3].shape != window.q_lo_rad.shape:
+                    raise MessageError("StateWindow: its newest state has another joint count")
             except MessageError as exc:
                 problems.append(str(exc))
                 continue
-            newest = data, summary
-            moved = self._moved(summary[2], summary[3]) or moved
+            newest = window.newest, summary
+            speed = max(window.max_speed_rad_s, summary[2])
+            moved = self._moved(speed, window.q_lo_rad, window.q_hi_rad, summary[3]) or moved
         if newest is None:
             return problems
         self._raw, (self.controller_state, stamp_s, self.max_speed_rad_s, _) = newest
@@ -608,7 +617,7 @@ class Gateway:
         self.session = open_router(self.bus)
         s = self.session
         self._state_sub = s.declare_subscriber(
-            self.keys.joint_state, zenoh.handlers.RingChannel(JOINT_STATE_QUEUE)
+            self.keys.state_window, zenoh.handlers.RingChannel(JOINT_STATE_QUEUE)
         )
         self._requests = s.declare_queryable(
             self.keys.request, zenoh.handlers.FifoChannel(REQUEST_QUEUE)

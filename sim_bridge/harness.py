@@ -5,6 +5,11 @@ a simulator truth file for free loopback ports and a CAN socket address of its o
 side by side), starts ``leadthrough sim`` and
 ``leadthrough gateway`` (which starts the drivers and the control process), talks to the gateway
 like an operator, and tears everything down, child processes included.
+
+On a machine with two CPUs or more the virtual cell and the product run on different ones
+(:func:`placement`): the simulator on the last CPU this process may use, the product on the
+others (its cell config's ``[realtime] cpu_affinity``), as a cell PC keeps the controller's
+work and the product's apart.
 """
 
 from __future__ import annotations
@@ -70,6 +75,35 @@ def unique_can_address() -> str:
     return f"@leadthrough-{os.getpid()}-{secrets.token_hex(4)}"
 
 
+def placement() -> tuple[tuple[int, ...], tuple[int, ...]] | None:
+    """(the product's CPUs, the simulator's) when this process may use two CPUs or more:
+    the simulator gets the last, the product the others; None on one CPU."""
+    cpus = sorted(os.sched_getaffinity(0))
+    if len(cpus) < 2:
+        return None
+    return tuple(cpus[:-1]), (cpus[-1],)
+
+
+def pin_process_tree(pid: int, cpus: tuple[int, ...]) -> int:
+    """Set the CPU affinity of every thread of ``pid`` and of its descendants (threads and
+    processes started later inherit it); returns how many threads were pinned. Threads or
+    processes that exit meanwhile are skipped."""
+    pinned, todo = 0, [pid]
+    while todo:
+        task_dir = Path(f"/proc/{todo.pop()}/task")
+        try:
+            tids = [int(t.name) for t in task_dir.iterdir()]
+        except OSError:
+            continue
+        for tid in tids:
+            with contextlib.suppress(OSError):
+                os.sched_setaffinity(tid, cpus)
+                pinned += 1
+            with contextlib.suppress(OSError, ValueError):
+                todo += [int(c) for c in (task_dir / str(tid) / "children").read_text().split()]
+    return pinned
+
+
 def _wait_seqpacket(address: str, timeout_s: float, proc: subprocess.Popen) -> None:
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
@@ -117,6 +151,7 @@ class Stack:
         model: str | Path | None = COMMISSIONED,
         inner_loop: str | Path | None = None,
         current_zero: str | Path | None = None,
+        place: bool = True,
     ) -> None:
         """``plant_seed``: the virtual robot drawn (:mod:`sim_bridge.truth`; 0 is the truth
         file as written). ``model``: what the control process compensates: the plant's
@@ -125,7 +160,8 @@ class Stack:
         (with the ``inner_loop.json`` of the same identification, or None), or None for a cell
         that is not commissioned yet (it identifies but refuses to teach). ``current_zero``:
         the ``current_zero.json`` of that identification (the CAN driver keeps the current
-        sensors' zero the model was identified with; None: it measures one now)."""
+        sensors' zero the model was identified with; None: it measures one now). ``place``:
+        run the simulator and the product on different CPUs (:func:`placement`)."""
         self.workdir = Path(workdir)
         self.workdir.mkdir(parents=True, exist_ok=True)
         self.lockstep = lockstep
@@ -170,6 +206,9 @@ class Stack:
                     "control": {"io_timeout_s": wait},
                 },
             )
+        self.placement = placement() if place else None
+        if self.placement is not None:
+            cell = deep_merge(cell, {"realtime": {"cpu_affinity": list(self.placement[0])}})
         self.cell = deep_merge(cell, cell_overrides or {})
         truth = load_toml(TRUTH)
         truth = deep_merge(
@@ -217,6 +256,8 @@ class Stack:
         self.sim = self._spawn("sim", sim_args)
         _wait_seqpacket(self.can_address, timeout_s, self.sim)
         _wait_port("127.0.0.1", self.ports["modbus"], timeout_s, self.sim)
+        if self.placement is not None:  # every thread and the I/O process are up by now
+            pin_process_tree(self.sim.pid, self.placement[1])
         self.gateway = self._spawn("gateway", ["gateway", "--config", str(self.cell_path)])
 
     def request(self, command: str, timeout_s: float = 3.0, **fields: Any) -> dict[str, Any]:

@@ -27,7 +27,6 @@ import argparse
 import json
 import logging
 import math
-import os
 import threading
 import time
 from array import array
@@ -40,6 +39,7 @@ import numpy as np
 from drivers.can.seqpacket import wait_readable
 from gateway.errors import ConfigError
 from gateway.messages import ControllerState
+from gateway.realtime import apply_scheduling as place
 from gateway.signals import StopSignals
 from sim_bridge.can_endpoint import SocketcandServerBus
 from sim_bridge.can_hub import SeqpacketHubBus
@@ -86,33 +86,7 @@ def apply_scheduling(sched: Scheduling) -> dict[str, Any]:
 
     Refusals are warnings: the loop still runs, with normal priority or on any CPU.
     """
-    report: dict[str, Any] = {}
-    if sched.cpu_affinity:
-        try:
-            os.sched_setaffinity(0, sched.cpu_affinity)
-            report["cpu_affinity"] = sorted(os.sched_getaffinity(0))
-        except OSError as exc:  # no such CPU, or outside this process's cpuset
-            report["cpu_affinity"] = f"not applied: {exc}"
-            log.warning(
-                "[scheduling].cpu_affinity %s not applied (%s); the loop runs on any CPU",
-                list(sched.cpu_affinity),
-                exc,
-            )
-    if sched.sched_fifo_priority:
-        try:
-            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(sched.sched_fifo_priority))
-            report["sched_fifo_priority"] = sched.sched_fifo_priority
-        except OSError as exc:  # PermissionError: no CAP_SYS_NICE and no rtprio limit
-            report["sched_fifo_priority"] = f"not applied: {exc}"
-            log.warning(
-                "[scheduling].sched_fifo_priority %d not applied (%s); the loop runs with "
-                "normal priority (grant CAP_SYS_NICE or an rtprio limit to use it)",
-                sched.sched_fifo_priority,
-                exc,
-            )
-    if report:
-        log.info("controller loop scheduling: %s", report)
-    return report
+    return place(sched.cpu_affinity, sched.sched_fifo_priority, False, "[scheduling] sim loop")
 
 
 def truth_log_columns(n: int) -> list[str]:

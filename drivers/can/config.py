@@ -68,6 +68,10 @@ class CanDriverConfig:
     controller_timeout_s: float = 0.1
     #: Period of HEARTBEAT_HOST and of the repeated HOST_REQUEST [s].
     heartbeat_period_s: float = 0.1
+    #: The joint states reach the readers off the cycle (the gateway) as one StateWindow per
+    #: this long [s] (gateway/messages.py); keep it well under the gateway's
+    #: joint_state_timeout_s, which a window's age adds to.
+    state_window_s: float = 0.02
     #: Per joint (or one value for all): a command with |q_cmd − q| beyond this is rejected [rad].
     max_following_error_rad: float | tuple[float, ...] = 0.05
     #: Per joint (or one value for all): a command with |dq_cmd| beyond this is rejected [rad/s].
@@ -103,6 +107,7 @@ class CanDriverConfig:
             ("io_timeout_s", 0.0, 5.0),
             ("controller_timeout_s", 0.0, 5.0),
             ("heartbeat_period_s", 0.0, 1.0),
+            ("state_window_s", 0.0, 0.05),
         ):
             value = getattr(self, name)
             require(

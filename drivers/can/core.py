@@ -60,6 +60,7 @@ from gateway.messages import (
     JointState,
     Lifecycle,
     LifecycleMsg,
+    StateWindow,
 )
 
 if TYPE_CHECKING:
@@ -128,6 +129,46 @@ class FrameResult(NamedTuple):
 
     state: bytes | None  #: a JointState payload to publish (the frame completed a cycle)
     frames: list[can.Message]  #: frames to send now (a blocked cycle is held at once)
+    window: bytes | None = None  #: a StateWindow payload to publish (the window is complete)
+
+
+class StateWindowBuilder:
+    """Folds each cycle's JointState into the window the readers off the cycle get
+    (:class:`~gateway.messages.StateWindow`). A window closes at the first state at or after
+    its due time, due times ``period_s`` apart (one window per ``period_s`` on average), or at
+    once when ``key`` (the controller's state and its e-stop and servo-power flags) changes:
+    the gateway sees an e-stop without waiting for the window. The first state closes a window
+    of its own."""
+
+    def __init__(self, period_s: float) -> None:
+        self.period_s = period_s
+        self._states = 0
+        self._speed = 0.0
+        self._lo = np.zeros(0)
+        self._hi = np.zeros(0)
+        self._key: tuple[int, int] | None = None
+        self._due_s = -np.inf
+
+    def add(
+        self, q: np.ndarray, dq: np.ndarray, key: tuple[int, int], state: bytes, now: float
+    ) -> bytes | None:
+        """Take one cycle's state; returns the window's bytes when it closes."""
+        speed = float(np.abs(dq).max())
+        if self._states == 0 or self._lo.shape != q.shape:
+            self._lo, self._hi, self._speed, self._states = q.copy(), q.copy(), speed, 0
+        else:
+            np.minimum(self._lo, q, out=self._lo)
+            np.maximum(self._hi, q, out=self._hi)
+            self._speed = max(self._speed, speed)
+        self._states += 1
+        if now < self._due_s and key == self._key:
+            return None
+        window = StateWindow(self._states, self._speed, self._lo, self._hi, state).to_bytes()
+        # on the period's own grid, so windows come every period_s on average whatever the
+        # cycle; a gap (or the first window) starts the grid again
+        due = self._due_s + self.period_s
+        self._key, self._due_s, self._states = key, due if due > now else now + self.period_s, 0
+        return window
 
 
 class CommandResult(NamedTuple):
@@ -221,6 +262,7 @@ class HostCore:
             self.speed = SpeedMonitor(
                 speed_points or datasheet_points(desc), config.hand_guiding_max_speed_m_s
             )
+        self.window = StateWindowBuilder(config.state_window_s)
         # counters (monotonic, reported in health)
         self.rejected = dict.fromkeys(REJECT_REASONS, 0)
         self.cycles = 0
@@ -370,7 +412,9 @@ class HostCore:
         frames: list[can.Message] = []
         if self.blocked(now) is not None:
             frames = self._hold(pending)
-        return FrameResult(state, frames)
+        key = (int(fb.controller_state), flags & (FLAG_ESTOP | FLAG_SERVO_POWER))
+        window = self.window.add(fb.q_rad, fb.dq_rad_s, key, state, now)
+        return FrameResult(state, frames, window)
 
     def _monitor_speed(self, fb: CycleFeedback, cycle: int, now: float) -> None:
         """Hand guiding's speed from this cycle's measured positions, while the lifecycle

@@ -30,7 +30,13 @@ from drivers.can.config import CanDriverConfig, load_can_config
 from drivers.can.core import COMMAND, REJECT_REASONS, HostCore
 from drivers.can.current_zero import StoredZeroError, read_stored_zero
 from drivers.registry import load_adapter
-from gateway.bus import BusConfig, declare_loop_publisher, open_peer, undeclare_all
+from gateway.bus import (
+    BusConfig,
+    declare_loop_publisher,
+    on_receiving_thread,
+    open_peer,
+    undeclare_all,
+)
 from gateway.config import require
 from gateway.errors import EXIT_CONFIG, ConfigError, LinkTimeoutError
 from gateway.latency import Histogram
@@ -167,6 +173,7 @@ class CanDriver:
         self._owns_session = session is None
         self._subscribers: list[Any] = []
         self._publisher: Any = None
+        self._window_publisher: Any = None
 
         self._lock = threading.Lock()  # guards the core, the stage timers and every CAN send
         self._stop = threading.Event()
@@ -235,10 +242,13 @@ class CanDriver:
                 self._session = open_peer(self.bus_config)
             session, keys = self._session, self.keys
             self._publisher = declare_loop_publisher(session, keys.joint_state)
+            self._window_publisher = session.declare_publisher(keys.state_window)  # drops
             self._subscribers = [
                 session.declare_subscriber(keys.lifecycle, self._on_lifecycle),
                 session.declare_subscriber(keys.io_state, self._on_io_state),
-                session.declare_subscriber(keys.joint_command, self._on_joint_command),
+                session.declare_subscriber(
+                    keys.joint_command, on_receiving_thread(self._on_joint_command)
+                ),
             ]
         except BaseException:
             self.close()
@@ -276,8 +286,8 @@ class CanDriver:
                     frames = []
                 if frames and not self._send_locked(frames):
                     log.error("could not send the BRAKE request and hold set on exit")
-        undeclare_all([*self._subscribers, self._publisher])
-        self._subscribers, self._publisher = [], None
+        undeclare_all([*self._subscribers, self._publisher, self._window_publisher])
+        self._subscribers, self._publisher, self._window_publisher = [], None, None
         if self._owns_session and self._session is not None:
             try:
                 self._session.close()
@@ -364,13 +374,15 @@ class CanDriver:
                 return
             pending = self.core.pending
             assert pending is not None
-            publisher = self._publisher
+            publisher, window_publisher = self._publisher, self._window_publisher
             handed_s = self._clock()
             self._published = (pending.cycle, now, handed_s)
             self.stages["decode"].add(handed_s - now)
         if publisher is not None:
             try:
                 publisher.put(result.state)
+                if result.window is not None and window_publisher is not None:
+                    window_publisher.put(result.window)
             except Exception as exc:  # zenoh; the controller is still answered (hold)
                 self._rlog(logging.ERROR, "put", "cannot publish the joint state: %s", exc)
 

@@ -432,7 +432,7 @@ def test_close_brakes_holds_and_never_raises(make_rig):
     assert isinstance(frames[0], HostRequestFrame)
     assert [f.hold for f in frames[1:]] == [True] * N
     assert sorted(rig.session.undeclared) == sorted(
-        [KEYS.joint_state, KEYS.lifecycle, KEYS.io_state, KEYS.joint_command]
+        [KEYS.joint_state, KEYS.state_window, KEYS.lifecycle, KEYS.io_state, KEYS.joint_command]
     )
     rig.driver.close()  # again: nothing, no error
 

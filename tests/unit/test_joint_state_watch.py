@@ -1,6 +1,7 @@
-"""The gateway takes joint states in once per tick, in a batch, and still sees every one of them:
-a lost stream is found within joint_state_timeout_s (plus one tick), a motion between two ticks
-still restarts the standstill clock, and a malformed state is refused as the decoder refuses it.
+"""The gateway takes joint states in once per tick, as the CAN driver's state windows, and still
+sees every one of them: a lost stream is found within joint_state_timeout_s (plus one tick and
+one window), a motion between two ticks or inside a window still restarts the standstill clock,
+and a malformed state or window is refused as the decoder refuses it.
 Standstill is judged as a drive measures: a hold that hunts or a noisy velocity does not keep
 teaching waiting, a creep faster than the standstill speed does."""
 
@@ -14,10 +15,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from drivers.can.core import StateWindowBuilder
 from gateway.bus import BusConfig
 from gateway.errors import MessageError
 from gateway.lifecycle import LifecycleMachine, Limits
-from gateway.messages import ControllerState, JointState, Lifecycle, make_joint_state
+from gateway.messages import (
+    ControllerState,
+    JointState,
+    Lifecycle,
+    StateWindow,
+    make_joint_state,
+)
 from gateway.supervisor import (
     TICK_S,
     Gateway,
@@ -29,9 +37,10 @@ from gateway.supervisor import (
 STILL = 5e-4  #: standstill speed [rad/s]
 PERIOD_S = 0.004
 TRANSIT_S = 2e-4  #: CAN driver stamp → arrival at the gateway
+WINDOW_S = 0.02  #: the CAN driver's state window ([can] state_window_s)
 
 
-def payload(
+def state(
     cycle: int,
     stamp_s: float,
     speed: float = 0.0,
@@ -49,15 +58,22 @@ def payload(
     return st.to_bytes()
 
 
+def payload(*args, **kwargs) -> bytes:
+    """A StateWindow of the one state :func:`state` makes of the arguments."""
+    data = state(*args, **kwargs)
+    st = JointState.from_bytes(data)
+    return StateWindow(1, float(np.abs(st.dq_rad_s).max()), st.q_rad, st.q_rad, data).to_bytes()
+
+
 def test_summary_reads_what_the_decoder_reads():
     rng = np.random.default_rng(1)
     for k in range(50):
         dq = rng.normal(0.0, 0.3, 6)
-        data = payload(k, 10.0 + k, q=rng.normal(0, 1, 6), dq=dq,
-                       controller_state=ControllerState(k % 4))  # fmt: skip
+        data = state(k, 10.0 + k, q=rng.normal(0, 1, 6), dq=dq,
+                     controller_state=ControllerState(k % 4))  # fmt: skip
         st = JointState.from_bytes(data)
-        state, stamp, speed, q = joint_state_summary(data)
-        assert (state, stamp, speed) == (st.controller_state, st.stamp_s, np.abs(dq).max())
+        cstate, stamp, speed, q = joint_state_summary(data)
+        assert (cstate, stamp, speed) == (st.controller_state, st.stamp_s, np.abs(dq).max())
         np.testing.assert_array_equal(q, st.q_rad)
 
 
@@ -82,7 +98,7 @@ def _corruptions(good: bytes) -> dict[str, bytes]:
 
 
 def test_summary_refuses_every_payload_the_decoder_refuses():
-    good = payload(1, 5.0)
+    good = state(1, 5.0)
     JointState.from_bytes(good)
     joint_state_summary(good)
     for what, data in _corruptions(good).items():
@@ -94,18 +110,24 @@ def test_summary_refuses_every_payload_the_decoder_refuses():
 
 
 class Cell:
-    """States arriving at 250 Hz, folded at each gateway tick, observed by the lifecycle."""
+    """States at 250 Hz, gathered into windows as the CAN driver gathers them, folded at each
+    gateway tick, observed by the lifecycle."""
 
     def __init__(self, limits: Limits) -> None:
         self.watch = JointStateWatch(limits.standstill_rad_s, 0.0, limits.standstill_s)
         self.machine = LifecycleMachine(limits)
+        self.windows = StateWindowBuilder(WINDOW_S)
         self.pending: list[bytes] = []
         self.cycle = 0
 
     def arrive(self, t_s: float, speed: float = 0.0, **joints: np.ndarray) -> None:
         """A state stamped ``t_s``: joint 4 at ``speed``, or the ``q`` / ``dq`` given."""
         self.cycle += 1
-        self.pending.append(payload(self.cycle, t_s - TRANSIT_S, speed, **joints))
+        data = state(self.cycle, t_s - TRANSIT_S, speed, **joints)
+        st = JointState.from_bytes(data)
+        window = self.windows.add(st.q_rad, st.dq_rad_s, (1, 2), data, t_s - TRANSIT_S)
+        if window is not None:
+            self.pending.append(window)
 
     def tick(self, now_s: float) -> Lifecycle:
         batch, self.pending = self.pending, []
@@ -150,10 +172,10 @@ def test_a_motion_between_two_ticks_restarts_the_standstill_clock():
     teaching = [t for t, s in history if s == Lifecycle.TEACHING]
     assert teaching, "never started teaching"
     assert teaching[0] >= spike * PERIOD_S + limits.standstill_s - 1e-9
-    assert teaching[0] <= spike * PERIOD_S + limits.standstill_s + TICK_S + 1e-9
+    assert teaching[0] <= spike * PERIOD_S + limits.standstill_s + WINDOW_S + TICK_S + 1e-9
 
 
-def test_a_stream_that_stops_faults_within_the_timeout_plus_one_tick():
+def test_a_stream_that_stops_faults_within_the_timeout_plus_one_tick_and_one_window():
     limits = Limits(joint_state_timeout_s=0.1, standstill_rad_s=STILL, standstill_s=0.05)
     cell = Cell(limits)
     history = cell.run(0.0, 0.5)
@@ -162,7 +184,7 @@ def test_a_stream_that_stops_faults_within_the_timeout_plus_one_tick():
     history = cell.run(0.5, 0.8, stream=False)
     faulted = [t for t, s in history if s == Lifecycle.FAULT]
     assert faulted, "a lost joint-state stream was not detected"
-    assert limits.joint_state_timeout_s < faulted[0] - last_arrival
+    assert limits.joint_state_timeout_s < faulted[0] - last_arrival + WINDOW_S
     assert faulted[0] - last_arrival <= limits.joint_state_timeout_s + TICK_S + 1e-9
 
 
@@ -294,3 +316,67 @@ def test_one_state_far_above_the_standstill_speed_restarts_the_clock_at_any_posi
     assert w.moving_s == 0.01
     w.fold([payload(3, 0.505, speed=JointStateWatch.FAST_FACTOR * STILL * 1.01)], 0.51)
     assert w.moving_s == 0.51 and w.band_used_rad == 0.0
+
+
+def _window(states: list[bytes]) -> bytes:
+    """The window the CAN driver's builder makes of ``states`` (one window, closed by the last)."""
+    builder, out = StateWindowBuilder(period_s=1e9), None
+    for k, data in enumerate(states):
+        st = JointState.from_bytes(data)
+        key = (1, 2) if k == 0 else (1, 2) if k < len(states) - 1 else (2, 2)
+        out = builder.add(st.q_rad, st.dq_rad_s, key, data, st.stamp_s)
+        assert (out is not None) == (k in (0, len(states) - 1))
+    assert out is not None
+    return out
+
+
+def test_a_window_carries_every_state_in_it_to_the_standstill_judgement():
+    """The newest state of a window is still; one before it was fast, or the positions in it
+    spread wider than the band: either is a motion."""
+    w = JointStateWatch(STILL, 0.0, 0.3)
+    w.fold([payload(1, 0.001)], 0.01)
+    fast = JointStateWatch.FAST_FACTOR * STILL * 1.01
+    w.fold([_window([state(k, 0.01 + 0.004 * k, fast if k == 3 else 0.0) for k in range(6)])],
+           0.5)  # fmt: skip
+    assert w.moving_s == 0.5 and w.max_speed_rad_s == pytest.approx(1e-5)
+    q0 = np.linspace(-0.5, 0.5, 6)
+    out = q0.copy()
+    out[1] += 2 * STILL * 0.3  # twice the band, for one state only
+    w.fold([_window([state(k, 0.6, q=out if k == 2 else q0) for k in range(5)])], 0.6)
+    assert w.moving_s == 0.6
+    w.fold([_window([state(k, 1.0, q=q0) for k in range(5)])], 1.0)
+    assert w.moving_s == 0.6
+
+
+def test_the_window_builder_closes_on_time_and_at_once_on_a_controller_change():
+    b = StateWindowBuilder(WINDOW_S)
+    q, dq = np.zeros(6), np.zeros(6)
+    closes = [b.add(q, dq, (1, 2), state(k, k * PERIOD_S), k * PERIOD_S) is not None
+              for k in range(12)]  # fmt: skip
+    assert closes == [True, False, False, False, False, True] + [False] * 4 + [True, False]
+    window = StateWindow.from_bytes(b.add(q, dq, (3, 2), state(12, 0.048), 0.048))
+    assert window.states == 2  # the e-stop did not wait for the window
+    # 8 ms cycles: windows of 3 and 2 cycles, 50 per second on average
+    b, period = StateWindowBuilder(WINDOW_S), 0.008
+    closed = sum(b.add(q, dq, (1, 2), state(k, k * period), k * period) is not None
+                 for k in range(1250))  # fmt: skip
+    assert closed == 500
+
+
+def test_a_malformed_window_is_refused_naming_what_is_wrong():
+    good = payload(1, 0.5)
+    StateWindow.from_bytes(good)
+    head = StateWindow._HEAD.size
+    lo_above_hi = good[:head] + struct.pack("<d", 9.0) + good[head + 8 :]
+    nan_bound = good[:head] + struct.pack("<d", math.nan) + good[head + 8 :]
+    no_states = good[:6] + struct.pack("<I", 0) + good[10:]
+    for data, says in ((good[:head + 40], "no state"), (lo_above_hi, "above"),
+                       (nan_bound, "finite"), (no_states, "states"),
+                       (b"LTJS" + good[4:], "magic")):  # fmt: skip
+        with pytest.raises(MessageError, match=says):
+            StateWindow.from_bytes(data)
+    w = JointStateWatch(STILL, 0.0)
+    other_n = StateWindow.from_bytes(good)
+    short = StateWindow(1, 0.0, other_n.q_lo_rad[:5], other_n.q_hi_rad[:5], other_n.newest)
+    assert "joint count" in w.fold([short.to_bytes()], 0.01)[0]
+    assert w.rx_s is None

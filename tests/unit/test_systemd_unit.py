@@ -10,7 +10,9 @@ from pathlib import Path
 
 import pytest
 
+from gateway.config import load_toml
 from gateway.errors import EXIT_CONFIG
+from gateway.realtime import realtime_config_from
 
 UNIT = Path(__file__).resolve().parents[2] / "deploy" / "systemd" / "leadthrough-gateway.service"
 
@@ -36,6 +38,14 @@ def test_the_unit_notifies_watches_and_does_not_restart_a_refused_config():
     assert one["Type"] == "notify" and float(one["WatchdogSec"]) > 0
     assert one["RestartPreventExitStatus"] == str(EXIT_CONFIG)
     assert one["Restart"] == "on-failure"
+
+
+def test_the_unit_grants_what_the_cell_configs_realtime_section_asks_for():
+    one = dict(_service_settings())
+    cell = load_toml(UNIT.parents[1] / "config" / "cell.toml")
+    rt = realtime_config_from(cell, "cell.toml")
+    assert rt.sched_fifo_priority <= int(one.get("LimitRTPRIO", "0"))
+    assert not rt.mlockall or one.get("LimitMEMLOCK") == "infinity"
 
 
 def test_the_can_bitrate_is_set_with_the_link_down():

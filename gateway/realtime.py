@@ -1,0 +1,118 @@
+"""Where the product's processes run: CPUs, real-time priority, locked memory (``[realtime]``).
+
+Each product process applies the cell config's ``[realtime]`` section to itself when it starts,
+before it opens zenoh or CAN, so every thread it creates afterwards (zenoh's runtime threads
+included) inherits it:
+
+* ``cpu_affinity``: the CPUs every product process may run on (empty: any). On a cell PC keep
+  one core for the rest of the machine; on a two-core machine running the virtual cell too,
+  `leadthrough bench` and the test harness give the product one core and the simulator the
+  other.
+* ``sched_fifo_priority``: SCHED_FIFO priority of the processes on the cycle, the CAN driver
+  and control (0: normal scheduling). The gateway and the Modbus driver stay at normal
+  priority: they are not on the cycle.
+* ``mlockall``: lock the processes' memory (no page fault on the cycle).
+
+The OS may refuse (no such CPU, no CAP_SYS_NICE or rtprio limit, no memlock limit): the
+process then runs anyway, and the log and its health say what was not applied. The systemd
+unit (``deploy/systemd``) grants the limits these need; the same settings belong there.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import ctypes.util
+import logging
+import os
+from dataclasses import dataclass
+from typing import Any
+
+from gateway.config import from_mapping, require
+
+log = logging.getLogger("leadthrough.realtime")
+
+#: the processes on the controller cycle: the ones ``sched_fifo_priority`` raises
+CYCLE_PROCESSES = ("can-driver", "control")
+_MCL_CURRENT, _MCL_FUTURE = 1, 2
+
+
+@dataclass(frozen=True)
+class Realtime:
+    """``[realtime]`` section of the cell config (module doc)."""
+
+    cpu_affinity: tuple[int, ...] = ()
+    sched_fifo_priority: int = 0
+    mlockall: bool = False
+
+    def __post_init__(self) -> None:
+        where = "[realtime]"
+        object.__setattr__(self, "cpu_affinity", tuple(self.cpu_affinity))
+        require(
+            all(isinstance(c, int) and c >= 0 for c in self.cpu_affinity)
+            and len(set(self.cpu_affinity)) == len(self.cpu_affinity),
+            f"{where}.cpu_affinity",
+            f"{list(self.cpu_affinity)}: CPU numbers must be integers >= 0 and distinct",
+        )
+        require(
+            isinstance(self.sched_fifo_priority, int) and 0 <= self.sched_fifo_priority <= 99,
+            f"{where}.sched_fifo_priority",
+            f"{self.sched_fifo_priority!r} outside 0..99 (0 = normal scheduling)",
+        )
+        require(
+            isinstance(self.mlockall, bool), f"{where}.mlockall", f"{self.mlockall!r} not a bool"
+        )
+
+
+def realtime_config_from(cell: dict[str, Any], where: str) -> Realtime:
+    return from_mapping(Realtime, cell.get("realtime", {}), f"{where} [realtime]")
+
+
+def apply_scheduling(
+    cpu_affinity: tuple[int, ...], fifo_priority: int, lock_memory: bool, what: str
+) -> dict[str, Any]:
+    """Apply CPU affinity, SCHED_FIFO priority and mlockall to the calling thread (and the
+    threads it creates afterwards); returns what took effect, or why not. A refusal is a
+    warning naming ``what`` and the setting: the caller runs on, unplaced."""
+    report: dict[str, Any] = {}
+    if cpu_affinity:
+        try:
+            os.sched_setaffinity(0, cpu_affinity)
+            report["cpu_affinity"] = sorted(os.sched_getaffinity(0))
+        except OSError as exc:  # no such CPU, or outside this process's cpuset
+            report["cpu_affinity"] = f"not applied: {exc}"
+            log.warning("%s: cpu_affinity %s not applied (%s); it runs on any CPU",
+                        what, list(cpu_affinity), exc)  # fmt: skip
+    if fifo_priority:
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(fifo_priority))
+            report["sched_fifo_priority"] = fifo_priority
+        except OSError as exc:  # PermissionError: no CAP_SYS_NICE and no rtprio limit
+            report["sched_fifo_priority"] = f"not applied: {exc}"
+            log.warning("%s: sched_fifo_priority %d not applied (%s); it runs with normal "
+                        "priority (grant CAP_SYS_NICE or an rtprio limit)",
+                        what, fifo_priority, exc)  # fmt: skip
+    if lock_memory:
+        report["mlockall"] = _mlockall(what)
+    if report:
+        log.info("%s scheduling: %s", what, report)
+    return report
+
+
+def _mlockall(what: str) -> bool | str:
+    libc_name = ctypes.util.find_library("c")
+    try:
+        libc = ctypes.CDLL(libc_name or "libc.so.6", use_errno=True)
+        if libc.mlockall(_MCL_CURRENT | _MCL_FUTURE) == 0:
+            return True
+        err = ctypes.get_errno()
+        why = f"{os.strerror(err)} (raise LimitMEMLOCK or grant CAP_IPC_LOCK)"
+    except (OSError, AttributeError) as exc:
+        why = str(exc)
+    log.warning("%s: mlockall not applied: %s", what, why)
+    return f"not applied: {why}"
+
+
+def apply_realtime(cfg: Realtime, process: str) -> dict[str, Any]:
+    """Place the calling product process (``process``: its subcommand name) by ``cfg``."""
+    fifo = cfg.sched_fifo_priority if process in CYCLE_PROCESSES else 0
+    return apply_scheduling(cfg.cpu_affinity, fifo, cfg.mlockall, f"[realtime] {process}")
