@@ -68,7 +68,7 @@ def _cpu(stack: Stack, seconds: float) -> dict[str, float] | None:
 
 
 def run_rate(
-    rate_hz: float, cycles: int, workdir: Path, profile: str = "classic"
+    rate_hz: float, cycles: int, workdir: Path, profile: str = "classic", place: bool = False
 ) -> dict[str, Any]:
     period = 1.0 / rate_hz
     sim_profile, cell_overrides = CAN_PROFILES[profile]
@@ -80,7 +80,11 @@ def run_rate(
         },
     )
     result: dict[str, Any] = {"hz": rate_hz, "profile": profile, "cycles": 0, "error": None}
-    with Stack(workdir, sim_overrides=overrides, cell_overrides=cell_overrides) as stack:
+    with Stack(workdir, sim_overrides=overrides, cell_overrides=cell_overrides,
+               place=place) as stack:  # fmt: skip
+        result["placement"] = None if stack.placement is None else {
+            "product_cpus": list(stack.placement[0]), "sim_cpus": list(stack.placement[1])
+        }  # fmt: skip
         stack.start()
         try:
             stack.start_teaching()
@@ -163,6 +167,12 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
         help="CAN profile: classic (LTC-1, 13 frames per cycle) or fd (LTC-1F, 2 frames)",
     )
     p.add_argument("--json", type=Path, default=None, help="write the results here as JSON")
+    p.add_argument(
+        "--place",
+        action="store_true",
+        help="on two CPUs or more, run the virtual cell on the last CPU and the product on the "
+        "others (default: the OS places them)",
+    )
 
 
 def cli_main(args: argparse.Namespace) -> int:
@@ -173,7 +183,7 @@ def cli_main(args: argparse.Namespace) -> int:
     for rate in args.rates:
         print(f"running {args.cycles} cycles at {rate:.0f} Hz ({args.profile}) ...", flush=True)
         workdir = args.out / f"{rate:.0f}hz_{args.profile}"
-        results.append(run_rate(rate, args.cycles, workdir, args.profile))
+        results.append(run_rate(rate, args.cycles, workdir, args.profile, args.place))
     print()
     print(_table(results))
     doc = {"rates": results}

@@ -6,10 +6,9 @@ side by side), starts ``leadthrough sim`` and
 ``leadthrough gateway`` (which starts the drivers and the control process), talks to the gateway
 like an operator, and tears everything down, child processes included.
 
-On a machine with two CPUs or more the virtual cell and the product run on different ones
-(:func:`placement`): the simulator on the last CPU this process may use, the product on the
-others (its cell config's ``[realtime] cpu_affinity``), as a cell PC keeps the controller's
-work and the product's apart.
+On a machine with two CPUs or more the virtual cell and the product can run on different ones
+(``Stack(place=True)``, :func:`placement`): the simulator on the last CPU this process may use,
+the product on the others (its cell config's ``[realtime] cpu_affinity``).
 """
 
 from __future__ import annotations
@@ -151,7 +150,7 @@ class Stack:
         model: str | Path | None = COMMISSIONED,
         inner_loop: str | Path | None = None,
         current_zero: str | Path | None = None,
-        place: bool = True,
+        place: bool = False,
     ) -> None:
         """``plant_seed``: the virtual robot drawn (:mod:`sim_bridge.truth`; 0 is the truth
         file as written). ``model``: what the control process compensates: the plant's
@@ -161,7 +160,11 @@ class Stack:
         that is not commissioned yet (it identifies but refuses to teach). ``current_zero``:
         the ``current_zero.json`` of that identification (the CAN driver keeps the current
         sensors' zero the model was identified with; None: it measures one now). ``place``:
-        run the simulator and the product on different CPUs (:func:`placement`)."""
+        run the simulator and the product on different CPUs (:func:`placement`). Off by
+        default: placed, the loop answers more cycles in time (`leadthrough bench --place`),
+        but `make demo`'s replay took 22-23 s instead of 17.6 s and the identified model's
+        J2 error in it read 17-29 N·m instead of 9.7 (one run each, 2026-11-27; not traced),
+        and four of the five lock-step stack tests took 8-16 % longer in one `make test`."""
         self.workdir = Path(workdir)
         self.workdir.mkdir(parents=True, exist_ok=True)
         self.lockstep = lockstep
