@@ -43,6 +43,7 @@ from control.pressure_schedule import PressureSchedule, ScheduleSettings
 from control.rest_hold import RestHold, hold_band_nm
 from control.robot.description import RobotDescription, load_description
 from control.taught_path import replay_trajectory
+from gateway import bus_security as security
 from gateway.bus import (
     BusConfig,
     bus_config_from,
@@ -65,11 +66,13 @@ from gateway.messages import (
     JointState,
     Lifecycle,
     LifecycleMsg,
+    LifecycleOrder,
     PressureSetpoint,
     encode_json,
     make_joint_command,
 )
 from gateway.program import ProgramError, read_program
+from gateway.ratelog import RateLimitedLog
 from gateway.replay import MAX_JOINT_SPEED_RAD_S as MAX_REPLAY_JOINT_SPEED_RAD_S
 from gateway.replay import MAX_SPEED_MM_S
 from gateway.signals import StopSignals
@@ -987,6 +990,8 @@ class ControlProcess:
         self.lifecycle: LifecycleMsg | None = None
         self.lifecycle_rx_s = -1e9
         self.stats = {"states": 0, "commands": 0, "bad_messages": 0, "io_stale": 0}
+        self.lifecycle_order = LifecycleOrder()
+        self._ratelog = RateLimitedLog(log, 5.0, time.monotonic)
         self.stop_event = threading.Event()
         self.session = None
         self._subs: list = []
@@ -1055,7 +1060,7 @@ class ControlProcess:
         self._adaptation_restored = True
 
     def open(self) -> None:
-        self.session = open_peer(self.bus)
+        self.session = open_peer(self.bus, security.CONTROL)
         s = self.session
         self._pub_cmd = declare_loop_publisher(s, self.keys.joint_command)
         self._subs = [
@@ -1091,7 +1096,14 @@ class ControlProcess:
         msg = self._decode(LifecycleMsg, sample)
         if msg is not None:
             with self._lock:
-                self.lifecycle, self.lifecycle_rx_s = msg, self.clock()
+                dropped = self.lifecycle_order.admit(msg)
+                if dropped is None:
+                    self.lifecycle, self.lifecycle_rx_s = msg, self.clock()
+            if dropped is not None:
+                self._ratelog(
+                    logging.WARNING, f"lifecycle_{dropped}", "lifecycle seq %d %s dropped: %s",
+                    msg.seq, msg.state.name, dropped,
+                )  # fmt: skip
 
     def _fresh_state(self, now: float) -> Lifecycle | None:
         """The gateway's lifecycle state if its last message is fresh, else None."""
@@ -1297,6 +1309,7 @@ class ControlProcess:
                 "engaged": self.ctl is not None and self.ctl.engaged,
                 "engagement": None if self.ctl is None else self.ctl.engagement(),
                 **self.stats,
+                "lifecycle_dropped": dict(self.lifecycle_order.dropped),
                 "load_check": None
                 if self.load_check is None
                 else {**self.load_check.to_json(), "age_s": round(now - self.load_check_s, 3)},

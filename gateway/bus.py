@@ -14,11 +14,12 @@ import logging
 import os
 import re
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import zenoh
 
+from gateway import bus_security as security
 from gateway.config import from_mapping, require
 from gateway.errors import LinkTimeoutError
 from gateway.messages import Keys
@@ -40,6 +41,10 @@ class BusConfig:
     key_prefix: str = "lt"
     #: Where each peer process listens for the others (port 0: any free port).
     peer_listen: str = "tcp/127.0.0.1:0"
+    #: File of ``identity:password`` lines (mode 600): when set, every session authenticates,
+    #: the router applies a default-deny access-control list and every process joins as a
+    #: client of the router (:mod:`gateway.bus_security`). Empty: an open bus (tests, bench).
+    credentials_file: str = ""
 
     def __post_init__(self) -> None:
         require(
@@ -56,7 +61,12 @@ class BusConfig:
     def with_overrides(self, endpoint: str | None = None) -> BusConfig:
         """Apply the documented precedence: explicit argument, then environment, then file."""
         chosen = endpoint or os.environ.get(ENDPOINT_ENV) or self.endpoint
-        return BusConfig(chosen, self.key_prefix, self.peer_listen)
+        return replace(self, endpoint=chosen)
+
+    @property
+    def locked(self) -> bool:
+        """Authenticated sessions and the router's access-control list."""
+        return bool(self.credentials_file)
 
 
 #: how long a process keeps trying to reach the router at start-up [s]
@@ -80,27 +90,54 @@ def _zenoh_config(
 
 
 def open_router(bus: BusConfig) -> zenoh.Session:
-    """Open the router session that every other process connects to (gateway only)."""
-    return zenoh.open(_zenoh_config("router", [bus.endpoint], []))
+    """Open the router session that every other process connects to (gateway only); on a
+    locked bus it authenticates every link and applies the access-control list."""
+    cfg = _zenoh_config("router", [bus.endpoint], [])
+    if bus.locked:
+        security.insert_router_security(cfg, bus.credentials_file, bus.keys)
+    return zenoh.open(cfg)
 
 
-def open_client(bus: BusConfig, connect_timeout_s: float = CONNECT_TIMEOUT_S) -> zenoh.Session:
-    """Open a client session connected to the router at ``bus.endpoint`` (short-lived tools).
-
-    Raises :class:`~gateway.errors.LinkTimeoutError` when no router answers there within
-    ``connect_timeout_s``."""
+def _open_linked(cfg: zenoh.Config, bus: BusConfig, identity: str, timeout_s: float):
+    if bus.locked:
+        security.insert_session_credentials(cfg, bus.credentials_file, identity)
     try:
-        return zenoh.open(_zenoh_config("client", [], [bus.endpoint], connect_timeout_s))
+        return zenoh.open(cfg)
     except zenoh.ZError as exc:
+        refused = (
+            f" or it refused identity {identity!r} (check [bus].credentials_file)"
+            if bus.locked
+            else ""
+        )
         raise LinkTimeoutError(
-            f"no zenoh router (gateway) reachable at {bus.endpoint} within "
-            f"{connect_timeout_s:g} s: is `leadthrough gateway` running there?"
+            f"no zenoh router (gateway) reachable at {bus.endpoint} within {timeout_s:g} s"
+            f"{refused}: is `leadthrough gateway` running there?"
         ) from exc
 
 
-def open_peer(bus: BusConfig) -> zenoh.Session:
-    """Open a peer session: connects to the router, then directly to the other peers."""
-    return zenoh.open(_zenoh_config("peer", [bus.peer_listen], [bus.endpoint]))
+def open_client(
+    bus: BusConfig,
+    connect_timeout_s: float = CONNECT_TIMEOUT_S,
+    identity: str = security.OPERATOR,
+) -> zenoh.Session:
+    """Open a client session connected to the router at ``bus.endpoint`` (short-lived tools),
+    as ``identity`` on a locked bus.
+
+    Raises :class:`~gateway.errors.LinkTimeoutError` when no router answers there within
+    ``connect_timeout_s`` (or, on a locked bus, it refuses the credentials)."""
+    cfg = _zenoh_config("client", [], [bus.endpoint], connect_timeout_s)
+    return _open_linked(cfg, bus, identity, connect_timeout_s)
+
+
+def open_peer(bus: BusConfig, identity: str) -> zenoh.Session:
+    """Open a product process's session: on an open bus a peer that connects to the router,
+    then directly to the other peers; on a locked bus a client of the router as ``identity``
+    (see :mod:`gateway.bus_security` for why)."""
+    if bus.locked:
+        cfg = _zenoh_config("client", [], [bus.endpoint])
+    else:
+        cfg = _zenoh_config("peer", [bus.peer_listen], [bus.endpoint])
+    return _open_linked(cfg, bus, identity, CONNECT_TIMEOUT_S)
 
 
 def on_receiving_thread(callback: Callable[[zenoh.Sample], Any]) -> zenoh.handlers.Callback:

@@ -498,6 +498,41 @@ class LifecycleMsg:
 _STATES = [s.name.lower() for s in Lifecycle]
 
 
+class LifecycleOrder:
+    """A reader's check of the gateway's lifecycle stream: what it drops, and counts.
+
+    The gateway numbers every change of state (``seq``) and repeats the current one at
+    :data:`LIFECYCLE_RATE_HZ` with the same number and a newer stamp. A reader keeps the
+    newest and drops (see :meth:`admit`):
+
+    - ``out_of_order``: a lower ``seq``, or the same one with an older stamp: older news than
+      what it has (a late "teaching" must not undo a "stopped");
+    - ``conflicting``: the same ``seq`` naming another state: not what the gateway sends.
+
+    Every process that reads the lifecycle is a child of the gateway and starts with it, so the
+    numbering starts afresh only when the reader does. Freshness (the stamp's age) stays the
+    reader's own deadline check."""
+
+    def __init__(self) -> None:
+        self.last: LifecycleMsg | None = None
+        self.dropped: dict[str, int] = {}
+
+    def admit(self, msg: LifecycleMsg) -> str | None:
+        """None if ``msg`` is the newest (kept as :attr:`last`), else the reason it is dropped
+        (counted in :attr:`dropped`)."""
+        last, reason = self.last, None
+        if last is not None:
+            if msg.seq < last.seq or (msg.seq == last.seq and msg.stamp_s < last.stamp_s):
+                reason = "out_of_order"
+            elif msg.seq == last.seq and msg.state != last.state:
+                reason = "conflicting"
+        if reason is None:
+            self.last = msg
+        else:
+            self.dropped[reason] = self.dropped.get(reason, 0) + 1
+        return reason
+
+
 def encode_json(obj: dict[str, Any]) -> bytes:
     return json.dumps(obj, allow_nan=False, separators=(",", ":")).encode()
 

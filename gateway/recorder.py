@@ -37,6 +37,7 @@ from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
 from gateway.bus import BusConfig, bus_config_from, open_client, undeclare_all
+from gateway.bus_security import OBSERVER
 from gateway.config import load_toml
 from gateway.errors import DataFileError, MessageError
 from gateway.messages import (
@@ -86,7 +87,7 @@ class BusRecorder:
 
     def start(self) -> None:
         self._thread.start()
-        self._session = open_client(self.bus)
+        self._session = open_client(self.bus, identity=OBSERVER)
         self._sub = self._session.declare_subscriber(f"{self.bus.key_prefix}/**", self._on_sample)
 
     def _on_sample(self, sample: Any) -> None:

@@ -27,6 +27,7 @@ import numpy as np
 import zenoh
 
 from gateway.bus import BusConfig, declare_loop_publisher, open_peer, open_router
+from gateway.bus_security import OPERATOR
 
 STATE_KEY, CMD_KEY = "bench/state", "bench/cmd"
 
@@ -54,7 +55,7 @@ def echo(router: str, listen: str | None) -> None:
     if listen:
         session = zenoh.open(_peer_config([listen], []))
     else:
-        session = open_peer(BusConfig(endpoint=router))
+        session = open_peer(BusConfig(endpoint=router), OPERATOR)
     pub = declare_loop_publisher(session, CMD_KEY)
 
     def on_state(sample: zenoh.Sample) -> None:
@@ -81,7 +82,7 @@ def ping(router: str, mode: str, n: int, payload: int, period_s: float) -> np.nd
         if mode == "direct":
             session = zenoh.open(_peer_config([], [listen]))
         else:
-            session = open_peer(BusConfig(endpoint=router))
+            session = open_peer(BusConfig(endpoint=router), OPERATOR)
         got = threading.Event()
         rtts: list[float] = []
         sent_at = [0.0]

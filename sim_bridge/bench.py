@@ -31,6 +31,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from gateway.bus_security import write_credentials
 from sim_bridge.harness import CAN_PROFILES, Stack, deep_merge
 
 #: the counters of the CAN driver's health that classify its answers
@@ -68,10 +69,19 @@ def _cpu(stack: Stack, seconds: float) -> dict[str, float] | None:
 
 
 def run_rate(
-    rate_hz: float, cycles: int, workdir: Path, profile: str = "classic", place: bool = False
+    rate_hz: float,
+    cycles: int,
+    workdir: Path,
+    profile: str = "classic",
+    place: bool = False,
+    locked_bus: bool = False,
 ) -> dict[str, Any]:
     period = 1.0 / rate_hz
     sim_profile, cell_overrides = CAN_PROFILES[profile]
+    if locked_bus:  # the cell PC's bus: credentials, access list, every process a client
+        workdir.mkdir(parents=True, exist_ok=True)
+        creds = write_credentials(workdir / "bus.credentials")
+        cell_overrides = deep_merge(cell_overrides, {"bus": {"credentials_file": str(creds)}})
     overrides = deep_merge(
         sim_profile,
         {
@@ -80,6 +90,7 @@ def run_rate(
         },
     )
     result: dict[str, Any] = {"hz": rate_hz, "profile": profile, "cycles": 0, "error": None}
+    result["locked_bus"] = locked_bus
     with Stack(workdir, sim_overrides=overrides, cell_overrides=cell_overrides,
                place=place) as stack:  # fmt: skip
         result["placement"] = None if stack.placement is None else {
@@ -173,6 +184,12 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
         help="on two CPUs or more, run the virtual cell on the last CPU and the product on the "
         "others (default: the OS places them)",
     )
+    p.add_argument(
+        "--locked-bus",
+        action="store_true",
+        help="run the product on a locked bus, as the cell PC does (credentials, the router's "
+        "access list, every process a client of the router: gateway/bus_security.py)",
+    )
 
 
 def cli_main(args: argparse.Namespace) -> int:
@@ -183,7 +200,9 @@ def cli_main(args: argparse.Namespace) -> int:
     for rate in args.rates:
         print(f"running {args.cycles} cycles at {rate:.0f} Hz ({args.profile}) ...", flush=True)
         workdir = args.out / f"{rate:.0f}hz_{args.profile}"
-        results.append(run_rate(rate, args.cycles, workdir, args.profile, args.place))
+        results.append(
+            run_rate(rate, args.cycles, workdir, args.profile, args.place, args.locked_bus)
+        )
     print()
     print(_table(results))
     doc = {"rates": results}

@@ -24,6 +24,7 @@ import subprocess
 import sys
 import time
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -213,6 +214,9 @@ class Stack:
         if self.placement is not None:
             cell = deep_merge(cell, {"realtime": {"cpu_affinity": list(self.placement[0])}})
         self.cell = deep_merge(cell, cell_overrides or {})
+        credentials = self.cell.get("bus", {}).get("credentials_file", "")
+        if credentials:  # a locked bus: the harness's requests come as the operator
+            self.bus = replace(self.bus, credentials_file=str(credentials))
         truth = load_toml(TRUTH)
         truth = deep_merge(
             truth,

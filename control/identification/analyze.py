@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -76,9 +77,11 @@ from control.identification.report import write_report
 from control.identification.rigid import DEFAULT_GRAVITY_M_S2, RobotRegressor
 from control.identification.terms import (
     FRICTION_MODELS,
+    FRICTION_PARAM_NAMES,
     Context,
     EffectTerm,
     Envelope,
+    RigidTerm,
     shift_signal,
 )
 from control.identification.validate import (
@@ -103,6 +106,8 @@ TEST_FIT_FRACTION = 0.5
 #: values instead of whatever noise and mismatch make of them, which would then be
 #: extrapolated outside the training envelope; well-excited ones are not moved.
 RIGID_PRIOR_RIDGE = 1e-6
+#: Friction families fitted side by side (threads; the machine class has two cores).
+FAMILY_THREADS = 2
 #: sqrt(VIF) above which a base parameter counts as not identified by the training motion.
 NOT_IDENTIFIED_SQRT_VIF = 1e3
 
@@ -258,8 +263,29 @@ def _fit_families(
     """Each friction family fitted on ``ls`` (groups left there) and its figures."""
     fits: dict[str, FrictionFit] = {}
     comparison: dict[str, Any] = {}
+
+    if "rigid" not in ls.cols:
+        ls.add("rigid", RigidTerm().columns(run.ctx_train))
+
+    def fit_one(kind: str) -> tuple[FrictionFit, BlockLS, list[str]]:
+        lines: list[str] = []
+        own = ls.fork()
+        return (
+            fit_rigid_friction(own, run.ctx_train, kind, ratios, progress=lines.append),
+            own,
+            lines,
+        )
+
+    # the families are independent searches: side by side on a fork of ``ls`` each (most of
+    # their time is LAPACK, filters and BLAS, which run without the GIL); the costliest first
+    order = sorted(kinds, key=lambda k: -len(FRICTION_PARAM_NAMES[k]))
+    with ThreadPoolExecutor(max_workers=min(FAMILY_THREADS, len(order))) as pool:
+        done = dict(zip(order, pool.map(fit_one, order), strict=True))
     for kind in kinds:
-        fit = fit_rigid_friction(ls, run.ctx_train, kind, ratios, progress=run.clock.say)
+        fit, own, lines = done[kind]
+        for line in lines:
+            run.clock.say(line)
+        ls.adopt(own, [t.key for t in fit.terms])
         fits[kind] = fit
         _, pred = _predict(run.reg, run.ctx_test, fit, str(run.urdf), run.meta)
         comparison[kind] = {
@@ -505,6 +531,67 @@ def guard_joints(
     return out
 
 
+#: Fewest rows of the test run's leading part on which the guard's second look decides.
+TEST_GUARD_MIN_ROWS = 200
+
+
+@dataclass(frozen=True)
+class LeadGuard:
+    """The guard's second look, on the leading rows of the test run (those case (B) searched):
+    per joint the held-out RMS [N·m] there of what the training guard kept, of plain least
+    squares and of zero, and what is kept."""
+
+    rows: tuple[int, int]
+    rms: list[dict[str, float]]
+    kept: list[str]
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "rows": list(self.rows),
+            "joints": [
+                {"joint": j + 1, "heldout_rms_test_lead": r, "kept": k}
+                for j, (r, k) in enumerate(zip(self.rms, self.kept, strict=True))
+            ],
+        }
+
+
+def guard_on_test(
+    tau: np.ndarray,
+    chosen: np.ndarray,
+    plain: np.ndarray,
+    mask: np.ndarray,
+    rows: slice,
+    chosen_kinds: Sequence[str],
+) -> LeadGuard | None:
+    """Per joint, what the training guard kept (``chosen`` (T, n) its prediction, of kind
+    ``chosen_kinds[j]``) against plain least squares (``plain``) and zero, on the test run's
+    ``rows`` (where ``mask`` is 1). The training folds cannot show how a model extrapolates
+    to where the test run goes (outside the training envelope, a shared rigid-body fit can
+    lose to a joint's own least squares, and an effect nobody declared can grow there); the
+    leading test rows can, and no fit has seen them. The lowest error there is kept (the
+    training guard's choice on a tie; on a joint with fewer than :data:`TEST_GUARD_MIN_ROWS`
+    rows there, that choice). None when no joint has enough."""
+    m = mask[rows]
+    enough = m.sum(axis=0) >= TEST_GUARD_MIN_ROWS
+    if not enough.any():
+        return None
+    n = tau.shape[1]
+    err = {
+        "chosen": (((tau - chosen)[rows] ** 2) * m).sum(axis=0),
+        PLAIN_LS: (((tau - plain)[rows] ** 2) * m).sum(axis=0),
+        ZERO: ((tau[rows] ** 2) * m).sum(axis=0),
+    }
+    count = np.maximum(m.sum(axis=0), 1.0)
+    rms_rows, kept = [], []
+    for j in range(n):
+        sse = {k: float(v[j]) for k, v in err.items()}
+        best = min(sse, key=lambda k: (sse[k], k != "chosen")) if enough[j] else "chosen"
+        named = {(chosen_kinds[j] if k == "chosen" else k): v for k, v in sse.items()}
+        rms_rows.append({k: float(np.sqrt(v / count[j])) for k, v in named.items()})
+        kept.append(chosen_kinds[j] if best == "chosen" else best)
+    return LeadGuard((rows.start, rows.stop), rms_rows, kept)
+
+
 def analyze(
     urdf_path: str | Path,
     train_paths: Sequence[str | Path],
@@ -688,6 +775,7 @@ def _analyze(
     clock.lap("fit")
 
     accepted_a: list[fx.Accepted] = []
+    refused: list[dict[str, Any]] = []
     delay_a = 0.0
     train_eval = base_fit.evaluation
     names = base_fit.names
@@ -711,6 +799,7 @@ def _analyze(
         )  # fmt: skip
         base_fit = refit[-1] if refit else base_fit
         kind = base_fit.kind
+        refused += state.refused
         assert state.evaluation is not None
         train_eval, accepted_a, delay_a, names = (
             state.evaluation, state.accepted, state.delay_s, state.names
@@ -760,13 +849,35 @@ def _analyze(
         )  # fmt: skip
         accepted_b = between.accepted
         pred_after = between.prediction
+        refused += between.refused
     accepted = [*accepted_a, *accepted_b]
-    effects_b = [(a.term, a.coef, a.appeared) for a in accepted_b]
+    # The guard's second look: on the leading test rows, what extrapolates worse than plain
+    # least squares or zero is replaced there too (the figures are then those of the rest).
+    kinds_now = [MODEL if j not in plain else plain[j].kind for j in range(reg.n)]
+    second = guard_on_test(test.tau, pred_after, pred_plain, sliding_test, fit_rows, kinds_now)
+    switched = []
+    if second is not None:
+        pred_after = pred_after.copy()
+        for j, (was, now) in enumerate(zip(kinds_now, second.kept, strict=True)):
+            if now == was:
+                continue
+            switched.append(j)
+            coef = plain_ref.solution.coef[plain_key(j)]
+            plain[j] = PlainJoint.from_coef(j, coef if now == PLAIN_LS else 0.0 * coef, now)
+            pred_after[:, j] = pred_plain[:, j] if now == PLAIN_LS else 0.0
+            r = second.rms[j]
+            clock.say(
+                f"joint {j + 1}: on the first {split} test rows {was.replace('_', ' ')} "
+                f"({r[was]:.4g} N·m) extrapolates worse than {now.replace('_', ' ')} "
+                f"({r[now]:.4g} N·m): {now} kept"
+            )
+    effects_a = _restricted(accepted_a, set(plain))
+    effects_b = _restricted(accepted_b, set(plain))
     model = model_from_solution(
         reg, base_fit, train_eval.solution, [*effects_a, *effects_b], urdf, meta,
         run.envelope, plain,
     )  # fmt: skip
-    scored = slice(split, test.n_samples) if accepted_b else slice(0, test.n_samples)
+    scored = slice(split, test.n_samples) if accepted_b or switched else slice(0, test.n_samples)
     on = sliding_test[scored]
     rms_before = masked_rms((test.tau - pred_before)[scored], on)
     rms_after = masked_rms((test.tau - pred_after)[scored], on)
@@ -791,8 +902,8 @@ def _analyze(
     model.save(out / "model.json")
     where = (
         f"test rows {scored.start}..{scored.stop - 1} of {test.n_samples}: the rest of the test "
-        f"run after the first {split} rows used by case (B)"
-        if accepted_b
+        f"run after the first {split} rows used by case (B) and the guard"
+        if scored.start
         else f"all {test.n_samples} test rows"
     )
     if options.stick_velocity_rad_s > 0:
@@ -820,6 +931,7 @@ def _analyze(
         "rms_plain_ls": rms_plain.tolist(),
         "after_le_plain_ls": (rms_after <= rms_plain * (1 + 1e-9)).tolist(),
         "plain_ls_joints": sorted(j + 1 for j, pj in plain.items() if pj.kind == PLAIN_LS),
+        "fallback_joints": {str(j + 1): pj.kind for j, pj in sorted(plain.items())},
         "guard": {
             "rule": "per joint, the model is replaced where its held-out error on the training "
             "files (folds: see 'folds') is worse than plain least squares (by the margin where "
@@ -831,6 +943,11 @@ def _analyze(
             "mixed in their shares (in-sample ones × the GCV factor)",
             "plain_margin": plain_margin,
             "joints": [guard[j].to_json() for j in range(reg.n)],
+            "test_lead": None if second is None else second.to_json(),
+            "test_lead_rule": "then, on the first test rows (those case (B) searched), each "
+            "joint keeps the lowest held-out error of what the training guard kept, plain "
+            "least squares and zero; where that changes a joint, the figures are scored on "
+            "the rest of the test run",
         },
         "relative_before": relative_error(test.tau[scored], pred_before[scored]).tolist(),
         "relative_after": relative_error(test.tau[scored], pred_after[scored]).tolist(),
@@ -879,6 +996,7 @@ def _analyze(
             }
             for a in accepted
         ],
+        "refused_effects": refused,
         "friction_comparison": comparison,
         "base_parameters": reg.base.n_base,
         "base_parameter_excitation": _excitation_report(reg, ls, base_fit, train_eval),

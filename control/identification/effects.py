@@ -59,6 +59,14 @@ A candidate is accepted only if
     says the model lacks something on that joint; a significant effect that accounts for the
     difference is a better repair than the guard's fallback to a fit without physics.
 
+(vii) *its parameters are physical*: a payload has a positive mass; a Stribeck rise and
+    load-dependent friction add friction (positive amplitude, positive coefficient); a
+    spring's rest angle lies within the training range of its joint widened by that range on
+    each side. Otherwise the term is fitting something else the declared model lacks (a
+    spring whose rest angle is tens of radians away is a constant offset, such as the
+    direction-dependent part of a Coulomb friction, with a small slope), and naming it would
+    be false.
+
 Rules (iv) and (v) are checked on the acceptable candidates in order of their score; the
 first that holds is taken.
 
@@ -69,14 +77,15 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 from scipy.optimize import minimize_scalar
-from scipy.stats import chi2
+from scipy.special import chdtri
 
 from control.identification.lsq import BlockLS, Evaluation, Solution, contiguous_folds
 from control.identification.preprocess import Prepared
-from control.identification.terms import Context, EffectTerm, shift_signal
+from control.identification.terms import Context, EffectTerm, Envelope, shift_signal
 
 MARGIN = 0.10
 #: Family-wise probability, per search round, of accepting a candidate that only fits noise.
@@ -84,6 +93,8 @@ ALPHA = 0.01
 WORSEN_TOLERANCE = 0.05
 #: What rule (vi) measures the model against.
 RIVAL = "plain least squares"
+#: Rule (vii): the narrowest joint range [rad] a spring's rest angle is judged against.
+SPRING_MIN_RANGE_RAD = 0.2
 #: Rule (v): least share of the scored test rows inside the training envelope.
 MIN_INSIDE_SHARE = 0.1
 MAX_EFFECTS = 6
@@ -141,6 +152,8 @@ class Verdict:
     chi2: float
     chi2_threshold: float
     delay_s: float = 0.0
+    #: why rule (vii) refuses its parameters ("" when they are physical)
+    implausible: str = ""
 
 
 @dataclass
@@ -152,6 +165,34 @@ class SearchState:
     delay_s: float = 0.0
     accepted: list[Accepted] = field(default_factory=list)
     evaluation: Evaluation | None = None
+    #: candidates that passed rules (i)-(iii) but were refused, with why (:func:`refusal`)
+    refused: list[dict[str, Any]] = field(default_factory=list)
+
+
+def refusal(v: Verdict, case: str, reason: str) -> dict[str, Any]:
+    """A refused candidate as the summary lists it."""
+    coef = v.evaluation.solution.coef.get(v.term.key)
+    return {
+        "name": v.term.name,
+        "joints": [j + 1 for j in (v.improved or v.term.joints)],
+        "case": case,
+        "heldout_gain": round(float(np.max(v.rel[list(v.improved or v.term.joints)])), 4),
+        "parameters": v.term.parameters(coef) if coef is not None else dict(v.term.setting),
+        "reason": reason,
+    }
+
+
+def _note_implausible(
+    verdicts: Sequence[Verdict], case: str, out: list[dict[str, Any]], progress: Progress
+) -> None:
+    """Record (and say) the candidates rule (vii) alone turned down."""
+    for v in verdicts:
+        no_worse = bool(np.all(v.rel >= -WORSEN_TOLERANCE))
+        seen = any(r["name"] == v.term.name and r["case"] == case and
+                   r["joints"] == [j + 1 for j in v.improved] for r in out)  # fmt: skip
+        if v.implausible and v.improved and v.chi2 >= v.chi2_threshold and no_worse and not seen:
+            out.append(refusal(v, case, f"implausible: {v.implausible}"))
+            progress(f"refused {_describe(v)}: implausible, {v.implausible}")
 
 
 def _quiet(_: str) -> None:
@@ -181,7 +222,7 @@ class NoiseFloor:
 
 def chi2_threshold(p: int, tried: int, alpha: float) -> float:
     """``1 - alpha/tried`` quantile of χ² with ``p`` degrees of freedom (Bonferroni)."""
-    return float(chi2.isf(alpha / max(tried, 1), max(p, 1)))
+    return float(chdtri(max(p, 1), alpha / max(tried, 1)))  # chi2.isf(alpha, p)
 
 
 def judge(
@@ -193,9 +234,11 @@ def judge(
     tried: int,
     options: Options,
     extra_params: int = 0,
+    envelope: Envelope | None = None,
 ) -> Verdict:
-    """Accept/reject ``term`` (rules (i)-(iii) of the module docstring); ``tried`` is the
-    number of candidate settings of the round, ``extra_params`` counts non-linear settings."""
+    """Accept/reject ``term`` (rules (i)-(iii) and (vii) of the module docstring); ``tried``
+    is the number of candidate settings of the round, ``extra_params`` counts non-linear
+    settings, ``envelope`` is the training envelope (rule (vii)'s joint ranges)."""
     cur = np.maximum(current.cv_sse, 1e-300)
     rel = 1.0 - np.sqrt(np.maximum(new.cv_sse, 0.0) / cur)
     drop = current.cv_sse - new.cv_sse
@@ -209,9 +252,32 @@ def judge(
     else:
         improved = tuple(int(j) for j in np.flatnonzero(big))
     no_worse = bool(np.all(rel >= -WORSEN_TOLERANCE))
-    ok = bool(improved) and no_worse and stat >= threshold
+    coef = new.solution.coef.get(term.key)
+    why = "" if coef is None else implausible(term, coef, envelope)
+    ok = bool(improved) and no_worse and stat >= threshold and not why
     score = float(np.sum(weights**2 * drop))
-    return Verdict(term, new, ok, score, rel, improved, stat, threshold)
+    return Verdict(term, new, ok, score, rel, improved, stat, threshold, implausible=why)
+
+
+def implausible(term: EffectTerm, coef: np.ndarray, envelope: Envelope | None) -> str:
+    """Why rule (vii) refuses ``term`` with fitted coefficients ``coef`` ("" if it does not)."""
+    p = term.parameters(coef)
+    if term.name == "payload" and p["mass_kg"] <= 0.0:
+        return f"a payload of {p['mass_kg']:.3g} kg"
+    if term.name == "stribeck" and p["amplitude_nm"] <= 0.0:
+        return f"a Stribeck rise of {p['amplitude_nm']:.3g} N·m (friction falling at low speed)"
+    if term.name == "load_dependent_friction" and p["coefficient"] <= 0.0:
+        return f"load-dependent friction {p['coefficient']:.3g} (friction falling under load)"
+    if term.name == "spring" and envelope is not None:
+        (j,) = term.joints
+        lo, hi = float(envelope.q_min[j]), float(envelope.q_max[j])
+        width = max(hi - lo, SPRING_MIN_RANGE_RAD)
+        if not lo - width <= p["q0_rad"] <= hi + width:
+            return (
+                f"a spring at rest at {p['q0_rad']:.3g} rad, far outside the joint's range "
+                f"[{lo:.3g}, {hi:.3g}] rad (a constant offset with a slope)"
+            )
+    return ""
 
 
 def rescuing(
@@ -228,7 +294,7 @@ def rescuing(
         lifted = beaten & (np.asarray(v.evaluation.cv_sse) <= rival_sse)
         lifted[[j for j in range(lifted.size) if j not in v.term.joints]] = False
         no_worse = bool(np.all(v.rel >= -WORSEN_TOLERANCE))
-        if np.any(lifted) and no_worse and v.chi2 >= v.chi2_threshold:
+        if np.any(lifted) and no_worse and v.chi2 >= v.chi2_threshold and not v.implausible:
             out.append(
                 replace(v, accepted=True, improved=tuple(int(j) for j in np.flatnonzero(lifted)))
             )
@@ -439,7 +505,9 @@ def search_all_along(
         for term in terms:
             ls.add(term.key, term.columns(ctx))
             new = ls.evaluate([*state.names, term.key], weights)
-            verdicts.append(judge(term, current, new, weights, noise, tried, options))
+            verdicts.append(
+                judge(term, current, new, weights, noise, tried, options, 0, ctx.envelope)
+            )
             ls.remove(term.key)
         if state.delay_s == 0.0:
             verdicts.append(
@@ -448,6 +516,7 @@ def search_all_along(
             ls.set_y(y0)
         ok = [v for v in verdicts if v.accepted]
         _log_round(progress, "train", verdicts)
+        _note_implausible(verdicts, ALL_ALONG, state.refused, progress)
         if not ok and rival_sse is not None:
             ok = rescuing(verdicts, current, rival_sse(ls.y))
             for v in ok:
@@ -561,6 +630,7 @@ class TestSearch:
     delay_s: float
     prediction: np.ndarray
     fit_rows: slice
+    refused: list[dict[str, Any]] = field(default_factory=list)
 
 
 def forward_gain(
@@ -633,6 +703,7 @@ def search_between(
     (:func:`.preprocess.sliding_mask`), all when None.
     """
     progress = progress or _quiet
+    refused: list[dict[str, Any]] = []
     part = data.select(np.arange(data.n_samples)[fit_rows])
     noise = NoiseFloor.of(part)
     tau = data.tau
@@ -663,7 +734,9 @@ def search_between(
         for term in terms:
             ls.add(term.key, _rows(term.columns(ctx), fit_rows))
             new = ls.evaluate([*names, term.key], weights)
-            verdicts.append(judge(term, current, new, weights, noise, tried, options))
+            verdicts.append(
+                judge(term, current, new, weights, noise, tried, options, 0, ctx.envelope)
+            )
             ls.remove(term.key)
         base_y = ls.y.copy()
         if with_delay:
@@ -679,6 +752,7 @@ def search_between(
             verdicts.append(v)
             ls.set_y(base_y)
         _log_round(progress, "test", verdicts)
+        _note_implausible(verdicts, BETWEEN, refused, progress)
         ok = sorted((v for v in verdicts if v.accepted), key=lambda v: -v.score)
         best = None
         for v in ok:
@@ -689,27 +763,32 @@ def search_between(
                 np.all(gain[list(v.improved)] >= 0.5 * options.margin)
                 and np.all(gain >= -WORSEN_TOLERANCE)
             ):
-                progress(
-                    f"refused {_describe(v)}: fitted on the first half of its rows, it does not "
-                    f"hold on the second (held-out RMS gain {np.array2string(gain, precision=3)})"
+                why = (
+                    "fitted on the first half of its rows, it does not hold on the second "
+                    f"(held-out RMS gain {np.array2string(gain, precision=3)})"
                 )
+                progress(f"refused {_describe(v)}: {why}")
+                refused.append(refusal(v, BETWEEN, why))
                 continue
             if inside is not None:
                 if inside_share < MIN_INSIDE_SHARE:
-                    progress(
-                        f"refused {_describe(v)}: only {inside_share:.0%} of the test rows it "
-                        "would be judged on are inside the training envelope, too few to tell "
-                        "an effect that appeared from the model's extrapolation"
+                    why = (
+                        f"only {inside_share:.0%} of the test rows it would be judged on are "
+                        "inside the training envelope, too few to tell an effect that appeared "
+                        "from the model's extrapolation"
                     )
+                    progress(f"refused {_describe(v)}: {why}")
+                    refused.append(refusal(v, BETWEEN, why))
                     continue
                 gain = forward_gain(ls, names, weights, v.term.key, cols, y_after, inside)
                 if not np.all(gain[list(v.improved)] >= 0.5 * options.margin):
-                    progress(
-                        f"refused {_describe(v)}: it does not hold where the training run went "
-                        f"(held-out RMS gain inside the training envelope "
-                        f"{np.array2string(gain, precision=3)}): the model's extrapolation, "
-                        "not an effect that appeared"
+                    why = (
+                        "it does not hold where the training run went (held-out RMS gain "
+                        f"inside the training envelope {np.array2string(gain, precision=3)}): "
+                        "the model's extrapolation, not an effect that appeared"
                     )
+                    progress(f"refused {_describe(v)}: {why}")
+                    refused.append(refusal(v, BETWEEN, why))
                     continue
             best = v
             break
@@ -741,7 +820,7 @@ def search_between(
         if acc.term.is_linear:
             for j, cols in acc.term.columns(ctx).items():
                 prediction[:, j] += cols @ acc.coef
-    return TestSearch(accepted, delay, prediction, fit_rows)
+    return TestSearch(accepted, delay, prediction, fit_rows, refused)
 
 
 # --------------------------------------------------------------------------------------------
@@ -765,7 +844,8 @@ def _log_round(progress: Progress, where: str, verdicts: Sequence[Verdict]) -> N
     text = "; ".join(
         f"{v.term.name}{[j + 1 for j in v.term.joints] if len(v.term.joints) == 1 else ''}"
         f"{' ' + str(v.term.setting) if v.term.setting else ''} "
-        f"{100 * float(np.max(v.rel)):+.1f} %{' ok' if v.accepted else ''}"
+        f"{100 * float(np.max(v.rel)):+.1f} %"
+        f"{' ok' if v.accepted else ' implausible' if v.implausible else ''}"
         for v in top
     )
     progress(f"effects ({where}): {len(verdicts)} candidates, best held-out gains: {text}")

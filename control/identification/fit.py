@@ -241,7 +241,7 @@ def fit_rigid_friction(
                 for value in values:
                     cand = replace(terms[j], **{field_name: value})
                     target.add(cand.key, _thin(cand.columns(ctx), step))
-                    sse = target.evaluate(names, w0).cv_sse[j]
+                    sse = target.cv_sse(names, w0)[j]
                     if sse < best[0]:
                         best = (sse, cand)
                 terms[j] = best[1]

@@ -148,7 +148,7 @@ def _distances(points: np.ndarray, seen: np.ndarray, unseen: np.ndarray, k: int 
     """Distance of each (thinned) ``unseen`` row to its k-th nearest ``seen`` row."""
     if not seen.size or not unseen.size:
         return np.full(max(1, unseen.size), math.inf)
-    d, _ = cKDTree(points[seen]).query(points[_query(unseen)], k=k)
+    d, _ = cKDTree(points[seen]).query(points[_query(unseen)], k=k, workers=-1)
     return np.maximum(d if k == 1 else d[:, -1], _TINY)
 
 

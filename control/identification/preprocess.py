@@ -57,6 +57,8 @@ JITTER_TOLERANCE = 0.01
 EDGE_PERIODS = 5.0
 #: A joint that moves more than this between two samples is a wrapped or corrupt position.
 MAX_STEP_RAD = 1.0
+#: Columns :meth:`Prepared.lowpass` filters at once (bounds its temporary memory).
+LOWPASS_COLUMNS = 32
 #: Segments shorter than this many filtered samples (after edge trimming) are dropped.
 MIN_SEGMENT_SAMPLES = 50
 
@@ -137,10 +139,16 @@ class Prepared:
         arr = np.asarray(x, dtype=float)
         if self.filter_hz is None or self.sample_hz is None or arr.shape[0] == 0:
             return arr
-        out = np.empty_like(arr)
+        out = np.empty(arr.shape)
+        flat_in, flat_out = arr.reshape(arr.shape[0], -1), out.reshape(arr.shape[0], -1)
         bounds = np.flatnonzero(np.diff(self.segment) != 0) + 1
         for a, b in pairwise(np.r_[0, bounds, arr.shape[0]]):
-            out[a:b] = _lowpass_padded(arr[a:b], float(self.filter_hz[a]), float(self.sample_hz[a]))
+            cut, fs = float(self.filter_hz[a]), float(self.sample_hz[a])
+            # a few columns at a time: the filter's padded copies of a whole regressor
+            # (hundreds of columns) cost more memory than the analysis keeps
+            for c in range(0, flat_in.shape[1], LOWPASS_COLUMNS):
+                cols = slice(c, c + LOWPASS_COLUMNS)
+                flat_out[a:b, cols] = _lowpass_padded(flat_in[a:b, cols], cut, fs)
         return out
 
 

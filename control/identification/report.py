@@ -86,12 +86,25 @@ def render_markdown(summary: dict[str, Any]) -> str:
     lines += ["", "## Effects found in the residual", ""]
     if not summary.get("effects_searched", True):
         lines.append("The effect search was switched off (`--no-effects`).")
-    elif not summary["effects"]:
+    elif not summary["effects"] and not summary.get("refused_effects"):
         lines.append(
             "No further effect found: no candidate of the effect vocabulary cut a joint's "
             f"held-out RMS by {100 * summary['margin']:.0f} % with a held-out gain significant "
             f"against the measured noise floor (family-wise level {summary['alpha']:g})."
         )
+    elif not summary["effects"]:
+        lines.append("No effect accepted; the candidates below passed the held-out tests but "
+                     "were refused for the reason given.")  # fmt: skip
+    if summary.get("refused_effects"):
+        lines += ["", "### Refused candidates", "", "| effect | joints | case | held-out gain "
+                  "| reason |", "|---|---|---|---|---|"]  # fmt: skip
+        for r in summary["refused_effects"]:
+            lines.append(
+                f"| `{r['name']}` | {', '.join(joints[j - 1] for j in r['joints'])} | "
+                f"{r['case'].replace('_', ' ')} | {100 * r['heldout_gain']:.0f} % | "
+                f"{r['reason']} |"
+            )
+        lines.append("")
     for e in summary["effects"]:
         case = _CASES[e["appeared"]] + "; " + _FITTED[e["estimated_on"]]
         improved = ", ".join(joints[j - 1] for j in e["improved_joints"]) or "-"

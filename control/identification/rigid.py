@@ -110,6 +110,10 @@ def _body_names(model: pin.Model) -> list[str]:
     return names
 
 
+#: Samples whose full regressor is held at once by :meth:`RobotRegressor.regressor_columns`.
+REGRESSOR_CHUNK = 2048
+
+
 class RobotRegressor:
     """pinocchio model of one URDF with its base-parameter regressor; joint order = URDF chain.
 
@@ -195,7 +199,8 @@ class RobotRegressor:
         ddq = np.ascontiguousarray(ddq, dtype=float).reshape(-1, self.n)
         cols = np.asarray(columns, dtype=int)
         out = np.empty((self.n, q.shape[0], cols.size))
-        model, data, fn = self.model, self.data, pin.computeJointTorqueRegressor
+        # a Data of its own: calls may run side by side in threads
+        model, data, fn = self.model, self.model.createData(), pin.computeJointTorqueRegressor
         link_cols = cols[cols < 10 * self.n]
         arm_pos = np.flatnonzero(cols >= 10 * self.n)  # positions in ``cols`` of armatures
         arm_joint = cols[arm_pos] - 10 * self.n
@@ -203,12 +208,21 @@ class RobotRegressor:
         out[:, :, arm_pos] = 0.0
         for j_col, j in zip(arm_pos, arm_joint, strict=True):
             out[j, :, j_col] = ddq[:, j]
+        fn(model, data, q[0], dq[0], ddq[0]) if q.shape[0] else None
+        # ``data.jointTorqueRegressor`` is a live view of pinocchio's result: copying it per
+        # sample costs a third of taking the returned copy apart; chunks bound the memory
+        view = data.jointTorqueRegressor
+        chunk = np.empty((min(REGRESSOR_CHUNK, q.shape[0]), *view.shape))
         step = max(1, q.shape[0] // 10)
-        for k in range(q.shape[0]):
-            y = fn(model, data, q[k], dq[k], ddq[k])
-            out[:, k, link_pos] = (y if y.ndim == 2 else y[None, :])[:, link_cols]
-            if progress is not None and k and k % step == 0 and q.shape[0] > 50_000:
-                progress(f"regressor {100 * k // q.shape[0]} %")
+        for a in range(0, q.shape[0], REGRESSOR_CHUNK):
+            b = min(a + REGRESSOR_CHUNK, q.shape[0])
+            for k in range(a, b):
+                fn(model, data, q[k], dq[k], ddq[k])
+                chunk[k - a] = view
+                if progress is not None and k and k % step == 0 and q.shape[0] > 50_000:
+                    progress(f"regressor {100 * k // q.shape[0]} %")
+            rows = chunk[: b - a].reshape(b - a, self.n, -1)
+            out[:, a:b, link_pos] = np.moveaxis(rows[:, :, link_cols], 0, 1)
         return out
 
     def base_regressor(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray) -> np.ndarray:

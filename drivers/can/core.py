@@ -60,6 +60,7 @@ from gateway.messages import (
     JointState,
     Lifecycle,
     LifecycleMsg,
+    LifecycleOrder,
     StateWindow,
 )
 
@@ -230,6 +231,7 @@ class HostCore:
 
         # inputs from zenoh
         self._lifecycle: LifecycleMsg | None = None
+        self.lifecycle_order = LifecycleOrder()
         self._lifecycle_rx_s = -np.inf
         self._io: IoState | None = None
         self._io_rx_s = -np.inf
@@ -281,6 +283,16 @@ class HostCore:
             self._note(logging.WARNING, "lifecycle", f"bad lifecycle message: {exc}")
             return
         previous = self._lifecycle
+        dropped = self.lifecycle_order.admit(msg)
+        if dropped is not None:
+            self._note(
+                logging.WARNING,
+                f"lifecycle_{dropped}",
+                f"lifecycle message dropped ({dropped}): seq {msg.seq} {msg.state.name} after "
+                f"seq {previous.seq if previous else '-'} "
+                f"{previous.state.name if previous else '-'}",
+            )
+            return
         if (
             previous is not None
             and previous.state == Lifecycle.FAULT
@@ -690,6 +702,7 @@ class HostCore:
             "incomplete_cycles": stats.incomplete_cycles,
             "corrupt_cycles": stats.corrupt_cycles,
             "bad_inputs": self.bad_inputs,
+            "lifecycle_dropped": dict(self.lifecycle_order.dropped),
             **self._speed_health(),
             **self._zero_health(),
         }

@@ -30,6 +30,7 @@ from drivers.can.config import CanDriverConfig, load_can_config
 from drivers.can.core import COMMAND, REJECT_REASONS, HostCore
 from drivers.can.current_zero import StoredZeroError, read_stored_zero
 from drivers.registry import load_adapter
+from gateway import bus_security as security
 from gateway.bus import (
     BusConfig,
     declare_loop_publisher,
@@ -239,7 +240,7 @@ class CanDriver:
                     _quiet_socketcand_partial_reads()
                 self._bus = can.Bus(**self.config.transport)
             if self._session is None:
-                self._session = open_peer(self.bus_config)
+                self._session = open_peer(self.bus_config, security.CAN_DRIVER)
             session, keys = self._session, self.keys
             self._publisher = declare_loop_publisher(session, keys.joint_state)
             self._window_publisher = session.declare_publisher(keys.state_window)  # drops

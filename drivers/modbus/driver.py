@@ -50,6 +50,7 @@ import zenoh
 from drivers.modbus.adapter import PressureIoAdapter, create_adapter
 from drivers.modbus.client import ModbusLinkError
 from drivers.modbus.config import ModbusDriverConfig
+from gateway import bus_security as security
 from gateway.bus import BusConfig, bus_config_from, open_peer, undeclare_all
 from gateway.config import load_toml
 from gateway.errors import EXIT_CONFIG, ConfigError, MessageError, ModbusReplyError
@@ -454,7 +455,7 @@ def _serve(
     session: zenoh.Session | None = None
     driver: ModbusDriver | None = None
     try:
-        session = open_peer(bus)
+        session = open_peer(bus, security.MODBUS_DRIVER)
         driver = ModbusDriver(config, session, bus.keys, adapter=adapter)
         driver.start()
         log.info(

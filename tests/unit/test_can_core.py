@@ -50,9 +50,11 @@ class Cell:
         self.proto = LtcProtocol(N)
         self.t = T0
         self.counter = 0
+        self.seq = 0
 
     def gateway(self, state: Lifecycle, enabling: bool = True) -> None:
-        self.core.on_lifecycle(LifecycleMsg(state, 1, self.t).to_bytes(), self.t)
+        self.seq += 1  # the gateway numbers every announcement it changes
+        self.core.on_lifecycle(LifecycleMsg(state, self.seq, self.t).to_bytes(), self.t)
         self.core.on_io(IoState(self.t, 6.0, 4.0, 6.0, 4.0, enabling, True).to_bytes(), self.t)
 
     def cycle(
@@ -273,3 +275,25 @@ def test_a_command_past_the_drivers_joint_limits_is_refused_and_the_cycle_held()
     held = commands(frames)
     assert len(held) == N and all(f.hold for f in held)
     assert held[2].q_cmd_rad == pytest.approx(q[2], abs=1e-5)
+
+
+def test_an_older_or_conflicting_lifecycle_message_is_dropped_and_counted():
+    """A late "teaching" (lower seq, or the same seq with an older stamp) must not undo a
+    "stopped"; the same seq naming another state is not what the gateway sends."""
+    cell = Cell()
+    cell.gateway(Lifecycle.TEACHING)
+    js, _ = cell.cycle()
+    assert cell.command(js, Q0)[0] == COMMAND
+    cell.t += 0.004
+    cell.core.on_lifecycle(LifecycleMsg(Lifecycle.STOPPED, 7, cell.t).to_bytes(), cell.t)
+    late = LifecycleMsg(Lifecycle.TEACHING, 6, cell.t).to_bytes()  # sent before the stop
+    cell.core.on_lifecycle(late, cell.t)
+    refresh_before = LifecycleMsg(Lifecycle.STOPPED, 7, cell.t - 0.01).to_bytes()
+    cell.core.on_lifecycle(refresh_before, cell.t)
+    cell.core.on_lifecycle(LifecycleMsg(Lifecycle.TEACHING, 7, cell.t).to_bytes(), cell.t)
+    cell.core.on_lifecycle(LifecycleMsg(Lifecycle.STOPPED, 7, cell.t + 0.05).to_bytes(), cell.t)
+    js, sent = cell.cycle()
+    assert all(f.hold for f in commands(sent))  # still stopped: held at once
+    assert cell.command(js, Q0)[0] != COMMAND
+    dropped = cell.core.health(cell.t)["lifecycle_dropped"]
+    assert dropped == {"out_of_order": 2, "conflicting": 1}

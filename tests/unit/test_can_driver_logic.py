@@ -151,7 +151,9 @@ class Rig:
         self, state: Lifecycle, enabling: bool = True, stamp_s: float | None = None
     ) -> None:
         now = self.clock() if stamp_s is None else stamp_s
-        self.session.deliver(KEYS.lifecycle, LifecycleMsg(state, 1, now).to_bytes())
+        self.lifecycle_seq = getattr(self, "lifecycle_seq", 0) + 1  # one per announcement
+        msg = LifecycleMsg(state, self.lifecycle_seq, now)
+        self.session.deliver(KEYS.lifecycle, msg.to_bytes())
         io = IoState(self.clock(), 6.0, 4.0, 6.0, 4.0, enabling, True)
         self.session.deliver(KEYS.io_state, io.to_bytes())
 

@@ -182,3 +182,19 @@ def test_inner_loop_without_max_offset_names_the_missing_key(tmp_path):
     path.write_text(tomli_w.dumps(raw))
     with pytest.raises(ConfigError, match="max_offset_rad"):
         load_control_config(path)
+
+
+def test_the_production_bus_is_locked_and_the_install_script_knows_every_identity():
+    """The cell PC's bus needs credentials (gateway/bus_security.py); the virtual cell's is
+    open. deploy/install.sh writes a password for each identity the access list names."""
+    import re
+
+    from gateway.bus import bus_config_from
+    from gateway.bus_security import IDENTITIES
+
+    prod, sim = (bus_config_from(load_toml(p), str(p)) for p in CELLS)
+    assert prod.locked and prod.credentials_file == "/etc/leadthrough/bus.credentials"
+    assert not sim.locked
+    script = (REPO / "deploy" / "install.sh").read_text()
+    listed = re.search(r'^IDENTITIES="([^"]*)"', script, re.MULTILINE)
+    assert listed is not None and tuple(listed.group(1).split()) == IDENTITIES

@@ -109,6 +109,34 @@ def test_fallback_kind_is_saved_and_loaded(tmp_path):
     kept = [g["kept"] for g in summary["guard"]["joints"]]
     assert set(kept) <= {"model", "plain_ls", "nominal", "zero"} and len(kept) == 2
     model = IdentifiedModel.load(tmp_path / "out" / "model.json")
-    assert {j + 1: pj.kind for j, pj in model.plain_joints.items()} == {
-        g["joint"]: g["kept"] for g in summary["guard"]["joints"] if g["kept"] != "model"
-    }
+    saved = {j + 1: pj.kind for j, pj in model.plain_joints.items()}
+    assert saved == {int(j): kind for j, kind in summary["fallback_joints"].items()}
+    # what the training guard gave a fallback keeps one (the second look may add others)
+    trained = {g["joint"]: g["kept"] for g in summary["guard"]["joints"] if g["kept"] != "model"}
+    assert set(trained) <= set(saved)
+
+
+def test_the_second_look_on_the_test_run_keeps_what_extrapolates_best():
+    """On the leading test rows a joint keeps the lowest error of what the training guard
+    kept, plain least squares and zero; ties keep the training guard's choice, and a joint
+    with too few rows there is not judged."""
+    from control.identification.analyze import TEST_GUARD_MIN_ROWS, guard_on_test
+
+    rng = np.random.default_rng(2)
+    t = 3 * TEST_GUARD_MIN_ROWS
+    tau = rng.standard_normal((t, 3)) * [10.0, 1.0, 0.01]
+    chosen = tau + rng.standard_normal((t, 3)) * [0.1, 3.0, 0.0]
+    plain = tau + rng.standard_normal((t, 3)) * [1.0, 0.5, 0.0]
+    mask = np.ones((t, 3))
+    rows = slice(0, 2 * TEST_GUARD_MIN_ROWS)
+    g = guard_on_test(tau, chosen, plain, mask, rows, ["model", "nominal", "model"])
+    assert g is not None and g.kept == ["model", "plain_ls", "model"]  # joint 3: a tie
+    assert g.rms[1]["nominal"] > g.rms[1]["plain_ls"]
+    assert g.to_json()["joints"][1]["kept"] == "plain_ls"
+    zero_wins = guard_on_test(tau, 5 * tau, 3 * tau, mask, rows, ["model"] * 3)
+    assert zero_wins is not None and zero_wins.kept == ["zero"] * 3
+    mask[: TEST_GUARD_MIN_ROWS + 10, 1] = 0.0  # joint 2 stuck over most of those rows
+    g = guard_on_test(tau, chosen, plain, mask, rows, ["model", "nominal", "model"])
+    assert g is not None and g.kept[1] == "nominal"
+    mask[:, :] = 0.0
+    assert guard_on_test(tau, chosen, plain, mask, rows, ["model"] * 3) is None

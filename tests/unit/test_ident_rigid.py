@@ -152,3 +152,22 @@ def test_continuous_joints_are_refused():
 def test_unknown_dh_convention_is_a_config_error():
     with pytest.raises(ConfigError, match="convention"):
         urdf_from_dh(PANDA_DH_ROWS, "craig")
+
+
+def test_regressor_columns_match_per_sample_regressor_and_run_in_threads(robot):
+    """Chunked columns equal the per-sample regressor, across chunk edges, and two threads
+    computing them at once (the cutoff search does) do not share pinocchio's Data."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from control.identification import rigid
+
+    _, reg = robot
+    rng = np.random.default_rng(5)
+    t = rigid.REGRESSOR_CHUNK + 37
+    q, dq, ddq = (rng.uniform(-1.0, 1.0, (t, reg.n)) for _ in range(3))
+    cols = np.concatenate([reg.base.independent, reg.payload_indices]).astype(int)
+    ref = np.stack([reg.regressor(q[k], dq[k], ddq[k])[:, cols] for k in range(t)], axis=1)
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        runs = list(pool.map(lambda _: reg.regressor_columns(q, dq, ddq, cols), range(4)))
+    for out in runs:
+        assert np.array_equal(out, ref)

@@ -1,0 +1,79 @@
+"""The whole stack on a locked bus (``[bus] credentials_file``): it teaches as on an open bus,
+and sessions without the right identity cannot reach a driver. Separate processes, as a user
+runs them."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from gateway import bus_security as sec
+from gateway.bus import BusConfig, open_client, open_peer
+from gateway.errors import LinkTimeoutError
+from gateway.messages import IoState, Lifecycle, LifecycleMsg
+from sim_bridge.harness import Stack
+
+pytestmark = pytest.mark.stack
+
+#: forged messages put per second by each rogue session
+FORGE_HZ = 100.0
+FORGE_S = 1.5
+
+
+def _credentials(path):
+    return sec.write_credentials(path)
+
+
+def _forge(bus: BusConfig, identity: str) -> int:
+    """Put, as ``identity``, what would end teaching if any of it reached a process: the
+    lifecycle STOPPED, the enabling device released with the e-stop pressed, and a joint
+    command. Returns the number of puts."""
+    session = open_peer(bus, identity)
+    keys, n = bus.keys, 0
+    try:
+        time.sleep(0.3)
+        end = time.monotonic() + FORGE_S
+        seq = 10**9  # ahead of any real lifecycle sequence number
+        while time.monotonic() < end:
+            now = time.monotonic()
+            session.put(
+                keys.lifecycle, LifecycleMsg(Lifecycle.STOPPED, seq, now, "forged").to_bytes()
+            )
+            session.put(keys.io_state, IoState(now, 0.0, 0.0, 0.0, 0.0, False, False).to_bytes())
+            session.put(keys.joint_command, b"LTJC forged command")
+            seq, n = seq + 1, n + 3
+            time.sleep(1.0 / FORGE_HZ)
+    finally:
+        session.close()
+    return n
+
+
+def test_a_locked_bus_teaches_and_no_other_identity_reaches_a_driver(tmp_path):
+    creds = _credentials(tmp_path / "bus.credentials")
+    with Stack(tmp_path, cell_overrides={"bus": {"credentials_file": str(creds)}}) as stack:
+        stack.start()
+        stack.start_teaching()
+        truth = stack.wait_teaching(1.0, 30.0)
+        # the operator's identity (the harness's requests use it), then the observer's
+        forged = sum(_forge(stack.bus, identity) for identity in (sec.OPERATOR, sec.OBSERVER))
+        status = stack.request("status")
+        assert status["state"] == "teaching", status
+        # and a session without credentials does not get on the bus at all
+        with pytest.raises(LinkTimeoutError):
+            open_client(BusConfig(endpoint=stack.bus.endpoint), connect_timeout_s=1.0)
+        # the command line, with the cell file, speaks as the operator
+        cli = [sys.executable, "-m", "gateway.cli", "status", "--config", str(stack.cell_path)]
+        out = subprocess.run(cli, capture_output=True, text=True, timeout=30)
+        assert out.returncode == 0 and "state: teaching" in out.stdout, out.stdout + out.stderr
+        stack.request("stop")
+        truth = stack.truth()
+    assert forged > 0.8 * 3 * FORGE_HZ * FORGE_S * 2
+    rows = np.flatnonzero(truth["teaching"] > 0.5)
+    t = truth["t_s"][rows]
+    # teaching ran on without a gap through the forgeries (a gap: something stopped it)
+    assert rows.size and np.max(np.diff(t)) < 0.1, np.max(np.diff(t))
+    assert t[-1] - t[0] > 2 * FORGE_S
