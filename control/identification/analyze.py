@@ -845,7 +845,7 @@ def _analyze(
         done = [a.term for a in accepted_a]
         between = fx.search_between(
             ctx_test, test, pred_a, base_fit.weights, done, options.search, fit_rows,
-            clock.say, gain, sliding_test,
+            clock.say, gain, sliding_test, train_eval.cv_rms,
         )  # fmt: skip
         accepted_b = between.accepted
         pred_after = between.prediction

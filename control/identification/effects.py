@@ -50,7 +50,14 @@ A candidate is accepted only if
     fixed model extrapolates, and any term fitted on the test run there learns the
     extrapolation error (a spurious Stribeck or drift term for a friction shape the declared
     model lacks); an effect that really appeared shows where the model is known to hold. With
-    fewer than :data:`MIN_INSIDE_SHARE` of those rows inside, nothing is accepted in case (B).
+    fewer than :data:`MIN_INSIDE_SHARE` of those rows inside, a candidate is taken only if it
+    *repairs a failure*: fitted on the first half, it takes the second half of its improved
+    joints from at least :data:`FAILURE_FACTOR` × the model's known error (per joint the larger
+    of the noise floor and its held-out RMS on the training files; root mean square of the
+    ratios over the joints) to at most :data:`EXPLAINED_FACTOR` × it. An extrapolation error
+    has the shape of whatever the model's parameters got wrong; a term of a few parameters that
+    takes all of a large one, forward in time, is the effect itself (a payload fixed between
+    the runs, on a test run that goes elsewhere).
 
 (vi) case (A) only, *below the margin where plain least squares wins*: when no candidate
     passes (i), one that passes (ii) and (iii) is still taken if it brings a joint on which
@@ -97,6 +104,11 @@ RIVAL = "plain least squares"
 SPRING_MIN_RANGE_RAD = 0.2
 #: Rule (v): least share of the scored test rows inside the training envelope.
 MIN_INSIDE_SHARE = 0.1
+#: Rule (v) with fewer rows inside: a candidate takes the test error of its improved joints
+#: from at least FAILURE_FACTOR × the model's known error (noise floor or training held-out
+#: RMS, joint by joint; root mean square over the joints) to at most EXPLAINED_FACTOR × it.
+FAILURE_FACTOR = 5.0
+EXPLAINED_FACTOR = 2.0
 MAX_EFFECTS = 6
 DEFAULT_FOLDS = 5
 RIPPLE_CYCLES = (1, 200)
@@ -641,10 +653,12 @@ def forward_gain(
     cols: dict[int, np.ndarray] | None,
     y_after: np.ndarray | None = None,
     scored: np.ndarray | None = None,
+    rms_after: np.ndarray | None = None,
 ) -> np.ndarray:
     """Rules (iv)/(v) of case (B): the relative RMS gain per joint (n,) on the second half of
     ``ls``'s rows (those of them where ``scored`` (T,) is true, when given) when the groups
-    ``names`` plus the candidate are fitted on the first half.
+    ``names`` plus the candidate are fitted on the first half; ``rms_after`` (n,), when
+    given, receives the RMS left there with the candidate.
 
     The candidate is a group ``key`` with columns ``cols``, or (a delay) targets ``y_after``.
     An effect that appeared between training and test is fitted on the start of the test run
@@ -673,6 +687,8 @@ def forward_gain(
         halves.add(key, cols)
         after_names.append(key)
     after = second_sse(halves.solve(after_names, weights, exclude_fold=1))
+    if rms_after is not None:
+        rms_after[:] = np.sqrt(np.maximum(after, 0.0) / np.maximum(keep.sum(axis=0), 1.0))
     return 1.0 - np.sqrt(np.maximum(after, 0.0) / np.maximum(before, 1e-300))
 
 
@@ -691,6 +707,7 @@ def search_between(
     progress: Progress | None = None,
     training_gain: Callable[[EffectTerm], np.ndarray] | None = None,
     sliding: np.ndarray | None = None,
+    known_rms: np.ndarray | None = None,
 ) -> TestSearch:
     """Case (B) on the test data: ``model_prediction`` (T, n) is the fixed training model's
     torque on ``data`` (delay of case A included); ``ctx`` carries its rigid/friction parts.
@@ -700,7 +717,8 @@ def search_between(
     *training* data; an accepted effect whose joints gain ``margin`` there too was present all
     along (case A turned it down for another reason) and is labelled so, although its
     parameters come from the test residual. ``sliding`` (T, n): the rows that take part
-    (:func:`.preprocess.sliding_mask`), all when None.
+    (:func:`.preprocess.sliding_mask`), all when None. ``known_rms`` (n,): the model's
+    held-out RMS on the training files, the error it is known to have (rule (v)).
     """
     progress = progress or _quiet
     refused: list[dict[str, Any]] = []
@@ -758,7 +776,8 @@ def search_between(
         for v in ok:
             y_after = (tau - shifted(v.delay_s))[fit_rows] if v.term.name == "time_delay" else None
             cols = None if y_after is not None else _rows(v.term.columns(ctx), fit_rows)
-            gain = forward_gain(ls, names, weights, v.term.key, cols, y_after)
+            left = np.zeros(ls.n)
+            gain = forward_gain(ls, names, weights, v.term.key, cols, y_after, None, left)
             if not (
                 np.all(gain[list(v.improved)] >= 0.5 * options.margin)
                 and np.all(gain >= -WORSEN_TOLERANCE)
@@ -772,10 +791,31 @@ def search_between(
                 continue
             if inside is not None:
                 if inside_share < MIN_INSIDE_SHARE:
+                    improved = list(v.improved)
+                    level = (
+                        noise.std_nm if known_rms is None else np.maximum(noise.std_nm, known_rms)
+                    )
+                    before = left / np.maximum(1.0 - gain, 1e-12)
+                    # over the improved joints, in units of each joint's known error
+                    ratio_before = float(np.sqrt(np.mean((before / level)[improved] ** 2)))
+                    ratio_left = float(np.sqrt(np.mean((left / level)[improved] ** 2)))
+                    repair = ratio_before >= FAILURE_FACTOR and ratio_left <= EXPLAINED_FACTOR
+                    if repair:
+                        progress(
+                            f"{_describe(v)}: only {inside_share:.0%} of the test rows inside "
+                            "the training envelope, but fitted on the first half it takes the "
+                            f"second from {np.array2string(before[improved], precision=3)} to "
+                            f"{np.array2string(left[improved], precision=3)} N·m, the model's "
+                            "own held-out error: the effect itself"
+                        )
+                        best = v
+                        break
                     why = (
                         f"only {inside_share:.0%} of the test rows it would be judged on are "
                         "inside the training envelope, too few to tell an effect that appeared "
-                        "from the model's extrapolation"
+                        "from the model's extrapolation (and it does not take a failure of the "
+                        f"model, {np.array2string(before[improved], precision=3)} N·m, to the "
+                        "model's own held-out error)"
                     )
                     progress(f"refused {_describe(v)}: {why}")
                     refused.append(refusal(v, BETWEEN, why))
