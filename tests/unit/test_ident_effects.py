@@ -59,10 +59,12 @@ class Bench:
         base_hz: float,
         extra: Sequence[ExtraTorque] = (),
         delay_s: float = 0.0,
+        speed_factor: float = 1.0,
     ) -> Path:
         rng = np.random.default_rng(seed)
+        speed = speed_factor * np.asarray(GR630ST_MAX_SPEED_RAD_S)
         traj = MultiSine.random(
-            self.desc.lower_rad, self.desc.upper_rad, rng, GR630ST_MAX_SPEED_RAD_S, base_hz=base_hz
+            self.desc.lower_rad, self.desc.upper_rad, rng, speed, base_hz=base_hz
         )
         t = np.arange(round(seconds * RATE_HZ)) / RATE_HZ
         m = synthesize(
@@ -166,6 +168,21 @@ def test_payload_mounted_after_training_is_found_in_the_test_files(bench, clean_
     assert np.all(np.asarray(s["rms_after"]) < 0.2 * np.asarray(s["rms_before"]))
     # the payload is in the model file (fitted on all test data: in-sample there)
     assert np.all(bench.model_rms("payload", test) < 0.2 * np.asarray(s["rms_before"]))
+
+
+def test_payload_is_found_on_a_test_run_mostly_outside_the_training_envelope(bench, clean_train):
+    """A test run 1.3x faster than the training run leaves its envelope on some joint in about
+    94 % of the rows: the envelope rule alone cannot judge a case (B) effect there, and the
+    payload is taken because it repairs the model's failure (rule (v))."""
+    payload = lambda q, dq, ddq, t: point_mass_torque(bench.reg, q, dq, ddq, 10.0, [0.0, 0.05, 0.2])  # noqa: E731
+    test = bench.record("fast_test", 32, TEST_S, 0.07, extra=[payload], speed_factor=1.3)
+    s = bench.analyze("fast", clean_train, test)
+    assert s["test_outside_envelope"]["any_joint"] > 0.9
+    effect = s["effects"][0]
+    assert effect["name"] == "payload" and effect["appeared"] == BETWEEN
+    assert effect["parameters"]["mass_kg"] == pytest.approx(10.0, rel=0.05)
+    # and the implausible candidates of that run are listed with why
+    assert all(r["reason"] for r in s["refused_effects"])
 
 
 def test_spring_on_joint_2_is_found(bench):
