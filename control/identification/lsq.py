@@ -283,28 +283,9 @@ class BlockLS:
     def _normal(
         self, names: Sequence[str], weights: np.ndarray, fold_weights: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
-        off = self._offsets(names)
-        p = sum(self.sizes[n] for n in names)
-        gram = np.zeros((p, p))
-        rhs = np.zeros(p)
-        w2 = np.asarray(weights, dtype=float) ** 2
-        for a in names:
-            for j, xy in self._xy[a].items():
-                rhs[off[a]] += w2[j] * np.tensordot(fold_weights, xy, axes=1)
-        for i, a in enumerate(names):
-            for b in names[i:]:
-                key = (a, b) if a <= b else (b, a)
-                blocks = self._gram.get(key)
-                if not blocks:
-                    continue
-                total = sum(
-                    w2[j] * np.tensordot(fold_weights, g, axes=1) for j, g in blocks.items()
-                )
-                block = total if a <= b else total.T
-                gram[off[a], off[b]] += block
-                if a != b:
-                    gram[off[b], off[a]] += block.T
-        return gram, rhs
+        grams, rhss = self._fold_normals(names, weights)
+        fw = np.asarray(fold_weights, dtype=float)
+        return np.tensordot(fw, grams, axes=1), fw @ rhss
 
     def _fold_normals(
         self, names: Sequence[str], weights: np.ndarray
