@@ -5,6 +5,7 @@ the operator commands. Physical outcomes are judged from the simulator's truth l
 from __future__ import annotations
 
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -105,7 +106,14 @@ def test_the_can_drivers_speed_monitor_stops_an_arm_the_law_lets_run(tmp_path):
     after_ms = (t[-1] - t[tripped + span]) * 1e3
     print(f"speed monitor: the tool reached {speed.max() * 1e3:.0f} mm/s; "
           f"{after_ms:.0f} ms of teaching after it passed 250 mm/s")  # fmt: skip
-    assert speed.max() > 0.25, "the push never outran the limit: nothing was tested"
+    # The monitor judges from measured positions with the datasheet's kinematics, the tool
+    # point and the flange; the truth log has the plant's own tool point. They differ by a few
+    # per cent (CI: the monitor tripped over 250 mm/s while the truth's tool read 249), so the
+    # monitor's own figure must be over the limit and the truth's close to it: the trip was
+    # not one of a slow arm.
+    measured = re.search(r"moved at (\d+) mm/s", status["reason"])
+    assert measured and int(measured.group(1)) > 250, status["reason"]
+    assert speed.max() > 0.9 * 0.25, "the push never came near the limit: nothing was tested"
     assert speed.max() < 0.4, f"the arm reached {speed.max() * 1e3:.0f} mm/s before it stopped"
     # after the trip the arm is held: the tool rests once the hold has braked it
     tail = np.flatnonzero(truth["t_s"] >= truth["t_s"][-1] - 0.5)
@@ -199,11 +207,25 @@ def test_operator_commands_from_the_command_line(tmp_path):
         bus = ["--bus", stack.bus.endpoint]
         out = subprocess.run([*cli, "status", *bus], capture_output=True, text=True, timeout=20)
         assert out.returncode == 0 and "state: stopped" in out.stdout
-        out = subprocess.run([*cli, "start", *bus], capture_output=True, text=True, timeout=20)
-        assert out.returncode == 0, out.stdout + out.stderr
-        stack.wait_status(lambda s: s.get("state") in ("ready", "teaching"), 5.0, "started")
-        out = subprocess.run([*cli, "stop", *bus], capture_output=True, text=True, timeout=20)
-        assert out.returncode == 0 and "state: stopped" in out.stdout
+        # start, then stop. On a loaded 2-core machine the virtual controller shares the CPU
+        # with the product, and a stall of the joint-state stream over the gateway's 0.1 s
+        # watchdog faults the cell between the two (CI, once: "already stopped by fault (no
+        # fresh joint state ...)"). That is the watchdog working; the CLI then clears it with
+        # `reset` and the pair is tried again, at most three times.
+        for _attempt in range(3):
+            run = subprocess.run
+            out = run([*cli, "start", *bus], capture_output=True, text=True, timeout=20)
+            assert out.returncode == 0, out.stdout + out.stderr
+            stack.wait_status(lambda s: s.get("state") in ("ready", "teaching"), 5.0, "started")
+            out = run([*cli, "stop", *bus], capture_output=True, text=True, timeout=20)
+            assert out.returncode == 0, out.stdout + out.stderr
+            if "state: stopped" in out.stdout:
+                break
+            assert "no fresh joint state" in out.stdout and "state: fault" in out.stdout, out.stdout
+            out = run([*cli, "reset", *bus], capture_output=True, text=True, timeout=20)
+            assert out.returncode == 0, out.stdout + out.stderr
+            stack.wait_status(lambda s: s.get("can_start") is True, 10.0, "ready after reset")
+        assert "state: stopped" in out.stdout, out.stdout
         out = subprocess.run([*cli, "fly", *bus], capture_output=True, text=True, timeout=20)
         assert out.returncode != 0
 
