@@ -46,6 +46,8 @@ class Observations:
     load_problem: str | None = None
     #: the CAN driver's speed monitor tripped (drivers/can/speed_monitor.py): what it measured
     speed_trip: str | None = None
+    #: the CAN driver's standstill monitor tripped (drivers/can/stop_ramp.py): what it measured
+    standstill_trip: str | None = None
 
 
 @dataclass(frozen=True)
@@ -107,6 +109,8 @@ class LifecycleMachine:
             problems.append("robot controller reports FAULT")
         if obs.speed_trip:
             problems.append(f"CAN driver's speed monitor: {obs.speed_trip}")
+        if obs.standstill_trip:
+            problems.append(f"CAN driver's standstill monitor: {obs.standstill_trip}")
         return problems
 
     def update(self, obs: Observations) -> Lifecycle:

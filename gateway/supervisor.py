@@ -264,6 +264,7 @@ class Gateway:
         self.engagement: dict | None = None
         #: the CAN driver's speed monitor trip, from its health (None: not tripped)
         self.speed_trip: str | None = None
+        self.standstill_trip: str | None = None
         self.children: dict[str, Child] = {}
         self.session = None
         self._decls: list = []
@@ -371,6 +372,8 @@ class Gateway:
             elif name == "can_driver" and body:  # an unreadable one changes nothing
                 trip = body.get("speed_trip")
                 self.speed_trip = None if trip is None else str(trip)
+                trip = body.get("standstill_trip")
+                self.standstill_trip = None if trip is None else str(trip)
 
     @property
     def joint_state(self) -> JointState | None:
@@ -403,6 +406,7 @@ class Gateway:
             still_for_s=0.0 if w.moving_s is None else now - w.moving_s,
             load_problem=self._load_problem(),
             speed_trip=self.speed_trip,
+            standstill_trip=self.standstill_trip,
         )
 
     def _load_problem(self) -> str | None:

@@ -94,6 +94,18 @@ class CanDriverConfig:
     #: the datasheet's) is rejected and the cycle held [rad]: the driver's own joint limits,
     #: behind the control law's soft walls ([control] soft_limit_margin_rad, further inside).
     joint_limit_margin_rad: float = 0.01
+    #: Per joint (or one value for all): releasing the enabling device, or the lifecycle
+    #: leaving a commanding state for READY, ramps the last command's velocity to zero at
+    #: this deceleration, every joint over the same time, then holds (stop category 2,
+    #: stop_ramp.py) [rad/s²].
+    stop_deceleration_rad_s2: float | tuple[float, ...] = 2.0
+    #: Monitored standstill while the driver holds with the servo on: after settling this
+    #: long [s], a joint more than standstill_band_rad from the hold in
+    #: standstill_confirm_cycles cycles in a row trips it; the driver asks for the brakes and
+    #: the gateway faults (stop_ramp.py).
+    standstill_settle_s: float = 0.5
+    standstill_band_rad: float = 0.02
+    standstill_confirm_cycles: int = 3
 
     def __post_init__(self) -> None:
         where = "[can]"
@@ -127,6 +139,24 @@ class CanDriverConfig:
             f"{where}.joint_limit_margin_rad",
             f"{margin!r} rad outside 0..0.2",
         )
+        for name, lo, hi, unit in (
+            ("standstill_settle_s", 0.0, 10.0, "s"),
+            ("standstill_band_rad", 0.0, 0.5, "rad"),
+        ):
+            value = getattr(self, name)
+            require(
+                isinstance(value, int | float) and math.isfinite(value) and lo < value <= hi,
+                f"{where}.{name}",
+                f"{value!r} {unit} outside ({lo}, {hi}]",
+            )
+        require_count(
+            self.standstill_confirm_cycles, f"{where}.standstill_confirm_cycles", 1000, "cycles"
+        )
+        require(
+            self.standstill_confirm_cycles >= 1,
+            f"{where}.standstill_confirm_cycles",
+            "must be at least 1",
+        )
         for name in ("current_zero_cycles", "current_zero_settle_cycles"):
             require_count(getattr(self, name), f"{where}.{name}", 100_000, "cycles")
         require(
@@ -135,7 +165,7 @@ class CanDriverConfig:
             f"{where}.answer_by_period_fraction",
             f"{self.answer_by_period_fraction!r} outside (0, 1]",
         )
-        for name in ("max_following_error_rad", "max_velocity_rad_s"):
+        for name in ("max_following_error_rad", "max_velocity_rad_s", "stop_deceleration_rad_s2"):
             object.__setattr__(self, name, self._per_joint(name, getattr(self, name)))
 
     def _per_joint(self, name: str, value: float | tuple[float, ...]) -> tuple[float, ...]:

@@ -17,7 +17,15 @@ answers the cycle exactly once (PROTOCOL.md §3), with either
   velocity (what the controller's interpolation does within a cycle, §5), as long as that
   command is not older than ``deadline_s``; one late answer then costs the operator nothing;
 * ``hold``: a hold set (hold=1, zero velocity) at a position latched when holding began — at
-  once when forwarding is not allowed, otherwise when the cycle's answer deadline passes.
+  once when forwarding is not allowed, otherwise when the cycle's answer deadline passes;
+* ``ramp``: a controlled stop (stop_ramp.py) — the enabling device released, or the lifecycle
+  gone from a commanding state to READY or STOPPED, while everything else is in order: the
+  last command continues along its path with its velocity falling to zero at ``[can]
+  stop_deceleration_rad_s2``, then the ramp's end is held (stop category 2; for STOPPED the
+  servo power stays on until the ramp ends, then the brakes: category 1). Faults hold at once.
+
+While the driver holds with the servo on, a standstill monitor watches the measured positions
+(stop_ramp.py); a drive that does not hold the arm trips it: the brakes, and the gateway faults.
 
 The answer deadline of a cycle is ``min(deadline_s, answer_by_period_fraction × period)`` after
 its JointState stamp: a command set must reach the controller before the next cycle begins or
@@ -47,6 +55,7 @@ from drivers.can.adapter import CanAdapter, CycleFeedback, HostRequest
 from drivers.can.config import CanDriverConfig
 from drivers.can.current_zero import CurrentZero
 from drivers.can.speed_monitor import Points, SpeedMonitor, datasheet_points
+from drivers.can.stop_ramp import StandstillMonitor, StopRamp
 from gateway.errors import ConfigError, FrameError, MessageError
 from gateway.messages import (
     COMMANDING,
@@ -85,7 +94,9 @@ REJECT_REASONS = (
 )
 
 #: How a cycle was answered.
-COMMAND, COAST, HOLD = "command", "coast", "hold"
+COMMAND, COAST, HOLD, RAMP = "command", "coast", "hold", "ramp"
+#: A controlled stop continues a forwarded command at most this many cycles old.
+RAMP_MAX_AGE_CYCLES = 5
 
 _SERVOING = (ControllerState.HOLD, ControllerState.EXTERNAL)
 _BRAKED = (ControllerState.BRAKED, ControllerState.FAULT)
@@ -257,6 +268,12 @@ class HostCore:
         self._last_forward: tuple[float, int, np.ndarray, np.ndarray, float] | None = None
         self._hold_q: np.ndarray | None = None
         self._holding = False
+        #: the controlled stop under way (stop_ramp.py), None when there is none
+        self._ramp: StopRamp | None = None
+        self._stop_decel = np.array(config.stop_deceleration_rad_s2, dtype=float)
+        self.standstill = StandstillMonitor(
+            config.standstill_band_rad, config.standstill_settle_s, config.standstill_confirm_cycles
+        )
         #: hand guiding's speed monitor (speed_monitor.py); ``speed_points`` the tool point and
         #: flange of q (default: the datasheet's kinematics)
         self.speed: SpeedMonitor | None = None
@@ -271,6 +288,7 @@ class HostCore:
         self.forwarded = 0
         self.coasted = 0
         self.held = 0
+        self.ramped = 0
         self.unanswered = 0
         self.bad_inputs = 0
 
@@ -332,7 +350,8 @@ class HostCore:
             self._reject(*problem)
             mine = pending is not None and cmd.cycle == (pending.cycle & 0xFFFFFFFF)
             if mine and not pending.answered and problem[0] in ("stale", "out_of_range"):
-                return CommandResult(self._hold(pending), HOLD, cmd)  # no better answer comes
+                frames = self._hold(pending, now)  # no better answer comes
+                return CommandResult(frames, pending.answer or HOLD, cmd)
             return CommandResult([], "", cmd)
         assert pending is not None
         pending.answer = COMMAND
@@ -347,7 +366,7 @@ class HostCore:
             cmd.dq_cmd_rad_s,
             period,
         )
-        self._holding = False
+        self._holding, self._ramp = False, None
         return CommandResult(frames, COMMAND, cmd)
 
     # --- input from CAN -------------------------------------------------------------------
@@ -393,7 +412,7 @@ class HostCore:
         if fb.controller_state in _BRAKED:
             # On its brakes the arm is where it is: the next hold starts from there.
             self._holding, self._last_forwarded_q = False, None
-            self._last_forward = None
+            self._last_forward, self._ramp = None, None
         budget_s = self.config.deadline_s
         if fb.cycle_period_s > 0:
             budget_s = min(budget_s, self.config.answer_by_period_fraction * fb.cycle_period_s)
@@ -423,7 +442,8 @@ class HostCore:
         )
         frames: list[can.Message] = []
         if self.blocked(now) is not None:
-            frames = self._hold(pending)
+            frames = self._hold(pending, now)
+        self._watch_standstill(fb, cycle, now)
         key = (int(fb.controller_state), flags & (FLAG_ESTOP | FLAG_SERVO_POWER))
         window = self.window.add(fb.q_rad, fb.dq_rad_s, key, state, now)
         return FrameResult(state, frames, window)
@@ -460,7 +480,7 @@ class HostCore:
         frames: list[can.Message] = []
         pending = self.pending
         if pending is not None and not pending.answered and now >= pending.answer_by_s:
-            frames += self._coast(pending, now) or self._hold(pending)
+            frames += self._coast(pending, now) or self._hold(pending, now)
         desired = self.desired_request(now)
         heartbeat_due = now >= self._next_heartbeat_s
         if heartbeat_due:
@@ -525,6 +545,10 @@ class HostCore:
             lc.stamp_s, self._lifecycle_rx_s, now, self.config.lifecycle_timeout_s
         ):
             return HostRequest.BRAKE
+        if self.standstill.trip is not None:
+            return HostRequest.BRAKE  # the drives do not hold the arm: nothing else is left
+        if lc.state == Lifecycle.STOPPED and self._ramp is not None:
+            return HostRequest.SERVO_ON  # stop category 1: the brakes once the ramp has ended
         if lc.state in (Lifecycle.READY, *COMMANDING):
             if not self.current_zero.ready:
                 zero = self.current_zero
@@ -615,8 +639,73 @@ class HostCore:
         assert self._hold_q is not None
         return self.adapter.command_frames(pending.counter, self._hold_q, self._zeros, True)
 
-    def _hold(self, pending: Cycle) -> list[can.Message]:
-        """Answer ``pending`` with a hold set (none if the position cannot be encoded)."""
+    def _controlled_stop(self, now: float) -> bool:
+        """Forwarding is blocked by an ordinary stop, the drives to stay powered through it:
+        the enabling device released, or the lifecycle gone to READY or STOPPED, with the
+        lifecycle and I/O fresh, the e-stop chain closed, the controller servoing and no
+        monitor tripped. Anything else is a fault, held at once."""
+        lc, io, fb = self._lifecycle, self._io, self.feedback
+        cfg = self.config
+        if lc is None or io is None or fb is None:
+            return False
+        if not (
+            _fresh(lc.stamp_s, self._lifecycle_rx_s, now, cfg.lifecycle_timeout_s)
+            and _fresh(io.stamp_s, self._io_rx_s, now, cfg.io_timeout_s)
+            and io.estop_ok
+            and fb.controller_state in _SERVOING
+            and self.link_ok(now)
+            and (self.speed is None or self.speed.trip is None)
+            and self.standstill.trip is None
+        ):
+            return False
+        return lc.state in (Lifecycle.READY, Lifecycle.STOPPED) or (
+            lc.state in COMMANDING and not io.enabling
+        )
+
+    def _ramp_for(self, pending: Cycle, now: float) -> StopRamp | None:
+        """The controlled stop ``pending`` belongs to: the one under way, or a new one from
+        the last forwarded command when a controlled stop begins while the arm was commanded;
+        None (and a ramp under way ends where it got to) when the cycle is to be held."""
+        ramp = self._ramp
+        if ramp is not None:
+            if self._controlled_stop(now):
+                return ramp
+            q, _, _ = ramp.at(pending.cycle)  # a fault during the ramp: hold where it is
+            self._ramp, self._hold_q, self._holding = None, q, True
+            return None
+        last = self._last_forward
+        if self._holding or last is None or not self._controlled_stop(now):
+            return None
+        _stamp, cycle, q, dq, period = last
+        age = pending.cycle - cycle
+        if period <= 0 or not 0 <= age <= RAMP_MAX_AGE_CYCLES or not np.any(dq):
+            return None
+        q_now = q + dq * age * period  # where the last command (or its coasting) has got to
+        self._ramp = StopRamp.start(pending.cycle, q_now, dq, self._stop_decel, period)
+        self._note(
+            logging.INFO,
+            "ramp",
+            f"controlled stop: ramping to standstill in {self._ramp.duration_s * 1e3:.0f} ms",
+        )
+        return self._ramp
+
+    def _hold(self, pending: Cycle, now: float) -> list[can.Message]:
+        """Answer ``pending`` with the controlled stop's ramp while one runs, else with a hold
+        set (none if the position cannot be encoded)."""
+        ramp = self._ramp_for(pending, now)
+        if ramp is not None:
+            q, dq, done = ramp.at(pending.cycle)
+            if not done:
+                try:
+                    frames = self.adapter.command_frames(pending.counter, q, dq, False)
+                except FrameError as exc:
+                    self._note(logging.ERROR, "ramp", f"cannot send the ramp: {exc}; holding")
+                else:
+                    pending.answer = RAMP
+                    self.ramped += 1
+                    self._last_sent_q, self._last_sent_dq = q.tolist(), dq.tolist()
+                    return frames
+            self._ramp, self._hold_q, self._holding = None, q, True  # hold where it ended
         try:
             frames = self._hold_frames(pending)
         except FrameError as exc:  # measured q the protocol cannot carry: nothing to hold
@@ -645,6 +734,31 @@ class HostCore:
         self.coasted += 1
         self._last_sent_q, self._last_sent_dq = q_coast.tolist(), dq.tolist()
         return frames
+
+    def _watch_standstill(self, fb: CycleFeedback, cycle: int, now: float) -> None:
+        """Monitored standstill (stop_ramp.py) while the driver holds with the servo on and
+        the lifecycle wants the servo; a lifecycle that does not (STOPPED, FAULT, silence)
+        clears a trip: the gateway has stopped the cell."""
+        lc, monitor = self._lifecycle, self.standstill
+        wants_servo = (
+            lc is not None
+            and lc.state in (Lifecycle.READY, *COMMANDING)
+            and _fresh(lc.stamp_s, self._lifecycle_rx_s, now, self.config.lifecycle_timeout_s)
+        )
+        if not wants_servo:
+            if monitor.trip is not None:
+                state = None if lc is None else lc.state
+                log.info("standstill monitor cleared: lifecycle %s", state)
+            monitor.reset()
+            return
+        if not (self._holding and self._hold_q is not None and fb.controller_state in _SERVOING):
+            monitor.idle()
+            return
+        monitor.watch(self._hold_q, now)
+        tripped = monitor.trip is not None
+        trip = monitor.update(fb.q_rad, cycle, now)
+        if trip is not None and not tripped:
+            self._note(logging.ERROR, "standstill", f"standstill monitor: {trip.message()}; brakes")
 
     def _reject(self, reason: str, detail: str) -> None:
         self.rejected[reason] += 1
@@ -687,6 +801,7 @@ class HostCore:
 
     def health(self, now: float) -> dict[str, Any]:
         fb, stats = self.feedback, self.adapter.stats
+        still = self.standstill.trip
         return {
             "controller_state": None if fb is None else fb.controller_state.name,
             "controller_fault": None if fb is None else fb.fault,
@@ -695,6 +810,8 @@ class HostCore:
             "cycles": self.cycles,
             "forwarded": self.forwarded,
             "held": self.held,
+            "ramped": self.ramped,
+            "standstill_trip": None if still is None else still.message(),
             "coasted": self.coasted,
             "unanswered": self.unanswered,
             "rejected": dict(self.rejected),

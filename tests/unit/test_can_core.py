@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from drivers.can.config import CanDriverConfig
-from drivers.can.core import COAST, COMMAND, HOLD, HostCore
+from drivers.can.core import COAST, COMMAND, HOLD, RAMP, HostCore
 from drivers.can.ltc import (
     ControllerStatus,
     FaultCode,
@@ -52,10 +52,11 @@ class Cell:
         self.counter = 0
         self.seq = 0
 
-    def gateway(self, state: Lifecycle, enabling: bool = True) -> None:
+    def gateway(self, state: Lifecycle, enabling: bool = True, estop_ok: bool = True) -> None:
         self.seq += 1  # the gateway numbers every announcement it changes
         self.core.on_lifecycle(LifecycleMsg(state, self.seq, self.t).to_bytes(), self.t)
-        self.core.on_io(IoState(self.t, 6.0, 4.0, 6.0, 4.0, enabling, True).to_bytes(), self.t)
+        io = IoState(self.t, 6.0, 4.0, 6.0, 4.0, enabling, estop_ok)
+        self.core.on_io(io.to_bytes(), self.t)
 
     def cycle(
         self, q=Q0, state=ControllerState.EXTERNAL, current=(1.5,) * N, power=True
@@ -228,6 +229,115 @@ def test_closing_frames_brake_first_then_hold_the_waiting_cycle():
     assert all(f.hold for f in frames[1:]) and len(frames) == 1 + N
 
 
+def moving(cell: Cell, dq: float = 0.2) -> np.ndarray:
+    """Teach: one command moving every joint at ``dq`` from Q0; the position it sent. (The
+    cells of these tests have no speed monitor: every joint at 0.2 rad/s moves the datasheet
+    arm's tool at 633 mm/s.)"""
+    cell.gateway(Lifecycle.TEACHING)
+    cell.tick()
+    js, _ = cell.cycle()
+    assert cell.command(js, Q0, dq)[0] == COMMAND
+    return Q0.copy()
+
+
+def follow(cell: Cell, state: Lifecycle, cycles: int, q: np.ndarray, **io) -> list:
+    """``cycles`` cycles, the gateway announcing ``state`` each, the measured position the
+    last command sent (a drive following it); the command sets answered at once."""
+    sets = []
+    for _ in range(cycles):
+        cell.t += PERIOD_US * 1e-6
+        cell.gateway(state, **io)
+        _, frames = cell.cycle(q)
+        sent = commands(frames)
+        if sent:
+            sets.append(sent)
+            q = np.array([f.q_cmd_rad for f in sent])
+    return sets
+
+
+def test_releasing_the_enabling_device_ramps_the_command_to_standstill_then_holds():
+    """Stop category 2: the velocity falls linearly to zero in |dq| / deceleration (0.2 rad/s
+    at 1 rad/s²: 0.2 s, 50 cycles of 4 ms) along the last command's path, then a hold at the
+    ramp's end, dq·T/2 = 20 mrad further on."""
+    cell = Cell(stop_deceleration_rad_s2=1.0, hand_guiding_max_speed_m_s=0.0)
+    q = moving(cell, 0.2)
+    sets = follow(cell, Lifecycle.TEACHING, 60, q, enabling=False)
+    assert len(sets) == 60, "every cycle of the stop answered at once"
+    ramp = [s for s in sets if not any(f.hold for f in s)]
+    held = [s for s in sets if all(f.hold for f in s)]
+    assert len(ramp) == 50 and len(held) == 10 and sets[:50] == ramp
+    dq = np.array([[f.dq_cmd_rad_s for f in s] for s in ramp])
+    q_cmd = np.array([[f.q_cmd_rad for f in s] for s in ramp])
+    np.testing.assert_allclose(dq[:, 0], 0.2 * (1.0 - np.arange(50) / 50), atol=1e-4)
+    step = np.diff(q_cmd[:, 0]) / 0.004
+    assert np.all(step > -1e-3) and np.all(np.diff(step) < 1e-2), "slows down, never reverses"
+    end = Q0 + 0.2 * 0.004 + 0.5 * 0.2 * 0.2
+    np.testing.assert_allclose([f.q_cmd_rad for f in held[-1]], end, atol=2e-6)
+    assert cell.core.health(cell.t)["ramped"] == 50
+    assert cell.core.desired_request(cell.t) == HostRequest.SERVO_ON
+
+
+def test_every_joint_of_a_controlled_stop_ends_at_the_same_time_within_its_deceleration():
+    from drivers.can.stop_ramp import StopRamp
+
+    dq0 = np.array([0.3, -0.1, 0.05, 0.0, 0.2, -0.4])
+    decel = np.array([1.0, 0.5, 2.0, 1.0, 0.4, 4.0])
+    ramp = StopRamp.start(10, Q0, dq0, decel, 0.002)
+    assert ramp.duration_s == pytest.approx(0.5)  # joint 5: 0.2 / 0.4
+    qs, dqs = zip(*[ramp.at(10 + k)[:2] for k in range(300)], strict=True)
+    dqs = np.array(dqs)
+    assert np.all(np.abs(np.diff(dqs, axis=0)) / 0.002 <= decel + 1e-9)
+    assert np.all(dqs[:250] * dq0 >= 0) and not dqs[250:].any()
+    np.testing.assert_allclose(qs[-1], Q0 + 0.25 * dq0)
+    direction = (np.array(qs[1:]) - Q0) / np.linalg.norm(dq0)
+    np.testing.assert_allclose(direction / np.linalg.norm(direction, axis=1)[:, None],
+                               np.tile(dq0 / np.linalg.norm(dq0), (299, 1)), atol=1e-9)  # fmt: skip
+
+
+def test_a_fault_during_the_ramp_holds_at_once_where_the_ramp_had_got_to():
+    cell = Cell(stop_deceleration_rad_s2=1.0, hand_guiding_max_speed_m_s=0.0)
+    q = moving(cell, 0.2)
+    sets = follow(cell, Lifecycle.TEACHING, 10, q, enabling=False)
+    assert cell.core.pending.answer == RAMP
+    reached = np.array([f.q_cmd_rad for f in sets[-1]])
+    after = follow(cell, Lifecycle.TEACHING, 3, reached, enabling=False, estop_ok=False)
+    assert all(f.hold for s in after for f in s), "the e-stop chain opened: no more ramp"
+    # held where the ramp was on the cycle the fault was seen
+    np.testing.assert_allclose([f.q_cmd_rad for f in after[0]], reached + 0.004 * 0.2 * 0.8,
+                               atol=2e-5)  # fmt: skip
+
+
+def test_the_operators_stop_keeps_the_servo_on_through_the_ramp_then_brakes():
+    """Stop category 1: STOPPED while the arm moves ramps it to standstill under power."""
+    cell = Cell(stop_deceleration_rad_s2=2.0, hand_guiding_max_speed_m_s=0.0)
+    q = moving(cell, 0.2)
+    follow(cell, Lifecycle.STOPPED, 5, q)
+    assert cell.core.pending.answer == RAMP
+    assert cell.core.desired_request(cell.t) == HostRequest.SERVO_ON
+    follow(cell, Lifecycle.STOPPED, 25, q)  # 0.1 s: the ramp has ended
+    assert cell.core.pending.answer == HOLD
+    assert cell.core.desired_request(cell.t) == HostRequest.BRAKE
+
+
+def test_a_hold_the_drives_do_not_keep_trips_the_standstill_monitor_and_the_brakes():
+    cell = Cell(standstill_settle_s=0.1, standstill_band_rad=0.02, standstill_confirm_cycles=3)
+    cell.gateway(Lifecycle.READY)
+    cell.tick()
+    follow(cell, Lifecycle.READY, 40, Q0)  # held where it was: within the band
+    assert cell.core.standstill.trip is None
+    q = Q0.copy()
+    for _ in range(10):  # the arm sags 5 mrad per cycle under a hold set
+        q[1] -= 0.005
+        cell.t += 0.004
+        cell.gateway(Lifecycle.READY)
+        cell.cycle(q)
+    health = cell.core.health(cell.t)
+    assert health["standstill_trip"] and "joint 2" in health["standstill_trip"]
+    assert cell.core.desired_request(cell.t) == HostRequest.BRAKE
+    follow(cell, Lifecycle.FAULT, 2, q)  # the gateway has stopped the cell: cleared
+    assert cell.core.health(cell.t)["standstill_trip"] is None
+
+
 def test_joint_state_pack_equals_the_dataclass_encoding():
     rng = np.random.default_rng(3)
     q, dq, i, qc, dqc = rng.normal(size=(5, N))
@@ -297,3 +407,21 @@ def test_an_older_or_conflicting_lifecycle_message_is_dropped_and_counted():
     assert cell.command(js, Q0)[0] != COMMAND
     dropped = cell.core.health(cell.t)["lifecycle_dropped"]
     assert dropped == {"out_of_order": 2, "conflicting": 1}
+
+
+def test_the_gateway_faults_on_a_standstill_trip_and_resets_once_it_is_cleared():
+    from gateway.lifecycle import LifecycleMachine, Observations
+
+    machine = LifecycleMachine()
+    ok = Observations(0.01, 0.01, ControllerState.HOLD, False, True, max_speed_rad_s=0.0,
+                      still_for_s=5.0)  # fmt: skip
+    machine.command("start", ok)
+    machine.update(ok)
+    assert machine.state == Lifecycle.READY
+    tripped = Observations(0.01, 0.01, ControllerState.HOLD, False, True,
+                           standstill_trip="joint 2 left its hold by 25.0 mrad")  # fmt: skip
+    machine.update(tripped)
+    assert machine.state == Lifecycle.FAULT and "standstill monitor" in machine.reason
+    accepted, message = machine.command("reset", tripped)
+    assert not accepted and "standstill monitor" in message
+    assert machine.command("reset", ok)[0] and machine.state == Lifecycle.STOPPED
