@@ -75,6 +75,30 @@ class DrivesTruth:
             require(all(v > 0 for v in values), f"[drives].{name}", "every value must be > 0")
 
 
+@dataclass(frozen=True)
+class BrakesTruth:
+    """The holding brakes. When the power is cut (the controller's fault or e-stop: stop
+    category 0) the arm moves freely for ``engage_s``, then each joint's brake slows it with
+    ``torque_nm`` until it stands, and holds it. A servo-off the host asks for closes the
+    brakes while the drives still hold (no sag), as a controller does. Empty ``torque_nm``:
+    ideal brakes that lock at once (the plant before issue 10)."""
+
+    engage_s: float = 0.0  #: from the power cut to the brake torque [s]
+    torque_nm: tuple[float, ...] = ()  #: each joint's brake torque [N·m]
+
+    def __post_init__(self) -> None:
+        require(
+            math.isfinite(self.engage_s) and 0.0 <= self.engage_s <= 1.0,
+            "[brakes].engage_s",
+            f"{self.engage_s!r} s outside 0..1",
+        )
+        require(
+            all(math.isfinite(v) and v > 0 for v in self.torque_nm),
+            "[brakes].torque_nm",
+            "every value must be finite and > 0",
+        )
+
+
 CYLINDER_LINKAGES = ("crank", "lever")
 
 
@@ -267,6 +291,8 @@ class OperatorScript:
 
     enabling_after_s: float = 0.0  #: sim time at which the enabling device is pressed
     release_after_s: float | None = None  #: after onset: enabling released (None: never)
+    #: after onset: the operator hits the e-stop, which stays open (None: never)
+    estop_after_s: float | None = None
     #: sim time from which the operator holds the brake-release switch (None: never). With
     #: the servo off the arm is then free: it moves under gravity, the cylinders, friction and
     #: the hand (the paper's baseline); the hand's onset is that moment.
@@ -331,6 +357,7 @@ class SimConfig:
     stiction: bool = False
     cylinders: CylinderTruth = field(default_factory=CylinderTruth)
     sensors: SensorTruth = field(default_factory=SensorTruth)
+    brakes: BrakesTruth = field(default_factory=BrakesTruth)
     controller: ControllerSpec = field(default_factory=ControllerSpec)
     endpoints: Endpoints = field(default_factory=Endpoints)
     #: not ``[realtime]``: ``realtime`` above already chooses real time or lock-step
@@ -351,6 +378,11 @@ class SimConfig:
             len(self.sensors.current_offset_a) in (0, n),
             "[sensors].current_offset_a",
             f"need {n} joints like [inner_loop] (or none)",
+        )
+        require(
+            len(self.brakes.torque_nm) in (0, n),
+            "[brakes].torque_nm",
+            f"need {n} joints like [inner_loop] (or none: ideal brakes)",
         )
         require(self.plant_seed >= 0, "plant_seed", f"{self.plant_seed} must be >= 0")
         for unit in self.cylinders.units:

@@ -81,6 +81,9 @@ class VirtualController:
         self.last_heartbeat_s: float | None = None
         self.servo_requested = False
         self.estop = False
+        #: the servo last went off by a fault (stop category 0: the power cut, the brakes
+        #: bite after their engagement time), not by the host's BRAKE
+        self.power_cut = False
         # Command being followed: position at t_ref, velocity used to extrapolate.
         self.q_ref = np.zeros(self.n)
         self.dq_ref = np.zeros(self.n)
@@ -117,6 +120,7 @@ class VirtualController:
             self.servo_requested = False
             if self.state in (ControllerState.HOLD, ControllerState.EXTERNAL):
                 self.state = ControllerState.BRAKED
+                self.power_cut = False  # the brakes close while the drives still hold
         elif request == HostRequest.SERVO_ON:
             self.servo_requested = True
         elif (
@@ -153,6 +157,8 @@ class VirtualController:
         if self.state != ControllerState.FAULT:
             log.warning("controller FAULT %s: %s", code.name, why)
             self.stats.faults.append(f"{code.name}: {why}")
+        if self.servo_on:
+            self.power_cut = True  # stop category 0: the brakes bite after their engagement
         self.state, self.fault = ControllerState.FAULT, code
         self.servo_requested = False
 
@@ -176,7 +182,7 @@ class VirtualController:
             and not self.estop
             and host_alive
         ):
-            self.state = ControllerState.HOLD
+            self.state, self.power_cut = ControllerState.HOLD, False
             self._set_ref(q_rad, np.zeros(self.n), now_s, hold=True)
             self._to_servo.clear()
         new_set, self._new_set = self._new_set, None

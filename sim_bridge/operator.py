@@ -43,6 +43,11 @@ class Operator:
             return t_s - self.onset_s < self.s.release_after_s
         return True
 
+    def estop_pressed(self, t_s: float) -> bool:
+        """The e-stop is open now (``estop_after_s`` after onset; it latches)."""
+        after = self.s.estop_after_s
+        return after is not None and self.onset_s is not None and t_s - self.onset_s >= after
+
     def mark_pressed(self, t_s: float) -> bool:
         """The teach handle's mark button is held now (``mark_at_s`` after onset)."""
         if self.onset_s is None:

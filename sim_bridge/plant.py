@@ -136,7 +136,19 @@ class Plant:
         self.current_a = np.zeros(self.n)
         self._force_sum = np.zeros(self.n)  #: the drives' torque summed over the ticks [N·m]
         self._current_ticks = 0
+        #: the arm stands on its brakes (every joint locked)
         self.brakes = True
+        brakes = cfg.brakes
+        #: each joint's brake torque [N·m] (None: ideal brakes, locked at once) and the time
+        #: from a power cut to it [s] (BrakesTruth)
+        self._brake_nm = np.array(brakes.torque_nm, dtype=float) if brakes.torque_nm else None
+        self._brake_engage_s = float(brakes.engage_s)
+        #: sim time the power went off (None: powered or released); joints the brakes hold
+        #: and where; each joint's velocity one tick ago (a brake locks at its zero crossing)
+        self._power_off_s: float | None = -math.inf
+        self._locked = np.ones(self.n, dtype=bool)
+        self._lock_q = np.array(cfg.initial_q_rad, dtype=float)
+        self._prev_dq = np.zeros(self.n)
         self.hand_force_n = np.zeros(3)
         #: joint-side encoder step [rad] (0: exact), :class:`SensorTruth.encoder_bits`
         bits = cfg.sensors.encoder_bits
@@ -260,30 +272,80 @@ class Plant:
         q_cmd_rad: np.ndarray | None,
         dq_cmd_rad_s: np.ndarray | None,
         brakes_released: bool = False,
+        power_cut: bool = False,
     ) -> None:
         """Advance one servo tick following ``q_cmd_rad`` / ``dq_cmd_rad_s`` (both ``None``:
         servo off); :meth:`run` with one tick and the reference taken now."""
         reference = None
         if q_cmd_rad is not None and dq_cmd_rad_s is not None:
             reference = (q_cmd_rad, dq_cmd_rad_s, self.t_s)
-        self.run(1, reference, brakes_released)
+        self.run(1, reference, brakes_released, power_cut)
+
+    def _begin_braking(self, power_cut: bool) -> None:
+        """The power goes off now: on a cut (``power_cut``, stop category 0) the brakes bite
+        after their engagement time, else they were closed while the drives held (a servo-off
+        the host asked for: a joint at rest is locked at once, a moving one braked)."""
+        q, dq = self._q, self.dq_view
+        self._power_off_s = self.data.time - (0.0 if power_cut else self._brake_engage_s)
+        self._lock_q[:] = q
+        self._prev_dq[:] = dq
+        if self._brake_nm is None:
+            self._locked[:] = True  # ideal brakes
+        else:
+            self._locked[:] = False if power_cut else (dq == 0.0)
+
+    def _brake_torque(self, applied: np.ndarray) -> None:
+        """Add the engaged brakes' torque, against each free joint's motion, to ``applied``."""
+        if self.data.time - self._power_off_s < self._brake_engage_s:
+            return
+        assert self._brake_nm is not None
+        tau = -self._brake_nm * np.sign(self.dq_view)
+        tau[self._locked] = 0.0
+        applied += tau
+
+    def _brake_locks(self) -> None:
+        """After a tick: a braked joint whose velocity reached or crossed zero is locked;
+        locked joints stay where they were locked."""
+        q, dq = self._q, self.dq_view
+        if self.data.time - self._power_off_s >= self._brake_engage_s:
+            stopped = ~self._locked & (dq * self._prev_dq <= 0.0)
+            if stopped.any():
+                self._locked |= stopped
+                self._lock_q[stopped] = q[stopped]
+            locked = self._locked
+            q[locked] = self._lock_q[locked]
+            dq[locked] = 0.0
+        self._prev_dq[:] = dq
 
     def run(
         self,
         ticks: int,
         reference: tuple[np.ndarray, np.ndarray, float] | None,
         brakes_released: bool = False,
+        power_cut: bool = False,
     ) -> None:
         """Advance ``ticks`` servo ticks (one controller cycle). ``reference`` is what the
         inner loop follows, (q_r [rad], dq_r [rad/s], t_r [s]): the position q_r + dq_r·(t -
         t_r) at time t. ``None`` means servo off: the brakes hold the joints, unless
         ``brakes_released`` (the brake-release switch held with the servo off): then the arm
-        moves under gravity, the cylinders, friction and the hand, with no motor torque."""
+        moves under gravity, the cylinders, friction and the hand, with no motor torque.
+
+        The brakes (``[brakes]``, :class:`~sim_bridge.config.BrakesTruth`): when the servo
+        goes off with ``power_cut`` (the controller's fault or e-stop, stop category 0) the arm
+        moves freely for the engagement time, then each brake slows its joint with its torque
+        until the joint's velocity reaches zero, and locks it there; otherwise the brakes were
+        closed while the drives held, and bite at once. A load over a brake's torque keeps its
+        joint moving."""
         dt = self.cfg.timestep_s
         model, d, n = self.model, self.data, self.n
         arms, gas = self.cylinders.arms_and_gas(d.qpos[:n].tolist())
         self._pressure_step(ticks * dt, gas)
-        if reference is None and not brakes_released:
+        braking = reference is None and not brakes_released
+        if not braking:
+            self._power_off_s = None
+        elif self._power_off_s is None:
+            self._begin_braking(power_cut)
+        if braking and self._locked.all():
             # Brakes engaged: joints locked, motor unpowered, the hand can't move it.
             self.brakes = True
             self.hand_force_n = np.zeros(3)
@@ -339,7 +401,13 @@ class Plant:
                 friction.stribeck_into(dq, coulomb, dry)
             else:
                 np.subtract(held, friction.torque_nm(dq, coulomb), out=applied)
+            if braking:
+                if stiction:
+                    applied[:] = held
+                self._brake_torque(applied)
             mujoco.mj_step(model, d)
+            if braking:
+                self._brake_locks()
             if servo:
                 force += act_force
             if history is not None:

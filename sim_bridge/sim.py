@@ -228,6 +228,7 @@ class VirtualCell:
             self.teaching_cycles += 1
             if not got_set or was_hold:
                 self.teaching_missed += 1
+        self.estop_open = self.estop_open or op.estop_pressed(plant.t_s)
         ctrl.estop = self.estop_open
         ctrl.begin_cycle(plant.t_s, plant.q_rad, time.monotonic())
         teaching = ctrl.state == ControllerState.EXTERNAL and not ctrl.ref_is_hold
@@ -239,7 +240,7 @@ class VirtualCell:
         if released:
             op.mark_onset(plant.t_s, plant.tool_position_m())
         reference = (ctrl.q_ref, ctrl.dq_ref, ctrl.t_ref) if ctrl.servo_on else None
-        plant.run(self.substeps, reference, brakes_released=released)
+        plant.run(self.substeps, reference, brakes_released=released, power_cut=ctrl.power_cut)
         p_meas = plant.measured_pressure_bar()
         enabling = op.enabling(plant.t_s)
         self.io.set_inputs(

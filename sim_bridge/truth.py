@@ -14,7 +14,9 @@ default plant). Any other seed draws, independently per value and uniformly with
   by the same factor per joint;
 - current-sensor zero offsets: uniformly within ± ``[sensors] current_offset_fraction`` of
   each joint's current limit (a drive's tolerance is about 0.5 %; 0 by default), in every
-  current it reports.
+  current it reports;
+- the brakes' engagement time ±30 % (:data:`BRAKE_ENGAGE`) and each brake's torque ±20 %
+  (:data:`BRAKE_TORQUE`).
 
 Each group draws from its own stream (``numpy.random.default_rng([seed, group])``), so a
 change to one group's draws leaves the others' as they were. Current limits, sensors,
@@ -35,7 +37,10 @@ FRICTION = 0.40
 INERTIALS = 0.15
 CYLINDERS = 0.10
 TORQUE_CONSTANTS = 0.07
+BRAKE_ENGAGE = 0.30
+BRAKE_TORQUE = 0.20
 _GAINS, _FRICTION, _INERTIALS, _CYLINDERS, _TORQUE_CONSTANTS, _GAS, _CURRENT_OFFSETS = range(1, 8)
+_BRAKES = 8
 
 
 def _factors(seed: int, group: int, shape: int | tuple[int, ...], spread: float) -> np.ndarray:
@@ -102,6 +107,15 @@ def draw(cfg: SimConfig) -> SimConfig:
     spread = cfg.sensors.current_offset_fraction
     o = np.random.default_rng([seed, _CURRENT_OFFSETS]).uniform(-spread, spread, n) * limit
     sensors = dataclasses.replace(cfg.sensors, current_offset_a=tuple(float(v) for v in o))
+    b = np.random.default_rng([seed, _BRAKES])
+    engage = cfg.brakes.engage_s * b.uniform(1.0 - BRAKE_ENGAGE, 1.0 + BRAKE_ENGAGE)
+    torque = np.multiply(
+        cfg.brakes.torque_nm,
+        b.uniform(1.0 - BRAKE_TORQUE, 1.0 + BRAKE_TORQUE, len(cfg.brakes.torque_nm)),
+    )
+    brakes = dataclasses.replace(
+        cfg.brakes, engage_s=float(engage), torque_nm=tuple(float(v) for v in torque)
+    )
     return dataclasses.replace(
         cfg,
         inner_loop=inner,
@@ -109,6 +123,7 @@ def draw(cfg: SimConfig) -> SimConfig:
         cylinders=cylinders,
         drives=drives,
         sensors=sensors,
+        brakes=brakes,
     )
 
 

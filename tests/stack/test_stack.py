@@ -14,6 +14,7 @@ import time
 import numpy as np
 import pytest
 
+from gateway.messages import ControllerState
 from sim_bridge.harness import CAN_PROFILES, Stack
 
 pytestmark = pytest.mark.stack
@@ -122,30 +123,39 @@ def test_the_can_drivers_speed_monitor_stops_an_arm_the_law_lets_run(tmp_path):
 
 
 STOP_REPORT = (
-    "enabling released at {speed_m_s:.3f} m/s: stopped in {stop_s:.3f} s over {distance_m:.4f} "
-    "m, peak deceleration {peak_decel_m_s2:.2f} m/s², went back {back_m:.4f} m, moved "
-    "{tail_m:.5f} m in the last 0.5 s, {state}"
+    "{event} at {speed_m_s:.3f} m/s: stopped in {stop_s:.3f} s over {distance_m:.4f} m, peak "
+    "deceleration {peak_decel_m_s2:.2f} m/s², went back {back_m:.4f} m, moved {tail_m:.5f} m "
+    "in the last 0.5 s, {state}"
 )
 
 
-def released_stop(tmp_path, cell_overrides=None) -> dict[str, float]:
-    """The hand drags the tool along +x at 0.15 m/s and lets go of the enabling device (and
-    the tool) 2.5 s into teaching: the tool's speed at the release [m/s], its stopping time
-    [s] and distance [m], the largest deceleration on the way [m/s²] (over 5 truth rows),
-    how far it went back towards where it was released [m], how far it moved in the last
-    0.5 s [m], and the lifecycle after 1.5 s of standstill."""
+def stop_while_dragging(tmp_path, event: str = "release", cell_overrides=None) -> dict:
+    """The hand drags the tool along +x at 0.15 m/s; 2.5 s into teaching the operator lets
+    go of the enabling device (and the tool: ``event`` "release") or hits the e-stop
+    ("estop", the hand still pulling): the tool's speed then [m/s], its stopping time [s]
+    and distance [m], the largest deceleration on the way [m/s²] (over 5 truth rows), how far
+    it went back towards where the stop began [m], how far it moved in the last 0.5 s [m],
+    and the lifecycle state and reason after 1.5 s."""
     operator = {"mode": "path", "path": [[0.0, 0, 0, 0], [0.5, 0, 0, 0], [4.5, 0.6, 0, 0]],
-                "release_after_s": 2.5}  # fmt: skip
+                "hand_stiffness_n_per_m": 1500.0, "hand_damping_n_s_per_m": 100.0,
+                "max_force_n": 80.0,  # enough to break J2 and J3 away from their stiction
+                "release_after_s" if event == "release" else "estop_after_s": 2.5}  # fmt: skip
     with Stack(tmp_path, sim_overrides={"operator": operator}, cell_overrides=cell_overrides) as st:
         st.start()
         st.start_teaching()
-        st.wait_status(lambda s: "released" in str(s.get("reason")), 20.0, "the release")
+        if event == "release":
+            st.wait_status(lambda s: "released" in str(s.get("reason")), 20.0, "the release")
+        else:
+            st.wait_status(lambda s: s.get("state") == "fault", 20.0, "the e-stop's fault")
         time.sleep(1.5)
         status = st.request("status")
         truth = st.truth()
     t = truth["t_s"]
-    held = np.flatnonzero(truth["enabling"] > 0.5)
-    k0 = held[-1] + 1  # the first row without the enabling device
+    if event == "release":
+        k0 = np.flatnonzero(truth["enabling"] > 0.5)[-1] + 1  # the first row without it
+    else:
+        k0 = int(np.argmax(truth["ctrl_state"] == int(ControllerState.FAULT)))
+        assert k0 > 0, "the controller never faulted"
     span = 5
     rows = np.arange(k0 - 50, t.size)
     speed = tool_speed(truth, rows, span)  # at rows[:-span], over the next span rows
@@ -159,13 +169,15 @@ def released_stop(tmp_path, cell_overrides=None) -> dict[str, float]:
     travel = (xyz[50:] - xyz[50]) @ direction
     tail = np.flatnonzero(t >= t[-1] - 0.5)
     return {
+        "event": "enabling released" if event == "release" else "e-stop",
         "speed_m_s": float(speed[40:50].mean()),
         "stop_s": float(t[rows[50 + stop]] - t[k0]),
-        "distance_m": float(travel[: stop + span + 1].max()),
+        "distance_m": float(np.linalg.norm(xyz[50 + stop + span] - xyz[50])),
         "back_m": float(travel.max() - travel[-1]),
         "peak_decel_m_s2": float(decel[45 : 50 + stop + 1].max()),
         "tail_m": float(np.linalg.norm(tool_xyz(truth, tail)[-1] - tool_xyz(truth, tail)[0])),
         "state": status["state"],
+        "reason": status.get("reason", ""),
     }
 
 
@@ -173,18 +185,36 @@ def test_releasing_the_enabling_device_ramps_the_arm_to_a_held_standstill(tmp_pa
     """Stop category 2 (drivers/can/stop_ramp.py): released at about 0.16 m/s, the CAN
     driver ramps the last command to standstill at [can] stop_deceleration_rad_s2 (2 rad/s²
     per joint) along its path, then holds; the monitored standstill does not trip, the cell
-    stays READY. Measured on this machine (released_stop with cell_overrides {"can":
-    {"stop_deceleration_rad_s2": x}}): 2 rad/s² stopped in 0.18 s over 13.5 mm at 1.46 m/s² at most, 0.3 mm
-    back; 1 rad/s² 22 mm at 0.86 m/s²; 4 rad/s² 8.4 mm at 3.0 m/s². A hold at once (1000
+    stays READY. Measured on this machine (stop_while_dragging with cell_overrides
+    {"can": {"stop_deceleration_rad_s2": x}}, with a 60 N hand; 80 N now): 2 rad/s² stopped
+    in 0.18 s over 13.5 mm at 1.46 m/s² at most, 0.3 mm back (80 N: 12.8-14.2 mm, 1.8
+    m/s²); 1 rad/s² 22 mm at 0.86 m/s²; 4 rad/s² 8.4 mm at 3.0 m/s². A hold at once (1000
     rad/s², what the driver did before) braked at 4.2 m/s² and pulled the tool 1.6 mm back
-    to where the hold had latched: both checks below fail on it."""
-    r = released_stop(tmp_path)
+    to where the hold had latched: both checks below fail on it. (The 60 N hand once left
+    the arm at 0.054 m/s at the release, stuck in its stiction: 80 N breaks it away.)"""
+    r = stop_while_dragging(tmp_path)
     print(STOP_REPORT.format(**r))
     assert r["speed_m_s"] > 0.08, "the arm was not moving at the release: nothing was tested"
     assert r["state"] == "ready", "the standstill monitor or something else faulted the cell"
     assert r["peak_decel_m_s2"] < 2.5
     assert r["distance_m"] < 0.025 and r["back_m"] < 1e-3
     assert r["tail_m"] < 1e-3
+
+
+def test_the_e_stop_cuts_the_power_and_the_brakes_stop_the_arm_after_they_engage(tmp_path):
+    """Stop category 0 on the virtual plant ([brakes] in sim_bridge/gr630st_truth.toml): the
+    e-stop opens while the hand drags the tool at about 0.15 m/s and keeps pulling; the
+    controller cuts the power, the arm moves on freely for the brakes' engagement time (0.1
+    s), then the brakes stop it and hold it against the hand; the cell faults on the
+    e-stop. The stopping distance is the plant's, measured, not an ideal brake's zero."""
+    r = stop_while_dragging(tmp_path, "estop")
+    print(STOP_REPORT.format(**r))
+    assert r["speed_m_s"] > 0.08, "the arm was not moving at the e-stop: nothing was tested"
+    # the controller's FAULT (over CAN) or the e-stop input (over Modbus), whichever is first
+    assert r["state"] == "fault" and ("e-stop" in r["reason"] or "FAULT" in r["reason"])
+    assert r["stop_s"] > 0.08, "the arm stopped before the brakes engaged: ideal brakes?"
+    assert 0.005 < r["distance_m"] < 0.1
+    assert r["tail_m"] < 1e-3, "the brakes do not hold the arm"
 
 
 def test_a_push_that_breaks_the_stiction_away_moves_the_tool_along_x(tmp_path):
