@@ -48,6 +48,8 @@ class Observations:
     speed_trip: str | None = None
     #: the CAN driver's standstill monitor tripped (drivers/can/stop_ramp.py): what it measured
     standstill_trip: str | None = None
+    #: the CAN driver latched a bus fault (drivers/can/bus_errors.py): bus-off, an error burst
+    bus_fault: str | None = None
 
 
 @dataclass(frozen=True)
@@ -111,6 +113,8 @@ class LifecycleMachine:
             problems.append(f"CAN driver's speed monitor: {obs.speed_trip}")
         if obs.standstill_trip:
             problems.append(f"CAN driver's standstill monitor: {obs.standstill_trip}")
+        if obs.bus_fault:
+            problems.append(f"CAN bus: {obs.bus_fault}")
         return problems
 
     def update(self, obs: Observations) -> Lifecycle:

@@ -265,6 +265,7 @@ class Gateway:
         #: the CAN driver's speed monitor trip, from its health (None: not tripped)
         self.speed_trip: str | None = None
         self.standstill_trip: str | None = None
+        self.bus_fault: str | None = None
         self.children: dict[str, Child] = {}
         self.session = None
         self._decls: list = []
@@ -374,6 +375,8 @@ class Gateway:
                 self.speed_trip = None if trip is None else str(trip)
                 trip = body.get("standstill_trip")
                 self.standstill_trip = None if trip is None else str(trip)
+                fault = body.get("bus_fault")
+                self.bus_fault = None if fault is None else str(fault)
 
     @property
     def joint_state(self) -> JointState | None:
@@ -407,6 +410,7 @@ class Gateway:
             load_problem=self._load_problem(),
             speed_trip=self.speed_trip,
             standstill_trip=self.standstill_trip,
+            bus_fault=self.bus_fault,
         )
 
     def _load_problem(self) -> str | None:

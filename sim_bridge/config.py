@@ -293,6 +293,11 @@ class OperatorScript:
     release_after_s: float | None = None  #: after onset: enabling released (None: never)
     #: after onset: the operator hits the e-stop, which stays open (None: never)
     estop_after_s: float | None = None
+    #: after onset: the host's CAN interface goes bus-off for bus_off_s (its kernel then
+    #: restarts it, restart-ms): error frames BUSOFF then RESTARTED reach the host, and no
+    #: frame passes either way in between (None: never)
+    bus_off_after_s: float | None = None
+    bus_off_s: float = 0.1
     #: sim time from which the operator holds the brake-release switch (None: never). With
     #: the servo off the arm is then free: it moves under gravity, the cylinders, friction and
     #: the hand (the paper's baseline); the hand's onset is that moment.

@@ -48,6 +48,14 @@ class Operator:
         after = self.s.estop_after_s
         return after is not None and self.onset_s is not None and t_s - self.onset_s >= after
 
+    def bus_off(self, t_s: float) -> bool:
+        """The host's CAN interface is bus-off now (``bus_off_after_s`` after onset, for
+        ``bus_off_s``)."""
+        after = self.s.bus_off_after_s
+        if after is None or self.onset_s is None:
+            return False
+        return 0.0 <= t_s - self.onset_s - after < self.s.bus_off_s
+
     def mark_pressed(self, t_s: float) -> bool:
         """The teach handle's mark button is held now (``mark_at_s`` after onset)."""
         if self.onset_s is None:

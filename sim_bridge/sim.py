@@ -50,6 +50,8 @@ from sim_bridge.operator import Operator
 from sim_bridge.plant import Plant
 
 log = logging.getLogger("leadthrough.sim")
+#: error classes of an error frame's id, as the host's kernel reports them (linux/can/error.h)
+CAN_ERR_BUSOFF, CAN_ERR_RESTARTED = 0x040, 0x100
 
 HEARTBEAT_PERIOD_S = 0.1
 # Feedback saturates at the protocol's range, as a real encoder interface would.
@@ -120,6 +122,7 @@ class VirtualCell:
         self.summary_path = summary_path
         self.stop_event = threading.Event()
         self.estop_open = False  #: scripted e-stop (tests)
+        self.bus_off = False  #: scripted bus-off of the host's interface (tests)
         self.latencies_s: list[float] = []
         self.teaching_cycles = 0
         self.teaching_missed = 0
@@ -209,13 +212,28 @@ class VirtualCell:
         return isinstance(bus, SeqpacketHubBus) and not bus.forwards
 
     def _on_frame(self, msg: can.Message) -> None:
+        if self.bus_off:
+            return  # the host's controller is off the bus: nothing it sends arrives
         ctrl = self.ctrl
         ctrl.on_frame(msg, time.monotonic())
         if self._set_arrival_wall is None and ctrl.complete_for_cycle == ctrl.cycle:
             self._set_arrival_wall = msg.timestamp  # wall clock, stamped on arrival
 
+    def _bus_off_step(self) -> None:
+        """The scripted bus-off (``[operator] bus_off_after_s``): what the host's kernel
+        reports, as error frames, when its interface leaves the bus and when it is back."""
+        assert self.can is not None
+        off = self.operator.bus_off(self.plant.t_s)
+        if off != self.bus_off:
+            error_class = CAN_ERR_BUSOFF if off else CAN_ERR_RESTARTED
+            self.can.send(can.Message(arbitration_id=error_class, is_error_frame=True,
+                                      is_extended_id=False, data=bytes(8)))  # fmt: skip
+            log.warning("scripted CAN bus-off %s", "begins" if off else "ends (restarted)")
+            self.bus_off = off
+
     def _cycle(self) -> None:
         assert self.can is not None and self.io is not None
+        self._bus_off_step()
         plant, ctrl, op = self.plant, self.ctrl, self.operator
         got_set = ctrl.complete_for_cycle == ctrl.cycle and ctrl._new_set is not None
         was_hold = ctrl.complete_hold
@@ -255,7 +273,7 @@ class VirtualCell:
         n = self.n
         frames = self.proto.feedback_frames(ctrl.status(), fb[:n], fb[n : 2 * n], fb[2 * n :])
         self._set_arrival_wall = None
-        for msg in frames:
+        for msg in frames if not self.bus_off else ():
             self.can.send(msg)
         # Wire-to-wire latency runs from the cycle's last feedback frame leaving.
         self._fb_sent_wall = time.time()  # the clock of the frames' arrival stamps
@@ -290,7 +308,7 @@ class VirtualCell:
 
     def _heartbeat(self, now_s: float) -> None:
         assert self.can is not None
-        if now_s >= self._next_heartbeat_s:
+        if now_s >= self._next_heartbeat_s and not self.bus_off:
             self.can.send(self.proto.encode_heartbeat("CTRL", 5))
             self._next_heartbeat_s = now_s + HEARTBEAT_PERIOD_S
 

@@ -106,6 +106,11 @@ class CanDriverConfig:
     standstill_settle_s: float = 0.5
     standstill_band_rad: float = 0.02
     standstill_confirm_cycles: int = 3
+    #: This many CAN error frames within bus_error_window_s latch a bus fault, as a bus-off
+    #: does at once; the fault clears once no error frame came for the window and the cell is
+    #: stopped (bus_errors.py).
+    bus_error_limit: int = 10
+    bus_error_window_s: float = 1.0
 
     def __post_init__(self) -> None:
         where = "[can]"
@@ -142,6 +147,7 @@ class CanDriverConfig:
         for name, lo, hi, unit in (
             ("standstill_settle_s", 0.0, 10.0, "s"),
             ("standstill_band_rad", 0.0, 0.5, "rad"),
+            ("bus_error_window_s", 0.0, 60.0, "s"),
         ):
             value = getattr(self, name)
             require(
@@ -157,6 +163,8 @@ class CanDriverConfig:
             f"{where}.standstill_confirm_cycles",
             "must be at least 1",
         )
+        require_count(self.bus_error_limit, f"{where}.bus_error_limit", 10_000, "frames")
+        require(self.bus_error_limit >= 1, f"{where}.bus_error_limit", "must be at least 1")
         for name in ("current_zero_cycles", "current_zero_settle_cycles"):
             require_count(getattr(self, name), f"{where}.{name}", 100_000, "cycles")
         require(

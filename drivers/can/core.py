@@ -52,6 +52,7 @@ import can
 import numpy as np
 
 from drivers.can.adapter import CanAdapter, CycleFeedback, HostRequest
+from drivers.can.bus_errors import BusErrors
 from drivers.can.config import CanDriverConfig
 from drivers.can.current_zero import CurrentZero
 from drivers.can.speed_monitor import Points, SpeedMonitor, datasheet_points
@@ -91,6 +92,7 @@ REJECT_REASONS = (
     "out_of_range",  # following error, velocity, or a value the protocol cannot carry
     "late_cycle",  # not for the current cycle, or that cycle was already answered
     "blocked_speed",  # the speed monitor tripped (speed_monitor.py) and the lifecycle still runs
+    "blocked_bus",  # a CAN bus fault is latched (bus_errors.py: bus-off, a burst of errors)
 )
 
 #: How a cycle was answered.
@@ -271,6 +273,8 @@ class HostCore:
         #: the controlled stop under way (stop_ramp.py), None when there is none
         self._ramp: StopRamp | None = None
         self._stop_decel = np.array(config.stop_deceleration_rad_s2, dtype=float)
+        #: error frames and the bus fault they latch (bus_errors.py)
+        self.bus = BusErrors(config.bus_error_limit, config.bus_error_window_s)
         self.standstill = StandstillMonitor(
             config.standstill_band_rad, config.standstill_settle_s, config.standstill_confirm_cycles
         )
@@ -373,6 +377,10 @@ class HostCore:
     def on_frame(self, msg: can.Message, now: float) -> FrameResult:
         """Take one received frame; a frame that completes a cycle yields its JointState."""
         stats = self.adapter.stats
+        if msg.is_error_frame:
+            fault = self.bus.on_error_frame(msg, now)
+            if fault is not None:
+                self._note(logging.ERROR, "bus", f"CAN bus fault: {fault}; holding, brakes")
         dropped = stats.bad_frames + stats.incomplete_cycles + stats.corrupt_cycles
         feedback = self.adapter.feed(msg)
         if feedback is None:
@@ -407,6 +415,7 @@ class HostCore:
                 f"cycle {previous.cycle} got no answer before cycle {cycle} arrived",
             )
         self.cycles += 1
+        self.bus.on_cycle()
         self.feedback, self._last_cycle_rx_s = fb, now
         self.current_zero.update(fb.current_a, fb.servo_power)
         if fb.controller_state in _BRAKED:
@@ -547,6 +556,8 @@ class HostCore:
             return HostRequest.BRAKE
         if self.standstill.trip is not None:
             return HostRequest.BRAKE  # the drives do not hold the arm: nothing else is left
+        if self.bus.fault is not None:
+            return HostRequest.BRAKE  # stopped until the operator re-arms (bus_errors.py)
         if lc.state == Lifecycle.STOPPED and self._ramp is not None:
             return HostRequest.SERVO_ON  # stop category 1: the brakes once the ramp has ended
         if lc.state in (Lifecycle.READY, *COMMANDING):
@@ -587,6 +598,8 @@ class HostCore:
             return "blocked_controller"
         if self.speed is not None and self.speed.trip is not None:
             return "blocked_speed"
+        if self.bus.fault is not None:
+            return "blocked_bus"
         return None
 
     def _check_command(self, cmd: JointCommand, now: float) -> tuple[str, str] | None:
@@ -656,6 +669,7 @@ class HostCore:
             and self.link_ok(now)
             and (self.speed is None or self.speed.trip is None)
             and self.standstill.trip is None
+            and self.bus.fault is None
         ):
             return False
         return lc.state in (Lifecycle.READY, Lifecycle.STOPPED) or (
@@ -745,6 +759,8 @@ class HostCore:
             and lc.state in (Lifecycle.READY, *COMMANDING)
             and _fresh(lc.stamp_s, self._lifecycle_rx_s, now, self.config.lifecycle_timeout_s)
         )
+        if not wants_servo and self.bus.fault is not None and self.bus.clear(now):
+            log.info("CAN bus fault cleared: the bus works again and the cell is stopped")
         if not wants_servo:
             if monitor.trip is not None:
                 state = None if lc is None else lc.state
@@ -821,5 +837,6 @@ class HostCore:
             "bad_inputs": self.bad_inputs,
             "lifecycle_dropped": dict(self.lifecycle_order.dropped),
             **self._speed_health(),
+            **self.bus.health(),
             **self._zero_health(),
         }

@@ -217,6 +217,38 @@ def test_the_e_stop_cuts_the_power_and_the_brakes_stop_the_arm_after_they_engage
     assert r["tail_m"] < 1e-3, "the brakes do not hold the arm"
 
 
+def test_a_bus_off_faults_the_cell_which_stays_stopped_until_it_is_re_armed(tmp_path):
+    """The host's CAN interface goes bus-off for 0.1 s while the hand drags the tool
+    (``[operator] bus_off_after_s``: the virtual cell reports the kernel's error frames,
+    BUSOFF then RESTARTED, and passes no frame in between). The CAN driver latches a bus
+    fault (drivers/can/bus_errors.py), the cell faults and the arm stops; the bus works again
+    at once, but the cell stays stopped until the operator resets it, and then it starts."""
+    operator = {"mode": "path", "path": [[0.0, 0, 0, 0], [0.5, 0, 0, 0], [4.5, 0.4, 0, 0]],
+                "bus_off_after_s": 2.0, "bus_off_s": 0.1}  # fmt: skip
+    with Stack(tmp_path, sim_overrides={"operator": operator}) as stack:
+        stack.start()
+        stack.start_teaching()
+        seen = stack.wait_status(
+            lambda s: any("CAN bus" in p for p in s.get("problems") or ()), 20.0, "the bus fault"
+        )
+        time.sleep(2.5)  # the bus has been back for 2.4 s, quiet for longer than the window
+        later = stack.request("status")
+        truth = stack.truth()
+        reply = stack.request("reset")
+        stack.wait_status(lambda s: s.get("can_start") is True, 15.0, "the cell re-armed")
+        started = stack.request("start")
+    print(f"bus-off: {seen['state']} ({seen['reason']}); 2.5 s later {later['state']}, "
+          f"problems {later['problems']}; reset: {reply}")  # fmt: skip
+    assert seen["state"] == "fault" and "bus-off" in " ".join(seen["problems"])
+    assert later["state"] == "fault", "the bus coming back re-armed the cell by itself"
+    assert later["controller_state"] == "braked"
+    assert reply.get("ok"), reply
+    assert started.get("ok"), started
+    tail = np.flatnonzero(truth["t_s"] >= truth["t_s"][-1] - 1.0)
+    moved = np.linalg.norm(tool_xyz(truth, tail)[-1] - tool_xyz(truth, tail)[0])
+    assert moved < 1e-3, f"the tool moved {moved * 1e3:.1f} mm while the cell was faulted"
+
+
 def test_a_push_that_breaks_the_stiction_away_moves_the_tool_along_x(tmp_path):
     """The plant has stiction: 20 N along x moved the tool 2 mm (J2 and J3 hold it), 40 N
     broke J1 away first and moved it mostly along -y; 60 N moves it along x."""

@@ -425,3 +425,55 @@ def test_the_gateway_faults_on_a_standstill_trip_and_resets_once_it_is_cleared()
     accepted, message = machine.command("reset", tripped)
     assert not accepted and "standstill monitor" in message
     assert machine.command("reset", ok)[0] and machine.state == Lifecycle.STOPPED
+
+
+def error_frame(cls: int, data: bytes = bytes(8)):
+    import can
+
+    return can.Message(arbitration_id=cls, is_extended_id=False, is_error_frame=True, data=data)
+
+
+def test_a_bus_off_latches_a_bus_fault_until_the_bus_works_and_the_cell_is_stopped():
+    from drivers.can.bus_errors import CAN_ERR_BUSOFF, CAN_ERR_CRTL, CAN_ERR_RESTARTED
+
+    cell = Cell(bus_error_window_s=0.5)
+    cell.gateway(Lifecycle.TEACHING)
+    cell.tick()
+    js, _ = cell.cycle()
+    assert cell.command(js, Q0)[0] == COMMAND
+    cell.core.on_frame(error_frame(CAN_ERR_CRTL, bytes([0, 0x20, 0, 0, 0, 0, 0, 0])), cell.t)
+    assert cell.core.bus.fault is None and cell.core.bus.error_passive == 1
+    cell.core.on_frame(error_frame(CAN_ERR_BUSOFF), cell.t)
+    health = cell.core.health(cell.t)
+    assert "bus-off" in health["bus_fault"] and health["bus_off"] == 1
+    assert cell.core.desired_request(cell.t) == HostRequest.BRAKE
+    cell.t += 0.1  # the kernel restarts the interface (restart-ms) and frames flow again
+    cell.core.on_frame(error_frame(CAN_ERR_RESTARTED), cell.t)
+    with pytest.raises(AssertionError, match="completes it"):
+        cell.cycle()  # the cycle an error frame came in is dropped (the adapter's rule)
+    sets = follow(cell, Lifecycle.TEACHING, 200, Q0)  # 0.8 s of cycles, still teaching
+    js, _ = cell.cycle()
+    answer, _ = cell.command(js, Q0)
+    assert answer == "" and cell.core.rejected["blocked_bus"] == 1
+    assert all(f.hold for s in sets for f in s), "held while the fault is latched"
+    assert cell.core.bus.fault is not None, "the bus alone never re-arms the cell"
+    follow(cell, Lifecycle.FAULT, 2, Q0)  # the gateway has stopped the cell: cleared
+    assert cell.core.health(cell.t)["bus_fault"] is None
+    assert cell.core.health(cell.t)["bus_restarts"] == 1
+
+
+def test_a_burst_of_bus_errors_latches_a_fault_and_scattered_ones_do_not():
+    from drivers.can.bus_errors import CAN_ERR_PROT
+
+    cell = Cell(bus_error_limit=5, bus_error_window_s=1.0)
+    cell.gateway(Lifecycle.READY)
+    for _ in range(8):  # one every 0.3 s: never 5 within a second
+        cell.t += 0.3
+        cell.core.on_frame(error_frame(CAN_ERR_PROT), cell.t)
+    assert cell.core.bus.fault is None and cell.core.bus.error_frames == 8
+    for _ in range(5):
+        cell.t += 0.01
+        cell.core.on_frame(error_frame(CAN_ERR_PROT), cell.t)
+    assert "5 CAN error frames within 1 s" in cell.core.bus.fault
+    assert "protocol violation" in cell.core.bus.fault
+    assert cell.core.blocked(cell.t) in ("blocked_bus", "blocked_lifecycle")
