@@ -106,6 +106,14 @@ INERTIA_STEP_RAD = 0.02
 #: inside the limit's 12 % margin below ISO 10218-1's 250 mm/s, and the CAN driver's speed
 #: monitor keeps its own exact check
 SPEED_JACOBIAN_STEP_RAD = 0.005
+#: Hand guiding's speed limit with feedback: while the speed of the tool point or the flange
+#: (the one the zero-moment law predicts the arm to have when its command acts; the measured
+#: one for the admittance) is over max_tool_speed_m_s by e, the commands are held to the limit
+#: less this × e.
+#: A hard push overruns a limit on the command alone by what the vendor loop's velocity gain
+#: lets through (200 N: 266 mm/s for a 220 mm/s limit); the feedback takes that excess down by
+#: a factor 1 + gain in steady state.
+SPEED_FEEDBACK_GAIN = 3.0
 
 
 def load_control_config(cell_path: str | Path) -> tuple[ControlConfig, BusConfig]:
@@ -239,6 +247,8 @@ class ZeroMomentController:
         self._m_inv: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         #: (q they were computed at, the tool speed limit's Jacobians), :meth:`speed_jacobians`
         self._speed_jac: tuple[np.ndarray, np.ndarray] | None = None
+        #: the tool speed the commands are held to this cycle [m/s] (:meth:`speed_target`)
+        self._speed_target = self.cfg.max_tool_speed_m_s
         #: the driver's hold at rest before teaching (:meth:`observe_hold`)
         self.hold = HoldAverage()
         self.damping = np.array(cfg.damping_nm_s_per_rad)
@@ -374,12 +384,32 @@ class ZeroMomentController:
         return self._m_inv[2]
 
     def tool_speed_scale(self, q: np.ndarray, dq: np.ndarray) -> float:
-        """The factor (≤ 1) on ``dq`` that keeps the tool point and the flange within
-        ``max_tool_speed_m_s`` (nominal kinematics; the Jacobians of :meth:`speed_jacobians`)."""
-        v = (self.speed_jacobians(q) @ dq).tolist()
-        fastest = max(math.hypot(v[0], v[1], v[2]), math.hypot(v[3], v[4], v[5]))
-        limit = self.cfg.max_tool_speed_m_s
+        """The factor (≤ 1) on ``dq`` that keeps the tool point and the flange within the
+        cycle's target, :attr:`speed_target_m_s` (nominal kinematics; the Jacobians of
+        :meth:`speed_jacobians`)."""
+        fastest = self.point_speed(q, dq)
+        limit = self._speed_target
         return 1.0 if fastest <= limit else limit / fastest
+
+    @property
+    def speed_target_m_s(self) -> float:
+        """The tool speed the commands of the last cycle were held to [m/s]."""
+        return self._speed_target
+
+    def point_speed(self, q: np.ndarray, dq: np.ndarray) -> float:
+        """The faster of the tool point and the flange at (q, dq) [m/s]."""
+        v = (self.speed_jacobians(q) @ dq).tolist()
+        return max(math.hypot(v[0], v[1], v[2]), math.hypot(v[3], v[4], v[5]))
+
+    def speed_target(self, q: np.ndarray, dq: np.ndarray) -> float:
+        """The speed the commands are held to this cycle [m/s]: ``max_tool_speed_m_s``, less
+        :data:`SPEED_FEEDBACK_GAIN` × what the arm's speed at (q, dq) exceeds it by (not below
+        0)."""
+        limit = self.cfg.max_tool_speed_m_s
+        excess = self.point_speed(q, dq) - limit
+        if not excess > 0.0:  # NaN: the limit as it is
+            return limit
+        return max(limit - SPEED_FEEDBACK_GAIN * excess, 0.0)
 
     def speed_jacobians(self, q: np.ndarray) -> np.ndarray:
         """(6, n): the tool point's linear velocity Jacobian over the flange's, world axes,
@@ -517,6 +547,8 @@ class ZeroMomentController:
             q, dq = self.predictor.predict(
                 q, dq, st.q_cmd_rad, st.dq_cmd_rad_s, period, gap == 1, m_inv, k_star, ups
             )
+            if self.cfg.max_tool_speed_m_s > 0:  # on the speed the arm will have, predicted
+                self._speed_target = self.speed_target(q, dq)
         try:
             q_cmd, dq_cmd = self.cycle_command(q, dq, p_bar, dt)
         except (ValueError, ArithmeticError) as exc:  # where numpy would have given NaN
@@ -734,6 +766,8 @@ class AdmittanceController(ZeroMomentController):
             return self._probe_cycle(st, p_bar)
         gap = st.cycle - (self.last_cycle if self.last_cycle is not None else st.cycle - 1)
         dt = period * max(1, min(gap, 50))
+        if self.cfg.max_tool_speed_m_s > 0 and self._inertia is not None:
+            self._speed_target = self.speed_target(st.q_rad, st.dq_rad_s)
         self.last_cycle = st.cycle
         q = st.q_rad
         adm = self.admittance

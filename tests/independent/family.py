@@ -73,7 +73,10 @@ adds +k (q - q0), k sized to 3-20 × the joint's torque noise over the training 
 ``position_ripple`` (A sin(c q_j + φ), c 10-60 per joint revolution, A 3-10 × noise);
 ``time_delay`` (torque lags the kinematics by 2-15 ms, all joints); ``thermal_drift`` (test run
 only: the Coulomb level of 1-2 joints falls linearly by 10-40 % over the run); ``wrist_coupling``
-(the last joint measures 0.05-0.2 of its neighbour's torque).
+(the last joint measures 0.05-0.2 of its neighbour's torque). Only with ``--cases
+counterbalance`` (never drawn by default): a ``spring`` 100-1000 × the noise per half range on
+the joint carrying most gravity, with the test run pushed out of the training range on that
+joint first (:data:`EXPLICIT_CASES`).
 
 Scoring per draw (:func:`criteria`; the noise floor, the plain least-squares figures and the
 RMS all on analyze's target: :func:`.table.filtered_rms` with ``summary["target_filter"]`` over
@@ -168,6 +171,14 @@ EFFECT_CASES = (
 CASES = ("null", *EFFECT_CASES)
 #: Forced payload appearance: ``payload_both`` in both runs, ``payload_after`` only in the test.
 CASE_ALIASES = {"payload_both": ("payload", ALL_ALONG), "payload_after": ("payload", BETWEEN)}
+#: Cases drawn only when asked for (``--cases``), never by :func:`draw_case`'s default:
+#: ``counterbalance``, a spring 100-1000 × the noise on the joint carrying most gravity (a
+#: gas-spring balancer nobody declared) with the test run pushed out of the training range
+#: on that very joint. Within a training range of about a radian the spring is nearly a
+#: combination of that joint's gravity terms; it separates only outside (issue 21's floor).
+EXPLICIT_CASES = ("counterbalance",)
+#: counterbalance: the spring's k as a multiple of the joint's noise per half range
+COUNTERBALANCE_MULTIPLE = (100.0, 1000.0)
 
 #: Acceptance of issue 21: (criterion key, label, required share of draws).
 ACCEPTANCE = (
@@ -685,9 +696,16 @@ def outside(env: tuple[np.ndarray, ...], q: np.ndarray, dq: np.ndarray) -> np.nd
 
 
 def held_out_excitation(
-    arm: FamilyArm, train: Excitation, env: tuple[np.ndarray, ...], t: np.ndarray, rng
+    arm: FamilyArm,
+    train: Excitation,
+    env: tuple[np.ndarray, ...],
+    t: np.ndarray,
+    rng,
+    first_joint: int | None = None,
 ) -> tuple[Excitation, dict[str, Any]]:
-    """The test excitation and its outside-envelope record (module docstring)."""
+    """The test excitation and its outside-envelope record (module docstring);
+    ``first_joint`` (0-based) the joint pushed out first, by position, instead of a drawn
+    one."""
     n, f0, harmonics = arm.n, train.f0, train.harmonics
     weights, phases = _spectrum(rng, n, harmonics)
     unit = Excitation(
@@ -748,6 +766,8 @@ def held_out_excitation(
     capacity = {(j, m): share({j: m}, 1.0) for j in range(n) for m in modes}
     able = [(j, m) for (j, m), v in capacity.items() if v >= target]
     first = able[int(rng.integers(len(able)))] if able else max(capacity, key=capacity.get)
+    if first_joint is not None:
+        first = (first_joint, "position")
     best = {j: max(modes, key=lambda m, j=j: capacity[(j, m)]) for j in range(n)}
     rest = sorted((j for j in range(n) if j != first[0]), key=lambda j: -capacity[(j, best[j])])
     plan: dict[int, str] = {}
@@ -910,6 +930,11 @@ def draw_case(seed: int, cases: Sequence[str] | None = None) -> str:
     return str(EFFECT_CASES[int(rng.integers(len(EFFECT_CASES)))])
 
 
+def gravity_joint(rigid: np.ndarray) -> int:
+    """The joint (0-based) with the largest peak rigid-body torque of a run, (T, n)."""
+    return int(np.argmax(np.abs(rigid).max(axis=0)))
+
+
 def _times(duration_s: float, rate_hz: float) -> np.ndarray:
     return np.arange(max(round(duration_s * rate_hz), 10)) / rate_hz
 
@@ -1003,10 +1028,14 @@ def _apply_case(
             # fixed to the last link in both runs: inside the rigid-body model's span
             eff["separable_from_rigid_model"] = False
         return [eff], clean_tr, clean_te
-    if case == "spring":
-        j = int(rng.integers(n))
+    if case in ("spring", "counterbalance"):
+        if case == "spring":
+            j = int(rng.integers(n))
+            multiple = float(rng.uniform(3.0, 20.0))
+        else:
+            j = gravity_joint(train.rigid)
+            multiple = float(_log_uniform(rng, *COUNTERBALANCE_MULTIPLE))
         q_min, q_max = train.q[:, j].min(), train.q[:, j].max()
-        multiple = float(rng.uniform(3.0, 20.0))
         k = float(multiple * sigma[j] / (0.5 * (q_max - q_min)))
         q0 = float(rng.uniform(q_min, q_max))
         clean_tr[:, j] += k * (train.q[:, j] - q0)
@@ -1069,8 +1098,9 @@ def draw(seed: int, case: str | None = None, duration_scale: float = 1.0) -> Dra
         case = draw_case(seed)
     if case in CASE_ALIASES:
         case, appeared_forced = CASE_ALIASES[case]
-    if case not in CASES:
-        raise KeyError(f"unknown case {case!r}; known: {', '.join(CASES + tuple(CASE_ALIASES))}")
+    if case not in CASES + EXPLICIT_CASES:
+        known = ", ".join(CASES + tuple(CASE_ALIASES) + EXPLICIT_CASES)
+        raise KeyError(f"unknown case {case!r}; known: {known}")
     arm = draw_arm(seed)
     n = arm.n
     settings = draw_settings(seed)
@@ -1082,10 +1112,14 @@ def draw(seed: int, case: str | None = None, duration_scale: float = 1.0) -> Dra
     exc_tr = train_excitation(arm, f0, t_tr, _rng(seed, _TRAIN_EXC))
     q_tr, dq_tr, ddq_tr = exc_tr.evaluate(t_tr)
     env_true = envelope(q_tr, dq_tr)
-    exc_te, outside_rec = held_out_excitation(arm, exc_tr, env_true, t_te, _rng(seed, _TEST_EXC))
-    q_te, dq_te, ddq_te = exc_te.evaluate(t_te)
     model = pin.buildModelFromXML(urdf(arm))
     rig_tr = rigid_torque(model, q_tr, dq_tr, ddq_tr)
+    # counterbalance: the test leaves the training range on the joint the spring is on
+    first = gravity_joint(rig_tr) if case == "counterbalance" else None
+    exc_te, outside_rec = held_out_excitation(
+        arm, exc_tr, env_true, t_te, _rng(seed, _TEST_EXC), first
+    )
+    q_te, dq_te, ddq_te = exc_te.evaluate(t_te)
     rig_te = rigid_torque(model, q_te, dq_te, ddq_te)
     peak = np.array([float(f"{p:.3g}") for p in np.max(np.abs(rig_tr), axis=0)])
     peak = np.maximum(peak, 1e-3)
@@ -1563,7 +1597,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--cases",
         nargs="+",
-        choices=list(CASES) + list(CASE_ALIASES),
+        choices=list(CASES) + list(CASE_ALIASES) + list(EXPLICIT_CASES),
         help="draw each seed's case among these only (default: null 1 in 4, else any effect)",
     )
     parser.add_argument("--jobs", type=int, default=1, help="draws run in parallel (default 1)")

@@ -122,7 +122,22 @@ def test_motion_stays_within_joint_and_velocity_limits(short_draws) -> None:
             assert np.all(np.abs(run.dq_true) <= d.arm.velocity)
 
 
-@pytest.mark.parametrize("case", [*fam.CASES, *fam.CASE_ALIASES])
+def test_the_counterbalance_case_springs_the_gravity_joint_and_leaves_its_range() -> None:
+    """Only when asked for: never among the default draws."""
+    assert "counterbalance" not in {fam.draw_case(s) for s in range(200)}
+    for seed in (0, 1, 2):
+        d = fam.draw(seed, case="counterbalance", duration_scale=SHORT)
+        (effect,) = d.truth["effects"]
+        j = effect["joints"][0] - 1
+        assert effect["name"] == "spring" and j == fam.gravity_joint(d.train.tau_rigid)
+        assert 100.0 <= effect["parameters"]["noise_multiple"] <= 1000.0
+        assert j + 1 in d.truth["outside_envelope"]["joints"]
+        lo, hi = d.train.q_true[:, j].min(), d.train.q_true[:, j].max()
+        out = (d.test.q_true[:, j] < lo) | (d.test.q_true[:, j] > hi)
+        assert out.mean() > 0.05, "the test run never leaves the spring joint's range"
+
+
+@pytest.mark.parametrize("case", [*fam.CASES, *fam.CASE_ALIASES, *fam.EXPLICIT_CASES])
 def test_noise_free_torque_is_rnea_plus_friction_plus_the_effect(case: str) -> None:
     d = fam.draw(1, case=case, duration_scale=SHORT)
     truth, n = d.truth, d.n

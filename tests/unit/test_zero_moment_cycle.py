@@ -354,8 +354,9 @@ def test_the_online_inner_loop_estimate_runs_only_when_asked_for(cfg, model):
 
 def test_a_velocity_command_past_the_tool_speed_limit_is_scaled_down_to_it(at_once, model):
     """Hand guiding's limit in the command path: whatever the law asks, the velocity command
-    sent never moves the tool point or the flange faster than max_tool_speed_m_s, and a slow
-    one passes unchanged."""
+    sent never moves the tool point or the flange faster than the cycle's target (the limit,
+    less SPEED_FEEDBACK_GAIN × what the predicted speed exceeds it by), and a slow one passes
+    unchanged."""
     from control.model.dynamics import RigidBodyModel
 
     kin = RigidBodyModel.from_description(model.desc)
@@ -373,13 +374,33 @@ def test_a_velocity_command_past_the_tool_speed_limit_is_scaled_down_to_it(at_on
         tool = np.array(model.desc.tool.position_in_link6_m)
         flange = twist[:3] - np.cross(twist[3:], rot @ tool)
         fastest = max(np.linalg.norm(twist[:3]), np.linalg.norm(flange))
-        assert fastest <= at_once.max_tool_speed_m_s * (1 + 1e-9)
+        target = ctl.speed_target_m_s
+        assert 0.0 <= target <= at_once.max_tool_speed_m_s
+        assert fastest <= target * (1 + 1e-9) + 1e-12
         if np.allclose(got, want, rtol=RTOL, atol=ATOL):
             continue
         limited += 1
-        assert fastest == pytest.approx(at_once.max_tool_speed_m_s, rel=1e-9)
+        assert fastest == pytest.approx(target, rel=1e-9, abs=1e-12)
         np.testing.assert_allclose(got, want * (got @ want) / (want @ want), rtol=1e-9)
     assert 20 < limited < 200, limited
+
+
+def test_the_speed_target_falls_by_three_times_the_excess_of_the_arms_speed(at_once, model):
+    """SPEED_FEEDBACK_GAIN: under the limit the target is the limit; over it by e, the limit
+    less 3 e, never below zero; a NaN speed leaves the limit as it is."""
+    from control.process import SPEED_FEEDBACK_GAIN
+
+    ctl = ZeroMomentController(at_once, model)
+    limit = at_once.max_tool_speed_m_s
+    q = np.array(model.desc.lower_rad) * 0.0 + 0.3
+    direction = np.array([1.0, 0.5, -0.3, 0.2, 0.1, 0.1])
+    unit = direction / ctl.point_speed(q, direction)  # moves the fastest point at 1 m/s
+    assert ctl.speed_target(q, 0.5 * limit * unit) == limit
+    assert ctl.speed_target(q, (limit + 0.02) * unit) == pytest.approx(
+        limit - SPEED_FEEDBACK_GAIN * 0.02
+    )
+    assert ctl.speed_target(q, 10.0 * unit) == 0.0
+    assert ctl.speed_target(q, np.full(6, np.nan)) == limit
 
 
 def test_friction_compensation_ramps_in_over_the_speed_the_loop_delay_allows(at_once, model):
