@@ -409,24 +409,6 @@ def test_an_older_or_conflicting_lifecycle_message_is_dropped_and_counted():
     assert dropped == {"out_of_order": 2, "conflicting": 1}
 
 
-def test_the_gateway_faults_on_a_standstill_trip_and_resets_once_it_is_cleared():
-    from gateway.lifecycle import LifecycleMachine, Observations
-
-    machine = LifecycleMachine()
-    ok = Observations(0.01, 0.01, ControllerState.HOLD, False, True, max_speed_rad_s=0.0,
-                      still_for_s=5.0)  # fmt: skip
-    machine.command("start", ok)
-    machine.update(ok)
-    assert machine.state == Lifecycle.READY
-    tripped = Observations(0.01, 0.01, ControllerState.HOLD, False, True,
-                           standstill_trip="joint 2 left its hold by 25.0 mrad")  # fmt: skip
-    machine.update(tripped)
-    assert machine.state == Lifecycle.FAULT and "standstill monitor" in machine.reason
-    accepted, message = machine.command("reset", tripped)
-    assert not accepted and "standstill monitor" in message
-    assert machine.command("reset", ok)[0] and machine.state == Lifecycle.STOPPED
-
-
 def error_frame(cls: int, data: bytes = bytes(8)):
     import can
 

@@ -123,17 +123,27 @@ def test_no_monitor_when_the_limit_is_zero_and_a_limit_past_1_m_s_is_refused():
         )
 
 
-def test_the_gateway_faults_on_the_trip_and_resets_once_it_is_cleared():
+@pytest.mark.parametrize(
+    ("field", "trip", "named"),
+    [
+        ("speed_trip", "the tool moved at 262 mm/s", "speed monitor"),
+        ("standstill_trip", "joint 2 left its hold by 25.0 mrad", "standstill monitor"),
+        ("bus_fault", "the CAN interface went bus-off", "CAN bus"),
+    ],
+)
+def test_the_gateway_faults_on_the_trip_and_resets_once_it_is_cleared(field, trip, named):
+    """The CAN driver's latched trips (speed and standstill monitors, bus fault): each faults
+    the cell with what it measured, and a reset is refused while it stands."""
     machine = LifecycleMachine()
     ok = Observations(0.01, 0.01, ControllerState.EXTERNAL, True, True, max_speed_rad_s=0.0,
                       still_for_s=5.0)  # fmt: skip
     machine.command("start", ok)
     machine.update(ok)
     assert machine.state == Lifecycle.TEACHING
-    tripped = Observations(0.01, 0.01, ControllerState.EXTERNAL, True, True,
-                           speed_trip="the tool moved at 262 mm/s")  # fmt: skip
+    tripped = Observations(0.01, 0.01, ControllerState.EXTERNAL, True, True, **{field: trip})
     machine.update(tripped)
-    assert machine.state == Lifecycle.FAULT and "262 mm/s" in machine.reason
+    assert machine.state == Lifecycle.FAULT and trip in machine.reason
+    assert named in machine.reason
     accepted, message = machine.command("reset", tripped)
-    assert not accepted and "speed monitor" in message
+    assert not accepted and named in message
     assert machine.command("reset", ok)[0] and machine.state == Lifecycle.STOPPED
