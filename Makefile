@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test bench lint format clean
+.PHONY: demo test bench faults lint format clean
 
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -26,6 +26,9 @@ bench: $(STAMP)
 	$(BIN)/python -m control.identification.bench
 	$(BIN)/leadthrough teach-bench --plant-seed 0 --out bench_out/teach_bench
 
+faults: $(STAMP)
+	$(BIN)/python -m sim_bridge.faults --out faults_out
+
 lint: $(STAMP)
 	$(BIN)/ruff check .
 
@@ -33,4 +36,4 @@ format: $(STAMP)
 	$(BIN)/ruff format .
 
 clean:
-	rm -rf $(VENV) demo_out .cache
+	rm -rf $(VENV) demo_out faults_out .cache

@@ -22,9 +22,20 @@ starts only when the control process reports that the model carries the arm's st
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 
 from gateway.messages import PLAYING, ControllerState, Lifecycle
+
+#: The CAN driver's latched trips: the key of its health report → how the gateway names it.
+#: Each faults the cell and refuses a reset while it stands; the driver clears it once the
+#: cell is stopped and the cause has gone.
+DRIVER_TRIPS = {
+    "speed_trip": "CAN driver's speed monitor",  # drivers/can/speed_monitor.py
+    "standstill_trip": "CAN driver's standstill monitor",  # drivers/can/stop_ramp.py
+    "bus_fault": "CAN bus",  # drivers/can/bus_errors.py: bus-off, an error burst
+    "lost_cycles_trip": "CAN driver's command link",  # drivers/can/lost_cycles.py
+}
 
 
 @dataclass(frozen=True)
@@ -44,12 +55,8 @@ class Observations:
     still_for_s: float = 0.0
     #: why the model does not match the arm's static load (control/load_check.py); None: it does
     load_problem: str | None = None
-    #: the CAN driver's speed monitor tripped (drivers/can/speed_monitor.py): what it measured
-    speed_trip: str | None = None
-    #: the CAN driver's standstill monitor tripped (drivers/can/stop_ramp.py): what it measured
-    standstill_trip: str | None = None
-    #: the CAN driver latched a bus fault (drivers/can/bus_errors.py): bus-off, an error burst
-    bus_fault: str | None = None
+    #: the CAN driver's latched trips, health key → what it measured (:data:`DRIVER_TRIPS`)
+    driver_trips: Mapping[str, str] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -109,12 +116,9 @@ class LifecycleMachine:
             problems.append("e-stop chain open")
         if obs.controller_state == ControllerState.FAULT:
             problems.append("robot controller reports FAULT")
-        if obs.speed_trip:
-            problems.append(f"CAN driver's speed monitor: {obs.speed_trip}")
-        if obs.standstill_trip:
-            problems.append(f"CAN driver's standstill monitor: {obs.standstill_trip}")
-        if obs.bus_fault:
-            problems.append(f"CAN bus: {obs.bus_fault}")
+        for key, label in DRIVER_TRIPS.items():
+            if obs.driver_trips.get(key):
+                problems.append(f"{label}: {obs.driver_trips[key]}")
         return problems
 
     def update(self, obs: Observations) -> Lifecycle:

@@ -31,7 +31,7 @@ import zenoh
 from gateway.bus import BusConfig, bus_config_from, open_router, undeclare_all
 from gateway.config import from_mapping, load_toml, require, resolve_path
 from gateway.errors import EXIT_CONFIG, MessageError
-from gateway.lifecycle import LifecycleMachine, Limits, Observations
+from gateway.lifecycle import DRIVER_TRIPS, LifecycleMachine, Limits, Observations
 from gateway.messages import (
     LAYOUT_VERSION,
     LIFECYCLE_RATE_HZ,
@@ -262,10 +262,8 @@ class Gateway:
         self.model_adaptation: dict | None = None
         #: what the control law is doing, from its health (None: not reported)
         self.engagement: dict | None = None
-        #: the CAN driver's speed monitor trip, from its health (None: not tripped)
-        self.speed_trip: str | None = None
-        self.standstill_trip: str | None = None
-        self.bus_fault: str | None = None
+        #: the CAN driver's latched trips, from its health (lifecycle.DRIVER_TRIPS)
+        self.driver_trips: dict[str, str] = {}
         self.children: dict[str, Child] = {}
         self.session = None
         self._decls: list = []
@@ -371,12 +369,9 @@ class Gateway:
                 adapted = body.get("model_adaptation")
                 self.model_adaptation = adapted if isinstance(adapted, dict) else None
             elif name == "can_driver" and body:  # an unreadable one changes nothing
-                trip = body.get("speed_trip")
-                self.speed_trip = None if trip is None else str(trip)
-                trip = body.get("standstill_trip")
-                self.standstill_trip = None if trip is None else str(trip)
-                fault = body.get("bus_fault")
-                self.bus_fault = None if fault is None else str(fault)
+                self.driver_trips = {
+                    key: str(body[key]) for key in DRIVER_TRIPS if body.get(key) is not None
+                }
 
     @property
     def joint_state(self) -> JointState | None:
@@ -408,9 +403,7 @@ class Gateway:
             max_speed_rad_s=w.max_speed_rad_s,
             still_for_s=0.0 if w.moving_s is None else now - w.moving_s,
             load_problem=self._load_problem(),
-            speed_trip=self.speed_trip,
-            standstill_trip=self.standstill_trip,
-            bus_fault=self.bus_fault,
+            driver_trips=dict(self.driver_trips),
         )
 
     def _load_problem(self) -> str | None:

@@ -100,7 +100,7 @@ def _effect_fn(term: EffectTerm, coef: np.ndarray, clip: _Clip) -> EffectFn:
         return lambda q, dq, rigid, fr: a * math.sin(cpr * q[j]) + b * math.cos(cpr * q[j])
     if name == "spring":
         k, b = c
-        return lambda q, dq, rigid, fr: k * clip.q(j, q[j]) + b
+        return lambda q, dq, rigid, fr: k * q[j] + b  # physics: unclipped (terms.py)
     if name == "stribeck":
         v = float(s["velocity_rad_s"])
         (a,) = c

@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from drivers.can.lost_cycles import COAST_ANSWER, HOLD_ANSWER
 from drivers.can.seqpacket import address_problem
 from gateway.bus import BusConfig, bus_config_from
 from gateway.config import from_mapping, load_toml, require, require_count, resolve_path
@@ -111,6 +112,19 @@ class CanDriverConfig:
     #: stopped (bus_errors.py).
     bus_error_limit: int = 10
     bus_error_window_s: float = 1.0
+    #: A cycle forwarding was allowed for whose command did not come in time is *lost*
+    #: (lost_cycles.py): answered with "coast" (the last command moved on by its velocity,
+    #: while it is at most deadline_s old, then a hold) or "hold" (at once).
+    lost_cycle_answer: str = "coast"
+    #: This many lost cycles in a row, or lost_cycles_max_per_window within
+    #: lost_cycles_window_s, trip: the arm is stopped as for a released enabling device and
+    #: the gateway faults until the operator re-arms. 0 turns a rule off. 50 cycles is 0.4 s
+    #: at LTC-1's 8 ms, before the gateway's 0.5 s health watchdog would find a silent
+    #: control process; 100 in 2 s two cycles in five. (13 in a row and 40 in 1 s tripped
+    #: replays on a 2-core machine loaded twice over.)
+    lost_cycles_max_consecutive: int = 50
+    lost_cycles_max_per_window: int = 100
+    lost_cycles_window_s: float = 2.0
 
     def __post_init__(self) -> None:
         where = "[can]"
@@ -148,6 +162,7 @@ class CanDriverConfig:
             ("standstill_settle_s", 0.0, 10.0, "s"),
             ("standstill_band_rad", 0.0, 0.5, "rad"),
             ("bus_error_window_s", 0.0, 60.0, "s"),
+            ("lost_cycles_window_s", 0.0, 60.0, "s"),
         ):
             value = getattr(self, name)
             require(
@@ -165,6 +180,13 @@ class CanDriverConfig:
         )
         require_count(self.bus_error_limit, f"{where}.bus_error_limit", 10_000, "frames")
         require(self.bus_error_limit >= 1, f"{where}.bus_error_limit", "must be at least 1")
+        for name in ("lost_cycles_max_consecutive", "lost_cycles_max_per_window"):
+            require_count(getattr(self, name), f"{where}.{name}", 100_000, "cycles")
+        require(
+            self.lost_cycle_answer in (COAST_ANSWER, HOLD_ANSWER),
+            f"{where}.lost_cycle_answer",
+            f"{self.lost_cycle_answer!r} is neither {COAST_ANSWER!r} nor {HOLD_ANSWER!r}",
+        )
         for name in ("current_zero_cycles", "current_zero_settle_cycles"):
             require_count(getattr(self, name), f"{where}.{name}", 100_000, "cycles")
         require(

@@ -55,6 +55,7 @@ from drivers.can.adapter import CanAdapter, CycleFeedback, HostRequest
 from drivers.can.bus_errors import BusErrors
 from drivers.can.config import CanDriverConfig
 from drivers.can.current_zero import CurrentZero
+from drivers.can.lost_cycles import HOLD_ANSWER, LostCycles
 from drivers.can.speed_monitor import Points, SpeedMonitor, datasheet_points
 from drivers.can.stop_ramp import StandstillMonitor, StopRamp
 from gateway.errors import ConfigError, FrameError, MessageError
@@ -93,6 +94,7 @@ REJECT_REASONS = (
     "late_cycle",  # not for the current cycle, or that cycle was already answered
     "blocked_speed",  # the speed monitor tripped (speed_monitor.py) and the lifecycle still runs
     "blocked_bus",  # a CAN bus fault is latched (bus_errors.py: bus-off, a burst of errors)
+    "blocked_lost",  # too many lost command cycles (lost_cycles.py), until the cell is stopped
 )
 
 #: How a cycle was answered.
@@ -275,6 +277,12 @@ class HostCore:
         self._stop_decel = np.array(config.stop_deceleration_rad_s2, dtype=float)
         #: error frames and the bus fault they latch (bus_errors.py)
         self.bus = BusErrors(config.bus_error_limit, config.bus_error_window_s)
+        #: lost command cycles and the policy's latched trip (lost_cycles.py)
+        self.lost = LostCycles(
+            config.lost_cycles_max_consecutive,
+            config.lost_cycles_max_per_window,
+            config.lost_cycles_window_s,
+        )
         self.standstill = StandstillMonitor(
             config.standstill_band_rad, config.standstill_settle_s, config.standstill_confirm_cycles
         )
@@ -355,11 +363,13 @@ class HostCore:
             mine = pending is not None and cmd.cycle == (pending.cycle & 0xFFFFFFFF)
             if mine and not pending.answered and problem[0] in ("stale", "out_of_range"):
                 frames = self._hold(pending, now)  # no better answer comes
+                self._record_lost(now)
                 return CommandResult(frames, pending.answer or HOLD, cmd)
             return CommandResult([], "", cmd)
         assert pending is not None
         pending.answer = COMMAND
         self.forwarded += 1
+        self.lost.record(False, now)
         self._last_sent_q, self._last_sent_dq = cmd.q_cmd_rad.tolist(), cmd.dq_cmd_rad_s.tolist()
         self._last_forwarded_q = cmd.q_cmd_rad
         period = self.feedback.cycle_period_s if self.feedback is not None else 0.0
@@ -452,7 +462,11 @@ class HostCore:
         frames: list[can.Message] = []
         if self.blocked(now) is not None:
             frames = self._hold(pending, now)
-        self._watch_standstill(fb, cycle, now)
+            self.lost.record(False, now)
+        if self._wants_servo(now):
+            self._watch_standstill(fb, cycle, now)
+        else:
+            self._clear_latched(now)
         key = (int(fb.controller_state), flags & (FLAG_ESTOP | FLAG_SERVO_POWER))
         window = self.window.add(fb.q_rad, fb.dq_rad_s, key, state, now)
         return FrameResult(state, frames, window)
@@ -489,7 +503,10 @@ class HostCore:
         frames: list[can.Message] = []
         pending = self.pending
         if pending is not None and not pending.answered and now >= pending.answer_by_s:
+            allowed = self.blocked(now) is None
             frames += self._coast(pending, now) or self._hold(pending, now)
+            if allowed:
+                self._record_lost(now)
         desired = self.desired_request(now)
         heartbeat_due = now >= self._next_heartbeat_s
         if heartbeat_due:
@@ -556,6 +573,11 @@ class HostCore:
             return HostRequest.BRAKE
         if self.standstill.trip is not None:
             return HostRequest.BRAKE  # the drives do not hold the arm: nothing else is left
+        if self.speed is not None and self.speed.trip is not None:
+            # A hand that outran the limit would fight a rigid hold until the controller's
+            # following-error fault cut the power, and the arm moved free for the brakes'
+            # engagement time (a 200 N push: 577 mm/s). The brakes at once instead.
+            return HostRequest.BRAKE
         if self.bus.fault is not None:
             return HostRequest.BRAKE  # stopped until the operator re-arms (bus_errors.py)
         if lc.state == Lifecycle.STOPPED and self._ramp is not None:
@@ -600,7 +622,17 @@ class HostCore:
             return "blocked_speed"
         if self.bus.fault is not None:
             return "blocked_bus"
+        if self.lost.trip is not None:
+            return "blocked_lost"
         return None
+
+    def _record_lost(self, now: float) -> None:
+        """The pending cycle was lost (lost_cycles.py): count it, and say so if it trips."""
+        trip = self.lost.record(True, now)
+        if trip is not None:
+            self._note(
+                logging.ERROR, "lost", f"lost command cycles: {trip.message()}; stopping the arm"
+            )
 
     def _check_command(self, cmd: JointCommand, now: float) -> tuple[str, str] | None:
         """(reason, detail) if ``cmd`` must not be forwarded, else None."""
@@ -673,7 +705,7 @@ class HostCore:
         ):
             return False
         return lc.state in (Lifecycle.READY, Lifecycle.STOPPED) or (
-            lc.state in COMMANDING and not io.enabling
+            lc.state in COMMANDING and (not io.enabling or self.lost.trip is not None)
         )
 
     def _ramp_for(self, pending: Cycle, now: float) -> StopRamp | None:
@@ -736,7 +768,12 @@ class HostCore:
         its own velocity, as long as that command is not older than ``deadline_s``; [] if
         coasting is not allowed."""
         last = self._last_forward
-        if last is None or self._holding or now - last[0] > self.config.deadline_s:
+        if (
+            self.config.lost_cycle_answer == HOLD_ANSWER
+            or last is None
+            or self._holding
+            or now - last[0] > self.config.deadline_s
+        ):
             return []
         _stamp, cycle, q, dq, period = last
         q_coast = q + dq * (pending.cycle - cycle) * period
@@ -749,24 +786,31 @@ class HostCore:
         self._last_sent_q, self._last_sent_dq = q_coast.tolist(), dq.tolist()
         return frames
 
-    def _watch_standstill(self, fb: CycleFeedback, cycle: int, now: float) -> None:
-        """Monitored standstill (stop_ramp.py) while the driver holds with the servo on and
-        the lifecycle wants the servo; a lifecycle that does not (STOPPED, FAULT, silence)
-        clears a trip: the gateway has stopped the cell."""
-        lc, monitor = self._lifecycle, self.standstill
-        wants_servo = (
+    def _wants_servo(self, now: float) -> bool:
+        """The gateway's lifecycle, fresh, is one that keeps the drives powered."""
+        lc = self._lifecycle
+        return (
             lc is not None
             and lc.state in (Lifecycle.READY, *COMMANDING)
             and _fresh(lc.stamp_s, self._lifecycle_rx_s, now, self.config.lifecycle_timeout_s)
         )
-        if not wants_servo and self.bus.fault is not None and self.bus.clear(now):
+
+    def _clear_latched(self, now: float) -> None:
+        """The cell is stopped (STOPPED, FAULT, or a silent gateway): the standstill trip
+        clears, and a bus fault once the bus has worked again (bus_errors.py); a re-arm is
+        still the operator's."""
+        if self.bus.fault is not None and self.bus.clear(now):
             log.info("CAN bus fault cleared: the bus works again and the cell is stopped")
-        if not wants_servo:
-            if monitor.trip is not None:
-                state = None if lc is None else lc.state
-                log.info("standstill monitor cleared: lifecycle %s", state)
-            monitor.reset()
-            return
+        lc = self._lifecycle
+        for name, latch in (("standstill monitor", self.standstill), ("lost cycles", self.lost)):
+            if latch.trip is not None:
+                log.info("%s cleared: lifecycle %s", name, None if lc is None else lc.state)
+            latch.reset()
+
+    def _watch_standstill(self, fb: CycleFeedback, cycle: int, now: float) -> None:
+        """Monitored standstill (stop_ramp.py) while the driver holds with the servo on and
+        the lifecycle wants the servo."""
+        monitor = self.standstill
         if not (self._holding and self._hold_q is not None and fb.controller_state in _SERVOING):
             monitor.idle()
             return
@@ -828,6 +872,8 @@ class HostCore:
             "held": self.held,
             "ramped": self.ramped,
             "standstill_trip": None if still is None else still.message(),
+            "lost_cycles": self.lost.lost,
+            "lost_cycles_trip": None if self.lost.trip is None else self.lost.trip.message(),
             "coasted": self.coasted,
             "unanswered": self.unanswered,
             "rejected": dict(self.rejected),

@@ -389,10 +389,17 @@ def test_a_hard_push_never_moves_the_tool_faster_than_hand_guiding_allows(tmp_pa
     10's figure) for 3 s at the tool: a weightless arm would reach metres per second; the
     velocity command is scaled to max_tool_speed_m_s (0.22 m/s), less 3 × what the predicted
     speed exceeds it by (control/process.py SPEED_FEEDBACK_GAIN), and the vendor loop brakes
-    the arm. 80 N: 222 mm/s at most (238 without the feedback), teaching goes on. 200 N
-    outruns that by a few per cent (255 mm/s at most; 266 without the feedback): the CAN
-    driver's own monitor trips, holds, and the cell faults (issue 10's 250 mm/s under 200 N
-    is not met by the command path alone)."""
+    the arm. 80 N: 222 mm/s at most (238 without the feedback), teaching goes on, and the
+    tool never passes 250 mm/s.
+
+    200 N outruns that (248-255 mm/s): the CAN driver's own monitor trips, asks for the
+    brakes, and the cell faults. The hand pushes on, and the wrist yields: with only J5
+    turning the tool moved at 0.226 m/s per rad/s, so 200 N makes up to 45 N·m about J5,
+    twice its drive's peak (22.3 N·m, sim_bridge/gr630st_truth.toml [drives]) and its
+    brake's 20 N·m; J5 slipped to 2.6 rad/s and the tool to 578 mm/s. No command holds a
+    joint the hand overpowers: issue 10's 250 mm/s under 200 N is out of this arm's reach at
+    the wrist. The test holds what the drives can: J1-J3 stand once the brakes are asked for.
+    """
     operator = {"mode": "force", "force_n": [0.0, force_n, 0.0], "start_s": 0.5,
                 "duration_s": 3.0}  # fmt: skip
     with Stack(tmp_path, sim_overrides={"operator": operator}) as stack:
@@ -402,15 +409,23 @@ def test_a_hard_push_never_moves_the_tool_faster_than_hand_guiding_allows(tmp_pa
         status = stack.request("status")
         truth = stack.truth()
         stack.request("stop")
-    speed = tool_speed(truth, teaching_rows(truth))
+    rows = teaching_rows(truth)
+    speed = tool_speed(truth, rows)
+    after = tool_speed(truth, np.arange(rows[0], truth["t_s"].size))
     print(f"zero moment, {force_n:.0f} N push: tool speed max {speed.max() * 1e3:.0f} mm/s "
-          f"while teaching; {status['state']} ({status['reason']})")  # fmt: skip
+          f"while teaching, {after.max() * 1e3:.0f} mm/s to the end; {status['state']} "
+          f"({status['reason']})")  # fmt: skip
     assert speed.max() > 0.15, "the push never got the tool near the limit"
-    if speed.max() > 0.25:  # then the CAN driver's monitor must have stopped it
-        # the gateway names what it saw first: the trip (health, every 0.1 s) or the
-        # controller's following-error fault the hold against the hand leads to
-        reason = status["reason"]
-        assert status["state"] == "fault" and ("speed monitor" in reason or "FAULT" in reason)
-        assert speed.max() < 0.3
-    else:
+    if after.max() <= 0.25:
         assert status["state"] == "teaching", status["reason"]
+        return
+    # the CAN driver's monitor must have stopped it, and the brakes hold the big joints
+    reason = status["reason"]
+    assert status["state"] == "fault" and "speed monitor" in reason, reason
+    braked = np.flatnonzero(truth["ctrl_state"][rows[-1] :] == int(ControllerState.BRAKED))
+    assert braked.size, "the controller never braked"
+    k = rows[-1] + braked[0]
+    dq = np.abs(np.stack([truth[f"dq{j}"][k:] for j in (1, 2, 3)], axis=1))
+    print(f"braked {truth['t_s'][k] - truth['t_s'][rows[-1]]:.3f} s after the last followed "
+          f"cycle; J1-J3 at most {dq.max(axis=0).round(4).tolist()} rad/s since")  # fmt: skip
+    assert dq.max() < 1e-3

@@ -61,7 +61,7 @@ def test_model_columns_go_through_the_same_filter_as_the_torque():
         assert np.sqrt(np.mean(filtered**2)) < tolerance * np.sqrt(np.mean(unfiltered**2))
 
 
-def test_friction_and_effects_stay_bounded_outside_the_training_envelope():
+def test_friction_stays_bounded_outside_the_training_envelope_and_a_spring_extrapolates():
     env = Envelope(np.array([-1.0]), np.array([1.0]), np.array([-0.5]), np.array([0.5]))
     q = np.array([[0.0], [0.0], [5.0]])
     dq = np.array([[0.5], [50.0], [0.5]])
@@ -70,7 +70,7 @@ def test_friction_and_effects_stay_bounded_outside_the_training_envelope():
     cols = term.columns(ctx)[0]
     np.testing.assert_allclose(cols[1], cols[0])  # 100x the velocity: the edge's value
     spring = EffectTerm("spring", (0,)).columns(ctx)[0]
-    assert spring[2, 0] == 1.0  # q = 5 rad holds at the envelope's 1 rad
+    assert spring[2, 0] == 5.0  # Hooke's law is physics: q = 5 rad, past the envelope's 1 rad
     raw = FrictionTerm(0, "eq15", 0.01, 100.0).columns(Context(q, dq, dq))[0]
     assert abs(raw[1, -1]) > 100 * abs(cols[1, -1])  # without the envelope dq|dq| explodes
     assert env.outside(q, dq).ravel().tolist() == [False, True, True]

@@ -1,6 +1,7 @@
 """Hand guiding's speed monitor in the CAN driver (drivers/can/speed_monitor.py, issue 10):
 from measured positions alone, it trips on the tool or the flange going faster than 250 mm/s
-while teaching or replaying; the driver then holds every cycle and the gateway faults."""
+while teaching or replaying; the driver then holds every cycle, asks for the brakes and the
+gateway faults."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ import numpy as np
 import pytest
 from test_can_core import Q0, Cell, commands
 
+from drivers.can.adapter import HostRequest
 from drivers.can.config import CanDriverConfig
 from drivers.can.core import HOLD
 from drivers.can.speed_monitor import SpeedMonitor, datasheet_points
@@ -89,7 +91,7 @@ def _teach_and_turn_j1(cell: Cell, state: Lifecycle, speed_rad_s: float, cycles:
     return answers
 
 
-def test_the_driver_holds_once_the_arm_outruns_hand_guiding_and_clears_when_teaching_ends():
+def test_the_driver_brakes_once_the_arm_outruns_hand_guiding_and_clears_when_teaching_ends():
     cell = Cell()
     assert cell.core.speed is not None
     answers = _teach_and_turn_j1(cell, Lifecycle.TEACHING, 0.05, 20)  # a slow turn
@@ -104,6 +106,8 @@ def test_the_driver_holds_once_the_arm_outruns_hand_guiding_and_clears_when_teac
     assert len(held) == 6 and all(f.hold and f.dq_cmd_rad_s == 0.0 for f in held)
     assert cell.core.pending.answer == HOLD
     assert "mm/s" in cell.core.health(cell.t)["speed_trip"]
+    # the brakes, not a rigid hold the hand outrunning it would fight into a power cut
+    assert cell.core.desired_request(cell.t) == HostRequest.BRAKE
     cell.gateway(Lifecycle.FAULT)  # the gateway faults on the trip...
     cell.cycle(q=Q0)
     assert cell.core.health(cell.t)["speed_trip"] is None  # ...which clears it for a reset
@@ -140,7 +144,8 @@ def test_the_gateway_faults_on_the_trip_and_resets_once_it_is_cleared(field, tri
     machine.command("start", ok)
     machine.update(ok)
     assert machine.state == Lifecycle.TEACHING
-    tripped = Observations(0.01, 0.01, ControllerState.EXTERNAL, True, True, **{field: trip})
+    tripped = Observations(0.01, 0.01, ControllerState.EXTERNAL, True, True,
+                           driver_trips={field: trip})  # fmt: skip
     machine.update(tripped)
     assert machine.state == Lifecycle.FAULT and trip in machine.reason
     assert named in machine.reason

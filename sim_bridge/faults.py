@@ -1,0 +1,330 @@
+"""The fault campaign (issue 10): every fault injected into the whole product on the virtual
+cell while a hand drags the tool, and what the arm did, measured on the plant's truth.
+
+Usage::
+
+    python -m sim_bridge.faults --out DIR [--only NAME ...] [--plant-seed N]
+
+(`make faults` runs them all.) Each fault runs a fresh :class:`~sim_bridge.harness.Stack`: the
+operator starts teaching and drags the tool along +x at about 0.15 m/s with an 80 N hand that
+keeps pulling after the fault; the fault is injected, the harness polls the gateway's status
+every 50 ms for :data:`WATCH_S`, then reads the simulator's truth log. One line per fault, a
+table in ``DIR/faults.md``, every figure in ``DIR/faults.json`` (logs in ``DIR/<name>/``).
+Exit code 0 when every fault passes its checks.
+
+Figures (:func:`measure`, from the truth log, the tool point's path):
+
+- ``speed_m_s``: the tool's speed when the fault was injected (every speed is taken over the
+  4 rows about its own, 32 ms on the virtual controller);
+- ``detected_s``: from the injection to the first status that left TEACHING (the gateway's
+  view; polled, so up to 50 ms late; None where no gateway answers);
+- ``reaction_s``: from the injection to where the arm begins to stop, the last point at 95 %
+  of its fastest speed before rest (the physical detection);
+- ``stop_s``: from the injection to rest (under 5 mm/s for 0.5 s);
+- ``travel_after_reaction_m``: the tool's path from there to rest: the tool travel after
+  detection; ``travel_m`` the path from the injection to rest;
+- ``peak_m_s``: the fastest the tool went from the injection to the end of the log;
+- ``tail_m``: how far it moved in the log's last 0.5 s (a stopped arm that creeps).
+
+Checks per fault: the arm came to rest and stayed there, the travel after the reaction is
+within the fault's bound, the tool never ran faster than hand guiding's 250 mm/s after the
+injection (unless the fault is the power cut of an e-stop, whose free motion is the plant's),
+and the cell reports the state a user expects, naming the cause.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import os
+import signal
+import sys
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sim_bridge.harness import Stack
+
+#: after the injection, how long the gateway's status is watched before the truth is read [s]
+WATCH_S = 3.0
+#: how often the status is polled meanwhile [s]
+POLL_S = 0.05
+#: the tool is at rest below this speed [m/s] ...
+REST_M_S = 0.005
+#: ... held for this long [s]
+REST_HOLD_S = 0.5
+#: the rows a speed is taken over, centred (8 ms each on the virtual controller: 32 ms)
+SPAN = 5
+#: the reaction is the last row at this share of the fastest speed between fault and rest
+#: (the end of a plateau the arm kept until it began to stop)
+REACTION_SHARE = 0.95
+#: hand guiding's limit the tool must not pass after a fault (ISO 10218-1) [m/s]
+HAND_GUIDING_M_S = 0.25
+#: how long the children of a killed gateway may take to stop (they get SIGTERM) [s]
+ORPHANS_S = 5.0
+#: the teaching lead-in before a scripted fault (sim time after the onset of teaching) [s]
+SCRIPTED_AFTER_S = 2.5
+
+#: The hand: a spring-damper towards a target moving along +x at 0.15 m/s from 0.5 s on,
+#: 80 N at most (enough to break J2 and J3 away from their stiction), pulling after the fault.
+DRAG = {
+    "mode": "path",
+    "path": [[0.0, 0, 0, 0], [0.5, 0, 0, 0], [4.5, 0.6, 0, 0]],
+    "hand_stiffness_n_per_m": 1500.0,
+    "hand_damping_n_s_per_m": 100.0,
+    "max_force_n": 80.0,
+}
+
+
+@dataclass(frozen=True)
+class Fault:
+    name: str
+    what: str
+    #: the cell's lifecycle state after it (None: no gateway left to ask)
+    state: str | None
+    #: any of these in the status's reason or problems names the cause
+    named: tuple[str, ...] = ()
+    #: the bound on the tool's travel after the reaction [m]
+    max_travel_m: float = 0.03
+    #: operator script overrides (a scripted fault, injected by the virtual cell)
+    operator: dict[str, Any] = field(default_factory=dict)
+    #: injects the fault into a running stack (None: scripted); returns a clean-up or None
+    inject: Callable[[Stack], Callable[[], None] | None] | None = None
+    #: the power is cut (stop category 0): the arm moves freely until the brakes engage
+    power_cut: bool = False
+
+
+def _signal_child(name: str, sig: signal.Signals) -> Callable[[Stack], Callable[[], None] | None]:
+    def inject(stack: Stack) -> Callable[[], None] | None:
+        pid = stack.child_pid(name)
+        os.kill(pid, sig)
+        if sig == signal.SIGSTOP:
+            return lambda: _continue(pid)
+        return None
+
+    return inject
+
+
+def _continue(pid: int) -> None:
+    with contextlib.suppress(ProcessLookupError):
+        os.kill(pid, signal.SIGCONT)
+
+
+def _kill_gateway(stack: Stack) -> None:
+    assert stack.gateway is not None
+    os.kill(stack.gateway.pid, signal.SIGKILL)
+
+
+def _operator_stop(stack: Stack) -> None:
+    stack.request("stop")
+
+
+FAULTS: tuple[Fault, ...] = (
+    Fault("release", "the enabling device released", "ready", ("released",),
+          operator={"release_after_s": SCRIPTED_AFTER_S}),
+    Fault("operator_stop", "the operator's stop while the arm moves", "stopped", (),
+          inject=_operator_stop),
+    Fault("estop", "the e-stop opened (the hand keeps pulling)", "fault", ("e-stop", "FAULT"),
+          max_travel_m=0.1, operator={"estop_after_s": SCRIPTED_AFTER_S}, power_cut=True),
+    Fault("bus_off", "the host's CAN interface bus-off for 0.1 s", "fault", ("CAN bus",),
+          operator={"bus_off_after_s": SCRIPTED_AFTER_S, "bus_off_s": 0.1}),
+    Fault("kill_control", "kill -9 of the control process", "fault", ("control",),
+          max_travel_m=0.005, inject=_signal_child("control", signal.SIGKILL)),
+    Fault("hang_control", "the control process stopped (SIGSTOP): its commands cease",
+          "fault", ("command link", "control"),
+          inject=_signal_child("control", signal.SIGSTOP)),
+    Fault("kill_can_driver", "kill -9 of the CAN driver", "fault", ("can-driver", "joint state"),
+          max_travel_m=0.1, inject=_signal_child("can-driver", signal.SIGKILL), power_cut=True),
+    Fault("kill_modbus_driver", "kill -9 of the Modbus driver", "fault",
+          ("modbus-driver", "I/O state"), inject=_signal_child("modbus-driver", signal.SIGKILL)),
+    Fault("kill_gateway", "kill -9 of the gateway (its children get SIGTERM)", None,
+          max_travel_m=0.005, inject=_kill_gateway),
+)  # fmt: skip
+BY_NAME = {f.name: f for f in FAULTS}
+
+
+def tool_xyz(truth: dict[str, np.ndarray]) -> np.ndarray:
+    return np.stack([truth[f"tool_{a}"] for a in "xyz"], axis=1)
+
+
+def measure(truth: dict[str, np.ndarray], k: int) -> dict[str, Any]:
+    """The figures of the module docstring from the truth log, the fault injected at row
+    ``k``. Raises ValueError when the log does not cover the fault."""
+    t, xyz = truth["t_s"], tool_xyz(truth)
+    if not SPAN <= k < t.size - SPAN:
+        raise ValueError(f"the injection (row {k}) is not inside the truth log ({t.size} rows)")
+    step = np.linalg.norm(np.diff(xyz, axis=0), axis=1)
+    # speed[i]: over rows i-h..i+h, centred on the row it is for
+    h = SPAN // 2
+    speed = np.zeros(t.size)
+    speed[h:-h] = np.linalg.norm(xyz[2 * h :] - xyz[: -2 * h], axis=1) / (t[2 * h :] - t[: -2 * h])
+    hold = max(1, round(REST_HOLD_S / float(np.median(np.diff(t)))))
+    rest = None
+    for r in range(k, t.size - hold):
+        if speed[r : r + hold].max() < REST_M_S:
+            rest = r
+            break
+    end = t.size - 1 if rest is None else rest
+    window = speed[k : end + 1]
+    peak = k + int(np.flatnonzero(window >= REACTION_SHARE * window.max())[-1])
+    tail = t >= t[-1] - 0.5
+    return {
+        "speed_m_s": float(speed[k]),
+        "reaction_s": float(t[peak] - t[k]),
+        "stop_s": None if rest is None else float(t[rest] - t[k]),
+        "travel_m": float(step[k:end].sum()),
+        "travel_after_reaction_m": float(step[peak:end].sum()),
+        "peak_m_s": float(speed[k:].max()),
+        "tail_m": float(np.linalg.norm(xyz[tail][-1] - xyz[tail][0])),
+    }
+
+
+def _moving(stack: Stack, speed_m_s: float, timeout_s: float) -> None:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        truth = stack.truth()
+        if truth["t_s"].size > 2 * SPAN and truth["teaching"][-1] > 0.5:
+            xyz = tool_xyz(truth)
+            dt = truth["t_s"][-1] - truth["t_s"][-1 - SPAN]
+            if np.linalg.norm(xyz[-1] - xyz[-1 - SPAN]) / dt > speed_m_s:
+                return
+        time.sleep(0.05)
+    raise TimeoutError(f"the hand did not drag the tool past {speed_m_s} m/s in {timeout_s} s")
+
+
+def _watch(stack: Stack, seconds: float) -> list[tuple[float, dict[str, Any] | None]]:
+    """(wall time, status or None when no gateway answered) every POLL_S for ``seconds``."""
+    polls: list[tuple[float, dict[str, Any] | None]] = []
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        status = stack.request("status", timeout_s=0.5)  # {"ok": False, ...}: no gateway
+        polls.append((time.monotonic(), status if "state" in status else None))
+        time.sleep(POLL_S)
+    return polls
+
+
+def run_fault(
+    fault: Fault,
+    workdir: Path,
+    plant_seed: int = 0,
+    cell_overrides: dict[str, Any] | None = None,
+) -> dict[str, Any]:
+    """Run one fault on a fresh stack; its figures and checks (module docstring)."""
+    operator = {**DRAG, **fault.operator}
+    cleanup: Callable[[], None] | None = None
+    with Stack(
+        workdir,
+        sim_overrides={"operator": operator},
+        cell_overrides=cell_overrides,
+        plant_seed=plant_seed,
+    ) as stack:
+        try:
+            stack.start()
+            stack.start_teaching()
+            t_inject: float | None = None
+            if fault.inject is not None:
+                _moving(stack, 0.08, 20.0)
+                t_inject = time.monotonic()
+                cleanup = fault.inject(stack)
+                polls = _watch(stack, WATCH_S)
+            else:
+                polls = _watch(stack, SCRIPTED_AFTER_S + WATCH_S)
+            truth = stack.truth()
+        finally:
+            if cleanup is not None:
+                cleanup()
+        if fault.state is None:  # the gateway is gone: its orphans must stop on their own
+            deadline = time.monotonic() + ORPHANS_S
+            while stack.product_pids() and time.monotonic() < deadline:
+                time.sleep(0.05)
+            if stack.product_pids():
+                raise RuntimeError(f"the killed gateway's children ran on: {stack.product_pids()}")
+    onset = int(np.argmax(truth["teaching"] > 0.5))
+    if t_inject is None:
+        k = int(np.searchsorted(truth["t_s"], truth["t_s"][onset] + SCRIPTED_AFTER_S))
+        t_inject = float(truth["wall_s"][k])
+    else:
+        k = int(np.searchsorted(truth["wall_s"], t_inject))
+    rec: dict[str, Any] = {"fault": fault.name, "what": fault.what, **measure(truth, k)}
+    answered = [(w, s) for w, s in polls if w >= t_inject and s is not None]
+    left = [w for w, s in answered if s.get("state") != "teaching"]
+    rec["detected_s"] = left[0] - t_inject if left else None
+    final = answered[-1][1] if answered else None
+    rec["state"] = None if final is None else final.get("state")
+    rec["reason"] = "" if final is None else str(final.get("reason"))
+    problems = [] if final is None else list(final.get("problems") or ())
+    rec["checks"] = checks = {
+        "at_rest": rec["stop_s"] is not None and rec["tail_m"] < 1e-3,
+        "travel": rec["travel_after_reaction_m"] <= fault.max_travel_m,
+        "speed": fault.power_cut or rec["peak_m_s"] <= HAND_GUIDING_M_S,
+        "state": rec["state"] == fault.state,
+        "named": not fault.named
+        or any(n in " ".join([rec["reason"], *problems]) for n in fault.named),
+    }
+    rec["pass"] = all(checks.values())
+    return rec
+
+
+def _fmt(v: float | None, scale: float, digits: int = 0) -> str:
+    return "-" if v is None else f"{v * scale:.{digits}f}"
+
+
+def format_record(r: dict[str, Any]) -> str:
+    failed = [k for k, ok in r["checks"].items() if not ok]
+    return (
+        f"{'PASS' if r['pass'] else 'FAIL'}  {r['fault']:<18} at {_fmt(r['speed_m_s'], 1e3)} mm/s: "
+        f"detected {_fmt(r['detected_s'], 1e3)} ms, reaction {_fmt(r['reaction_s'], 1e3)} ms, "
+        f"rest {_fmt(r['stop_s'], 1e3)} ms, travel {_fmt(r['travel_after_reaction_m'], 1e3, 1)} "
+        f"mm after the reaction ({_fmt(r['travel_m'], 1e3, 1)} mm after the fault), peak "
+        f"{_fmt(r['peak_m_s'], 1e3)} mm/s; {r['state']} ({r['reason'][:80]})"
+        + (f"; failed: {', '.join(failed)}" if failed else "")
+    )
+
+
+def markdown(records: Sequence[dict[str, Any]]) -> str:
+    head = (
+        "| fault | speed at fault [mm/s] | detected [ms] | reaction [ms] | rest [ms] | "
+        "travel after reaction [mm] | peak [mm/s] | state | pass |\n" + "|---" * 9 + "|\n"
+    )
+    rows = [
+        f"| {r['what']} | {_fmt(r['speed_m_s'], 1e3)} | {_fmt(r['detected_s'], 1e3)} | "
+        f"{_fmt(r['reaction_s'], 1e3)} | {_fmt(r['stop_s'], 1e3)} | "
+        f"{_fmt(r['travel_after_reaction_m'], 1e3, 1)} | {_fmt(r['peak_m_s'], 1e3)} | "
+        f"{r['state'] or '(no gateway)'} | {'yes' if r['pass'] else 'NO'} |"
+        for r in records
+    ]
+    return head + "\n".join(rows) + "\n"
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m sim_bridge.faults", description=__doc__)
+    ap.add_argument("--out", type=Path, required=True)
+    ap.add_argument("--only", nargs="+", choices=sorted(BY_NAME), help="these faults only")
+    ap.add_argument("--plant-seed", type=int, default=0)
+    args = ap.parse_args(argv)
+    args.out.mkdir(parents=True, exist_ok=True)
+    records = []
+    for fault in [BY_NAME[n] for n in args.only] if args.only else FAULTS:
+        try:
+            rec = run_fault(fault, args.out / fault.name, args.plant_seed)
+        except Exception as exc:  # a fault that breaks the run fails; the others run
+            rec = {"fault": fault.name, "what": fault.what, "pass": False, "error": repr(exc)}
+            print(f"FAIL  {fault.name:<18} {exc!r}", flush=True)
+        else:
+            print(format_record(rec), flush=True)
+        records.append(rec)
+    (args.out / "faults.json").write_text(json.dumps(records, indent=1))
+    ok = [r for r in records if "error" not in r]
+    (args.out / "faults.md").write_text(markdown(ok))
+    passed = sum(r["pass"] for r in records)
+    print(f"{passed}/{len(records)} faults passed; {args.out / 'faults.md'}")
+    return 0 if passed == len(records) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,58 @@
+"""The fault campaign's figures (sim_bridge/faults.py measure) on a truth log made by hand."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sim_bridge.faults import FAULTS, measure
+
+DT = 0.008
+
+
+def truth_of(x: np.ndarray) -> dict[str, np.ndarray]:
+    n = x.size
+    return {
+        "t_s": DT * np.arange(n),
+        "tool_x": x,
+        "tool_y": np.full(n, 0.5),
+        "tool_z": np.full(n, 1.0),
+    }
+
+
+def drag_then_stop(v=0.15, react_s=0.05, decel=1.5, rest_s=1.5, t_fault=1.0) -> np.ndarray:
+    """The tool at v along x, the fault at t_fault, still v for react_s, then a constant
+    deceleration to rest, then rest."""
+    t = DT * np.arange(int((t_fault + react_s + v / decel + rest_s) / DT))
+    t_brake = t_fault + react_s
+    tb = np.clip(t - t_brake, 0.0, v / decel)
+    return v * np.minimum(t, t_brake) + v * tb - 0.5 * decel * tb**2
+
+
+def test_the_figures_of_a_stop_match_its_kinematics():
+    x = drag_then_stop()
+    k = round(1.0 / DT)
+    r = measure(truth_of(x), k)
+    assert r["speed_m_s"] == pytest.approx(0.15, rel=1e-6)
+    assert r["reaction_s"] == pytest.approx(0.05, abs=2 * DT)
+    assert r["stop_s"] == pytest.approx(0.05 + 0.1, abs=3 * DT)
+    assert r["travel_after_reaction_m"] == pytest.approx(0.15**2 / 3.0, rel=0.15)
+    assert r["travel_m"] == pytest.approx(0.15 * 0.05 + 0.0075, rel=0.1)
+    assert r["peak_m_s"] == pytest.approx(0.15, rel=1e-6) and r["tail_m"] < 1e-9
+
+
+def test_an_arm_that_never_rests_has_no_stop_and_a_creep_shows_in_the_tail():
+    t = DT * np.arange(400)
+    r = measure(truth_of(0.02 * t), 100)  # 20 mm/s on and on
+    assert r["stop_s"] is None and r["tail_m"] == pytest.approx(0.01, rel=0.05)
+    with pytest.raises(ValueError, match="not inside the truth log"):
+        measure(truth_of(0.02 * t), 398)
+
+
+def test_every_fault_has_a_bound_and_names_its_cause_where_a_gateway_is_left():
+    names = [f.name for f in FAULTS]
+    assert len(set(names)) == len(names)
+    for f in FAULTS:
+        assert 0 < f.max_travel_m <= 0.1
+        assert (f.inject is None) == bool(f.operator), f"{f.name}: scripted or injected, not both"
+        assert f.state is None or f.state in ("ready", "stopped", "fault")
