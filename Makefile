@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test bench faults lint format clean
+.PHONY: demo test bench faults soak lint format clean
 
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -29,6 +29,9 @@ bench: $(STAMP)
 faults: $(STAMP)
 	$(BIN)/python -m sim_bridge.faults --out faults_out
 
+soak: $(STAMP)
+	$(BIN)/python -m sim_bridge.soak --minutes 10 --rate-hz 250 --frame-loss 0.01 --out soak_out
+
 lint: $(STAMP)
 	$(BIN)/ruff check .
 
@@ -36,4 +39,4 @@ format: $(STAMP)
 	$(BIN)/ruff format .
 
 clean:
-	rm -rf $(VENV) demo_out faults_out .cache
+	rm -rf $(VENV) demo_out faults_out soak_out .cache

@@ -239,9 +239,19 @@ class Endpoints:
     can_port: int = 29536  #: socketcand: TCP port
     modbus_host: str = "127.0.0.1"
     modbus_port: int = 15020
+    #: Probability that a frame on the CAN segment is lost, each frame and each way on its own
+    #: (feedback and heartbeats to the host, commands and requests from it): a segment whose
+    #: frames are corrupted past the CAN controller's retransmission (soak tests; 0: none).
+    #: Drawn from the plant seed's own stream.
+    can_frame_loss: float = 0.0
 
     def __post_init__(self) -> None:
         where = "[endpoints]"
+        require(
+            0.0 <= self.can_frame_loss < 0.5,
+            f"{where}.can_frame_loss",
+            f"{self.can_frame_loss!r} outside 0..0.5",
+        )
         require(
             self.can_interface in CAN_ENDPOINT_INTERFACES,
             f"{where}.can_interface",

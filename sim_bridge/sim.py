@@ -60,6 +60,8 @@ DQ_FB_LIMIT_RAD_S = 3.2767
 I_FB_LIMIT_A = 327.67
 #: the truth log is flushed every this many cycles
 LOG_FLUSH_CYCLES = 25
+#: numpy stream of the frame-loss draws, apart from the truth's streams (sim_bridge/truth.py)
+FRAME_LOSS_STREAM = 101
 #: after an overrun the next cycle still leaves the host at least this long to answer [s]
 MIN_ANSWER_WINDOW_S = 0.5e-3
 
@@ -123,6 +125,10 @@ class VirtualCell:
         self.stop_event = threading.Event()
         self.estop_open = False  #: scripted e-stop (tests)
         self.bus_off = False  #: scripted bus-off of the host's interface (tests)
+        #: [endpoints] can_frame_loss: each frame lost on its own, from the seed's own stream
+        self.frame_loss = cfg.endpoints.can_frame_loss
+        self._loss_rng = np.random.default_rng([cfg.plant_seed, FRAME_LOSS_STREAM])
+        self.frames_lost = {"to_host": 0, "from_host": 0}
         self.latencies_s: list[float] = []
         self.teaching_cycles = 0
         self.teaching_missed = 0
@@ -211,9 +217,23 @@ class VirtualCell:
         bus = self.can
         return isinstance(bus, SeqpacketHubBus) and not bus.forwards
 
+    def _lost(self, way: str) -> bool:
+        """Whether the segment loses this frame ([endpoints] can_frame_loss); counts it."""
+        if self.frame_loss and self._loss_rng.random() < self.frame_loss:
+            self.frames_lost[way] += 1
+            return True
+        return False
+
+    def _send(self, msg: can.Message) -> None:
+        assert self.can is not None
+        if not self._lost("to_host"):
+            self.can.send(msg)
+
     def _on_frame(self, msg: can.Message) -> None:
         if self.bus_off:
             return  # the host's controller is off the bus: nothing it sends arrives
+        if self._lost("from_host"):
+            return
         ctrl = self.ctrl
         ctrl.on_frame(msg, time.monotonic())
         if self._set_arrival_wall is None and ctrl.complete_for_cycle == ctrl.cycle:
@@ -274,7 +294,7 @@ class VirtualCell:
         frames = self.proto.feedback_frames(ctrl.status(), fb[:n], fb[n : 2 * n], fb[2 * n :])
         self._set_arrival_wall = None
         for msg in frames if not self.bus_off else ():
-            self.can.send(msg)
+            self._send(msg)
         # Wire-to-wire latency runs from the cycle's last feedback frame leaving.
         self._fb_sent_wall = time.time()  # the clock of the frames' arrival stamps
         if self._log:
@@ -309,7 +329,7 @@ class VirtualCell:
     def _heartbeat(self, now_s: float) -> None:
         assert self.can is not None
         if now_s >= self._next_heartbeat_s and not self.bus_off:
-            self.can.send(self.proto.encode_heartbeat("CTRL", 5))
+            self._send(self.proto.encode_heartbeat("CTRL", 5))
             self._next_heartbeat_s = now_s + HEARTBEAT_PERIOD_S
 
     def run(self, duration_s: float | None = None) -> None:
@@ -404,6 +424,8 @@ class VirtualCell:
             "wake_late_p99_s": pct(99, late),
             "wake_late_max_s": pct(100, late),
             "plant_seed": self.cfg.plant_seed,
+            "can_frame_loss": self.frame_loss,
+            "can_frames_lost": dict(self.frames_lost),
             "can_endpoint": describe_can_endpoint(self.cfg.endpoints, self._can_fd),
             "scheduling": self.scheduling,
         }

@@ -574,13 +574,13 @@ class HostCore:
         if self.standstill.trip is not None:
             return HostRequest.BRAKE  # the drives do not hold the arm: nothing else is left
         if self.speed is not None and self.speed.trip is not None:
-            # A hand that outran the limit would fight a rigid hold until the controller's
-            # following-error fault cut the power, and the arm moved free for the brakes'
-            # engagement time (a 200 N push: 577 mm/s). The brakes at once instead.
+            # A hand that outran the limit fights a rigid hold until the controller faults on
+            # its following error and cuts the power: the arm is then free for the brakes'
+            # engagement time. The brakes at once instead.
             return HostRequest.BRAKE
         if self.bus.fault is not None:
             return HostRequest.BRAKE  # stopped until the operator re-arms (bus_errors.py)
-        if lc.state == Lifecycle.STOPPED and self._ramp is not None:
+        if lc.state == Lifecycle.STOPPED and (self._ramp is not None or self._ramp_due(now)):
             return HostRequest.SERVO_ON  # stop category 1: the brakes once the ramp has ended
         if lc.state in (Lifecycle.READY, *COMMANDING):
             if not self.current_zero.ready:
@@ -707,6 +707,18 @@ class HostCore:
         return lc.state in (Lifecycle.READY, Lifecycle.STOPPED) or (
             lc.state in COMMANDING and (not io.enabling or self.lost.trip is not None)
         )
+
+    def _ramp_due(self, now: float) -> bool:
+        """A controlled stop is about to begin: the arm was commanded moving a moment ago and
+        the stop is an ordinary one, so the next cycle starts a ramp (:meth:`_ramp_for`). The
+        servo request is decided between cycles too: without this, the operator's stop
+        arriving between two cycles asked for the brakes before the ramp could begin (the
+        fault campaign's ``operator_stop``: 135 mm/s to rest in 32 ms, not a ramp)."""
+        last, pending = self._last_forward, self.pending
+        if self._holding or last is None or pending is None or not np.any(last[3]):
+            return False
+        age = pending.cycle + 1 - last[1]  # at the cycle the ramp would begin
+        return age <= RAMP_MAX_AGE_CYCLES and self._controlled_stop(now)
 
     def _ramp_for(self, pending: Cycle, now: float) -> StopRamp | None:
         """The controlled stop ``pending`` belongs to: the one under way, or a new one from

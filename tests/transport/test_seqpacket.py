@@ -591,6 +591,46 @@ def test_the_virtual_controller_serves_its_segment_where_its_config_says(
     assert "cpu_affinity" in caplog.text
 
 
+def test_a_lossy_segment_loses_frames_at_its_rate_and_counts_them(address, port, buses):
+    """[endpoints] can_frame_loss (the soak benchmark's noisy segment): each frame is lost on
+    its own; 30 % of 100 cycles' status frames, within what chance allows."""
+    cfg = load_sim_config(
+        None,
+        {
+            "controller": {"cycle_period_s": 0.002},
+            "endpoints": {"can_channel": address, "modbus_port": port, "can_frame_loss": 0.3},
+        },
+    )
+    cell = VirtualCell(cfg)
+    cell.open()
+    got: list[can.Message] = []
+
+    def read_until_closed(host: can.BusABC) -> None:
+        with contextlib.suppress(can.CanOperationError):
+            while (m := host.recv(SLOW_S)) is not None:
+                got.append(m)
+
+    reader: threading.Thread | None = None
+    try:
+        host = can.Bus(interface="seqpacket", channel=address, connect_timeout_s=1.0)
+        buses.append(host)
+        reader = threading.Thread(target=read_until_closed, args=(host,))
+        reader.start()
+        cell.run(duration_s=0.2)  # 100 cycles
+    finally:
+        cell.close()
+        if reader is not None:
+            reader.join()
+    summary = cell.summary()
+    status = sum(m.arbitration_id == cell.proto.status_id for m in got)
+    sent = summary["cycles"]
+    assert 0.55 * sent <= status <= 0.85 * sent, (status, sent)
+    lost = summary["can_frames_lost"]["to_host"]  # every frame the cell sent: lost or got
+    assert 0.25 < lost / (lost + len(got)) < 0.35, (lost, len(got))
+    with pytest.raises(ConfigError, match="can_frame_loss"):
+        load_sim_config(None, {"endpoints": {"can_frame_loss": 0.7}})
+
+
 def test_the_virtual_controller_can_serve_socketcand_for_a_remote_host(port):
     cfg = load_sim_config(None, {"endpoints": {"can_interface": "socketcand", "can_port": 0}})
     bus = open_can_endpoint(cfg.endpoints)

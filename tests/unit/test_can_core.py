@@ -319,6 +319,25 @@ def test_the_operators_stop_keeps_the_servo_on_through_the_ramp_then_brakes():
     assert cell.core.desired_request(cell.t) == HostRequest.BRAKE
 
 
+def test_the_operators_stop_between_two_cycles_waits_for_the_ramp_not_the_brakes():
+    """The stop arrives, and the driver decides its servo request, before the next cycle
+    starts the ramp: the servo stays on (it asked for the brakes at once, and the arm
+    stopped hard, until the fault campaign caught it)."""
+    cell = Cell(stop_deceleration_rad_s2=2.0, hand_guiding_max_speed_m_s=0.0)
+    q = moving(cell, 0.2)
+    cell.t += 0.001
+    cell.gateway(Lifecycle.STOPPED)
+    requests = [f for f in cell.tick() if isinstance(f, HostRequestFrame)]
+    assert all(f.request == HostRequest.SERVO_ON for f in requests), requests
+    assert cell.core.desired_request(cell.t) == HostRequest.SERVO_ON
+    follow(cell, Lifecycle.STOPPED, 1, q)
+    assert cell.core.pending.answer == RAMP
+    cell.t += 1.0  # long after: a stop that never ramped would not keep the servo on
+    cell.gateway(Lifecycle.STOPPED)
+    follow(cell, Lifecycle.STOPPED, 40, q)
+    assert cell.core.desired_request(cell.t) == HostRequest.BRAKE
+
+
 def test_a_hold_the_drives_do_not_keep_trips_the_standstill_monitor_and_the_brakes():
     cell = Cell(standstill_settle_s=0.1, standstill_band_rad=0.02, standstill_confirm_cycles=3)
     cell.gateway(Lifecycle.READY)
