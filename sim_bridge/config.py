@@ -324,6 +324,9 @@ class OperatorScript:
     max_force_n: float = 60.0
     #: after onset: the hand lets go of the tool (the enabling device stays held; None: never)
     hand_off_after_s: float | None = None
+    #: after onset: (start, end) windows in which the hand lets go and takes hold again (the
+    #: soak benchmark's rests, sim_bridge/soak.py)
+    hand_off_windows_s: tuple[tuple[float, float], ...] = ()
     #: after onset: times the teach handle's mark button is pressed, for ``mark_press_s`` each
     mark_at_s: tuple[float, ...] = ()
     mark_press_s: float = 0.2

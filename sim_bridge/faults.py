@@ -73,11 +73,11 @@ ORPHANS_S = 5.0
 #: the teaching lead-in before a scripted fault (sim time after the onset of teaching) [s]
 SCRIPTED_AFTER_S = 2.5
 
-#: The hand: a spring-damper towards a target moving along +x at 0.15 m/s from 0.5 s on,
+#: The hand: a spring-damper towards a target moving along +x at 0.15 m/s from 0.5 s to 6.5 s,
 #: 80 N at most (enough to break J2 and J3 away from their stiction), pulling after the fault.
 DRAG = {
     "mode": "path",
-    "path": [[0.0, 0, 0, 0], [0.5, 0, 0, 0], [4.5, 0.6, 0, 0]],
+    "path": [[0.0, 0, 0, 0], [0.5, 0, 0, 0], [6.5, 0.9, 0, 0]],
     "hand_stiffness_n_per_m": 1500.0,
     "hand_damping_n_s_per_m": 100.0,
     "max_force_n": 80.0,

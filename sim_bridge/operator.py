@@ -86,6 +86,9 @@ class Operator:
             return np.zeros(3)
         if self.s.hand_off_after_s is not None and t - self.onset_s >= self.s.hand_off_after_s:
             return np.zeros(3)
+        tau = t - self.onset_s
+        if any(a <= tau < b for a, b in self.s.hand_off_windows_s):
+            return np.zeros(3)
         if self.s.mode == "force":
             return self.force_n(t, None, None)
         return self.force_n(t, plant.tool_position_m(), plant.tool_velocity_m_s())

@@ -688,7 +688,8 @@ class HostCore:
         """Forwarding is blocked by an ordinary stop, the drives to stay powered through it:
         the enabling device released, or the lifecycle gone to READY or STOPPED, with the
         lifecycle and I/O fresh, the e-stop chain closed, the controller servoing and no
-        monitor tripped. Anything else is a fault, held at once."""
+        monitor tripped; or the lost-cycle rule tripped (lost_cycles.py: only the command
+        source failed). Anything else is a fault, held at once."""
         lc, io, fb = self._lifecycle, self._io, self.feedback
         cfg = self.config
         if lc is None or io is None or fb is None:
