@@ -242,11 +242,9 @@ def run_fault(
             if cleanup is not None:
                 cleanup()
         if fault.state is None:  # the gateway is gone: its orphans must stop on their own
-            deadline = time.monotonic() + ORPHANS_S
-            while stack.product_pids() and time.monotonic() < deadline:
-                time.sleep(0.05)
-            if stack.product_pids():
-                raise RuntimeError(f"the killed gateway's children ran on: {stack.product_pids()}")
+            left = stack.wait_gone(stack.product_pids(), ORPHANS_S)
+            if left:
+                raise RuntimeError(f"the killed gateway's children ran on (killed now): {left}")
     onset = int(np.argmax(truth["teaching"] > 0.5))
     if t_inject is None:
         k = int(np.searchsorted(truth["t_s"], truth["t_s"][onset] + SCRIPTED_AFTER_S))

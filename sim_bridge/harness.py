@@ -279,7 +279,7 @@ class Stack:
         any is still running after ``timeout_s``."""
         if self.gateway is not None and self.gateway.poll() is None:
             raise RuntimeError("the gateway is still running")
-        left = self._wait_gone(self.product_pids(), timeout_s)
+        left = self.wait_gone(self.product_pids(), timeout_s)
         if left:
             raise RuntimeError(
                 f"the killed gateway's children were still running {timeout_s} s later "
@@ -304,7 +304,7 @@ class Stack:
                 found[int(entry.name)] = argv.replace(b"\0", b" ").decode(errors="replace")
         return found
 
-    def _wait_gone(self, pids: dict[int, str], timeout_s: float) -> dict[int, str]:
+    def wait_gone(self, pids: dict[int, str], timeout_s: float) -> dict[int, str]:
         """Wait up to ``timeout_s`` for ``pids`` to exit; SIGKILL and return those that did
         not."""
         deadline = time.monotonic() + timeout_s
@@ -387,7 +387,7 @@ class Stack:
                 killed.append(f"{name} (pid {proc.pid}) ignored SIGTERM for 10 s")
         # The gateway's children live in their own sessions, and an orphan of a killed
         # gateway is nobody's child: find them by their config.
-        stragglers = self._wait_gone(self.product_pids(), STOP_GRACE_S)
+        stragglers = self.wait_gone(self.product_pids(), STOP_GRACE_S)
         killed += [f"pid {pid} still running: {cmd}" for pid, cmd in stragglers.items()]
         for f in self._logs:
             f.close()
