@@ -125,6 +125,11 @@ class CanDriverConfig:
     lost_cycles_max_consecutive: int = 50
     lost_cycles_max_per_window: int = 100
     lost_cycles_window_s: float = 2.0
+    #: A cycle in which a joint's measured position moved faster than this from the last
+    #: cycle taken is dropped as implausible (plausibility.py): a broken node or a glitched
+    #: encoder, not the arm. Above every joint's top speed (a painting robot's wrist: about
+    #: 7 rad/s); 0 turns the check off.
+    feedback_max_joint_speed_rad_s: float = 10.0
 
     def __post_init__(self) -> None:
         where = "[can]"
@@ -170,6 +175,12 @@ class CanDriverConfig:
                 f"{where}.{name}",
                 f"{value!r} {unit} outside ({lo}, {hi}]",
             )
+        speed = self.feedback_max_joint_speed_rad_s
+        require(
+            isinstance(speed, int | float) and math.isfinite(speed) and 0.0 <= speed <= 1000.0,
+            f"{where}.feedback_max_joint_speed_rad_s",
+            f"{speed!r} rad/s outside 0..1000 (0 turns the check off)",
+        )
         require_count(
             self.standstill_confirm_cycles, f"{where}.standstill_confirm_cycles", 1000, "cycles"
         )

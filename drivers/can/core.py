@@ -56,6 +56,7 @@ from drivers.can.bus_errors import BusErrors
 from drivers.can.config import CanDriverConfig
 from drivers.can.current_zero import CurrentZero
 from drivers.can.lost_cycles import HOLD_ANSWER, LostCycles
+from drivers.can.plausibility import FeedbackPlausibility
 from drivers.can.speed_monitor import Points, SpeedMonitor, datasheet_points
 from drivers.can.stop_ramp import StandstillMonitor, StopRamp
 from gateway.errors import ConfigError, FrameError, MessageError
@@ -293,6 +294,8 @@ class HostCore:
             self.speed = SpeedMonitor(
                 speed_points or datasheet_points(desc), config.hand_guiding_max_speed_m_s
             )
+        #: measured positions that jump further than the arm can move (plausibility.py)
+        self.plausibility = FeedbackPlausibility(config.feedback_max_joint_speed_rad_s)
         self.window = StateWindowBuilder(config.state_window_s)
         # counters (monotonic, reported in health)
         self.rejected = dict.fromkeys(REJECT_REASONS, 0)
@@ -415,6 +418,10 @@ class HostCore:
         cycle = self._widen(fb.counter)
         if cycle is None:
             self._note(logging.WARNING, "dup", f"controller repeated cycle {fb.counter}")
+            return FrameResult(None, [])
+        implausible = self.plausibility.check(cycle, fb.q_rad, fb.cycle_period_s)
+        if implausible is not None:
+            self._note(logging.ERROR, "implausible", f"CAN: cycle dropped, {implausible}")
             return FrameResult(None, [])
         previous = self.pending
         if previous is not None and not previous.answered:
@@ -891,6 +898,7 @@ class HostCore:
             "unanswered": self.unanswered,
             "rejected": dict(self.rejected),
             "bad_frames": stats.bad_frames,
+            "implausible_cycles": self.plausibility.dropped,
             "incomplete_cycles": stats.incomplete_cycles,
             "corrupt_cycles": stats.corrupt_cycles,
             "bad_inputs": self.bad_inputs,

@@ -352,9 +352,11 @@ class CanDriver:
             self._periodic(now)
             return
         # A cycle's frames arrive back to back: take every one already queued (one wake-up,
-        # one deadline check per burst rather than per frame).
-        for _ in range(self.MAX_BURST):
+        # one deadline check per burst rather than per frame), at most MAX_BURST of them.
+        for taken in range(1, self.MAX_BURST + 1):
             self._on_frame(msg, now)
+            if taken == self.MAX_BURST:
+                break  # the rest wait in the socket for the next spin, none received and lost
             try:
                 msg = bus.recv(timeout=0.0)
             except can.CanError:

@@ -13,6 +13,7 @@ Imported by ``test_can_*.py`` (the shared tests/conftest.py belongs to the whole
 
 from __future__ import annotations
 
+import collections
 import socket
 import threading
 import time
@@ -45,6 +46,8 @@ from gateway.messages import (
 from sim_bridge.can_endpoint import SocketcandServerBus
 
 WAIT_S = 5.0
+#: injected frames sent per turn of the controller's loop
+INJECT_BATCH = 200
 
 
 def free_port() -> int:
@@ -119,6 +122,14 @@ class FakeController:
         self.late_frames = 0
         self.events: list[tuple[str, Any]] = []  #: ("request", frame) / ("set", CommandSet)
         self._pending: dict[int, tuple[JointCommandFrame, can.Message]] = {}
+        #: frames another node puts on the bus, sent by this thread between its own (a server
+        #: bus is serviced by one thread)
+        self._inject: collections.deque[can.Message] = collections.deque()
+        #: ... and frames sent inside a cycle, after its JOINT_FB frames, before its CTRL_STATUS
+        self._inject_in_cycle: collections.deque[can.Message] = collections.deque()
+        self._per_cycle = 0
+        #: cycle counter → frames a forger sends there (settable by tests)
+        self.forge: Callable[[int], list[can.Message]] | None = None
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="fake-controller", daemon=True)
 
@@ -140,6 +151,16 @@ class FakeController:
         with self.lock:
             return [f.request for _, f in self.requests]
 
+    def inject(self, frames: list[can.Message], per_cycle: int = 0) -> None:
+        """Put ``frames`` on the bus (a rogue or broken node): as fast as the bus takes them,
+        between this controller's cycles, or ``per_cycle`` of them inside each cycle, between
+        its JOINT_FB frames and its CTRL_STATUS, where they can replace a joint's feedback."""
+        (self._inject_in_cycle if per_cycle else self._inject).extend(frames)
+        self._per_cycle = per_cycle
+
+    def injecting(self) -> int:
+        return len(self._inject) + len(self._inject_in_cycle)
+
     def event_log(self) -> list[tuple[str, Any]]:
         with self.lock:
             return list(self.events)
@@ -151,7 +172,9 @@ class FakeController:
             self._send_cycle()
             next_s += self.period_s
             while (left := next_s - time.monotonic()) > 0 and not self._stop.is_set():
-                msg = self.server.recv(timeout=min(left, 0.05))
+                for _ in range(min(INJECT_BATCH, len(self._inject))):
+                    self.server.send(self._inject.popleft())
+                msg = self.server.recv(timeout=0.0 if self._inject else min(left, 0.05))
                 if msg is not None:
                     self._on_frame(msg)
 
@@ -181,6 +204,11 @@ class FakeController:
                     arbitration_id=msg.arbitration_id, is_extended_id=False, data=msg.data[:7]
                 )
             self.server.send(msg)
+        for _ in range(min(self._per_cycle, len(self._inject_in_cycle))):
+            self.server.send(self._inject_in_cycle.popleft())
+        if self.forge is not None:
+            for msg in self.forge(c):
+                self.server.send(msg)
         status_frame = self.proto.encode_status(status)
         with self.lock:  # recorded first: the host may react before send() returns
             self.sent[c] = SentCycle(c, q, dq, cur, status.state, time.monotonic())

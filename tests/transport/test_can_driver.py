@@ -20,15 +20,23 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import can
 import numpy as np
 import pytest
 from conftest_can import ControlStub, FakeController, GatewayStub, free_port, wait_for
 
 from drivers.can.config import CanDriverConfig
 from drivers.can.driver import CanDriver, cli_main, configure_parser, run
-from drivers.can.ltc import FaultCode, HostRequest, crc8_sae_j1850
+from drivers.can.ltc import (
+    ControllerStatus,
+    FaultCode,
+    HostRequest,
+    JointFeedback,
+    LtcProtocol,
+    crc8_sae_j1850,
+)
 from gateway.bus import BusConfig, open_client, open_router
-from gateway.errors import EXIT_CONFIG, LinkTimeoutError
+from gateway.errors import EXIT_CONFIG, FrameError, LinkTimeoutError
 from gateway.messages import (
     FLAG_ESTOP,
     FLAG_PREV_HOLD,
@@ -39,6 +47,8 @@ from gateway.messages import (
     Lifecycle,
 )
 from sim_bridge.can_endpoint import SocketcandServerBus
+from sim_bridge.can_hub import SeqpacketHubBus
+from sim_bridge.harness import unique_can_address
 
 REPO = Path(__file__).resolve().parents[2]
 PERIOD_S = 0.02
@@ -101,10 +111,16 @@ def make_cell(router: str) -> Iterator[Callable[..., Cell]]:
     def make(
         first_counter: int = 0,
         setup: Callable[[FakeController], None] | None = None,
+        seqpacket: bool = False,
         **overrides: Any,
     ) -> Cell:
         bus = BusConfig(endpoint=router, key_prefix=f"t{uuid.uuid4().hex[:8]}")
-        server = SocketcandServerBus(port=0)
+        if seqpacket:  # lossless at any rate (python-can's socketcand client is not)
+            address = unique_can_address()
+            server = SeqpacketHubBus(address, max_backlog_frames=1_000_000)
+            overrides["transport"] = {"interface": "seqpacket", "channel": address}
+        else:
+            server = SocketcandServerBus(port=0)
         cleanups.append(server.shutdown)
         controller = FakeController(server, N, PERIOD_S, first_counter)
         if setup is not None:
@@ -116,7 +132,7 @@ def make_cell(router: str) -> Iterator[Callable[..., Cell]]:
         cleanups.append(control.close)
         gateway = GatewayStub(session, bus.keys).start()
         cleanups.append(gateway.stop)
-        config = driver_config(server.port, **overrides)
+        config = driver_config(getattr(server, "port", 0), **overrides)
         driver = CanDriver(config, bus)
         cleanups.append(driver.close)
         driver.start()
@@ -474,3 +490,180 @@ def test_no_socketcand_server_is_one_clear_link_error(router):
     with pytest.raises(LinkTimeoutError, match=r"no socketcand server at 127\.0\.0\.1"):
         driver.start()
     driver.close()
+
+
+# --- fuzz -------------------------------------------------------------------------------------
+FUZZ_FRAMES = 100_000
+
+
+@dataclass
+class Fuzz:
+    frames: list[can.Message]
+    bad: int  #: how many of them LTC-1 refuses to decode
+    unknown: int  #: on ids LTC-1 does not define
+    forged: list[can.Message]  #: drawn as a valid JOINT_FB or CTRL_STATUS, and drawn again
+
+
+def random_frames(rng: np.random.Generator, n: int, proto: LtcProtocol) -> Fuzz:
+    """``n`` random data frames, half of them on LTC-1's own ids (every length 0..8, any bytes,
+    now and then an extended id), the other half on any 11-bit id. (No remote frames: the
+    socketcand raw mode of this rig carries data frames only.)
+
+    A random frame that decodes as a valid JOINT_FB or CTRL_STATUS is drawn again, and counted.
+    The controller's frames carry no CRC of their own (PROTOCOL.md §4: classic CAN's frame CRC
+    guards the wire), so about one random 8-byte JOINT_FB in nine decodes: such a frame is not
+    malformed but forged, indistinguishable from the controller's on any receiver, and the
+    driver's defences against it are the cycle counter it must match and the plausibility of
+    the positions (the next two tests). Every other frame is classified here as the driver
+    must count it.
+    """
+    ours = sorted(
+        {
+            *proto.cycle_frame_ids,
+            proto.request_id,
+            proto.heartbeat_id("CTRL"),
+            proto.heartbeat_id("HOST"),
+            *(proto.command_id(j + 1) for j in range(N)),
+        }
+    )
+    fuzz = Fuzz([], 0, 0, [])
+    while len(fuzz.frames) < n:
+        ident = int(rng.choice(ours)) if rng.random() < 0.5 else int(rng.integers(0, 0x800))
+        dlc = int(rng.integers(0, 9))
+        msg = can.Message(
+            arbitration_id=ident,
+            is_extended_id=bool(rng.random() < 0.02),
+            dlc=dlc,
+            data=rng.bytes(dlc),
+        )
+        try:
+            valid = proto.decode(msg)
+        except FrameError:
+            fuzz.bad += 1
+        else:
+            if isinstance(valid, JointFeedback | ControllerStatus):
+                fuzz.forged.append(msg)
+                continue
+            fuzz.unknown += valid is None
+        fuzz.frames.append(msg)
+    return fuzz
+
+
+def test_100k_random_frames_never_reach_a_measurement_or_a_command(make_cell):
+    """Issue 10's fuzz: 100,000 random frames thrown at a teaching driver, as fast as the
+    transport takes them, interleaved with the controller's real cycles. Every frame is
+    counted as bad or unknown; no fuzzed value reaches a published measurement or a command;
+    whatever the lost cycles made the driver do, it answered every cycle it published with a
+    hold or with a command within the follower's reach of the controller's true position; and
+    the driver is alive and commands again once the operator re-arms."""
+    cell = make_cell(seqpacket=True)
+    cell.teach(follow())
+    wait_for(lambda: cell.driver.forwarded >= 5, what="teaching")
+    stats = cell.driver.core.adapter.stats
+    before = stats.as_dict()
+    fuzz = random_frames(np.random.default_rng(10), FUZZ_FRAMES, LtcProtocol(N))
+    assert len(fuzz.forged) < FUZZ_FRAMES // 20
+    t0 = time.monotonic()
+    cell.controller.inject(fuzz.frames)
+    wait_for(lambda: not cell.controller.injecting(), timeout_s=60.0, what="the fuzz sent")
+    sent_s = time.monotonic() - t0
+    wait_for(
+        lambda: (
+            stats.unknown_frames - before["unknown_frames"] >= fuzz.unknown
+            and stats.bad_frames - before["bad_frames"] >= fuzz.bad
+        ),
+        timeout_s=60.0,
+        what=f"the driver to take {FUZZ_FRAMES} frames (now {stats})",
+    )
+    print(f"\n{FUZZ_FRAMES} frames sent in {sent_s:.1f} s; driver stats {stats.as_dict()}")
+    assert cell.driver.running, f"the driver died: {cell.driver.failed!r}"
+    # every fuzz frame counted as the protocol classifies it, none taken for another kind
+    assert stats.unknown_frames - before["unknown_frames"] == fuzz.unknown
+    assert stats.bad_frames - before["bad_frames"] == fuzz.bad
+    assert stats.corrupt_cycles > before["corrupt_cycles"]
+    for s in cell.control.joint_states():
+        sent = cell.controller.sent[s.cycle & 0xFFFF]
+        np.testing.assert_allclose(s.q_rad, sent.q_rad, atol=0.5e-6)
+        np.testing.assert_allclose(s.dq_rad_s, sent.dq_rad_s, atol=0.5e-4)
+    for cset in cell.controller.command_sets(hold=False):
+        truth = cell.controller.sent[cset.cycle_counter].q_rad
+        assert np.all(np.abs(cset.q_cmd_rad - truth) <= 0.01 + 1e-5), "a command left reach"
+    assert cell.controller.bad_frames == [], "the driver itself sent malformed frames"
+    # the operator re-arms: teaching commands again
+    cell.gateway.set(Lifecycle.STOPPED)
+    wait_for(lambda: cell.controller.state == ControllerState.BRAKED, what="braked")
+    forwarded = cell.driver.forwarded
+    cell.teach(follow())
+    wait_for(lambda: cell.driver.forwarded >= forwarded + 5, what="teaching after the fuzz")
+
+
+def test_random_frames_that_decode_as_feedback_never_move_the_arm(make_cell):
+    """The frames the fuzz above draws again: random JOINT_FB and CTRL_STATUS frames that
+    decode (LTC-1's feedback carries no CRC of its own), a broken node speaking the
+    controller's ids. Most miss the cycle counter and drop their cycle; one whose counter byte
+    matches by chance (1 in 256) is a forged measurement, and the driver must not let it move
+    the arm: every command set the controller accepts stays within the follower's reach of
+    the controller's true position."""
+    cell = make_cell(seqpacket=True)
+    cell.teach(follow())
+    wait_for(lambda: cell.driver.forwarded >= 5, what="teaching")
+    forged = random_frames(np.random.default_rng(11), 2 * FUZZ_FRAMES, LtcProtocol(N)).forged
+    assert len(forged) > 2000
+    stats = cell.driver.core.adapter.stats
+    before = stats.as_dict()
+    cell.controller.inject(forged, per_cycle=10)
+    wait_for(lambda: not cell.controller.injecting(), timeout_s=30.0, what="the forged frames sent")
+    time.sleep(5 * PERIOD_S)
+    dropped = sum(stats.as_dict()[k] - before[k] for k in ("incomplete_cycles", "corrupt_cycles"))
+    print(f"\n{len(forged)} forged frames; driver stats {stats.as_dict()}")
+    for st in cell.control.joint_states():
+        sent = cell.controller.sent[st.cycle & 0xFFFF]
+        np.testing.assert_allclose(st.q_rad, sent.q_rad, atol=0.5e-6)
+    assert dropped > 0
+    assert cell.driver.running, f"the driver died: {cell.driver.failed!r}"
+    for cset in cell.controller.command_sets(hold=False):
+        truth = cell.controller.sent[cset.cycle_counter].q_rad
+        assert np.all(np.abs(cset.q_cmd_rad - truth) <= 0.01 + 1e-5), (
+            f"cycle {cset.cycle_counter}: command {cset.q_cmd_rad} for true position {truth}"
+        )
+
+
+def test_a_forged_measurement_with_the_right_counter_never_moves_the_arm(make_cell):
+    """A node that knows LTC-1 (or a controller whose encoder glitched): now and then one
+    joint's JOINT_FB with the right counter and a position that jumps. Measured positions are
+    then wrong for a cycle, and a follower would command them: the driver drops each such
+    cycle as implausible (a joint faster than feedback_max_joint_speed_rad_s, here 2 rad/s:
+    0.04 rad in a 20 ms cycle), and the arm never follows."""
+    cell = make_cell(seqpacket=True, feedback_max_joint_speed_rad_s=2.0)
+    cell.teach(follow())
+    wait_for(lambda: cell.driver.forwarded >= 5, what="teaching")
+    rng = np.random.default_rng(12)
+    proto = LtcProtocol(N)
+    forged_at: list[int] = []
+
+    def forge(counter: int) -> list[can.Message]:
+        if counter % 7:
+            return []
+        joint = int(rng.integers(1, N + 1))
+        q = float(cell.controller.q_rad[joint - 1] + rng.choice([-1, 1]) * rng.uniform(0.05, 2.0))
+        forged_at.append(counter)
+        return [proto.encode_feedback(joint, q, 0.0, 0.0, counter & 0xFF)]
+
+    cell.controller.forge = forge
+    wait_for(lambda: len(forged_at) >= 30, timeout_s=30.0, what="30 forged cycles")
+    cell.controller.forge = None
+    time.sleep(5 * PERIOD_S)
+    states = cell.control.joint_states()
+    n_forged = sum(
+        not np.allclose(st.q_rad, cell.controller.sent[st.cycle & 0xFFFF].q_rad, atol=0.5e-6)
+        for st in states
+    )
+    health = cell.driver.core.health(time.monotonic())
+    assert n_forged == 0, f"{n_forged} of {len(forged_at)} forged positions were published"
+    assert health["implausible_cycles"] == len(forged_at)
+    assert cell.driver.forwarded > 100, "the true cycles between the forged ones were taken"
+    for cset in cell.controller.command_sets(hold=False):
+        truth = cell.controller.sent[cset.cycle_counter].q_rad
+        assert np.all(np.abs(cset.q_cmd_rad - truth) <= 0.01 + 1e-5), (
+            f"cycle {cset.cycle_counter}: command {cset.q_cmd_rad} for true position {truth}"
+        )
