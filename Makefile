@@ -28,6 +28,8 @@ bench: $(STAMP)
 
 faults: $(STAMP)
 	$(BIN)/python -m sim_bridge.faults --out faults_out
+	LEADTHROUGH_FUZZ_REPLIES=100000 $(BIN)/pytest -q -p no:cacheprovider -s \
+		tests/transport/test_modbus_fuzz.py
 
 soak: $(STAMP)
 	$(BIN)/python -m sim_bridge.soak --minutes 10 --rate-hz 250 --frame-loss 0.01 --out soak_out

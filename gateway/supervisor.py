@@ -211,6 +211,9 @@ class GatewayConfig:
     standstill_rad_s: float = 2e-3  #: teaching starts only below this joint speed [rad/s]
     standstill_s: float = 0.3  #: ... held for this long [s]
     health_timeout_s: float = 0.5  #: a child whose heartbeat is older is "silent"
+    #: the enabling device counts as held once this many I/O states in a row read it held
+    #: (a release counts at once): one corrupt or forged Modbus reply does not start teaching
+    enabling_confirm_polls: int = 2
     restart_backoff_s: float = 2.0
     processes: tuple[str, ...] = SUPERVISED
     #: where taught programs are written (relative: to the cell config's folder)
@@ -219,6 +222,12 @@ class GatewayConfig:
     def __post_init__(self) -> None:
         for p in self.processes:
             require(p in SUPERVISED, "[gateway].processes", f"{p!r} not one of {SUPERVISED}")
+        n = self.enabling_confirm_polls
+        require(
+            isinstance(n, int) and not isinstance(n, bool) and 1 <= n <= 50,
+            "[gateway].enabling_confirm_polls",
+            f"{n!r} outside 1..50 I/O states",
+        )
 
 
 @dataclass
@@ -255,6 +264,8 @@ class Gateway:
         self._requests = None  #: operator requests, in a channel the tick serves
         self.io: IoState | None = None
         self.io_rx_s: float | None = None
+        #: I/O states in a row that read the enabling device held (0: the newest read released)
+        self.enabling_polls = 0
         self.health_rx_s: dict[str, float] = {}
         #: the control process's static-load check (control/load_check.py) as last reported
         self.load_check: dict | None = None
@@ -349,6 +360,7 @@ class Gateway:
             if io.mark and not self._mark_button:
                 self._handle_marks += 1  # recorded by the next tick (an fsync is no callback work)
             self._mark_button = io.mark
+            self.enabling_polls = self.enabling_polls + 1 if io.enabling else 0
             self.io, self.io_rx_s = io, time.monotonic()
 
     def _on_health(self, sample) -> None:
@@ -396,7 +408,8 @@ class Gateway:
             joint_state_age_s=None if w.rx_s is None else now - w.rx_s,
             io_age_s=None if self.io_rx_s is None else now - self.io_rx_s,
             controller_state=w.controller_state,
-            enabling=bool(io and io.enabling),
+            enabling=bool(io and io.enabling)
+            and self.enabling_polls >= self.cfg.enabling_confirm_polls,
             estop_ok=bool(io.estop_ok) if io else True,
             dead_processes=dead,
             stale_processes=tuple(stale),

@@ -172,9 +172,13 @@ class ModbusLink:
         _check_range(what, address, count, MAX_READ_BITS)
         reply = self._call(what, function, address, count=count)
         bits = [bool(b) for b in reply.bits]
-        # Bits travel packed in whole bytes, so a correct reply may carry up to 7 padding bits.
-        if len(bits) < count:
-            raise ModbusReplyError(f"{self} {what}: reply holds only {len(bits)} bits {bits}")
+        # Bits travel packed in whole bytes: a correct reply holds exactly the bytes that take
+        # ``count`` bits (up to 7 padding bits); one byte more or less is another reply's.
+        if len(bits) != 8 * ((count + 7) // 8):
+            raise ModbusReplyError(
+                f"{self} {what}: reply holds {len(bits) // 8} bytes of bits {bits[:16]}"
+                f"{'...' if len(bits) > 16 else ''}, not the {(count + 7) // 8} that {count} take"
+            )
         return bits[:count]
 
     def _call(self, what: str, function: str, *args: object, **kwargs: object) -> ModbusPDU:
