@@ -40,6 +40,8 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "bench": ("sim_bridge.bench", "measure wire-to-wire loop latency on the virtual cell"),
     "identify": ("control.identify", "run identification experiments on the cell and fit"),
     "record": ("gateway.recorder", "record everything on the bus into an MCAP file"),
+    "export": ("gateway.export_cli", "export a recording's joint states as analyze's CSV"),
+    "config": ("gateway.config_check", "check a cell config: every section, every error"),
     "analyze": (
         "control.identification.cli",
         "identify the dynamic model from recorded files, validate, find missing effects",

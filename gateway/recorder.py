@@ -1,8 +1,12 @@
 """Record everything the zenoh bus carries into an MCAP file, and export it to CSV.
 
-MCAP layout: one channel per key expression (topic = the key), message encoding
-``leadthrough/<Type>`` for the binary layouts of gateway/messages.py and ``json`` for the JSON
-ones; log time = receive time on the recorder [ns, monotonic clock]. Zenoh callbacks only
+MCAP layout: one channel per key expression and message kind (topic = the key), every message
+JSON with a JSON Schema (gateway/mcap_json.py): Foxglove, PlotJuggler or any JSON reader opens
+and plots a recording without this project's code. Log time = receive time on the recorder,
+wall-clock [ns] (the recording's start in CLOCK_REALTIME, advanced by CLOCK_MONOTONIC, so it
+never steps); each message keeps the monotonic receive time as ``rx_monotonic_ns``. The readers
+here (:func:`iter_mcap`) hand back the bus's own payloads, and read the recordings of earlier
+versions (raw payloads, monotonic log times) as well. Zenoh callbacks only
 enqueue; a writer thread owns the file, so a slow disk never stalls the bus. The writer closes
 its chunk, flushes and fsyncs at least every :data:`FLUSH_PERIOD_S`, so a crash, a power cut or
 ``kill -9`` loses at most that much: :func:`iter_mcap` reads a cut file (no summary, a partial
@@ -32,10 +36,11 @@ from typing import Any
 
 import numpy as np
 from mcap.reader import make_reader
-from mcap.records import Channel, Message
+from mcap.records import Channel, Message, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
+from gateway import mcap_json
 from gateway.bus import BusConfig, bus_config_from, open_client, undeclare_all
 from gateway.bus_security import OBSERVER
 from gateway.config import load_toml
@@ -44,31 +49,16 @@ from gateway.messages import (
     FLAG_PREV_COAST,
     FLAG_PREV_HOLD,
     IoState,
-    JointCommand,
     JointState,
     Keys,
-    PressureSetpoint,
-    StateWindow,
 )
 from gateway.signals import StopSignals
 
 log = logging.getLogger("leadthrough.recorder")
 
-_BINARY = {
-    JointState.MAGIC: "JointState",
-    JointCommand.MAGIC: "JointCommand",
-    IoState.MAGIC: "IoState",
-    PressureSetpoint.MAGIC: "PressureSetpoint",
-    StateWindow.MAGIC: "StateWindow",
-}
 _STOP = object()
 #: the longest a received message waits in memory before it is on disk [s]
 FLUSH_PERIOD_S = 1.0
-
-
-def _encoding(payload: bytes) -> str:
-    kind = _BINARY.get(payload[:4])
-    return f"leadthrough/{kind}" if kind else "json"
 
 
 class BusRecorder:
@@ -86,22 +76,28 @@ class BusRecorder:
         self.error: BaseException | None = None
 
     def start(self) -> None:
-        self._thread.start()
+        """Subscribe, then start the writer (a bus that refuses us leaves no thread behind)."""
         self._session = open_client(self.bus, identity=OBSERVER)
         self._sub = self._session.declare_subscriber(f"{self.bus.key_prefix}/**", self._on_sample)
+        self._thread.start()
 
     def _on_sample(self, sample: Any) -> None:
         self._queue.put((str(sample.key_expr), time.monotonic_ns(), sample.payload.to_bytes()))
 
     def _write_loop(self) -> None:
         channels: dict[tuple[str, str], int] = {}
+        schemas: dict[str, int] = {}
+        #: wall-clock of the recording's start, advanced by the monotonic clock [ns]
+        wall0_ns, mono0_ns = time.time_ns(), time.monotonic_ns()
         try:
             with self.path.open("wb") as fh:
                 writer = Writer(fh, compression=CompressionType.LZ4)
                 writer.start(profile="", library="leadthrough")
-                if self.metadata:
-                    writer.add_metadata("leadthrough", self.metadata)
-                schema = writer.register_schema("leadthrough", "", b"")
+                writer.add_metadata(
+                    "leadthrough",
+                    {**self.metadata, "start_wall_ns": str(wall0_ns),
+                     "start_monotonic_ns": str(mono0_ns)},
+                )  # fmt: skip
                 due: float | None = None  #: when the oldest message not on disk must be
                 while True:
                     wait = None if due is None else max(due - time.monotonic(), 0.0)
@@ -112,13 +108,22 @@ class BusRecorder:
                     if item is _STOP:
                         break
                     if item is not None:
-                        key, t_ns, payload = item
-                        enc = _encoding(payload)
-                        ch = channels.get((key, enc))
+                        key, mono_ns, payload = item
+                        kind, data = mcap_json.to_record(payload, mono_ns)
+                        ch = channels.get((key, kind))
                         if ch is None:
-                            ch = writer.register_channel(key, enc, schema)
-                            channels[(key, enc)] = ch
-                        writer.add_message(ch, t_ns, payload, t_ns, self.count)
+                            if kind not in schemas:
+                                schemas[kind] = writer.register_schema(
+                                    mcap_json.PREFIX + kind,
+                                    mcap_json.SCHEMA_ENCODING,
+                                    mcap_json.schema_bytes(kind),
+                                )
+                            ch = writer.register_channel(
+                                key, mcap_json.MESSAGE_ENCODING, schemas[kind]
+                            )
+                            channels[(key, kind)] = ch
+                        t_ns = wall0_ns + (mono_ns - mono0_ns)
+                        writer.add_message(ch, t_ns, data, t_ns, self.count)
                         self.count += 1
                         if due is None:
                             due = time.monotonic() + FLUSH_PERIOD_S
@@ -172,9 +177,9 @@ def iter_mcap(path: Path, topics: list[str] | None = None) -> Iterator[tuple[str
                 yield from _iter_cut(fh, path, topics)
                 return
             if first is not None:
-                yield first[1].topic, first[2].log_time, first[2].data
-            for _schema, channel, message in messages:
-                yield channel.topic, message.log_time, message.data
+                yield first[1].topic, first[2].log_time, _payload(first[0], first[1], first[2])
+            for schema, channel, message in messages:
+                yield channel.topic, message.log_time, _payload(schema, channel, message)
     except FileNotFoundError:
         raise DataFileError(f"{path}: recording not found") from None
     except DataFileError:
@@ -183,20 +188,41 @@ def iter_mcap(path: Path, topics: list[str] | None = None) -> Iterator[tuple[str
         raise DataFileError(f"{path}: not a readable MCAP recording: {exc}") from exc
 
 
+def _payload(schema: Schema | None, channel: Channel, message: Message) -> bytes:
+    """The bus payload of a recorded message: decoded from its JSON (this version's
+    recordings), or as it was stored (earlier versions' raw payloads). A JSON message that
+    does not fit its schema comes back as its JSON text, which no bus decoder accepts (the
+    readers count it as malformed)."""
+    name = schema.name if schema is not None else ""
+    if channel.message_encoding != mcap_json.MESSAGE_ENCODING or not name.startswith(
+        mcap_json.PREFIX
+    ):
+        return message.data
+    try:
+        return mcap_json.to_payload(name.removeprefix(mcap_json.PREFIX), message.data)
+    except MessageError as exc:
+        log.warning("%s at %d: %s", channel.topic, message.log_time, exc)
+        return message.data
+
+
 def _iter_cut(fh: Any, path: Path, topics: list[str] | None) -> Iterator[tuple[str, int, bytes]]:
     """The complete messages of a cut recording, in log-time order."""
-    topic_of: dict[int, str] = {}
+    schema_of: dict[int, Schema] = {}
+    channel_of: dict[int, Channel] = {}
     out: list[tuple[int, int, str, bytes]] = []
     try:
         for record in StreamReader(fh, emit_chunks=False).records:
-            if isinstance(record, Channel):
-                topic_of[record.id] = record.topic
+            if isinstance(record, Schema):
+                schema_of[record.id] = record
+            elif isinstance(record, Channel):
+                channel_of[record.id] = record
             elif isinstance(record, Message):
-                topic = topic_of.get(record.channel_id)
-                if topic is not None and (topics is None or topic in topics):
-                    out.append((record.log_time, len(out), topic, record.data))
+                channel = channel_of.get(record.channel_id)
+                if channel is not None and (topics is None or channel.topic in topics):
+                    data = _payload(schema_of.get(channel.schema_id), channel, record)
+                    out.append((record.log_time, len(out), channel.topic, data))
     except Exception as exc:  # the cut: a partial record, or a chunk that was never closed
-        if not out and not topic_of:
+        if not out and not channel_of:
             raise DataFileError(f"{path}: not a readable MCAP recording: {exc}") from exc
     out.sort()
     for t_ns, _, topic, data in out:

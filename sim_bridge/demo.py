@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from gateway.recorder import BusRecorder
 from sim_bridge.baseline import run_baseline
 from sim_bridge.commission import commissioned
 from sim_bridge.config import load_sim_config
@@ -128,7 +129,7 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     p.description = (
         "Run the demo: virtual cell, drivers, control and gateway as separate processes; a "
         "simulated operator guides the tool along a rectangle. Prints a table, writes "
-        "OUT/demo.png and OUT/summary.json."
+        "OUT/demo.png, OUT/summary.json and OUT/recording.mcap (everything on the bus)."
     )
     p.add_argument("--out", type=Path, default=Path("demo_out"), help="output folder")
     p.add_argument(
@@ -206,18 +207,24 @@ def cli_main(args: argparse.Namespace) -> int:
         model=done.model, inner_loop=done.inner_loop, current_zero=done.current_zero,
     ) as stack:  # fmt: skip
         stack.start()
-        status = stack.start_teaching()
-        program = Path(status["program"]["path"])
-        print(f"teaching: the simulated operator guides the tool ({HAND_OFF_AFTER_S:.0f} s) and "
-              f"marks the corners; the gateway writes {program} ...")  # fmt: skip
-        # Wait cheaply (reading the growing truth log would take CPU from the product).
-        deadline = time.monotonic() + HAND_OFF_AFTER_S + 0.5
-        while time.monotonic() < deadline:
-            stack.check_alive()
-            time.sleep(0.5)
-        taught_rows = stack.truth()["t_s"].size
-        stack.request("stop")
-        replay = replay_program(stack, program)
+        # Everything on the bus, as `leadthrough record` writes it (self-describing MCAP).
+        recorder = BusRecorder(stack.bus, out / "recording.mcap", {"source": "leadthrough demo"})
+        recorder.start()
+        try:
+            status = stack.start_teaching()
+            program = Path(status["program"]["path"])
+            print(f"teaching: the simulated operator guides the tool ({HAND_OFF_AFTER_S:.0f} s) "
+                  f"and marks the corners; the gateway writes {program} ...")  # fmt: skip
+            # Wait cheaply (reading the growing truth log would take CPU from the product).
+            deadline = time.monotonic() + HAND_OFF_AFTER_S + 0.5
+            while time.monotonic() < deadline:
+                stack.check_alive()
+                time.sleep(0.5)
+            taught_rows = stack.truth()["t_s"].size
+            stack.request("stop")
+            replay = replay_program(stack, program)
+        finally:
+            recorder.stop()
     truth = stack.truth()
     summary = json.loads(stack.sim_summary.read_text())
     m = teaching_metrics(truth, summary, taught_rows)
@@ -228,6 +235,8 @@ def cli_main(args: argparse.Namespace) -> int:
     m["wall_time_s"] = time.monotonic() - t0
     m["plant_seed"] = args.plant_seed
     m["model"] = str(done.model)
+    m["recording"] = str(out / "recording.mcap")
+    m["recording_messages"] = recorder.count
     (out / "summary.json").write_text(json.dumps(m, indent=2))
     rows = [
         ("mean operator force", f"{m['mean_force_n']:.1f} N"),
@@ -249,7 +258,8 @@ def cli_main(args: argparse.Namespace) -> int:
     print()
     for name, value in rows:
         print(f"  {name:<{width}}  {value}")
-    print(f"\nplot: {out / 'demo.png'}   summary: {out / 'summary.json'}")
+    print(f"\nplot: {out / 'demo.png'}   summary: {out / 'summary.json'}   "
+          f"recording: {out / 'recording.mcap'} ({recorder.count} messages)")  # fmt: skip
     return 0 if not m["controller_faults"] and m["replay_result"] == "done" else 1
 
 

@@ -611,7 +611,7 @@ def test_random_frames_that_decode_as_feedback_never_move_the_arm(make_cell):
     assert len(forged) > 2000
     stats = cell.driver.core.adapter.stats
     before = stats.as_dict()
-    cell.controller.inject(forged, per_cycle=10)
+    cell.controller.inject(forged, per_cycle=40)
     wait_for(lambda: not cell.controller.injecting(), timeout_s=30.0, what="the forged frames sent")
     time.sleep(5 * PERIOD_S)
     dropped = sum(stats.as_dict()[k] - before[k] for k in ("incomplete_cycles", "corrupt_cycles"))

@@ -155,3 +155,36 @@ def test_a_recorder_killed_with_sigkill_leaves_a_readable_file_missing_at_most_a
     assert len(older) >= 100, "too few states to judge (a loaded machine sends fewer)"
     missing = sorted(set(older) - got)
     assert not missing, f"{len(missing)} states older than a second lost, e.g. {missing[:5]}"
+
+
+def test_export_cuts_a_recording_into_analyze_files(router, tmp_path, capsys):
+    """`leadthrough export REC --split 0.6 --urdf-out U`: a train and a test CSV of the
+    recording's cycles, with their sidecars, and the robot's URDF."""
+    from gateway.cli import main
+
+    keys = router.keys
+    rec = BusRecorder(router, tmp_path / "run.mcap")
+    rec.start()
+    pub = open_client(router)
+    try:
+        time.sleep(0.5)
+        pub.put(keys.io_state, IoState(1.0, 6.0, 4.0, 6.0, 4.0, True, True).to_bytes())
+        for cycle in range(100):
+            q = np.full(6, 0.001 * cycle)
+            st = make_joint_state(cycle, 1.0, ControllerState.EXTERNAL, 2, q, q * 0 + 0.25,
+                                  np.ones(6), q, q * 0 + 0.25, 0.004)  # fmt: skip
+            pub.put(keys.joint_state, st.to_bytes())
+        time.sleep(0.5)
+    finally:
+        pub.close()
+        rec.stop()
+    out = tmp_path / "x" / "run.csv"
+    argv = ["export", str(tmp_path / "run.mcap"), "--out", str(out), "--split", "0.6"]
+    assert main([*argv, "--urdf-out", str(tmp_path / "x" / "robot.urdf")]) == 0
+    train = read_measurements(tmp_path / "x" / "run_train.csv")
+    test = read_measurements(tmp_path / "x" / "run_test.csv")
+    assert len(train.t) == 60 and len(test.t) == 39  # cycles 0-59, 60-98 (99: no next current)
+    assert (tmp_path / "x" / "robot.urdf").read_text().startswith("<?xml")
+    assert "leadthrough analyze --urdf" in capsys.readouterr().out
+    assert main([*argv[:4], "--split", "1.5"]) != 0
+    assert main(["export", str(tmp_path / "nope.mcap"), "--out", str(out)]) != 0
