@@ -41,6 +41,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "identify": ("control.identify", "run identification experiments on the cell and fit"),
     "record": ("gateway.recorder", "record everything on the bus into an MCAP file"),
     "export": ("gateway.export_cli", "export a recording's joint states as analyze's CSV"),
+    "view": ("gateway.live_view", "serve the bus live to Foxglove (WebSocket)"),
     "config": ("gateway.config_check", "check a cell config: every section, every error"),
     "analyze": (
         "control.identification.cli",

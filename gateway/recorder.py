@@ -23,6 +23,7 @@ Cycles disturbed by a hold or coast of the CAN driver are left out (:func:`expor
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import logging
 import os
@@ -44,7 +45,7 @@ from gateway import mcap_json
 from gateway.bus import BusConfig, bus_config_from, open_client, undeclare_all
 from gateway.bus_security import OBSERVER
 from gateway.config import load_toml
-from gateway.errors import DataFileError, MessageError
+from gateway.errors import ConfigError, DataFileError, MessageError
 from gateway.messages import (
     FLAG_PREV_COAST,
     FLAG_PREV_HOLD,
@@ -64,10 +65,24 @@ FLUSH_PERIOD_S = 1.0
 class BusRecorder:
     """Subscribe to ``<prefix>/**`` and write every sample to ``path`` (MCAP)."""
 
-    def __init__(self, bus: BusConfig, path: Path, metadata: dict[str, str] | None = None):
+    def __init__(
+        self,
+        bus: BusConfig,
+        path: Path,
+        metadata: dict[str, str] | None = None,
+        rotate_bytes: int = 0,
+        keep: int = 0,
+    ):
         self.bus = bus
         self.path = Path(path)
         self.metadata = metadata or {}
+        #: start a new file once the current one has this many bytes on disk (0: one file)
+        self.rotate_bytes = int(rotate_bytes)
+        #: files kept when rotating: the oldest beyond it are deleted (0: all kept)
+        self.keep = int(keep)
+        #: the files written (the kept ones when rotating), the last being written
+        self.files: list[Path] = []
+        self._parts = 0
         self._queue: queue.SimpleQueue[Any] = queue.SimpleQueue()
         self._thread = threading.Thread(target=self._write_loop, name="mcap-writer")
         self._session = None
@@ -85,55 +100,58 @@ class BusRecorder:
         self._queue.put((str(sample.key_expr), time.monotonic_ns(), sample.payload.to_bytes()))
 
     def _write_loop(self) -> None:
-        channels: dict[tuple[str, str], int] = {}
-        schemas: dict[str, int] = {}
         #: wall-clock of the recording's start, advanced by the monotonic clock [ns]
         wall0_ns, mono0_ns = time.time_ns(), time.monotonic_ns()
+        out: _McapFile | None = None
         try:
-            with self.path.open("wb") as fh:
-                writer = Writer(fh, compression=CompressionType.LZ4)
-                writer.start(profile="", library="leadthrough")
-                writer.add_metadata(
-                    "leadthrough",
-                    {**self.metadata, "start_wall_ns": str(wall0_ns),
-                     "start_monotonic_ns": str(mono0_ns)},
-                )  # fmt: skip
-                due: float | None = None  #: when the oldest message not on disk must be
-                while True:
-                    wait = None if due is None else max(due - time.monotonic(), 0.0)
-                    try:
-                        item = self._queue.get(timeout=wait)
-                    except queue.Empty:
-                        item = None
-                    if item is _STOP:
-                        break
-                    if item is not None:
-                        key, mono_ns, payload = item
-                        kind, data = mcap_json.to_record(payload, mono_ns)
-                        ch = channels.get((key, kind))
-                        if ch is None:
-                            if kind not in schemas:
-                                schemas[kind] = writer.register_schema(
-                                    mcap_json.PREFIX + kind,
-                                    mcap_json.SCHEMA_ENCODING,
-                                    mcap_json.schema_bytes(kind),
-                                )
-                            ch = writer.register_channel(
-                                key, mcap_json.MESSAGE_ENCODING, schemas[kind]
-                            )
-                            channels[(key, kind)] = ch
-                        t_ns = wall0_ns + (mono_ns - mono0_ns)
-                        writer.add_message(ch, t_ns, data, t_ns, self.count)
-                        self.count += 1
-                        if due is None:
-                            due = time.monotonic() + FLUSH_PERIOD_S
-                    if due is not None and time.monotonic() >= due:
-                        _to_disk(writer, fh)
-                        due = None
-                writer.finish()
+            out = self._open_next(wall0_ns, mono0_ns)
+            due: float | None = None  #: when the oldest message not on disk must be
+            while True:
+                wait = None if due is None else max(due - time.monotonic(), 0.0)
+                try:
+                    item = self._queue.get(timeout=wait)
+                except queue.Empty:
+                    item = None
+                if item is _STOP:
+                    break
+                if item is not None:
+                    key, mono_ns, payload = item
+                    out.add(key, wall0_ns + (mono_ns - mono0_ns), mono_ns, payload, self.count)
+                    self.count += 1
+                    if due is None:
+                        due = time.monotonic() + FLUSH_PERIOD_S
+                if due is not None and time.monotonic() >= due:
+                    out.to_disk()
+                    due = None
+                    if self.rotate_bytes and out.size() >= self.rotate_bytes:
+                        out.close()
+                        out = self._open_next(wall0_ns, mono0_ns)
+            out.close()
         except BaseException as exc:  # keep the recording error for stop() to report
             self.error = exc
             log.exception("recording to %s failed", self.path)
+            if out is not None:
+                with contextlib.suppress(Exception):
+                    out.close()
+
+    def _open_next(self, wall0_ns: int, mono0_ns: int) -> _McapFile:
+        """The next file: ``path`` itself, or with rotation ``<stem>-0001<suffix>``, ... (the
+        oldest beyond ``keep`` deleted)."""
+        self._parts += 1
+        if not self.rotate_bytes:
+            path = self.path
+        else:
+            path = self.path.with_name(f"{self.path.stem}-{self._parts:04d}.mcap")
+        self.files.append(path)
+        if self.keep and len(self.files) > self.keep:
+            for old in self.files[: -self.keep]:
+                with contextlib.suppress(FileNotFoundError):
+                    old.unlink()
+                    log.info("recording rotated: %s deleted (keeping %d files)", old, self.keep)
+            self.files = self.files[-self.keep :]
+        metadata = {**self.metadata, "start_wall_ns": str(wall0_ns),
+                    "start_monotonic_ns": str(mono0_ns), "part": str(self._parts)}  # fmt: skip
+        return _McapFile(path, metadata)
 
     def stop(self) -> None:
         """Undeclare, close the session, flush and close the file (never loses queued data)."""
@@ -147,6 +165,45 @@ class BusRecorder:
             self._queue.put(_STOP)
             if self._thread.is_alive():
                 self._thread.join(30.0)
+
+
+class _McapFile:
+    """One MCAP file being written: its channels and schemas, flushed on request."""
+
+    def __init__(self, path: Path, metadata: dict[str, str]) -> None:
+        self.path = path
+        self.fh = path.open("wb")
+        self.writer = Writer(self.fh, compression=CompressionType.LZ4)
+        self.writer.start(profile="", library="leadthrough")
+        self.writer.add_metadata("leadthrough", metadata)
+        self.channels: dict[tuple[str, str], int] = {}
+        self.schemas: dict[str, int] = {}
+
+    def add(self, key: str, t_ns: int, mono_ns: int, payload: bytes, sequence: int) -> None:
+        kind, data = mcap_json.to_record(payload, mono_ns)
+        ch = self.channels.get((key, kind))
+        if ch is None:
+            if kind not in self.schemas:
+                self.schemas[kind] = self.writer.register_schema(
+                    mcap_json.PREFIX + kind, mcap_json.SCHEMA_ENCODING, mcap_json.schema_bytes(kind)
+                )
+            ch = self.writer.register_channel(key, mcap_json.MESSAGE_ENCODING, self.schemas[kind])
+            self.channels[(key, kind)] = ch
+        self.writer.add_message(ch, t_ns, data, t_ns, sequence)
+
+    def to_disk(self) -> None:
+        _to_disk(self.writer, self.fh)
+
+    def size(self) -> int:
+        return self.fh.tell()
+
+    def close(self) -> None:
+        try:
+            self.writer.finish()
+            self.fh.flush()
+            os.fsync(self.fh.fileno())
+        finally:
+            self.fh.close()
 
 
 def _to_disk(writer: Writer, fh: Any) -> None:
@@ -375,13 +432,25 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", type=Path, default=None, help="cell config TOML (for [bus])")
     p.add_argument("--bus", default=None, help="zenoh endpoint of the gateway")
     p.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
+    p.add_argument(
+        "--rotate-mb",
+        type=float,
+        default=0.0,
+        help="start a new file (OUT-0001.mcap, OUT-0002.mcap, ...) every this many MB",
+    )
+    p.add_argument(
+        "--keep", type=int, default=0, help="with --rotate-mb: delete all but the newest N files"
+    )
 
 
 def cli_main(args: argparse.Namespace) -> int:
+    if args.rotate_mb < 0 or args.keep < 0 or (args.keep and not args.rotate_mb):
+        raise ConfigError("--rotate-mb and --keep: not negative; --keep needs --rotate-mb")
     bus = BusConfig()
     if args.config:
         bus = bus_config_from(load_toml(args.config), str(args.config))
-    rec = BusRecorder(bus.with_overrides(args.bus), args.out)
+    rotate = int(args.rotate_mb * 1e6)
+    rec = BusRecorder(bus.with_overrides(args.bus), args.out, rotate_bytes=rotate, keep=args.keep)
     stop = threading.Event()
     with StopSignals(stop):
         rec.start()

@@ -188,3 +188,42 @@ def test_export_cuts_a_recording_into_analyze_files(router, tmp_path, capsys):
     assert "leadthrough analyze --urdf" in capsys.readouterr().out
     assert main([*argv[:4], "--split", "1.5"]) != 0
     assert main(["export", str(tmp_path / "nope.mcap"), "--out", str(out)]) != 0
+
+
+def test_a_rotating_recorder_keeps_the_newest_files_each_readable(router, tmp_path):
+    """`leadthrough record --rotate-mb --keep`: a new file once the current one has that much
+    on disk (checked at each flush, every second), the oldest beyond ``keep`` deleted; every
+    kept file reads on its own and they continue one another."""
+    keys = router.keys
+    rec = BusRecorder(router, tmp_path / "run.mcap", rotate_bytes=20_000, keep=2)
+    rec.start()
+    pub = open_client(router)
+    try:
+        time.sleep(0.5)
+        pub.put(keys.io_state, IoState(1.0, 6.0, 4.0, 6.0, 4.0, True, True).to_bytes())
+        end, cycle = time.monotonic() + 4.5, 0
+        while time.monotonic() < end:
+            q = np.full(6, 0.001 * cycle)
+            st = make_joint_state(cycle, 1.0, ControllerState.EXTERNAL, 2, q, q * 0,
+                                  np.ones(6), q, q * 0, 0.004)  # fmt: skip
+            pub.put(keys.joint_state, st.to_bytes())
+            cycle += 1
+            time.sleep(0.002)
+        time.sleep(0.5)
+    finally:
+        pub.close()
+        rec.stop()
+    assert rec.error is None
+    files = sorted(tmp_path.glob("run-*.mcap"))
+    assert len(files) == 2 and files == rec.files, (files, rec.files)
+    assert int(files[0].stem.split("-")[1]) >= 3, "rotated at least twice, the oldest deleted"
+    cycles = []
+    for path in files:
+        part = [
+            JointState.from_bytes(p).cycle
+            for key, _, p in iter_mcap(path)
+            if key == keys.joint_state
+        ]
+        assert part, path
+        cycles += part
+    assert cycles == list(range(cycles[0], cycle)), "the kept files continue one another"
