@@ -3,9 +3,12 @@ process that uses it, every error at once, each naming the file, the section and
 `leadthrough config schema` prints a JSON Schema of the cell config for editors (TOML language
 servers such as Taplo take one): sections, keys and their types, unknown keys refused.
 
-The gateway runs the same check when it starts (gateway/supervisor.py): a cell config with an
-error in any section is reported there, once, and the gateway exits with EX_CONFIG (78), which
-the systemd unit does not restart, instead of starting children that would each refuse it.
+The gateway runs the same check when it starts its children (gateway/supervisor.py,
+:data:`GATEWAY_START_SECTIONS`): an error in any of those sections is reported there, once, and
+the gateway exits with EX_CONFIG (78), which the systemd unit does not restart, instead of
+starting children that would each refuse it. ``[control]`` is left to the control process (its
+loader's imports take seconds; it exits 78 on a bad section, and the gateway faults naming it
+without restarting it).
 """
 
 from __future__ import annotations
@@ -59,6 +62,10 @@ def _realtime(path: Path, raw: dict[str, Any]) -> object:
     return realtime_config_from(raw, str(path))
 
 
+#: the sections the gateway checks before it starts its children (its own and [bus] are read
+#: before that, by load_gateway_config)
+GATEWAY_START_SECTIONS = ("can", "modbus", "realtime")
+
 #: section → its loader (the one the process that reads it uses)
 LOADERS: dict[str, Callable[[Path, dict[str, Any]], object]] = {
     "bus": _bus,
@@ -70,9 +77,9 @@ LOADERS: dict[str, Callable[[Path, dict[str, Any]], object]] = {
 }
 
 
-def check_cell(path: Path) -> dict[str, str]:
-    """Section → its error ("" when it is fine). A file that cannot be read or parsed is one
-    error under ``"file"``."""
+def check_cell(path: Path, sections: tuple[str, ...] | None = None) -> dict[str, str]:
+    """Section → its error ("" when it is fine), for ``sections`` (default: all). A file that
+    cannot be read or parsed is one error under ``"file"``."""
     from gateway.config import load_toml
 
     try:
@@ -81,6 +88,8 @@ def check_cell(path: Path) -> dict[str, str]:
         return {"file": str(exc)}
     result: dict[str, str] = {}
     for section, load in LOADERS.items():
+        if sections is not None and section not in sections:
+            continue
         try:
             load(path, raw)
         except ConfigError as exc:
@@ -90,10 +99,10 @@ def check_cell(path: Path) -> dict[str, str]:
     return result
 
 
-def problems(path: Path) -> list[str]:
+def problems(path: Path, sections: tuple[str, ...] | None = None) -> list[str]:
     """The errors of :func:`check_cell`, one line each (empty: the config is fine)."""
     seen: list[str] = []
-    for message in check_cell(path).values():
+    for message in check_cell(path, sections).values():
         if message and message not in seen:  # an unknown section fails every loader alike
             seen.append(message)
     return seen

@@ -711,6 +711,15 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
 
 def cli_main(args: argparse.Namespace) -> int:
     cfg, bus = load_gateway_config(args.config)
+    if not args.no_spawn:  # the children's sections, reported here once (config_check.py)
+        from gateway.config_check import GATEWAY_START_SECTIONS, problems
+
+        errors = problems(args.config, GATEWAY_START_SECTIONS)
+        for message in errors:
+            log.error("cell config refused: %s", message)
+        if errors:
+            log.error("%d error(s) in %s: the gateway does not start", len(errors), args.config)
+            return EXIT_CONFIG
     gw = Gateway(args.config.resolve(), bus.with_overrides(args.bus), cfg, spawn=not args.no_spawn)
     notifier = Notifier()
     with StopSignals(gw.stop_event):

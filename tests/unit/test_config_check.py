@@ -67,3 +67,17 @@ def test_the_json_schema_accepts_the_shipped_configs_and_refuses_a_typo(tmp_path
     assert errors and "deadline_ss" in errors[0].message
     wrong = tomllib.loads(SIM_CELL.read_text().replace("[modbus]\n", "[modbus]\nport_x = 1\n", 1))
     assert list(validator.iter_errors(wrong))
+
+
+def test_the_gateway_refuses_to_start_on_a_childs_bad_section_naming_it_once(tmp_path, caplog):
+    import argparse
+    import logging
+
+    from gateway.supervisor import cli_main
+
+    path = _cell(tmp_path, lambda t: t.replace("[can]\n", "[can]\ndeadline_ss = 1\n", 1))
+    args = argparse.Namespace(config=path, bus=None, no_spawn=False)
+    with caplog.at_level(logging.ERROR, logger="leadthrough.gateway"):
+        assert cli_main(args) == 78  # before any zenoh session or child process
+    refused = [r.getMessage() for r in caplog.records if "refused" in r.getMessage()]
+    assert len(refused) == 1 and "[can]" in refused[0] and "deadline_ss" in refused[0]
