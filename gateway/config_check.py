@@ -101,8 +101,12 @@ def check_cell(path: Path, sections: tuple[str, ...] | None = None) -> dict[str,
 
 def problems(path: Path, sections: tuple[str, ...] | None = None) -> list[str]:
     """The errors of :func:`check_cell`, one line each (empty: the config is fine)."""
+    return _distinct(check_cell(path, sections))
+
+
+def _distinct(result: dict[str, str]) -> list[str]:
     seen: list[str] = []
-    for message in check_cell(path, sections).values():
+    for message in result.values():
         if message and message not in seen:  # an unknown section fails every loader alike
             seen.append(message)
     return seen
@@ -209,7 +213,7 @@ def cli_main(args: argparse.Namespace) -> int:
     if args.file is None:
         raise ConfigError("config check: name the cell config file to check")
     result = check_cell(args.file)
-    errors = problems(args.file)
+    errors = _distinct(result)
     for section, message in result.items():
         if not message:
             print(f"[{section}] ok")

@@ -84,9 +84,9 @@ def cli_main(args: argparse.Namespace) -> int:
             raise DataFileError(f"{args.recording}: no commanded cycles to split")
         first, last = span or (recorded.states[0][0].cycle, recorded.states[-1][0].cycle)
         cut = commanded[min(int(args.split * len(commanded)), len(commanded) - 1)]
-        for name, span in (("train", (first, cut)), ("test", (cut + 1, last))):
+        for name, part in (("train", (first, cut)), ("test", (cut + 1, last))):
             path = out.with_name(f"{out.stem}_{name}{out.suffix or '.csv'}")
-            rows = export_csv(args.recording, path, gains, keys, span, recorded=recorded)
+            rows = export_csv(args.recording, path, gains, keys, part, recorded=recorded)
             written.append((path, rows))
     for path, rows in written:
         print(f"{path}: {rows} rows")

@@ -93,7 +93,14 @@ class BusRecorder:
     def start(self) -> None:
         """Subscribe, then start the writer (a bus that refuses us leaves no thread behind)."""
         self._session = open_client(self.bus, identity=OBSERVER)
-        self._sub = self._session.declare_subscriber(f"{self.bus.key_prefix}/**", self._on_sample)
+        try:
+            self._sub = self._session.declare_subscriber(
+                f"{self.bus.key_prefix}/**", self._on_sample
+            )
+        except BaseException:
+            self._session.close()
+            self._session = None
+            raise
         self._thread.start()
 
     def _on_sample(self, sample: Any) -> None:

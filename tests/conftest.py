@@ -89,6 +89,18 @@ def port() -> int:
     return free_port()
 
 
+@pytest.fixture
+def router(port):
+    """A zenoh router on a free local port: its BusConfig; closed after the test (a test module
+    may define its own)."""
+    from gateway.bus import BusConfig, open_router
+
+    bus = BusConfig(endpoint=f"tcp/127.0.0.1:{port}")
+    session = open_router(bus)
+    yield bus
+    session.close()
+
+
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     if os.environ.get(HARDWARE_ENV) == "1":
         return

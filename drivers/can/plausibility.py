@@ -54,6 +54,3 @@ class FeedbackPlausibility:
             f"{step[worst]:.4f} rad from cycle {self._cycle}'s {self._q[worst]:+.4f}; the arm "
             f"moves at most {allowed:.4f} rad in that time ({self.max_speed_rad_s:g} rad/s)"
         )
-
-    def reset(self) -> None:
-        self._q = None

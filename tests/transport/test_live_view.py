@@ -8,22 +8,13 @@ import struct
 import time
 
 import numpy as np
-import pytest
 from websockets.sync.client import connect
 
-from gateway.bus import BusConfig, open_client, open_router
+from gateway.bus import open_client
 from gateway.live_view import LiveView
 from gateway.messages import ControllerState, IoState, make_joint_state
 
 SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
-
-
-@pytest.fixture
-def router(port):
-    bus = BusConfig(endpoint=f"tcp/127.0.0.1:{port}")
-    session = open_router(bus)
-    yield bus
-    session.close()
 
 
 def _recv_json(ws, op: str, timeout_s: float = 5.0) -> dict:

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from control.identification.datafile import read_measurements
-from gateway.bus import BusConfig, open_client, open_router
+from gateway.bus import open_client
 from gateway.errors import DataFileError
 from gateway.messages import (
     FLAG_PREV_HOLD,
@@ -21,14 +21,6 @@ from gateway.messages import (
     make_joint_state,
 )
 from gateway.recorder import FLUSH_PERIOD_S, BusRecorder, export_csv, iter_mcap
-
-
-@pytest.fixture
-def router(port):
-    bus = BusConfig(endpoint=f"tcp/127.0.0.1:{port}")
-    session = open_router(bus)
-    yield bus
-    session.close()
 
 
 def test_records_every_message_and_exports_the_measurement_csv(router, tmp_path):
