@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -61,6 +60,7 @@ from control.identification.fit import (
 )
 from control.identification.folds import CONTIGUOUS, Scheme, gcv_factor, plan_folds
 from control.identification.lsq import BlockLS, Evaluation, contiguous_folds
+from control.identification.parallel import map_forked
 from control.identification.preprocess import (
     DEFAULT_POSITION_CUTOFF_HZ,
     DEFAULT_RATE_HZ,
@@ -85,6 +85,7 @@ from control.identification.terms import (
     shift_signal,
 )
 from control.identification.validate import (
+    import_plotting,
     masked_rms,
     plot_friction,
     plot_torques,
@@ -106,8 +107,6 @@ TEST_FIT_FRACTION = 0.5
 #: values instead of whatever noise and mismatch make of them, which would then be
 #: extrapolated outside the training envelope; well-excited ones are not moved.
 RIGID_PRIOR_RIDGE = 1e-6
-#: Friction families fitted side by side (threads; the machine class has two cores).
-FAMILY_THREADS = 2
 #: sqrt(VIF) above which a base parameter counts as not identified by the training motion.
 NOT_IDENTIFIED_SQRT_VIF = 1e3
 
@@ -258,34 +257,36 @@ def _predict(
 
 
 def _fit_families(
-    ls: BlockLS, run: _Run, kinds: Sequence[str], ratios: np.ndarray
+    ls: BlockLS,
+    run: _Run,
+    kinds: Sequence[str],
+    ratios: np.ndarray,
+    while_waiting: Callable[[], None] | None = None,
 ) -> tuple[dict[str, FrictionFit], dict[str, Any]]:
-    """Each friction family fitted on ``ls`` (groups left there) and its figures."""
+    """Each friction family fitted on ``ls`` (groups left there) and its figures;
+    ``while_waiting()`` runs in this process while workers fit them."""
     fits: dict[str, FrictionFit] = {}
     comparison: dict[str, Any] = {}
 
     if "rigid" not in ls.cols:
         ls.add("rigid", RigidTerm().columns(run.ctx_train))
 
-    def fit_one(kind: str) -> tuple[FrictionFit, BlockLS, list[str]]:
+    def fit_one(kind: str) -> tuple[FrictionFit, dict[str, Any], list[str]]:
         lines: list[str] = []
         own = ls.fork()
-        return (
-            fit_rigid_friction(own, run.ctx_train, kind, ratios, progress=lines.append),
-            own,
-            lines,
-        )
+        fit = fit_rigid_friction(own, run.ctx_train, kind, ratios, progress=lines.append)
+        return fit, own.export([t.key for t in fit.terms]), lines
 
-    # the families are independent searches: side by side on a fork of ``ls`` each (most of
-    # their time is LAPACK, filters and BLAS, which run without the GIL); the costliest first
+    # the families are independent searches: side by side on a fork of ``ls`` each, in worker
+    # processes (:mod:`.parallel`); the costliest first. This process meanwhile imports what
+    # the plots will need.
     order = sorted(kinds, key=lambda k: -len(FRICTION_PARAM_NAMES[k]))
-    with ThreadPoolExecutor(max_workers=min(FAMILY_THREADS, len(order))) as pool:
-        done = dict(zip(order, pool.map(fit_one, order), strict=True))
+    done = dict(zip(order, map_forked(fit_one, order, while_waiting=while_waiting), strict=True))
     for kind in kinds:
-        fit, own, lines = done[kind]
+        fit, groups, lines = done[kind]
         for line in lines:
             run.clock.say(line)
-        ls.adopt(own, [t.key for t in fit.terms])
+        ls.adopt(groups)
         fits[kind] = fit
         _, pred = _predict(run.reg, run.ctx_test, fit, str(run.urdf), run.meta)
         comparison[kind] = {
@@ -768,7 +769,9 @@ def _analyze(
     ls.set_prior("rigid", beta_nominal, RIGID_PRIOR_RIDGE)
     auto = options.friction == AUTO
     kinds = list(FRICTION_MODELS) if (auto or options.compare_friction) else [options.friction]
-    fits, comparison = _fit_families(ls, run, kinds, ratios)
+    # matplotlib takes half a second to import: done while the families are fitted
+    prefetch = import_plotting if options.plots else None
+    fits, comparison = _fit_families(ls, run, kinds, ratios, while_waiting=prefetch)
     kind = _keep_family(ls, fits, options.friction, clock)
     base_fit = fits[kind]
     _, pred_before = _predict(reg, ctx_test, base_fit, urdf, meta)

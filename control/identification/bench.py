@@ -6,7 +6,7 @@ varying pressures + noise, along a multi-sine trajectory) and a test recording o
 (at least one minute), writes both as CSV, then runs the whole ``analyze`` pipeline on them and
 reports seconds per stage (read, preprocess, regressor, fit, effects, validate, report).
 
-Run: ``python -m control.identification.bench [--minutes 10] [--rate-hz 1000]``.
+Run: ``python -m control.identification.bench [--minutes 10] [--rate-hz 1000] [--keep DIR]``.
 """
 
 from __future__ import annotations
@@ -125,8 +125,16 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m control.identification.bench")
     p.add_argument("--minutes", type=float, default=10.0)
     p.add_argument("--rate-hz", type=float, default=1000.0)
+    p.add_argument(
+        "--keep",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="write the URDF, train.csv, test.csv and the analysis there and keep them (to time "
+        "`leadthrough analyze` on them as a user runs it)",
+    )
     args = p.parse_args(argv)
-    bench_identify(args.minutes, args.rate_hz)
+    bench_identify(args.minutes, args.rate_hz, workdir=args.keep)
     return 0
 
 

@@ -31,7 +31,6 @@ the synthetic GR630ST of :mod:`.bench` a 16 Hz target let four false effects thr
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any
 
@@ -39,6 +38,7 @@ import numpy as np
 
 from control.identification.fit import make_context
 from control.identification.lsq import BlockLS, contiguous_folds
+from control.identification.parallel import map_forked
 from control.identification.preprocess import Prepared, sliding_mask
 from control.identification.rigid import RobotRegressor
 from control.identification.terms import FrictionTerm, RigidTerm
@@ -49,8 +49,6 @@ CANDIDATES_HZ = (2.0, 3.0, 4.0, 6.0, 8.0, 12.0, 16.0, 24.0, 32.0, 40.0)
 NYQUIST_SHARE = 0.4
 #: Relative total held-out error within which candidates tie.
 TIE_TOLERANCE = 0.01
-#: Candidates analysed side by side (threads; the machine class has two cores).
-THREADS = 2
 #: q_e of the Coulomb column of the selection model [rad/s] (a sharp sign).
 _Q_E_RAD_S = 0.005
 
@@ -123,9 +121,8 @@ def choose_cutoff(
     def heldout(cutoff_hz: float) -> np.ndarray:
         return _heldout(reg, prepare(cutoff_hz, low, high), mask, folds)
 
-    # independent candidates, side by side (filters and LAPACK run without the GIL)
-    with ThreadPoolExecutor(max_workers=min(THREADS, len(cands))) as pool:
-        table = np.array(list(pool.map(heldout, cands)))
+    # independent candidates, side by side in worker processes (:mod:`.parallel`)
+    table = np.array(map_forked(heldout, cands))
     best = np.min(table, axis=0)
     rel = table / np.where(best > 0, best, 1.0)
     score = rel.sum(axis=1)

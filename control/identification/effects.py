@@ -84,6 +84,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -91,6 +92,7 @@ from scipy.optimize import minimize_scalar
 from scipy.special import chdtri
 
 from control.identification.lsq import BlockLS, Evaluation, Solution, contiguous_folds
+from control.identification.parallel import map_forked
 from control.identification.preprocess import Prepared
 from control.identification.terms import Context, EffectTerm, Envelope, shift_signal
 
@@ -460,6 +462,39 @@ def _fit_error_fn(
     return error_of
 
 
+def _judge_all(
+    ls: BlockLS,
+    terms: Sequence[EffectTerm],
+    columns: Callable[[EffectTerm], dict[int, np.ndarray]],
+    names: Sequence[str],
+    weights: np.ndarray,
+    current: Evaluation,
+    noise: NoiseFloor,
+    tried: int,
+    options: Options,
+    envelope: Envelope | None,
+    delay: Callable[[BlockLS], Verdict] | None = None,
+) -> list[Verdict]:
+    """The verdict on each candidate of a round (``columns(term)`` added to the fit of
+    ``names`` on ``ls``), then the delay's (``delay(fork of ls)``) if asked: each on a fork
+    of ``ls`` (left as it was), side by side in worker processes (:mod:`.parallel`), the
+    delay's scan first (it costs a dozen fits)."""
+
+    def one(i: int) -> Verdict:
+        own = ls.fork()
+        if i < 0:
+            assert delay is not None
+            return delay(own)
+        term = terms[i]
+        own.add(term.key, columns(term))
+        new = own.evaluate([*names, term.key], weights)
+        return judge(term, current, new, weights, noise, tried, options, 0, envelope)
+
+    order = ([-1] if delay is not None else []) + list(range(len(terms)))
+    done = dict(zip(order, map_forked(one, order), strict=True))
+    return [done[i] for i in sorted(order, key=lambda i: (i < 0, i))]
+
+
 # --------------------------------------------------------------------------------------------
 # Case A: all along, on the training data
 
@@ -513,19 +548,14 @@ def search_all_along(
         _refresh_model_columns(ctx, ls, sol, friction_keys)
         terms = candidates(ctx, residual, state.effects, options)
         tried = scanned_settings(terms, options, state.delay_s == 0.0)
-        verdicts: list[Verdict] = []
-        for term in terms:
-            ls.add(term.key, term.columns(ctx))
-            new = ls.evaluate([*state.names, term.key], weights)
-            verdicts.append(
-                judge(term, current, new, weights, noise, tried, options, 0, ctx.envelope)
-            )
-            ls.remove(term.key)
-        if state.delay_s == 0.0:
-            verdicts.append(
-                _delay_all_along(ls, y0, data, state.names, weights, current, noise, tried, options)
-            )
-            ls.set_y(y0)
+        names = list(state.names)
+        verdicts = _judge_all(
+            ls, terms, lambda term: term.columns(ctx), names, weights, current, noise, tried,
+            options, ctx.envelope,
+            partial(_delay_all_along, y0=y0, data=data, names=names, weights=weights,
+                    current=current, noise=noise, tried=tried, options=options)
+            if state.delay_s == 0.0 else None,
+        )  # fmt: skip
         ok = [v for v in verdicts if v.accepted]
         _log_round(progress, "train", verdicts)
         _note_implausible(verdicts, ALL_ALONG, state.refused, progress)
@@ -603,6 +633,28 @@ def _delay_again(
     )
     best = _search_delay(error_of, near - DELAY_STEP_S, near + DELAY_STEP_S, near, error_of(near))
     return round(best, 6) if best != near else near
+
+
+def _delay_between(
+    ls: BlockLS,
+    target: Callable[[float], np.ndarray],
+    names: list[str],
+    weights: np.ndarray,
+    current: Evaluation,
+    noise: NoiseFloor,
+    tried: int,
+    options: Options,
+) -> Verdict:
+    """Case (B)'s delay: the scan and refinement of the targets ``target(delay)`` on ``ls``
+    (its targets are changed), judged as one more candidate."""
+    deltas = _delays(options)
+    error_of = _fit_error_fn(ls, names, weights, target)
+    d_best = round(_refine(deltas, np.array([error_of(float(d)) for d in deltas]), error_of), 6)
+    ls.set_y(target(d_best))
+    term = EffectTerm("time_delay", tuple(range(ls.n)), {"delay_s": d_best})
+    v = judge(term, current, ls.evaluate(names, weights), weights, noise, tried, options, 1)
+    v.delay_s = d_best
+    return v
 
 
 def training_gain_fn(
@@ -748,27 +800,13 @@ def search_between(
         terms = candidates(screen, residual, [*done, *effects], options)
         with_delay = allow_delay and delay == 0.0
         tried = scanned_settings(terms, options, with_delay)
-        verdicts = []
-        for term in terms:
-            ls.add(term.key, _rows(term.columns(ctx), fit_rows))
-            new = ls.evaluate([*names, term.key], weights)
-            verdicts.append(
-                judge(term, current, new, weights, noise, tried, options, 0, ctx.envelope)
-            )
-            ls.remove(term.key)
-        base_y = ls.y.copy()
-        if with_delay:
-            deltas = _delays(options)
-            error_of = _fit_error_fn(ls, names, weights, lambda d: (tau - shifted(d))[fit_rows])
-            errors = np.array([error_of(float(d)) for d in deltas])
-            d_best = round(_refine(deltas, errors, error_of), 6)
-            ls.set_y((tau - shifted(d_best))[fit_rows])
-            term = EffectTerm("time_delay", tuple(range(ls.n)), {"delay_s": d_best})
-            new = ls.evaluate(names, weights)
-            v = judge(term, current, new, weights, noise, tried, options, extra_params=1)
-            v.delay_s = d_best
-            verdicts.append(v)
-            ls.set_y(base_y)
+        verdicts = _judge_all(
+            ls, terms, lambda term: _rows(term.columns(ctx), fit_rows), names, weights, current,
+            noise, tried, options, ctx.envelope,
+            partial(_delay_between, target=lambda d: (tau - shifted(d))[fit_rows], names=names,
+                    weights=weights, current=current, noise=noise, tried=tried, options=options)
+            if with_delay else None,
+        )  # fmt: skip
         _log_round(progress, "test", verdicts)
         _note_implausible(verdicts, BETWEEN, refused, progress)
         ok = sorted((v for v in verdicts if v.accepted), key=lambda v: -v.score)

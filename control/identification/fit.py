@@ -229,6 +229,9 @@ def fit_rigid_friction(
         ("sign_width_rad_s", widths),
         ("q_e_rad_s", grid),
     )
+    # the chosen term's columns are kept for the next search of its joint (which tries that
+    # term again) and for ``target``, instead of being recomputed
+    chosen: dict[int, tuple[FrictionTerm, dict[int, np.ndarray]]] = {}
     for sweep in range(Q_E_SWEEPS if len(grid) > 1 or len(widths) > 1 else 0):
         for j in range(n):
             for field_name, values in searched:
@@ -237,15 +240,24 @@ def fit_rigid_friction(
                 if sweep:  # later sweeps refine around the value chosen: its grid neighbours
                     at = values.index(getattr(terms[j], field_name))
                     values = values[max(0, at - SWEEP_NEIGHBOURS) : at + SWEEP_NEIGHBOURS + 1]
-                best = (np.inf, terms[j])
+                known = chosen.pop(j, None)
+                best = (np.inf, known)
                 for value in values:
                     cand = replace(terms[j], **{field_name: value})
-                    target.add(cand.key, _thin(cand.columns(ctx), step))
+                    if known is not None and cand == known[0]:
+                        cols = known[1]
+                    else:
+                        cols = _thin(cand.columns(ctx), step)
+                    target.add(cand.key, cols)
                     sse = target.cv_sse(names, w0)[j]
                     if sse < best[0]:
-                        best = (sse, cand)
-                terms[j] = best[1]
-                target.add(terms[j].key, _thin(terms[j].columns(ctx), step))
+                        best = (sse, (cand, cols))
+                if best[1] is None:  # no finite error and nothing known: recomputed
+                    best = (np.inf, (terms[j], _thin(terms[j].columns(ctx), step)))
+                if best[1][0] != cand:  # (the last one tried is in ``target`` already)
+                    target.add(best[1][0].key, best[1][1])
+                terms[j] = best[1][0]
+                chosen[j] = best[1]
     if target is not ls:
         for term in terms:
             ls.add(term.key, term.columns(ctx))

@@ -26,6 +26,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 from itertools import pairwise
+from typing import Any
 
 import numpy as np
 from scipy import linalg
@@ -172,7 +173,8 @@ class BlockLS:
     def fork(self) -> BlockLS:
         """A copy that shares this one's arrays (targets, columns, Gram blocks) but not its
         group tables: groups added to or removed from either leave the other as it was. Two
-        searches can then run side by side (a thread each) from the same groups."""
+        searches can then run side by side (a worker process or thread each) from the same
+        groups."""
         other = object.__new__(BlockLS)
         other.__dict__.update(self.__dict__)
         other.cols = dict(self.cols)
@@ -183,17 +185,34 @@ class BlockLS:
         other.priors = dict(self.priors)
         return other
 
-    def adopt(self, other: BlockLS, names: Sequence[str]) -> None:
-        """Take groups ``names`` from ``other`` (a :meth:`fork` of this one, or of its fork)
-        with their Gram blocks against every group both hold: nothing is recomputed."""
+    def export(self, names: Sequence[str]) -> dict[str, Any]:
+        """Groups ``names`` with their Gram blocks against every group here, as plain dicts of
+        arrays (picklable: a search run in a worker process sends them back) for
+        :meth:`adopt`."""
+        names = list(names)
+        return {
+            "names": names,
+            "cols": {n: self.cols[n] for n in names},
+            "mcols": {n: self._mcols[n] for n in names},
+            "sizes": {n: self.sizes[n] for n in names},
+            "xy": {n: self._xy[n] for n in names},
+            "gram": {k: b for k, b in self._gram.items() if k[0] in names or k[1] in names},
+        }
+
+    def adopt(self, other: BlockLS | dict[str, Any], names: Sequence[str] | None = None) -> None:
+        """Take groups ``names`` from ``other`` (a :meth:`fork` of this one or of its fork, or
+        such a fork's :meth:`export`) with their Gram blocks against every group both hold:
+        nothing is recomputed but the blocks against groups the other never saw."""
+        groups = other if isinstance(other, dict) else other.export(names or [])
+        names = groups["names"] if names is None else list(names)
         for name in names:
             if name in self.cols:
                 self.remove(name)
-            self.cols[name] = other.cols[name]
-            self._mcols[name] = other._mcols[name]
-            self.sizes[name] = other.sizes[name]
-            self._xy[name] = other._xy[name]
-        for key, blocks in other._gram.items():
+            self.cols[name] = groups["cols"][name]
+            self._mcols[name] = groups["mcols"][name]
+            self.sizes[name] = groups["sizes"][name]
+            self._xy[name] = groups["xy"][name]
+        for key, blocks in groups["gram"].items():
             if (key[0] in names or key[1] in names) and key[0] in self.cols and key[1] in self.cols:
                 self._gram[key] = blocks
         for name in names:
@@ -361,14 +380,15 @@ class BlockLS:
         out[live] = np.sqrt(np.maximum(inv_diag, 1.0))
         return out
 
-    def fold_sse(self, sol: Solution) -> np.ndarray:
-        """SSE of ``sol`` per fold and joint, shape (K, n)."""
-        out = self._yy.copy()
+    def fold_sse(self, sol: Solution, fold: int | None = None) -> np.ndarray:
+        """SSE of ``sol`` per fold and joint, shape (K, n); of fold ``fold`` only, (1, n)."""
+        at = slice(None) if fold is None else slice(fold, fold + 1)
+        out = self._yy[at].copy()
         names = list(sol.coef)
         for a in names:
             xa = sol.coef[a]
             for j, xy in self._xy[a].items():
-                out[:, j] -= 2.0 * xy @ xa
+                out[:, j] -= 2.0 * xy[at] @ xa
         for i, a in enumerate(names):
             for b in names[i:]:
                 key = (a, b) if a <= b else (b, a)
@@ -376,7 +396,8 @@ class BlockLS:
                 if not blocks:
                     continue
                 xa, xb = sol.coef[a], sol.coef[b]
-                for j, g in blocks.items():
+                for j, g_all in blocks.items():
+                    g = g_all[at]
                     quad = (
                         np.einsum("kij,i,j->k", g, xa, xb)
                         if a <= b
@@ -405,7 +426,7 @@ class BlockLS:
         cv = np.zeros(self.n)
         for k in range(len(self.folds)):
             sol = self._solve_normal(names, gram - grams[k], rhs - rhss[k])
-            cv += self.fold_sse(sol)[k]
+            cv += self.fold_sse(sol, k)[0]
         return cv
 
     def predict(self, sol: Solution, rows: slice | None = None) -> np.ndarray:

@@ -38,6 +38,7 @@ Units: t [s], q [rad], dq [rad/s], ddq [rad/s²], tau [N·m], p [bar].
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from itertools import pairwise
@@ -170,9 +171,16 @@ def _segments(t: np.ndarray) -> list[tuple[int, int]]:
     return [(int(a), int(b)) for a, b in pairwise(bounds)]
 
 
+@functools.lru_cache(maxsize=64)
+def _butter_sos(cutoff_hz: float, fs_hz: float) -> np.ndarray:
+    """The low-pass's second-order sections, designed once per (cutoff, rate): the analysis
+    filters thousands of column blocks at a handful of pairs, and the design costs as much as
+    filtering a column. Callers get a copy (scipy's filter wants a writable array)."""
+    return signal.butter(FILTER_ORDER, min(cutoff_hz, 0.45 * fs_hz), fs=fs_hz, output="sos")
+
+
 def _lowpass(x: np.ndarray, cutoff_hz: float, fs_hz: float) -> np.ndarray:
-    cutoff = min(cutoff_hz, 0.45 * fs_hz)
-    sos = signal.butter(FILTER_ORDER, cutoff, fs=fs_hz, output="sos")
+    sos = _butter_sos(float(cutoff_hz), float(fs_hz)).copy()
     return signal.sosfiltfilt(sos, x, axis=0)
 
 

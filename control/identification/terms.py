@@ -65,6 +65,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from scipy.fft import next_fast_len
 
 from control.model.friction import (
     EQ14_PARAM_NAMES,
@@ -477,7 +478,10 @@ def _fourier_shift(t: np.ndarray, x: np.ndarray, delta_s: float) -> np.ndarray:
         return x.copy()
     dt = float(np.median(np.diff(t)))
     pad = min(length - 1, int(np.ceil(abs(delta_s) / dt)) + 128)
-    ext = np.pad(x, ((pad, pad), (0, 0)), mode="reflect", reflect_type="odd")
+    # the right end takes a few samples more up to a length the FFT factors well (a segment
+    # whose length has a large prime factor transforms several times slower)
+    extra = next_fast_len(length + 2 * pad, real=True) - (length + 2 * pad)
+    ext = np.pad(x, ((pad, pad + extra), (0, 0)), mode="reflect", reflect_type="odd")
     size = ext.shape[0]
     k = np.arange(size, dtype=float)[:, None]
     slope = (ext[-1] - ext[0]) / size  # the wrap from the last sample to the first is a step

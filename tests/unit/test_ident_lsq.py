@@ -3,6 +3,8 @@ the Gram store (``control/identification/lsq.py``)."""
 
 from __future__ import annotations
 
+import pickle
+
 import numpy as np
 import pytest
 
@@ -82,3 +84,31 @@ def test_adopted_groups_solve_as_if_added_directly():
     for name in names:
         assert np.allclose(a.solution.coef[name], b.solution.coef[name])
     assert np.allclose(direct.cv_sse(names, w), a.cv_sse)
+
+
+def test_groups_exported_through_pickle_solve_as_if_added_directly():
+    """What a worker process sends back (:meth:`BlockLS.export`, pickled) is adopted like a
+    fork's groups."""
+    direct, groups = _store()
+    for name in ("rigid", "f0", "e"):
+        direct.add(name, groups[name])
+    parent, _ = _store()
+    parent.add("rigid", groups["rigid"])
+    parent.add("e", groups["e"])
+    fork = parent.fork()
+    fork.add("f0", groups["f0"])
+    parent.adopt(pickle.loads(pickle.dumps(fork.export(["f0"]))))
+    w = np.ones(3)
+    names = ["rigid", "f0", "e"]
+    a, b = direct.evaluate(names, w), parent.evaluate(names, w)
+    assert np.array_equal(a.cv_sse, b.cv_sse) and np.array_equal(a.fit_sse, b.fit_sse)
+
+
+def test_the_held_out_error_of_one_fold_is_that_fold_of_all():
+    ls, groups = _store()
+    for name in ("rigid", "f0", "e"):
+        ls.add(name, groups[name])
+    sol = ls.solve(["rigid", "f0", "e"], np.ones(3))
+    every = ls.fold_sse(sol)
+    for k in range(len(ls.folds)):
+        assert np.allclose(ls.fold_sse(sol, k)[0], every[k], rtol=1e-12, atol=0.0)
