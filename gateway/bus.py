@@ -20,6 +20,7 @@ from typing import Any
 import zenoh
 
 from gateway import bus_security as security
+from gateway import bus_tls as tls
 from gateway.config import from_mapping, require
 from gateway.errors import LinkTimeoutError
 from gateway.messages import Keys
@@ -27,7 +28,7 @@ from gateway.messages import Keys
 log = logging.getLogger(__name__)
 
 ENDPOINT_ENV = "LEADTHROUGH_BUS_ENDPOINT"
-_ENDPOINT_RE = re.compile(r"^(tcp|udp|unixsock-stream)/.+$")
+_ENDPOINT_RE = re.compile(r"^(tcp|udp|unixsock-stream|tls)/.+$")
 
 
 @dataclass(frozen=True)
@@ -45,6 +46,14 @@ class BusConfig:
     #: the router applies a default-deny access-control list and every process joins as a
     #: client of the router (:mod:`gateway.bus_security`). Empty: an open bus (tests, bench).
     credentials_file: str = ""
+    #: A second endpoint the router listens on for machines outside the cell PC, with mutual
+    #: TLS (``tls/0.0.0.0:7461``; :mod:`gateway.bus_tls`). Empty: loopback only.
+    remote_endpoint: str = ""
+    #: The cell's certificate authority, this machine's certificate and its private key (PEM,
+    #: the key mode 600): required with a ``tls/`` endpoint or remote endpoint.
+    tls_ca_file: str = ""
+    tls_cert_file: str = ""
+    tls_key_file: str = ""
 
     def __post_init__(self) -> None:
         require(
@@ -52,7 +61,26 @@ class BusConfig:
             "[bus].endpoint",
             f"{self.endpoint!r} is not a zenoh endpoint like 'tcp/127.0.0.1:7460'",
         )
+        require(
+            not self.remote_endpoint or self.remote_endpoint.startswith("tls/"),
+            "[bus].remote_endpoint",
+            f"{self.remote_endpoint!r}: a link off the cell PC must be mutual TLS, "
+            "like 'tls/0.0.0.0:7461'",
+        )
         Keys(self.key_prefix)  # validates the prefix
+
+    @property
+    def tls(self) -> bool:
+        """Links with mutual TLS: a ``tls/`` endpoint (a remote machine) or remote endpoint
+        (the cell PC's router)."""
+        return self.endpoint.startswith("tls/") or bool(self.remote_endpoint)
+
+    def insert_tls(self, cfg: zenoh.Config) -> None:
+        """Mutual TLS into ``cfg`` when :attr:`tls` (ConfigError naming a bad file)."""
+        if self.tls:
+            files = (self.tls_ca_file, self.tls_cert_file, self.tls_key_file)
+            tls.check_tls_files(*files, "[bus]")
+            tls.insert_tls(cfg, *files)
 
     @property
     def keys(self) -> Keys:
@@ -92,13 +120,17 @@ def _zenoh_config(
 def open_router(bus: BusConfig) -> zenoh.Session:
     """Open the router session that every other process connects to (gateway only); on a
     locked bus it authenticates every link and applies the access-control list."""
-    cfg = _zenoh_config("router", [bus.endpoint], [])
+    cfg = _zenoh_config(
+        "router", [bus.endpoint, *[bus.remote_endpoint] * bool(bus.remote_endpoint)], []
+    )
+    bus.insert_tls(cfg)
     if bus.locked:
         security.insert_router_security(cfg, bus.credentials_file, bus.keys)
     return zenoh.open(cfg)
 
 
 def _open_linked(cfg: zenoh.Config, bus: BusConfig, identity: str, timeout_s: float):
+    bus.insert_tls(cfg)
     if bus.locked:
         security.insert_session_credentials(cfg, bus.credentials_file, identity)
     try:
@@ -109,6 +141,11 @@ def _open_linked(cfg: zenoh.Config, bus: BusConfig, identity: str, timeout_s: fl
             if bus.locked
             else ""
         )
+        if bus.tls:
+            refused += (
+                " or the TLS handshake failed (a certificate not signed by [bus].tls_ca_file, "
+                "or a name the router's certificate was not made for)"
+            )
         raise LinkTimeoutError(
             f"no zenoh router (gateway) reachable at {bus.endpoint} within {timeout_s:g} s"
             f"{refused}: is `leadthrough gateway` running there?"

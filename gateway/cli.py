@@ -43,6 +43,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "export": ("gateway.export_cli", "export a recording's joint states as analyze's CSV"),
     "view": ("gateway.live_view", "serve the bus live to Foxglove (WebSocket)"),
     "config": ("gateway.config_check", "check a cell config: every section, every error"),
+    "bus-certs": ("gateway.bus_tls", "make the certificates for mutual TLS off the cell PC"),
     "analyze": (
         "control.identification.cli",
         "identify the dynamic model from recorded files, validate, find missing effects",

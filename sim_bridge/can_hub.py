@@ -91,6 +91,8 @@ class SeqpacketHubBus(can.BusABC):
     MAX_BACKLOG_FRAMES = 16384
     #: Datagrams read from one client per pass, so one chatty client cannot starve the rest.
     READ_BATCH = 256
+    #: Datagrams still read from a client being dropped (what it sent before it went).
+    DRAIN_LIMIT = 4096
     #: Connections the kernel queues before the owner's loop accepts them.
     LISTEN_BACKLOG = 16
 
@@ -322,10 +324,12 @@ class SeqpacketHubBus(can.BusABC):
             self._epoll.register(client.fd, _READ_EVENTS)
             log.info("%s: %s connected", self.channel_info, name)
 
-    def _read(self, client: _Client) -> None:
+    def _read(self, client: _Client, batch: int | None = None) -> None:
+        """Up to ``batch`` (default :attr:`READ_BATCH`) datagrams from ``client``, forwarded to
+        the others and queued for :meth:`recv`; drops it at its end of file."""
         sock, decode, channel = client.sock, client.decode, self.channel
         rx, own_fd = self._rx, self.fd
-        for _ in range(self.READ_BATCH):
+        for _ in range(self.READ_BATCH if batch is None else batch):
             try:
                 datagram, ancillary, _flags, _addr = sock.recvmsg(RECV_BYTES, _STAMP_SPACE)
             except (BlockingIOError, InterruptedError):
@@ -400,6 +404,10 @@ class SeqpacketHubBus(can.BusABC):
         if self._clients.pop(client.fd, None) is None:
             return
         self._client_list = tuple(self._clients.values())
+        # What it sent before it went is on the wire: delivered, as on a CAN bus. (A host that
+        # sends BRAKE and exits at once can be found gone by a send to it before its frames
+        # were read; closing then would lose the BRAKE.)
+        self._read(client, self.DRAIN_LIMIT)
         with contextlib.suppress(OSError, ValueError):
             self._epoll.unregister(client.fd)
         client.backlog.clear()

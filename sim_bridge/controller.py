@@ -119,6 +119,7 @@ class VirtualController:
         if request == HostRequest.BRAKE:
             self.servo_requested = False
             if self.state in (ControllerState.HOLD, ControllerState.EXTERNAL):
+                log.info("host requested BRAKE in %s: braking", self.state.name)
                 self.state = ControllerState.BRAKED
                 self.power_cut = False  # the brakes close while the drives still hold
         elif request == HostRequest.SERVO_ON:

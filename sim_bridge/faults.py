@@ -24,12 +24,22 @@ Figures (:func:`measure`, from the truth log, the tool point's path):
 - ``travel_after_reaction_m``: the tool's path from there to rest: the tool travel after
   detection; ``travel_m`` the path from the injection to rest;
 - ``peak_m_s``: the fastest the tool went from the injection to the end of the log;
-- ``tail_m``: how far it moved in the log's last 0.5 s (a stopped arm that creeps).
+- ``tail_m``: how far it moved in the log's last 0.5 s (a stopped arm that creeps);
+- ``stop_after_command_s``, ``travel_after_command_m`` and ``travel_after_missed_m``
+  (:func:`after_last_command`): from the controller's last accepted command to rest, and the
+  tool's path meanwhile (from that command, and from the first cycle without one): what a
+  robot's receive timeout promises when its host goes silent.
 
 Checks per fault: the arm came to rest and stayed there, the travel after the reaction is
 within the fault's bound, the tool never ran faster than hand guiding's 250 mm/s after the
 injection (unless the fault is the power cut of an e-stop, whose free motion is the plant's),
-and the cell reports the state a user expects, naming the cause.
+and the cell reports the state a user expects, naming the cause. ``kill_gateway_fast`` also
+checks the stop after the last command, from the teach mode's speed limit: at rest within 20 ms
+of it and one controller cycle, under 2 mm of travel from the first cycle without a command.
+The cycle is for the phase: the controller reads the host's BRAKE at its next cycle boundary,
+and when the host's last answer and its BRAKE fall either side of one, the arm runs one more
+cycle at speed (on the virtual cell's 8 ms cycle, 3 runs in 13 on 2026-11-28: at rest 16-24 ms
+after the last command, 2.7-3.1 mm from it, against 16 ms and 1.3-1.7 mm in the others).
 """
 
 from __future__ import annotations
@@ -83,6 +93,18 @@ DRAG = {
     "max_force_n": 80.0,
 }
 
+#: A hand that drags faster than hand guiding allows (its target at 0.3 m/s): the tool runs at
+#: the teach mode's speed limit (250 mm/s) when the fault comes.
+FAST_DRAG = {"path": [[0.0, 0, 0, 0], [0.5, 0, 0, 0], [6.5, 1.8, 0, 0]]}
+#: ... injected once the tool passes this speed [m/s]
+FAST_MOVING_M_S = 0.2
+#: A robot's controller stops the arm when its commands cease: at rest within 20 ms of the
+#: last one (Universal Robots' default receive timeout; plus one controller cycle, see the
+#: module docstring), the tool moving less than 2 mm once they ceased.
+AFTER_COMMAND = (0.020, 0.002)
+#: the last command is looked for from this long before the injection on [s]
+LAST_COMMAND_BEFORE_S = 0.1
+
 
 @dataclass(frozen=True)
 class Fault:
@@ -96,10 +118,17 @@ class Fault:
     max_travel_m: float = 0.03
     #: operator script overrides (a scripted fault, injected by the virtual cell)
     operator: dict[str, Any] = field(default_factory=dict)
+    #: overrides of the hand's drag (:data:`DRAG`) before the fault, e.g. a faster one
+    drag: dict[str, Any] = field(default_factory=dict)
     #: injects the fault into a running stack (None: scripted); returns a clean-up or None
     inject: Callable[[Stack], Callable[[], None] | None] | None = None
     #: the power is cut (stop category 0): the arm moves freely until the brakes engage
     power_cut: bool = False
+    #: an injected fault waits for the tool to pass this speed [m/s]
+    moving_m_s: float = MOVING_M_S
+    #: bounds on the stop after the controller's last accepted command: time to rest [s] and
+    #: the tool's travel [m] (None: not checked)
+    after_command: tuple[float, float] | None = None
 
 
 def _signal_child(name: str, sig: signal.Signals) -> Callable[[Stack], Callable[[], None] | None]:
@@ -147,6 +176,9 @@ FAULTS: tuple[Fault, ...] = (
           ("modbus-driver", "I/O state"), inject=_signal_child("modbus-driver", signal.SIGKILL)),
     Fault("kill_gateway", "kill -9 of the gateway (its children get SIGTERM)", None,
           max_travel_m=0.005, inject=_kill_gateway),
+    Fault("kill_gateway_fast", "kill -9 of the gateway at the hand-guiding speed limit", None,
+          max_travel_m=0.005, drag=FAST_DRAG, inject=_kill_gateway,
+          moving_m_s=FAST_MOVING_M_S, after_command=AFTER_COMMAND),
 )  # fmt: skip
 BY_NAME = {f.name: f for f in FAULTS}
 
@@ -187,6 +219,44 @@ def measure(truth: dict[str, np.ndarray], k: int) -> dict[str, Any]:
     }
 
 
+def after_last_command(truth: dict[str, np.ndarray], k: int) -> dict[str, Any]:
+    """The stop after the controller's last accepted command (the last row with a command's
+    latency, from :data:`LAST_COMMAND_BEFORE_S` before row ``k`` on: a killed host's last
+    command can precede the moment the harness took as the injection).
+
+    ``last_command_s``: when that was, from row ``k`` [s]; ``speed_at_last_command_m_s``;
+    ``stop_after_command_s``: from it to rest (under :data:`REST_M_S` for
+    :data:`REST_HOLD_S`; None: never) [s]; ``travel_after_command_m``: the tool's path from it
+    to rest, the last commanded cycle included; ``travel_after_missed_m``: from the first
+    cycle without a command to rest, the controller's own stop. Speeds here are each row's step
+    to the next (no smoothing: a stop within a few cycles is measured as it happened). All
+    None when no command came after that."""
+    t, xyz = truth["t_s"], tool_xyz(truth)
+    since = int(np.searchsorted(t, t[k] - LAST_COMMAND_BEFORE_S))
+    commanded = np.flatnonzero(np.isfinite(truth["latency_s"][since:])) + since
+    if not commanded.size or commanded[-1] + 1 >= t.size:
+        return dict.fromkeys(
+            ("last_command_s", "speed_at_last_command_m_s", "stop_after_command_s",
+             "travel_after_command_m", "travel_after_missed_m"),
+        )  # fmt: skip
+    last = int(commanded[-1])
+    step = np.linalg.norm(np.diff(xyz, axis=0), axis=1)  # step[i]: row i to row i + 1
+    speed = step / np.diff(t)
+    hold = max(1, round(REST_HOLD_S / float(np.median(np.diff(t)))))
+    rest = next(
+        (r for r in range(last, speed.size - hold + 1) if speed[r : r + hold].max() < REST_M_S),
+        None,
+    )
+    end = speed.size if rest is None else rest
+    return {
+        "last_command_s": float(t[last] - t[k]),
+        "speed_at_last_command_m_s": float(speed[max(last - 1, 0)]),
+        "stop_after_command_s": None if rest is None else float(t[rest] - t[last]),
+        "travel_after_command_m": float(step[last:end].sum()),
+        "travel_after_missed_m": float(step[last + 1 : end].sum()),
+    }
+
+
 def _moving(stack: Stack, speed_m_s: float, timeout_s: float) -> None:
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
@@ -218,7 +288,7 @@ def run_fault(
     cell_overrides: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Run one fault on a fresh stack; its figures and checks (module docstring)."""
-    operator = {**DRAG, **fault.operator}
+    operator = {**DRAG, **fault.drag, **fault.operator}
     cleanup: Callable[[], None] | None = None
     with Stack(
         workdir,
@@ -231,7 +301,7 @@ def run_fault(
             stack.start_teaching()
             t_inject: float | None = None
             if fault.inject is not None:
-                _moving(stack, MOVING_M_S, 20.0)
+                _moving(stack, fault.moving_m_s, 20.0)
                 t_inject = time.monotonic()
                 cleanup = fault.inject(stack)
                 polls = _watch(stack, WATCH_S)
@@ -252,6 +322,7 @@ def run_fault(
     else:
         k = int(np.searchsorted(truth["wall_s"], t_inject))
     rec: dict[str, Any] = {"fault": fault.name, "what": fault.what, **measure(truth, k)}
+    rec.update(after_last_command(truth, k))
     answered = [(w, s) for w, s in polls if w >= t_inject and s is not None]
     left = [w for w, s in answered if s.get("state") != "teaching"]
     rec["detected_s"] = left[0] - t_inject if left else None
@@ -267,6 +338,20 @@ def run_fault(
         "named": not fault.named
         or any(n in " ".join([rec["reason"], *problems]) for n in fault.named),
     }
+    if fault.after_command is not None:
+        stop_s, travel_m = fault.after_command
+        at_speed = rec["speed_at_last_command_m_s"]
+        checks["at_speed"] = at_speed is not None and at_speed >= fault.moving_m_s
+        # the controller reads a BRAKE at its next cycle boundary: one cycle is allowed for
+        # the phase of the host's last answer and its BRAKE (module docstring)
+        cycle_s = float(np.median(np.diff(truth["t_s"])))
+        checks["stop_after_command"] = (
+            rec["stop_after_command_s"] is not None
+            and rec["stop_after_command_s"] <= stop_s + cycle_s + 1e-9
+        )
+        checks["travel_after_missed"] = (
+            rec["travel_after_missed_m"] is not None and rec["travel_after_missed_m"] <= travel_m
+        )
     rec["pass"] = all(checks.values())
     return rec
 
@@ -282,20 +367,28 @@ def format_record(r: dict[str, Any]) -> str:
         f"detected {_fmt(r['detected_s'], 1e3)} ms, reaction {_fmt(r['reaction_s'], 1e3)} ms, "
         f"rest {_fmt(r['stop_s'], 1e3)} ms, travel {_fmt(r['travel_after_reaction_m'], 1e3, 1)} "
         f"mm after the reaction ({_fmt(r['travel_m'], 1e3, 1)} mm after the fault), peak "
-        f"{_fmt(r['peak_m_s'], 1e3)} mm/s; {r['state']} ({r['reason'][:80]})"
-        + (f"; failed: {', '.join(failed)}" if failed else "")
+        f"{_fmt(r['peak_m_s'], 1e3)} mm/s; the last command at "
+        f"{_fmt(r['speed_at_last_command_m_s'], 1e3)} mm/s, rest "
+        f"{_fmt(r['stop_after_command_s'], 1e3)} ms after it, travel "
+        f"{_fmt(r['travel_after_command_m'], 1e3, 1)} mm after it "
+        f"({_fmt(r['travel_after_missed_m'], 1e3, 1)} mm from the first cycle without one); "
+        f"{r['state']} ({r['reason'][:80]})" + (f"; failed: {', '.join(failed)}" if failed else "")
     )
 
 
 def markdown(records: Sequence[dict[str, Any]]) -> str:
     head = (
         "| fault | speed at fault [mm/s] | detected [ms] | reaction [ms] | rest [ms] | "
-        "travel after reaction [mm] | peak [mm/s] | state | pass |\n" + "|---" * 9 + "|\n"
+        "travel after reaction [mm] | peak [mm/s] | rest after the last command [ms] | "
+        "travel after the last command [mm] (from the first cycle without one) | state | "
+        "pass |\n" + "|---" * 11 + "|\n"
     )
     rows = [
         f"| {r['what']} | {_fmt(r['speed_m_s'], 1e3)} | {_fmt(r['detected_s'], 1e3)} | "
         f"{_fmt(r['reaction_s'], 1e3)} | {_fmt(r['stop_s'], 1e3)} | "
         f"{_fmt(r['travel_after_reaction_m'], 1e3, 1)} | {_fmt(r['peak_m_s'], 1e3)} | "
+        f"{_fmt(r['stop_after_command_s'], 1e3)} | {_fmt(r['travel_after_command_m'], 1e3, 1)} "
+        f"({_fmt(r['travel_after_missed_m'], 1e3, 1)}) | "
         f"{r['state'] or '(no gateway)'} | {'yes' if r['pass'] else 'NO'} |"
         for r in records
     ]

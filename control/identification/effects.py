@@ -552,8 +552,9 @@ def search_all_along(
         verdicts = _judge_all(
             ls, terms, lambda term: term.columns(ctx), names, weights, current, noise, tried,
             options, ctx.envelope,
-            partial(_delay_all_along, y0=y0, data=data, names=names, weights=weights,
-                    current=current, noise=noise, tried=tried, options=options)
+            partial(_delay_verdict, target=partial(shift_signal, data.t, data.segment, y0),
+                    names=names, weights=weights, current=current, noise=noise, tried=tried,
+                    options=options)
             if state.delay_s == 0.0 else None,
         )  # fmt: skip
         ok = [v for v in verdicts if v.accepted]
@@ -600,30 +601,6 @@ def search_all_along(
     return state
 
 
-def _delay_all_along(
-    ls: BlockLS,
-    y0: np.ndarray,
-    data: Prepared,
-    names: list[str],
-    weights: np.ndarray,
-    current: Evaluation,
-    noise: NoiseFloor,
-    tried: int,
-    options: Options,
-) -> Verdict:
-    deltas = _delays(options)
-    error_of = _fit_error_fn(
-        ls, names, weights, lambda d: shift_signal(data.t, data.segment, y0, d)
-    )
-    delta = _refine(deltas, np.array([error_of(float(d)) for d in deltas]), error_of)
-    ls.set_y(shift_signal(data.t, data.segment, y0, delta))
-    ev = ls.evaluate(names, weights)
-    term = EffectTerm("time_delay", tuple(range(ls.n)), {"delay_s": round(delta, 6)})
-    verdict = judge(term, current, ev, weights, noise, tried, options, extra_params=1)
-    verdict.delay_s = round(delta, 6)
-    return verdict
-
-
 def _delay_again(
     ls: BlockLS, y0: np.ndarray, data: Prepared, names: list[str], weights: np.ndarray, near: float
 ) -> float:
@@ -635,7 +612,7 @@ def _delay_again(
     return round(best, 6) if best != near else near
 
 
-def _delay_between(
+def _delay_verdict(
     ls: BlockLS,
     target: Callable[[float], np.ndarray],
     names: list[str],
@@ -645,8 +622,9 @@ def _delay_between(
     tried: int,
     options: Options,
 ) -> Verdict:
-    """Case (B)'s delay: the scan and refinement of the targets ``target(delay)`` on ``ls``
-    (its targets are changed), judged as one more candidate."""
+    """The delay candidate of a round: the scan and refinement of the groups ``names`` fitted
+    on the targets ``target(delay)`` on ``ls`` (its targets are changed), judged as one more
+    candidate at the delay it reports (rounded to 1 µs)."""
     deltas = _delays(options)
     error_of = _fit_error_fn(ls, names, weights, target)
     d_best = round(_refine(deltas, np.array([error_of(float(d)) for d in deltas]), error_of), 6)
@@ -803,7 +781,7 @@ def search_between(
         verdicts = _judge_all(
             ls, terms, lambda term: _rows(term.columns(ctx), fit_rows), names, weights, current,
             noise, tried, options, ctx.envelope,
-            partial(_delay_between, target=lambda d: (tau - shifted(d))[fit_rows], names=names,
+            partial(_delay_verdict, target=lambda d: (tau - shifted(d))[fit_rows], names=names,
                     weights=weights, current=current, noise=noise, tried=tried, options=options)
             if with_delay else None,
         )  # fmt: skip

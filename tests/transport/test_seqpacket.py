@@ -445,6 +445,24 @@ def test_a_client_that_stops_reading_is_dropped_without_blocking_the_hub(hub, cl
     assert got == list(range(5000)), "the reader that keeps up loses nothing"
 
 
+def test_frames_a_client_sent_before_it_went_reach_the_hub_even_if_a_send_finds_it_gone(
+    hub, client
+):
+    """A host that sends BRAKE and exits at once: the hub's next send finds its socket closed
+    before the hub read what it sent. On a CAN bus those frames were on the wire: they arrive
+    (the virtual controller once lost such a BRAKE and ran into its command timeout)."""
+    h = hub()
+    leaving, staying = client(), client()
+    assert h.wait_for_clients(2, SLOW_S)
+    for i in range(7):
+        leaving.send(numbered(i))
+    leaving.shutdown()
+    h.send(numbered(99, 0x181))  # finds it gone: dropped, what it sent read first
+    assert [number(m) for m in recv_n(h, 7)] == list(range(7))
+    assert [number(m) for m in recv_n(staying, 8)] == [*range(7), 99]
+    assert h.client_count == 1
+
+
 def test_send_waits_at_most_its_timeout_when_nobody_reads(hub, client):
     hub()  # never serviced: its kernel buffer fills
     a = client()

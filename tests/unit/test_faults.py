@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sim_bridge.faults import FAULTS, measure
+from sim_bridge.faults import FAULTS, after_last_command, measure
 
 DT = 0.008
 
@@ -56,3 +56,20 @@ def test_every_fault_has_a_bound_and_names_its_cause_where_a_gateway_is_left():
         assert 0 < f.max_travel_m <= 0.1
         assert (f.inject is None) == bool(f.operator), f"{f.name}: scripted or injected, not both"
         assert f.state is None or f.state in ("ready", "stopped", "fault")
+
+
+def test_the_stop_after_the_last_command_is_timed_from_that_command():
+    """Commands (a finite latency) until 1.0 s, then none; the tool at 0.2 m/s keeps on for
+    one cycle, then decelerates at 12.5 m/s² to rest (16 ms, 1.6 mm + 1.6 mm)."""
+    x = drag_then_stop(v=0.2, react_s=DT, decel=12.5, t_fault=1.0)
+    truth = truth_of(x)
+    last = round(1.0 / DT)
+    truth["latency_s"] = np.where(np.arange(x.size) <= last, 0.002, np.nan)
+    r = after_last_command(truth, last + 3)  # the harness's injection can come after it
+    assert r["last_command_s"] == pytest.approx(-3 * DT)
+    assert r["speed_at_last_command_m_s"] == pytest.approx(0.2, rel=1e-6)
+    assert r["stop_after_command_s"] == pytest.approx(DT + 0.016, abs=DT)
+    assert r["travel_after_command_m"] == pytest.approx(0.2 * DT + 0.2**2 / 25.0, rel=0.05)
+    assert r["travel_after_missed_m"] == pytest.approx(0.2**2 / 25.0, rel=0.1)
+    truth["latency_s"][:] = np.nan  # no command near the fault: nothing to time
+    assert after_last_command(truth, last)["stop_after_command_s"] is None
