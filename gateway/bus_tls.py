@@ -28,10 +28,11 @@ import ipaddress
 import json
 import os
 import stat
+import sys
 from pathlib import Path
 from typing import Any
 
-from gateway.errors import ConfigError
+from gateway.errors import EXIT_CONFIG, ConfigError
 
 #: Validity of the certificates ``bus-certs`` makes [days] (the authority's: ten times that).
 DEFAULT_DAYS = 825
@@ -209,8 +210,8 @@ def cli_main(args: argparse.Namespace) -> int:
     try:
         written = make_certificates(args.out, args.host, args.client, args.days)
     except ConfigError as exc:
-        print(f"leadthrough bus-certs: {exc}")
-        return 78
+        print(f"leadthrough {exc}", file=sys.stderr)
+        return EXIT_CONFIG
     for name, path in written.items():
         print(f"{name:>14}  {path}")
     print(
