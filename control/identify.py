@@ -10,6 +10,10 @@ multi-sines) fit the model and the "test" multi-sines validate it (`leadthrough 
 steps per joint) estimate the vendor loop's gains, eq. (19), and from them the outer loop's ω and
 Υ_I (:mod:`control.identification.inner_loop`): ``OUT/inner_loop.json``, with the lines to put in
 the cell config's ``[control]``.
+
+On a terminal a bar on stderr counts the experiments played of those planned, with the time
+left from the share of the plan's time played, then the analysis's stages (``--no-progress``:
+none; in a pipe or a log the output is the same lines as without it).
 """
 
 from __future__ import annotations
@@ -22,7 +26,8 @@ from typing import Any
 
 import numpy as np
 
-from control.identification.analyze import AnalyzeOptions, analyze
+from control.experiments import build_plan
+from control.identification.analyze import AnalyzeOptions, analyze, stage_bar
 from control.identification.inner_loop import (
     DELAYS,
     InnerLoopEstimate,
@@ -36,6 +41,7 @@ from gateway.bus import BusConfig, bus_config_from
 from gateway.config import load_toml
 from gateway.errors import LeadthroughError
 from gateway.messages import FLAG_PREV_COAST, FLAG_PREV_HOLD, decode_json
+from gateway.progress import ProgressBar, add_progress_argument, progress_bar, progress_enabled
 from gateway.recorder import BusRecorder, RecordedStates, export_csv, iter_mcap, read_states
 from gateway.supervisor import operator_request
 
@@ -122,8 +128,62 @@ def wait_for_standstill(bus: BusConfig, wait_s: float = SETTLE_WAIT_S) -> None:
         time.sleep(0.2)
 
 
-def run_plan(bus: BusConfig, plan: dict[str, Any], out: Path, timeout_s: float) -> Path:
-    """Record the bus while the cell plays ``plan``; returns the MCAP path."""
+#: The experiment bar: experiments played / planned, then the plan's share of time and the
+#: time left (tqdm's own estimate would assume experiments of equal length: a 0.5 °/s friction
+#: run takes about 30 times longer than a 16 °/s one).
+EXPERIMENT_BAR_FORMAT = "{desc}: {n_fmt}/{total_fmt} experiments |{bar}| [{elapsed}{postfix}]"
+#: The sample time the experiment labels are counted with [s]; labels and counts do not
+#: depend on it (the control process builds the plan at the controller's cycle).
+_LABEL_DT_S = 0.05
+
+
+def plan_labels(plan: dict[str, Any], n_joints: int) -> list[str]:
+    """The labels of ``plan``'s experiments in the order the cell plays them, as the control
+    process builds them (:func:`control.experiments.build_plan`); empty for a plan it would
+    refuse (the gateway's reply then says why)."""
+    n = n_joints
+    try:
+        segments = build_plan(
+            plan, np.zeros(n), np.full(n, -np.inf), np.full(n, np.inf), _LABEL_DT_S, 0.0
+        )
+    except ValueError:
+        return []
+    return [label for label, *_ in segments]
+
+
+def experiments_done(labels: list[str], playing: object, done: int) -> int:
+    """Experiments of ``labels`` played before ``playing`` (the label the status names), at
+    least ``done``; a label a plan repeats is looked for after those already done."""
+    if not isinstance(playing, str):
+        return done
+    for k in range(done, len(labels)):
+        if labels[k] == playing:
+            return k
+    return done
+
+
+def time_left_note(share: float, elapsed_s: float) -> str:
+    """``23 % of the plan, 18:02 left``: the time left [s] extrapolated from the share of the
+    plan's samples played (the cycle is fixed, so samples are time) in ``elapsed_s``."""
+    if share <= 0.0:
+        return f"{100 * share:.0f} % of the plan"
+    left_s = max(elapsed_s * (1.0 - share) / share, 0.0)
+    minutes, seconds = divmod(round(left_s), 60)
+    return f"{100 * share:.0f} % of the plan, {minutes}:{seconds:02d} left"
+
+
+def run_plan(
+    bus: BusConfig,
+    plan: dict[str, Any],
+    out: Path,
+    timeout_s: float,
+    show_progress: bool | None = None,
+    n_joints: int = 6,
+) -> Path:
+    """Record the bus while the cell plays ``plan``; returns the MCAP path.
+
+    ``show_progress``: the experiment bar (:func:`gateway.progress.progress_bar`'s
+    ``enabled``: None on a terminal); ``n_joints`` the robot's, to count the experiments."""
     out.mkdir(parents=True, exist_ok=True)
     mcap = out / "identify.mcap"
     rec = BusRecorder(bus, mcap, {"plan": json.dumps(plan)})
@@ -135,30 +195,50 @@ def run_plan(bus: BusConfig, plan: dict[str, Any], out: Path, timeout_s: float) 
         if not reply.get("ok"):
             raise LeadthroughError(f"the gateway refused to identify: {reply.get('message')}")
         print(f"identification running ({reply.get('message')}); keep the enabling device held")
-        deadline = time.monotonic() + timeout_s
-        shown: tuple[int, object] = (-1, None)
-        while True:
-            status = operator_request(bus, "status")
-            if status.get("state") != "identifying":
-                print(f"identification ended: {status.get('reason')}")
-                break
-            plan = status.get("plan") or {}
-            progress = plan.get("progress")
-            if isinstance(progress, int | float):
-                # a line per 10 % and per segment (a 25-minute run on a real cell)
-                now = (int(10 * progress), plan.get("segment"))
-                if now != shown:
-                    print(f"identification {100 * progress:.0f} % ({plan.get('segment')})")
-                    shown = now
-            if time.monotonic() > deadline:
-                operator_request(bus, "stop")
-                raise LeadthroughError(f"plan not finished after {timeout_s} s; robot stopped")
-            time.sleep(1.0)
+        labels = plan_labels(plan, n_joints)
+        with progress_bar(
+            len(labels) or None,
+            "identify",
+            "experiment",
+            enabled=show_progress,
+            bar_format=EXPERIMENT_BAR_FORMAT if labels else None,
+        ) as bar:
+            _follow_plan(bus, labels, timeout_s, bar)
     finally:
         rec.stop()
     if rec.error:
         raise LeadthroughError(f"recording failed: {rec.error}")
     return mcap
+
+
+def _follow_plan(bus: BusConfig, labels: list[str], timeout_s: float, bar: ProgressBar) -> None:
+    """Poll the gateway's status until the plan ends: a line per 10 % and per segment (a
+    25-minute run on a real cell), and ``bar`` at the experiments played."""
+    started = time.monotonic()
+    deadline = started + timeout_s
+    shown: tuple[int, object] = (-1, None)
+    while True:
+        status = operator_request(bus, "status")
+        plan = status.get("plan") or {}
+        if status.get("state") != "identifying":
+            if plan.get("state") == "done":
+                bar.update_to(len(labels), label="")
+                bar.set_note("plan done")
+            bar.write(f"identification ended: {status.get('reason')}")
+            break
+        progress = plan.get("progress")
+        if isinstance(progress, int | float):
+            segment = plan.get("segment")
+            bar.update_to(experiments_done(labels, segment, bar.n), label=str(segment or ""))
+            bar.set_note(time_left_note(float(progress), time.monotonic() - started))
+            now = (int(10 * progress), segment)
+            if now != shown:
+                bar.write(f"identification {100 * progress:.0f} % ({segment})")
+                shown = now
+        if time.monotonic() > deadline:
+            operator_request(bus, "stop")
+            raise LeadthroughError(f"plan not finished after {timeout_s} s; robot stopped")
+        time.sleep(1.0)
 
 
 #: the CAN driver's name in its health key (drivers.can.driver.PROCESS_NAME, which imports
@@ -285,6 +365,7 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     plan.add_argument("--quick", action="store_true", help="the short plan (virtual cell)")
     p.add_argument("--timeout", type=float, default=3600.0, help="give up after [s]")
     p.add_argument("--friction", default="eq15", help="friction model: simple, eq14, eq15")
+    add_progress_argument(p)
 
 
 def cli_main(args: argparse.Namespace) -> int:
@@ -297,8 +378,9 @@ def cli_main(args: argparse.Namespace) -> int:
         plan = dict(QUICK_PLAN if args.quick else FULL_PLAN)
     plan["plan_id"] = plan.get("plan_id") or f"ident-{int(time.time())}"
     out: Path = args.out
-    mcap = run_plan(bus, plan, out, args.timeout)
     desc = load_description()
+    show = progress_enabled(args)
+    mcap = run_plan(bus, plan, out, args.timeout, show, len(desc.joints))
     gains = [j.drive_gain_nm_per_a for j in desc.joints]
     report = finished_report(mcap, bus.keys.experiment, plan["plan_id"])
     zero = write_current_zero(mcap, bus.keys.health(CAN_DRIVER), out)
@@ -329,7 +411,8 @@ def cli_main(args: argparse.Namespace) -> int:
         torque_cutoff_hz=ANALYSIS_CUTOFF_HZ,
         skip_short_files=True,
     )
-    summary = analyze(urdf, train, test, out, options)
+    with stage_bar(show) as bar:
+        summary = analyze(urdf, train, test, out, options, bar=bar)
     print(json.dumps({k: summary[k] for k in ("rms_before", "rms_after", "effects")}, indent=1))
     print(f"model: {out / 'model.json'}  report: {out / 'report.md'}")
     return 0

@@ -23,6 +23,7 @@ BUILTINS: dict[str, dict[str, str]] = {
     "leadthrough.can_adapters": {
         "ltc_dbc": "drivers.can.ltc:LtcAdapter",  # LTC-1, classic CAN (PROTOCOL.md §2)
         "ltc_fd": "drivers.can.ltc_fd:LtcFdAdapter",  # LTC-1F, CAN FD (PROTOCOL.md §10)
+        "cia402": "drivers.can.cia402:Cia402Adapter",  # CiA 402 drives over CANopen
     },
 }
 

@@ -200,7 +200,7 @@ def declare_loop_publisher(session: zenoh.Session, key: str):
 
 
 #: the sections of a cell config; each process reads its own and the [bus]
-CELL_SECTIONS = ("bus", "can", "control", "gateway", "modbus", "realtime")
+CELL_SECTIONS = ("bus", "can", "control", "gateway", "modbus", "realtime", "ros2")
 
 
 def bus_config_from(cell: dict[str, Any], where: str) -> BusConfig:

@@ -40,8 +40,12 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "bench": ("sim_bridge.bench", "measure wire-to-wire loop latency on the virtual cell"),
     "identify": ("control.identify", "run identification experiments on the cell and fit"),
     "record": ("gateway.recorder", "record everything on the bus into an MCAP file"),
-    "export": ("gateway.export_cli", "export a recording's joint states as analyze's CSV"),
+    "export": (
+        "gateway.export_cli",
+        "export a recording's joint states for analyze (CSV, Parquet)",
+    ),
     "view": ("gateway.live_view", "serve the bus live to Foxglove (WebSocket)"),
+    "ros2": ("gateway.ros2", "publish the joint states to a ROS 2 system (rmw_zenoh)"),
     "config": ("gateway.config_check", "check a cell config: every section, every error"),
     "bus-certs": ("gateway.bus_tls", "make the certificates for mutual TLS off the cell PC"),
     "analyze": (

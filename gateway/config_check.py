@@ -62,6 +62,12 @@ def _realtime(path: Path, raw: dict[str, Any]) -> object:
     return realtime_config_from(raw, str(path))
 
 
+def _ros2(path: Path, raw: dict[str, Any]) -> object:
+    from gateway.ros2 import ros2_config_from
+
+    return ros2_config_from(raw, str(path))
+
+
 #: the sections the gateway checks before it starts its children (its own and [bus] are read
 #: before that, by load_gateway_config)
 GATEWAY_START_SECTIONS = ("can", "modbus", "realtime")
@@ -74,6 +80,7 @@ LOADERS: dict[str, Callable[[Path, dict[str, Any]], object]] = {
     "modbus": _modbus,
     "control": _control,
     "realtime": _realtime,
+    "ros2": _ros2,
 }
 
 
@@ -118,6 +125,7 @@ def _section_classes() -> dict[str, type]:
     from drivers.modbus.config import ModbusDriverConfig
     from gateway.bus import BusConfig
     from gateway.realtime import Realtime
+    from gateway.ros2 import Ros2Config
     from gateway.supervisor import GatewayConfig
 
     return {
@@ -127,6 +135,7 @@ def _section_classes() -> dict[str, type]:
         "modbus": ModbusDriverConfig,
         "control": ControlConfig,
         "realtime": Realtime,
+        "ros2": Ros2Config,
     }
 
 

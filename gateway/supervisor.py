@@ -600,7 +600,10 @@ class Gateway:
                 None if st is None else st.q_rad,
             )  # fmt: skip
             for _ in range(presses):
-                ok, message = self._mark("", "handle", st, state)
+                try:
+                    ok, message = self._mark("", "handle", st, state)
+                except ProgramError as exc:  # no program yet: a press too early, not a fault
+                    ok, message = False, str(exc)  # (a disk that refused it faulted in _mark)
                 (log.info if ok else log.warning)("teach handle mark: %s", message)
         except ProgramError as exc:
             self._program_failed(exc)

@@ -20,7 +20,8 @@ enabling device and teaching, for ``--cycles`` controller cycles. Reported per r
 * ``cpu_ms_per_cycle``: CPU time of each process per controller cycle.
 
 A rate at which teaching cannot even start is reported with the reason and the controller's
-faults, not a traceback.
+faults, not a traceback. On a terminal a bar on stderr counts the measured cycles of all
+rates (``--no-progress``: none).
 """
 
 from __future__ import annotations
@@ -28,10 +29,12 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from gateway.bus_security import write_credentials
+from gateway.progress import add_progress_argument, progress_bar, progress_enabled
 from sim_bridge.harness import CAN_PROFILES, Stack, deep_merge
 
 #: the counters of the CAN driver's health that classify its answers
@@ -75,7 +78,10 @@ def run_rate(
     profile: str = "classic",
     place: bool = False,
     locked_bus: bool = False,
+    on_cycles: Callable[[int], None] | None = None,
 ) -> dict[str, Any]:
+    """One rate's measurement (module docstring). ``on_cycles(k)`` hears, about every 0.5 s,
+    how many of the ``cycles`` the measured window has lasted so far (from its clock)."""
     period = 1.0 / rate_hz
     sim_profile, cell_overrides = CAN_PROFILES[profile]
     if locked_bus:  # the cell PC's bus: credentials, access list, every process a client
@@ -103,10 +109,13 @@ def run_rate(
             result["error"] = f"teaching did not start: {exc}"
         else:
             before = driver_health(stack)
-            t_end = time.monotonic() + cycles * period
+            t_start = time.monotonic()
+            t_end = t_start + cycles * period
             cpu = _cpu(stack, min(10.0, cycles * period / 2))
             while time.monotonic() < t_end:
                 stack.check_alive()
+                if on_cycles is not None:
+                    on_cycles(min(cycles, int((time.monotonic() - t_start) / period)))
                 time.sleep(min(0.5, max(t_end - time.monotonic(), 0.0)))
             after = driver_health(stack)
             delta = {k: int(after[k]) - int(before[k]) for k in _COUNTS}
@@ -190,6 +199,7 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
         help="run the product on a locked bus, as the cell PC does (credentials, the router's "
         "access list, every process a client of the router: gateway/bus_security.py)",
     )
+    add_progress_argument(p)
 
 
 def cli_main(args: argparse.Namespace) -> int:
@@ -197,12 +207,22 @@ def cli_main(args: argparse.Namespace) -> int:
         print("--cycles must be at least 100")
         return 2
     results = []
-    for rate in args.rates:
-        print(f"running {args.cycles} cycles at {rate:.0f} Hz ({args.profile}) ...", flush=True)
-        workdir = args.out / f"{rate:.0f}hz_{args.profile}"
-        results.append(
-            run_rate(rate, args.cycles, workdir, args.profile, args.place, args.locked_bus)
-        )
+    total = args.cycles * len(args.rates)
+    with progress_bar(total, "bench", "cycle", enabled=progress_enabled(args)) as bar:
+        for k, rate in enumerate(args.rates):
+            bar.write(f"running {args.cycles} cycles at {rate:.0f} Hz ({args.profile}) ...")
+            bar.set_label(f"{rate:.0f} Hz")
+            workdir = args.out / f"{rate:.0f}hz_{args.profile}"
+            done = k * args.cycles
+
+            def measured(cycles: int, done: int = done) -> None:
+                bar.update_to(done + cycles)
+
+            result = run_rate(
+                rate, args.cycles, workdir, args.profile, args.place, args.locked_bus, measured
+            )
+            results.append(result)
+            bar.update_to(done + args.cycles)  # also a rate that could not start: it is over
     print()
     print(_table(results))
     doc = {"rates": results}

@@ -177,6 +177,10 @@ class SensorTruth:
         )
 
 
+#: ``[controller].can_profile``: LTC-1 on classic CAN or CAN FD, or CiA 402 drives
+CAN_PROFILES = ("classic", "fd", "cia402")
+
+
 @dataclass(frozen=True)
 class ControllerSpec:
     """Public behaviour of the vendor controller (what its manual would say)."""
@@ -194,8 +198,16 @@ class ControllerSpec:
     command_delay_cycles: int = 1
     #: CAN profile of LTC-1 the controller speaks (drivers/can/PROTOCOL.md): "classic" (§2,
     #: JOINT_FB/JOINT_CMD per joint, host adapter "ltc_dbc") or "fd" (§10, one CAN FD frame
-    #: each way per cycle, host adapter "ltc_fd")
+    #: each way per cycle, host adapter "ltc_fd"); or "cia402": no vendor controller but one
+    #: CANopen CiA 402 drive per joint (sim_bridge/cia402_drives.py), clocked by the host's
+    #: SYNC. There cycle_period_s is the drives' servo cycle (the plant's step between
+    #: samples), max_missed_cycles the sync watchdog (communication cycles 0x1006 without a
+    #: SYNC in Operation enabled), max_following_error_rad the following error limit (0x6065);
+    #: the host heartbeat is the drives' 0x1016, command_delay_cycles unused (an RPDO takes
+    #: effect at the next SYNC)
     can_profile: str = "classic"
+    #: "cia402": node id of joint 1's drive; joint k's is first_node_id + k - 1
+    first_node_id: int = 1
 
     def __post_init__(self) -> None:
         require(
@@ -209,9 +221,14 @@ class ControllerSpec:
             f"{self.command_delay_cycles} outside 0..10",
         )
         require(
-            self.can_profile in ("classic", "fd"),
+            self.can_profile in CAN_PROFILES,
             "[controller].can_profile",
-            f"{self.can_profile!r} is neither 'classic' nor 'fd'",
+            f"{self.can_profile!r} is neither 'classic', 'fd' nor 'cia402'",
+        )
+        require(
+            1 <= self.first_node_id <= 127,
+            "[controller].first_node_id",
+            f"{self.first_node_id} outside 1..127",
         )
 
 
@@ -406,6 +423,12 @@ class SimConfig:
         for unit in self.cylinders.units:
             require(1 <= unit.joint <= n, "[[cylinders.units]].joint", f"{unit.joint} not 1..{n}")
         require(0 < self.timestep_s <= 0.002, "timestep_s", f"{self.timestep_s} not in (0, 2 ms]")
+        last_node = self.controller.first_node_id + n - 1
+        require(
+            self.controller.can_profile != "cia402" or last_node <= 127,
+            "[controller].first_node_id",
+            f"{n} drives from node {self.controller.first_node_id} end at {last_node} > 127",
+        )
         ratio = self.controller.cycle_period_s / self.timestep_s
         require(
             abs(ratio - round(ratio)) < 1e-6,
@@ -426,12 +449,35 @@ def arm_mjcf_path(cfg: SimConfig) -> Path:
     return p if p.is_absolute() else Path(__file__).parent / p
 
 
+def _overlay(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
+    """``base`` with ``over``'s keys: tables merged key by key, anything else replaced."""
+    out = dict(base)
+    for key, value in over.items():
+        both = isinstance(value, dict) and isinstance(base.get(key), dict)
+        out[key] = _overlay(base[key], value) if both else value
+    return out
+
+
+def _load_truth(p: Path, seen: tuple[Path, ...] = ()) -> dict[str, Any]:
+    """A truth file; one with ``extends = "other.toml"`` (absolute, or beside this package)
+    is that file with its own keys laid over it (tables merged, anything else replaced)."""
+    raw = load_toml(p)
+    base = raw.pop("extends", None)
+    if base is None:
+        return raw
+    require(isinstance(base, str), f"{p}: extends", f"{base!r} is not a file name")
+    b = Path(base) if Path(base).is_absolute() else Path(__file__).parent / base
+    require(b.resolve() not in seen, f"{p}: extends", f"{base} extends itself")
+    return _overlay(_load_truth(b, (*seen, p.resolve())), raw)
+
+
 def load_sim_config(
     path: str | Path | None = None, overrides: dict[str, Any] | None = None
 ) -> SimConfig:
-    """Load the truth file; ``overrides`` replace whole top-level keys (tests, scenarios)."""
+    """Load the truth file (``extends``: see :func:`_load_truth`); ``overrides`` replace
+    whole top-level keys (tests, scenarios)."""
     p = Path(path) if path else DEFAULT_TRUTH
-    raw = load_toml(p)
+    raw = _load_truth(p)
     if overrides:
         raw = {**raw, **overrides}
     return from_mapping(SimConfig, raw, str(p))

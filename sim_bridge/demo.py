@@ -26,7 +26,7 @@ from gateway.recorder import BusRecorder
 from sim_bridge.baseline import run_baseline
 from sim_bridge.commission import commissioned
 from sim_bridge.config import load_sim_config
-from sim_bridge.harness import Stack
+from sim_bridge.harness import SIM_CELL, Stack
 
 #: [t_s, dx_m, dy_m, dz_m] from the tool position at teaching onset
 DEMO_PATH = [
@@ -72,9 +72,17 @@ def teaching_metrics(
     duration = float(t[-1] - t[0]) if len(t) > 1 else 0.0
     cycles = summary.get("teaching_cycles", 0)
     missed = summary.get("teaching_missed_cycles", 0)
+    # The command cycles are where the truth's cycle counter moves on: every row on the LTC
+    # controller, every SYNC on CiA 402 drives (whose rows are their servo cycles).
+    new_cycle = np.r_[True, np.diff(truth["cycle"]) != 0]
+    starts = np.flatnonzero(new_cycle)
+    period_s = float(np.median(np.diff(truth["t_s"][starts]))) if starts.size > 1 else 0.0
     if rows is not None:  # the simulator's counters span the whole run: count these rows
-        cycles = int(mask.sum())
-        missed = int(np.sum(np.isnan(truth["latency_s"][mask])))
+        sel = np.flatnonzero(mask)
+        cycle_of = np.cumsum(new_cycle)[sel]  # the command cycle each row belongs to
+        cycles = int(np.unique(cycle_of).size)
+        answered = int(np.unique(cycle_of[np.isfinite(truth["latency_s"][sel])]).size)
+        missed = cycles - answered
     return {
         "teaching_duration_s": duration,
         "mean_force_n": float(force.mean()),
@@ -82,7 +90,7 @@ def teaching_metrics(
         "tool_path_length_m": float(steps.sum()),
         "tool_net_displacement_m": float(np.linalg.norm(tool[-1] - tool[0])),
         "loop_rate_hz": (cycles - missed) / duration if duration > 0 else 0.0,
-        "nominal_rate_hz": 1.0 / summary["cycle_period_s"],
+        "nominal_rate_hz": 1.0 / (period_s or summary["cycle_period_s"]),
         "commands_missed": int(missed),
         "controller_faults": summary.get("faults", []),
         "latency_p50_ms": (summary.get("latency_p50_s") or float("nan")) * 1e3,
@@ -143,6 +151,14 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
         type=int,
         default=0,
         help="the virtual robot to teach (0: the documented default plant)",
+    )
+    p.add_argument(
+        "--cell",
+        type=Path,
+        default=SIM_CELL,
+        help="the product's cell config (default deploy/config/sim_cell.toml; "
+        "deploy/config/sim_cell_cia402.toml: CiA 402 drives over CANopen); the virtual cell "
+        "runs the controller its [can].adapter speaks to",
     )
 
 
@@ -205,6 +221,7 @@ def cli_main(args: argparse.Namespace) -> int:
     with Stack(
         out / "run", sim_overrides={"operator": operator}, plant_seed=args.plant_seed,
         model=done.model, inner_loop=done.inner_loop, current_zero=done.current_zero,
+        cell_file=args.cell,
     ) as stack:  # fmt: skip
         stack.start()
         # Everything on the bus, as `leadthrough record` writes it (self-describing MCAP).

@@ -3,7 +3,7 @@ cell while a hand drags the tool, and what the arm did, measured on the plant's 
 
 Usage::
 
-    python -m sim_bridge.faults --out DIR [--only NAME ...] [--plant-seed N]
+    python -m sim_bridge.faults --out DIR [--only NAME ...] [--plant-seed N] [--profile P]
 
 (`make faults` runs them all.) Each fault runs a fresh :class:`~sim_bridge.harness.Stack`: the
 operator starts teaching and drags the tool along +x at about 0.15 m/s with an 80 N hand that
@@ -58,7 +58,7 @@ from typing import Any
 
 import numpy as np
 
-from sim_bridge.harness import Stack
+from sim_bridge.harness import CAN_PROFILES, Stack
 
 #: after the injection, how long the gateway's status is watched before the truth is read [s]
 WATCH_S = 3.0
@@ -152,6 +152,14 @@ def _kill_gateway(stack: Stack) -> None:
     os.kill(stack.gateway.pid, signal.SIGKILL)
 
 
+def _kill_product(stack: Stack) -> None:
+    """kill -9 of the gateway and every process it started, at once (the service's control
+    group killed, the cell PC's power gone): no BRAKE, no heartbeat, no answer any more."""
+    for pid in stack.product_pids():
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(pid, signal.SIGKILL)
+
+
 def _operator_stop(stack: Stack) -> None:
     stack.request("stop")
 
@@ -179,6 +187,8 @@ FAULTS: tuple[Fault, ...] = (
     Fault("kill_gateway_fast", "kill -9 of the gateway at the hand-guiding speed limit", None,
           max_travel_m=0.005, drag=FAST_DRAG, inject=_kill_gateway,
           moving_m_s=FAST_MOVING_M_S, after_command=AFTER_COMMAND),
+    Fault("kill_product", "kill -9 of the gateway and all its processes at once (no BRAKE)",
+          None, max_travel_m=0.1, inject=_kill_product, power_cut=True),
 )  # fmt: skip
 BY_NAME = {f.name: f for f in FAULTS}
 
@@ -400,12 +410,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, required=True)
     ap.add_argument("--only", nargs="+", choices=sorted(BY_NAME), help="these faults only")
     ap.add_argument("--plant-seed", type=int, default=0)
+    ap.add_argument(
+        "--profile",
+        choices=sorted(CAN_PROFILES),
+        default="classic",
+        help="the CAN profile: LTC-1 classic or FD, or CiA 402 drives over CANopen",
+    )
     args = ap.parse_args(argv)
+    cell_overrides = CAN_PROFILES[args.profile][1]
     args.out.mkdir(parents=True, exist_ok=True)
     records = []
     for fault in [BY_NAME[n] for n in args.only] if args.only else FAULTS:
         try:
-            rec = run_fault(fault, args.out / fault.name, args.plant_seed)
+            rec = run_fault(fault, args.out / fault.name, args.plant_seed, cell_overrides)
         except Exception as exc:  # a fault that breaks the run fails; the others run
             rec = {"fault": fault.name, "what": fault.what, "pass": False, "error": repr(exc)}
             print(f"FAIL  {fault.name:<18} {exc!r}", flush=True)

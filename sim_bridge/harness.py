@@ -43,15 +43,33 @@ TRUTH = Path(__file__).with_name("gr630st_truth.toml")
 #: ``Stack(model=COMMISSIONED)``: the plant seed's commissioned model (:mod:`.commission`)
 COMMISSIONED = "commissioned"
 
-#: The CAN profiles of the protocol (drivers/can/PROTOCOL.md §2 and §10) as (virtual
-#: controller overrides, cell config overrides): both ends must speak the same one.
+SIM_CELL_CIA402 = REPO / "deploy" / "config" / "sim_cell_cia402.toml"
+TRUTH_CIA402 = Path(__file__).with_name("gr630st_truth_cia402.toml")
+
+
+def _cia402_profile() -> tuple[dict[str, Any], dict[str, Any]]:
+    """The CiA 402 drives ([controller] of gr630st_truth_cia402.toml) and the product's [can]
+    for them (sim_cell_cia402.toml, its EDS path made absolute)."""
+    controller = load_toml(TRUTH_CIA402)["controller"]
+    can_section = copy.deepcopy(load_toml(SIM_CELL_CIA402)["can"])
+    eds = Path(can_section["cia402"]["eds"])
+    can_section["cia402"]["eds"] = str(eds if eds.is_absolute() else SIM_CELL_CIA402.parent / eds)
+    can_section.pop("transport", None)
+    return {"controller": controller}, {"can": can_section}
+
+
+#: The CAN profiles (drivers/can/PROTOCOL.md §2 and §10, and CiA 402 drives over CANopen) as
+#: (virtual controller overrides, cell config overrides): both ends must speak the same one.
 CAN_PROFILES: dict[str, tuple[dict[str, Any], dict[str, Any]]] = {
     "classic": ({}, {}),
     "fd": (
         {"controller": {"can_profile": "fd"}},
         {"can": {"adapter": "ltc_fd", "transport": {"fd": True}}},
     ),
+    "cia402": _cia402_profile(),
 }
+#: [can].adapter → the virtual controller's [controller].can_profile that speaks to it
+VIRTUAL_PROFILE = {"ltc_dbc": "classic", "ltc_fd": "fd", "cia402": "cia402"}
 
 
 def free_port() -> int:
@@ -152,6 +170,7 @@ class Stack:
         inner_loop: str | Path | None = None,
         current_zero: str | Path | None = None,
         place: bool = False,
+        cell_file: Path = SIM_CELL,
     ) -> None:
         """``plant_seed``: the virtual robot drawn (:mod:`sim_bridge.truth`; 0 is the truth
         file as written). ``model``: what the control process compensates: the plant's
@@ -165,7 +184,9 @@ class Stack:
         default: placed, the loop answers more cycles in time (`leadthrough bench --place`),
         but `make demo`'s replay took 22-23 s instead of 17.6 s and the identified model's
         J2 error in it read 17-29 N·m instead of 9.7 (one run each, 2026-11-27; not traced),
-        and four of the five lock-step stack tests took 8-16 % longer in one `make test`."""
+        and four of the five lock-step stack tests took 8-16 % longer in one `make test`.
+        ``cell_file``: the product's cell config to start from (its ``[can].adapter`` picks
+        the virtual controller that speaks to it, :data:`VIRTUAL_PROFILE`)."""
         self.workdir = Path(workdir)
         self.workdir.mkdir(parents=True, exist_ok=True)
         self.lockstep = lockstep
@@ -173,7 +194,10 @@ class Stack:
         self.ports = {"bus": free_port(), "modbus": free_port()}
         self.can_address = unique_can_address()
         self.bus = BusConfig(endpoint=f"tcp/127.0.0.1:{self.ports['bus']}")
-        cell = load_toml(SIM_CELL)
+        cell = load_toml(cell_file)
+        eds = cell.get("can", {}).get("cia402", {}).get("eds")
+        if eds and not Path(eds).is_absolute():
+            cell["can"]["cia402"]["eds"] = str(Path(cell_file).resolve().parent / eds)
         if model == COMMISSIONED:
             from sim_bridge.commission import commissioned
 
@@ -229,6 +253,9 @@ class Stack:
                 },
             },
         )
+        # The virtual controller that speaks the product's adapter (explicit overrides win).
+        adapter = self.cell.get("can", {}).get("adapter", "ltc_dbc")
+        truth = deep_merge(truth, CAN_PROFILES.get(VIRTUAL_PROFILE.get(adapter, ""), ({},))[0])
         self.truth_cfg = deep_merge(truth, sim_overrides or {})
         self.cell_path = self.workdir / "cell.toml"
         self.truth_path = self.workdir / "truth.toml"

@@ -36,6 +36,7 @@ from typing import Any, TextIO
 import can
 import numpy as np
 
+from drivers.can.ltc import LtcProtocolBase
 from drivers.can.seqpacket import wait_readable
 from gateway.errors import ConfigError
 from gateway.messages import ControllerState
@@ -112,10 +113,7 @@ class VirtualCell:
         self.cfg = cfg
         self.plant = Plant(cfg)
         self.n = self.plant.n
-        self.proto = controller_protocol(cfg.controller, self.n)
-        self.ctrl = VirtualController(
-            cfg.controller, self.proto, self.plant.lower_rad, self.plant.upper_rad
-        )
+        self.proto, self.ctrl = self._make_controller()
         self.operator = Operator(cfg.operator)
         self.plant.hand = self.operator.hand
         self.period_s = cfg.controller.cycle_period_s
@@ -146,6 +144,18 @@ class VirtualCell:
         self._row_format = ",".join(["%.9g"] * len(truth_log_columns(self.n))) + "\n"
         #: the feedback frame's range of q, dq and i, (3n,)
         self._fb_limit = np.repeat([Q_FB_LIMIT_RAD, DQ_FB_LIMIT_RAD_S, I_FB_LIMIT_A], self.n)
+
+    def _make_controller(self) -> tuple[LtcProtocolBase, VirtualController]:
+        """The vendor controller and the LTC-1 profile it speaks. (The CiA 402 cell,
+        sim_bridge/cia402_cell.py, builds its drives instead: see :func:`make_virtual_cell`.)"""
+        spec = self.cfg.controller
+        if spec.can_profile == "cia402":
+            raise ConfigError(
+                "[controller].can_profile 'cia402' has no LTC-1 controller: build the cell "
+                "with make_virtual_cell()"
+            )
+        proto = controller_protocol(spec, self.n)
+        return proto, VirtualController(spec, proto, self.plant.lower_rad, self.plant.upper_rad)
 
     # --- endpoints ----------------------------------------------------------------------
     def open(self) -> None:
@@ -435,12 +445,25 @@ class VirtualCell:
             self.summary_path.write_text(json.dumps(self.summary(), indent=2))
 
 
+def make_virtual_cell(
+    cfg: SimConfig, truth_log: Path | None = None, summary_path: Path | None = None
+) -> VirtualCell:
+    """The virtual cell ``[controller].can_profile`` asks for: the LTC-1 vendor controller
+    ("classic", "fd"), or one CiA 402 drive per joint ("cia402", imported only then)."""
+    if cfg.controller.can_profile == "cia402":
+        from sim_bridge.cia402_cell import Cia402Cell
+
+        return Cia402Cell(cfg, truth_log, summary_path)
+    return VirtualCell(cfg, truth_log, summary_path)
+
+
 def configure_parser(p: argparse.ArgumentParser) -> None:
     p.description = (
         "Run the virtual robot cell: a simulated GR630ST with its closed controller, exposing "
         "the same CAN (LTC-1; on a Unix seqpacket socket or a socketcand TCP server, see "
-        "[endpoints] of the truth file) and Modbus TCP endpoints as the real cell. Stop it "
-        "with Ctrl-C."
+        "[endpoints] of the truth file) and Modbus TCP endpoints as the real cell; with "
+        '[controller] can_profile = "cia402" (sim_bridge/gr630st_truth_cia402.toml) one '
+        "CANopen CiA 402 drive per joint instead of the LTC-1 controller. Stop it with Ctrl-C."
     )
     p.add_argument("--truth", type=Path, default=None, help="simulator config (private truth) TOML")
     p.add_argument(
@@ -465,7 +488,7 @@ def cli_main(args: argparse.Namespace) -> int:
     if args.plant_seed is not None:
         overrides["plant_seed"] = args.plant_seed
     cfg = load_sim_config(args.truth, overrides)
-    cell = VirtualCell(cfg, args.log, args.summary)
+    cell = make_virtual_cell(cfg, args.log, args.summary)
 
     with StopSignals(cell.stop_event):
         cell.open()

@@ -53,6 +53,8 @@ torque with (the plant's own differs by its drawn error). With ``--online-estima
 control process also runs its online estimate of K_p and K_I (``[control]
 inner_loop_estimate``, with a :data:`DITHER_A` torque dither so that teaching excites K_p) and
 the summary adds its final values.
+
+On a terminal a bar on stderr counts the strategies run (``--no-progress``: none).
 """
 
 from __future__ import annotations
@@ -71,6 +73,7 @@ import mujoco
 import numpy as np
 
 from gateway.bus import open_client
+from gateway.progress import add_progress_argument, progress_bar, progress_enabled
 from sim_bridge.baseline import drag_released
 from sim_bridge.commission import commissioned
 from sim_bridge.config import load_sim_config
@@ -540,6 +543,7 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
         default=list(STRATEGIES),
         help="which to run (default: all)",
     )
+    add_progress_argument(p)
 
 
 def cli_main(args: argparse.Namespace) -> int:
@@ -549,22 +553,28 @@ def cli_main(args: argparse.Namespace) -> int:
     print(f"raster spray path: {PASSES} passes of {WIDTH_M} m over {HEIGHT_M} m at "
           f"{SPEED_M_S} m/s, {path[-1][0]:.0f} s; plant seed {args.plant_seed}")  # fmt: skip
     results: dict[str, dict[str, Any]] = {}
-    for name in args.strategies:
-        t0 = time.monotonic()
-        print(f"{name} ...", flush=True)
-        if name == "offservo":
-            results[name] = run_offservo(args.plant_seed, path)
-        elif name == "inertia":
-            results[name] = run_inertia(args.plant_seed, path)
-        else:
-            results[name] = run_best(
-                args.plant_seed,
-                path,
-                out / name,
-                online_estimate=args.online_estimate,
-                control=PRODUCT_STRATEGIES[name] | args.control,
-            )
-        results[name]["wall_time_s"] = time.monotonic() - t0
+    strategies = list(args.strategies)
+    with progress_bar(
+        len(strategies), "teach-bench", "strategy", enabled=progress_enabled(args)
+    ) as bar:
+        for name in strategies:
+            t0 = time.monotonic()
+            bar.write(f"{name} ...")
+            bar.set_label(name)
+            if name == "offservo":
+                results[name] = run_offservo(args.plant_seed, path)
+            elif name == "inertia":
+                results[name] = run_inertia(args.plant_seed, path)
+            else:
+                results[name] = run_best(
+                    args.plant_seed,
+                    path,
+                    out / name,
+                    online_estimate=args.online_estimate,
+                    control=PRODUCT_STRATEGIES[name] | args.control,
+                )
+            results[name]["wall_time_s"] = time.monotonic() - t0
+            bar.advance(label="")
     summary = {
         "plant_seed": args.plant_seed,
         "path": {

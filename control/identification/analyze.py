@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
+from contextlib import AbstractContextManager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -94,6 +95,7 @@ from control.identification.validate import (
 )
 from control.robot.description import RobotDescription, load_description
 from gateway.errors import ConfigError, DataFileError
+from gateway.progress import ProgressBar, progress_bar
 
 Progress = Callable[[str], None]
 #: ``--friction`` value that picks the family by held-out error on the training files.
@@ -109,6 +111,20 @@ TEST_FIT_FRACTION = 0.5
 RIGID_PRIOR_RIDGE = 1e-6
 #: sqrt(VIF) above which a base parameter counts as not identified by the training motion.
 NOT_IDENTIFIED_SQRT_VIF = 1e3
+#: The stages of one analysis in the order they end: (its ``timing_s`` key, what it does).
+#: Each end is one :meth:`_Clock.lap` and one step of the progress bar; the effect search
+#: ends twice (training files, then the guard and the test run), ``timing_s`` adds both up.
+STAGES: tuple[tuple[str, str], ...] = (
+    ("read", "reading the files"),
+    ("cutoff", "choosing the cutoff"),
+    ("preprocess", "preprocessing"),
+    ("regressor", "base regressor"),
+    ("fit", "fitting the friction families"),
+    ("effects", "effects on the training files"),
+    ("effects", "guard, effects on the test run"),
+    ("validate", "plots"),
+    ("report", "report"),
+)
 
 
 @dataclass(frozen=True)
@@ -152,12 +168,25 @@ class AnalyzeOptions:
             raise ConfigError(f"--folds: {self.search.folds!r} must be >= 2")
 
 
+def stage_bar(
+    enabled: bool | None = None, before: int = 0, desc: str = "analyze"
+) -> AbstractContextManager[ProgressBar]:
+    """The progress bar of an analysis: :data:`STAGES` (plus ``before`` steps of the caller's
+    own ahead of them), for :func:`analyze`'s ``bar`` (:func:`gateway.progress.progress_bar`:
+    ``enabled`` None draws it when stderr is a terminal, False never)."""
+    return progress_bar(len(STAGES) + before, desc, "stage", enabled=enabled)
+
+
 class _Clock:
-    def __init__(self, progress: Progress) -> None:
+    def __init__(self, progress: Progress, bar: ProgressBar | None = None) -> None:
         self.start = time.perf_counter()
         self.last = self.start
         self.timing: dict[str, float] = {}
         self.progress = progress
+        self.bar = bar
+        self.laps = 0
+        if bar is not None:
+            bar.set_label(STAGES[0][1])
 
     def say(self, message: str) -> None:
         self.progress(f"[{time.perf_counter() - self.start:7.1f} s] {message}")
@@ -166,6 +195,10 @@ class _Clock:
         now = time.perf_counter()
         self.timing[stage] = round(self.timing.get(stage, 0.0) + now - self.last, 3)
         self.last = now
+        self.laps += 1
+        if self.bar is not None:
+            upcoming = STAGES[self.laps][1] if self.laps < len(STAGES) else "done"
+            self.bar.advance(label=upcoming)
 
 
 def _read(
@@ -600,17 +633,20 @@ def analyze(
     out_dir: str | Path,
     options: AnalyzeOptions | None = None,
     progress: Progress | None = None,
+    bar: ProgressBar | None = None,
 ) -> dict[str, Any]:
     """Run the whole analysis (module docstring); returns the summary written to
     ``out_dir/summary.json``. Bad files raise DataFileError, bad settings ConfigError.
 
-    ``progress`` receives one line per step (default: print).
+    ``progress`` receives one line per step (default: print, above ``bar`` when it is drawn).
+    ``bar`` (:func:`stage_bar`) advances one step at the end of each of :data:`STAGES`; it is
+    updated in this process only, never in the forked workers.
     """
     # One BLAS thread: the analysis does many small dense solves (~100 columns) and products
     # over 1e4-1e5 samples; threaded, on a busy machine a thread waiting for a core turned a
     # 3 ms eigen-solve into 70 ms (the whole analysis 20x slower). One is as fast here.
     with threadpool_limits(limits=1, user_api="blas"):
-        return _analyze(urdf_path, train_paths, test_paths, out_dir, options, progress)
+        return _analyze(urdf_path, train_paths, test_paths, out_dir, options, progress, bar)
 
 
 @dataclass
@@ -750,9 +786,11 @@ def _analyze(
     out_dir: str | Path,
     options: AnalyzeOptions | None,
     progress: Progress | None,
+    bar: ProgressBar | None = None,
 ) -> dict[str, Any]:
     options = options or AnalyzeOptions()
-    clock = _Clock(progress or (lambda s: print(s, flush=True)))
+    say = progress or (bar.write if bar is not None else (lambda s: print(s, flush=True)))
+    clock = _Clock(say, bar)
     out = Path(out_dir)
     skipped: list[str] = []
     run, ratios, options = _load(urdf_path, train_paths, test_paths, options, clock, skipped)

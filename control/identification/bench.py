@@ -6,7 +6,8 @@ varying pressures + noise, along a multi-sine trajectory) and a test recording o
 (at least one minute), writes both as CSV, then runs the whole ``analyze`` pipeline on them and
 reports seconds per stage (read, preprocess, regressor, fit, effects, validate, report).
 
-Run: ``python -m control.identification.bench [--minutes 10] [--rate-hz 1000] [--keep DIR]``.
+Run: ``python -m control.identification.bench [--minutes 10] [--rate-hz 1000] [--keep DIR]``;
+on a terminal a bar on stderr counts the stages (``--no-progress``: none).
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ from typing import Any
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from control.identification.analyze import AnalyzeOptions, analyze
+from control.identification.analyze import AnalyzeOptions, analyze, stage_bar
 from control.identification.datafile import write_measurements
 from control.identification.rigid import RobotRegressor
 from control.identification.synthetic import (
@@ -33,9 +34,13 @@ from control.identification.synthetic import (
 )
 from control.robot.description import load_description
 from control.robot.urdf import to_urdf
+from gateway.progress import ProgressBar, add_progress_argument, progress_enabled
 
 #: Torque scale per GR630ST joint for the synthetic friction [N·m].
 _TORQUE_SCALE_NM = (300.0, 1500.0, 600.0, 30.0, 10.0, 5.0)
+#: The benchmark's own stages ahead of the analysis's (:data:`.analyze.STAGES`), as its
+#: progress bar counts them.
+BENCH_STAGES = ("synthesising the recordings", "writing the CSVs")
 
 
 def _pressures(t: np.ndarray, nominal: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -50,13 +55,17 @@ def bench_identify(
     rate_hz: float = 1000.0,
     workdir: str | Path | None = None,
     progress: Callable[[str], None] | None = None,
+    bar: ProgressBar | None = None,
 ) -> dict[str, Any]:
     """Synthesise, write and analyse a ``minutes``-long ``rate_hz`` GR630ST recording.
 
     Returns ``{"synthesize_s", "write_s", "stages_s": {stage: s}, "total_s", "samples",
-    "summary"}``; prints seconds per stage.
+    "summary"}``; prints seconds per stage. ``bar`` (``stage_bar(before=len(BENCH_STAGES))``
+    of :mod:`.analyze`) advances through :data:`BENCH_STAGES`, then the analysis's stages.
     """
-    say = progress or (lambda s: print(s, flush=True))
+    say = progress or (bar.write if bar is not None else (lambda s: print(s, flush=True)))
+    if bar is not None:
+        bar.set_label(BENCH_STAGES[0])
     desc = load_description()
     urdf_xml = to_urdf(desc)
     reg = RobotRegressor(urdf_xml, desc.gravity_m_s2)
@@ -92,11 +101,15 @@ def bench_identify(
         synth_s = time.perf_counter() - t0
         count = sum(m.n_samples for m in recordings.values())
         say(f"bench: synthesised {count} samples in {synth_s:.1f} s")
+        if bar is not None:
+            bar.advance(label=BENCH_STAGES[1])
         t0 = time.perf_counter()
         for name, m in recordings.items():
             write_measurements(root / f"{name}.csv", m)
         write_s = time.perf_counter() - t0
         say(f"bench: wrote CSVs in {write_s:.1f} s")
+        if bar is not None:
+            bar.advance()  # the analysis names its own stages
         t0 = time.perf_counter()
         summary = analyze(
             root / "gr630st.urdf",
@@ -105,6 +118,7 @@ def bench_identify(
             root / "out",
             AnalyzeOptions(),
             progress=say,
+            bar=bar,
         )
         total = time.perf_counter() - t0
     stages = {k: v for k, v in summary["timing_s"].items() if k != "total"}
@@ -121,7 +135,8 @@ def bench_identify(
     }
 
 
-def main(argv: list[str] | None = None) -> int:
+def build_parser() -> argparse.ArgumentParser:
+    """The options of ``python -m control.identification.bench``."""
     p = argparse.ArgumentParser(prog="python -m control.identification.bench")
     p.add_argument("--minutes", type=float, default=10.0)
     p.add_argument("--rate-hz", type=float, default=1000.0)
@@ -133,8 +148,14 @@ def main(argv: list[str] | None = None) -> int:
         help="write the URDF, train.csv, test.csv and the analysis there and keep them (to time "
         "`leadthrough analyze` on them as a user runs it)",
     )
-    args = p.parse_args(argv)
-    bench_identify(args.minutes, args.rate_hz, workdir=args.keep)
+    add_progress_argument(p)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    with stage_bar(progress_enabled(args), before=len(BENCH_STAGES), desc="bench") as bar:
+        bench_identify(args.minutes, args.rate_hz, workdir=args.keep, bar=bar)
     return 0
 
 

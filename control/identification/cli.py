@@ -4,10 +4,11 @@ Example::
 
     leadthrough analyze --urdf robot.urdf --train run1.csv run2.csv --test run3.csv --out ident/
 
-reads the measurement CSVs (format: :mod:`control.identification.datafile`), fits rigid body +
-friction on the ``--train`` files, validates on the ``--test`` files (other trajectories),
-searches the residual for unmodelled effects, and writes ``ident/model.json`` (for the control
-process), ``ident/report.md``, ``ident/summary.json`` and plots. Progress goes to stdout.
+reads the measurement files, CSV or Parquet (format: :mod:`control.identification.datafile`),
+fits rigid body + friction on the ``--train`` files, validates on the ``--test`` files (other
+trajectories), searches the residual for unmodelled effects, and writes ``ident/model.json``
+(for the control process), ``ident/report.md``, ``ident/summary.json`` and plots. Progress
+goes to stdout, and on a terminal a bar on stderr counts the stages (``--no-progress``: none).
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ import sys
 from pathlib import Path
 
 from control.identification import effects as fx
-from control.identification.analyze import AUTO, AnalyzeOptions, analyze
+from control.identification.analyze import AUTO, AnalyzeOptions, analyze, stage_bar
 from control.identification.preprocess import (
     DEFAULT_RATE_HZ,
     DEFAULT_STICK_VELOCITY_RAD_S,
@@ -25,6 +26,7 @@ from control.identification.preprocess import (
 from control.identification.rigid import DEFAULT_GRAVITY_M_S2
 from control.identification.terms import FRICTION_MODELS
 from gateway.errors import ConfigError, LeadthroughError
+from gateway.progress import add_progress_argument, progress_enabled
 
 
 def configure_parser(p: argparse.ArgumentParser) -> None:
@@ -41,16 +43,16 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
         type=Path,
         nargs="+",
         required=True,
-        metavar="CSV",
-        help="training measurement files",
+        metavar="FILE",
+        help="training measurement files (CSV, or Parquet from `leadthrough export`)",
     )
     p.add_argument(
         "--test",
         type=Path,
         nargs="+",
         required=True,
-        metavar="CSV",
-        help="held-out test files (other trajectories)",
+        metavar="FILE",
+        help="held-out test files (other trajectories; CSV or Parquet)",
     )
     p.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder (created)")
     p.add_argument(
@@ -139,6 +141,7 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
         "--no-effects", action="store_true", help="fit and validate only; no effect search"
     )
     p.add_argument("--no-plots", action="store_true", help="do not draw PNG plots")
+    add_progress_argument(p)
 
 
 def _floats(text: str | None, option: str, count: int | None = None) -> tuple[float, ...] | None:
@@ -176,8 +179,12 @@ def options_from_args(args: argparse.Namespace) -> AnalyzeOptions:
 
 
 def cli_main(args: argparse.Namespace) -> int:
-    """Run the analysis; prints progress and a per-joint RMS table. Returns 0."""
-    summary = analyze(args.urdf, args.train, args.test, args.out, options_from_args(args))
+    """Run the analysis; prints progress and a per-joint RMS table. Returns 0.
+
+    On a terminal a bar on stderr counts the analysis's stages (``--no-progress``: none)."""
+    options = options_from_args(args)
+    with stage_bar(progress_enabled(args)) as bar:
+        summary = analyze(args.urdf, args.train, args.test, args.out, options, bar=bar)
     print(f"{'joint':>10} {'RMS before':>12} {'RMS after':>12}  [N·m, held-out test files]")
     for name, b, a in zip(
         summary["joints"], summary["rms_before"], summary["rms_after"], strict=True

@@ -23,10 +23,22 @@ Every other column is ignored (it may even hold text). When both ``tau`` and ``i
 present the torques are used and the currents ignored. Values are decimal numbers (``1``,
 ``-2.5``, ``3e-4``); NaN and infinities are refused.
 
+Parquet
+-------
+A Parquet file (``.parquet``, or any name starting and ending with Parquet's ``PAR1`` magic)
+holds the same columns by the same names, numbers as float or integer columns (no nulls), one
+row per sample. It is read into the same arrays as a CSV and checked by the same code; errors
+name the column and the data row (``row R (index R-1)``: rows counted from 1, and pandas'
+0-based index) instead of a line. The file-level metadata may carry the sidecar's keys, each
+value JSON (``drive_gains_nm_per_a``: ``[K1, ..]``, written by ``leadthrough export``); its
+gains come before a sidecar's. :func:`write_parquet` writes one; pyarrow is imported only
+when a Parquet file is read or written.
+
 Errors
 ------
 A bad file raises :class:`~gateway.errors.DataFileError` whose message starts with
-``FILE:LINE:`` (line 1 is the header): missing required columns, inconsistent joint counts
+``FILE:LINE:`` (line 1 is the header; a Parquet file: ``FILE: row R (index R-1):`` or
+``FILE:``): missing required columns, inconsistent joint counts
 between q/dq/tau, a row with the wrong number of fields (an empty line, a truncated last
 line), an empty or non-numeric value, NaN/inf, and time that does not increase. A last line
 without its newline is accepted when its field count is right (a number cut short there cannot
@@ -42,9 +54,10 @@ from __future__ import annotations
 import io
 import json
 import re
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -60,6 +73,9 @@ _NEWLINE = 10
 _COMMA = 44
 #: Significant digits written by :func:`write_measurements` (relative precision 1e-12).
 WRITE_DIGITS = 12
+#: Parquet's magic, the first and the last four bytes of a Parquet file.
+PARQUET_MAGIC = b"PAR1"
+PARQUET_SUFFIXES = (".parquet", ".pq")
 
 
 @dataclass(frozen=True)
@@ -123,18 +139,36 @@ def _fail(path: Path, line: int, message: str) -> DataFileError:
     return DataFileError(f"{path}:{line}: {message}")
 
 
-def _parse_header(path: Path, names: list[str]) -> _Layout:
+@dataclass(frozen=True)
+class _Where:
+    """How an error names its place: a CSV's line (line 1 the header), a Parquet file's row."""
+
+    path: Path
+    parquet: bool = False
+
+    def header(self, message: str) -> DataFileError:
+        """An error of the columns (the CSV's header line)."""
+        if self.parquet:
+            return DataFileError(f"{self.path}: {message}")
+        return _fail(self.path, 1, message)
+
+    def row(self, k: int, message: str) -> DataFileError:
+        """An error of data row ``k`` (0-based)."""
+        if self.parquet:
+            return DataFileError(f"{self.path}: row {k + 1} (index {k}): {message}")
+        return _fail(self.path, k + 2, message)
+
+
+def _parse_header(where: _Where, names: Sequence[str]) -> _Layout:
     seen: dict[str, int] = {}
     for k, name in enumerate(names):
         if name == "":
             continue  # unnamed column: ignored like any other unknown one
         if name in seen:
-            raise _fail(
-                path, 1, f"column {name!r} appears twice (columns {seen[name] + 1}, {k + 1})"
-            )
+            raise where.header(f"column {name!r} appears twice (columns {seen[name] + 1}, {k + 1})")
         seen[name] = k
     if "t" not in seen:
-        raise _fail(path, 1, "missing required column 't' (time [s])")
+        raise where.header("missing required column 't' (time [s])")
     groups: dict[str, dict[int, int]] = {g: {} for g in ("q", "dq", "tau", "i", "p")}
     for name, k in seen.items():
         m = _COLUMN_RE.match(name)
@@ -142,7 +176,7 @@ def _parse_header(path: Path, names: list[str]) -> _Layout:
             groups[m.group(1)][int(m.group(2))] = k
     q = groups["q"]
     if not q:
-        raise _fail(path, 1, "missing required columns q1..qN (joint positions [rad])")
+        raise where.header("missing required columns q1..qN (joint positions [rad])")
     n = max(q)
 
     def complete(group: str, what: str) -> tuple[int, ...]:
@@ -151,28 +185,26 @@ def _parse_header(path: Path, names: list[str]) -> _Layout:
             return ()
         if set(idx) != set(range(1, n + 1)):
             have = ", ".join(f"{group}{j}" for j in sorted(idx))
-            raise _fail(
-                path,
-                1,
+            raise where.header(
                 f"inconsistent joint count: q1..q{n} give {n} joints but {what} columns are "
-                f"{have} (need {group}1..{group}{n})",
+                f"{have} (need {group}1..{group}{n})"
             )
         return tuple(idx[j] for j in range(1, n + 1))
 
     if set(q) != set(range(1, n + 1)):
         missing = sorted(set(range(1, n + 1)) - set(q))
-        raise _fail(path, 1, f"joint position columns {['q' + str(j) for j in missing]} missing")
+        raise where.header(f"joint position columns {['q' + str(j) for j in missing]} missing")
     dq = complete("dq", "velocity")
     tau = complete("tau", "torque")
     current = () if tau else complete("i", "current")
     if not tau and not current:
-        raise _fail(
-            path, 1, f"missing torque columns: need tau1..tau{n} [N·m] or currents i1..i{n} [A]"
+        raise where.header(
+            f"missing torque columns: need tau1..tau{n} [N·m] or currents i1..i{n} [A]"
         )
     p_numbers = tuple(sorted(groups["p"]))
     for j in p_numbers:
         if j > n:
-            raise _fail(path, 1, f"pressure column p{j} names joint {j}, but there are {n} joints")
+            raise where.header(f"pressure column p{j} names joint {j}, but there are {n} joints")
     return _Layout(
         names=tuple(names),
         t=seen["t"],
@@ -269,6 +301,19 @@ def _parse_body(path: Path, body: bytes, layout: _Layout, ends_with_newline: boo
     return used
 
 
+def _gains_array(source: str, gains: Any) -> np.ndarray:
+    """``gains`` of a sidecar or a Parquet file's metadata (``source`` names it) as an array."""
+    try:
+        arr = np.asarray(gains, dtype=float)
+    except (TypeError, ValueError):
+        raise DataFileError(f"{source}: {SIDECAR_GAINS_KEY} {gains!r} is not numbers") from None
+    if arr.ndim != 1 or not np.all(np.isfinite(arr)) or np.any(arr == 0):
+        raise DataFileError(
+            f"{source}: {SIDECAR_GAINS_KEY} {gains!r} must be a list of finite non-zero numbers"
+        )
+    return arr
+
+
 def _sidecar_gains(path: Path) -> np.ndarray | None:
     sidecar = path.with_suffix(".json")
     if not sidecar.is_file():
@@ -280,18 +325,15 @@ def _sidecar_gains(path: Path) -> np.ndarray | None:
     gains = doc.get(SIDECAR_GAINS_KEY) if isinstance(doc, dict) else None
     if gains is None:
         raise DataFileError(f"{sidecar}: missing key {SIDECAR_GAINS_KEY!r} (list of N·m/A)")
-    try:
-        arr = np.asarray(gains, dtype=float)
-    except (TypeError, ValueError):
-        raise DataFileError(f"{sidecar}: {SIDECAR_GAINS_KEY} {gains!r} is not numbers") from None
-    if arr.ndim != 1 or not np.all(np.isfinite(arr)) or np.any(arr == 0):
-        raise DataFileError(
-            f"{sidecar}: {SIDECAR_GAINS_KEY} {gains!r} must be a list of finite non-zero numbers"
-        )
-    return arr
+    return _gains_array(str(sidecar), gains)
 
 
-def _drive_gains(path: Path, n: int, drive_gains: Sequence[float] | None) -> np.ndarray:
+def _drive_gains(
+    where: _Where, n: int, drive_gains: Sequence[float] | None, embedded: np.ndarray | None
+) -> np.ndarray:
+    """The drive gains [N·m/A]: ``--drive-gains``, else the file's own (Parquet metadata,
+    ``embedded``), else the sidecar JSON's."""
+    path = where.path
     if drive_gains is not None:
         gains = np.asarray(drive_gains, dtype=float)
         if gains.shape != (n,) or not np.all(np.isfinite(gains)) or np.any(gains == 0):
@@ -300,10 +342,16 @@ def _drive_gains(path: Path, n: int, drive_gains: Sequence[float] | None) -> np.
                 f"[N·m/A] for the {n} joints of {path}"
             )
         return gains
+    if embedded is not None:
+        if embedded.shape != (n,):
+            raise where.header(
+                f"metadata {SIDECAR_GAINS_KEY} has {embedded.size} values for {n} joints"
+            )
+        return embedded
     gains = _sidecar_gains(path)
     if gains is None:
-        raise DataFileError(
-            f"{path}:1: has motor currents i1..i{n} but no drive gains: give --drive-gains "
+        raise where.header(
+            f"has motor currents i1..i{n} but no drive gains: give --drive-gains "
             f"K1,..,K{n} or write {path.with_suffix('.json').name} with "
             f'{{"{SIDECAR_GAINS_KEY}": [..]}}'
         )
@@ -315,18 +363,31 @@ def _drive_gains(path: Path, n: int, drive_gains: Sequence[float] | None) -> np.
     return gains
 
 
-def read_measurements(path: str | Path, drive_gains: Sequence[float] | None = None) -> Measurements:
-    """Read and validate one measurement CSV (format in the module docstring).
+def is_parquet(path: str | Path, head: bytes = b"", tail: bytes = b"") -> bool:
+    """True when ``path`` is to be read as Parquet: by its suffix, or by the magic of its
+    first and last bytes (``head``, ``tail``) whatever its name."""
+    if Path(path).suffix.lower() in PARQUET_SUFFIXES:
+        return True
+    return head.startswith(PARQUET_MAGIC) and tail.endswith(PARQUET_MAGIC)
 
-    ``drive_gains`` [N·m/A], one per joint, turn ``i`` columns into torques; without it the
-    sidecar ``<stem>.json`` is used. Raises :class:`DataFileError` (file and line in the
-    message) for a bad file, :class:`ConfigError` for unusable ``drive_gains``.
+
+def read_measurements(path: str | Path, drive_gains: Sequence[float] | None = None) -> Measurements:
+    """Read and validate one measurement file, CSV or Parquet (format in the module docstring).
+
+    ``drive_gains`` [N·m/A], one per joint, turn ``i`` columns into torques; without it a
+    Parquet file's own metadata, then the sidecar ``<stem>.json`` is used. Raises
+    :class:`DataFileError` (file and line, or row, in the message) for a bad file,
+    :class:`ConfigError` for unusable ``drive_gains``.
     """
     path = Path(path)
     try:
         raw = path.read_bytes()
     except OSError as exc:
         raise DataFileError(f"{path}: cannot read: {exc.strerror or exc}") from None
+    if is_parquet(path, raw[:4], raw[-4:]):
+        where = _Where(path, parquet=True)
+        layout, data, embedded = _read_parquet(where, raw)
+        return _measurements(where, layout, data, drive_gains, embedded)
     if raw.startswith(b"\xef\xbb\xbf"):
         raw = raw[3:]
     if b"\r" in raw:
@@ -343,25 +404,38 @@ def read_measurements(path: str | Path, drive_gains: Sequence[float] | None = No
         header = raw[:header_end].decode("ascii")
     except UnicodeDecodeError:
         raise _fail(path, 1, "header is not ASCII text") from None
-    layout = _parse_header(path, [c.strip() for c in header.split(",")])
+    where = _Where(path)
+    layout = _parse_header(where, [c.strip() for c in header.split(",")])
     body = raw[header_end + 1 :]
     ends_with_newline = body.endswith(b"\n")
     if ends_with_newline:
         body = body[:-1]
     data = _parse_body(path, body, layout, ends_with_newline)
+    return _measurements(where, layout, data, drive_gains, None)
 
+
+def _measurements(
+    where: _Where,
+    layout: _Layout,
+    data: np.ndarray,
+    drive_gains: Sequence[float] | None,
+    embedded_gains: np.ndarray | None,
+) -> Measurements:
+    """The checks every file passes, CSV or Parquet, on ``data`` (rows, ``layout.used``)."""
     finite = np.isfinite(data)
     if not finite.all():
         row, col = np.argwhere(~finite)[0]
         name = layout.names[layout.used[col]]
-        raise _fail(path, int(row) + 2, f"value {data[row, col]!r} in column {name!r} not finite")
+        value = float(data[row, col])
+        raise where.row(int(row), f"value {value!r} in column {name!r} not finite")
     n_q = len(layout.q)
     t = data[:, 0].copy()
     bad = np.flatnonzero(np.diff(t) <= 0)
     if bad.size:
         k = int(bad[0]) + 1
         kind = "repeated" if t[k] == t[k - 1] else "non-monotonic (going back)"
-        raise _fail(path, k + 2, f"time t={t[k]!r} s {kind}: previous row has t={t[k - 1]!r} s")
+        now, before = float(t[k]), float(t[k - 1])
+        raise where.row(k, f"time t={now!r} s {kind}: previous row has t={before!r} s")
     col = 1
     q = data[:, col : col + n_q].copy()
     col += n_q
@@ -372,11 +446,70 @@ def read_measurements(path: str | Path, drive_gains: Sequence[float] | None = No
     torque = data[:, col : col + n_q].copy()
     col += n_q
     if not layout.tau:
-        torque = torque * _drive_gains(path, n_q, drive_gains)
+        torque = torque * _drive_gains(where, n_q, drive_gains, embedded_gains)
     p = data[:, col:].copy() if layout.p else None
     return Measurements(
-        t=t, q=q, dq=dq, tau=torque, p=p, source=str(path), p_joints=layout.p_joints
+        t=t, q=q, dq=dq, tau=torque, p=p, source=str(where.path), p_joints=layout.p_joints
     )
+
+
+def _read_parquet(where: _Where, raw: bytes) -> tuple[_Layout, np.ndarray, np.ndarray | None]:
+    """A Parquet file's used columns as the CSV reader's array (rows, ``layout.used``), its
+    layout, and the drive gains of its metadata (None when it has none)."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    try:
+        pf = pq.ParquetFile(pa.BufferReader(raw))
+        names = pf.schema_arrow.names
+    except (pa.ArrowException, OSError, ValueError) as exc:
+        raise where.header(f"not a readable Parquet file: {exc}") from None
+    layout = _parse_header(where, names)
+    if pf.metadata.num_rows == 0:
+        raise where.header("no data rows")
+    try:
+        table = pf.read(columns=[names[k] for k in layout.used])
+    except (pa.ArrowException, OSError, ValueError) as exc:
+        raise where.header(f"cannot read its columns: {exc}") from None
+    columns = []
+    for name, column in zip(table.column_names, table.columns, strict=True):
+        kind = column.type
+        if not (pa.types.is_floating(kind) or pa.types.is_integer(kind)):
+            raise where.header(f"column {name!r} holds {kind}, not numbers")
+        if column.null_count:
+            nulls = column.is_null().to_numpy(zero_copy_only=False)
+            raise where.row(int(np.flatnonzero(nulls)[0]), f"empty value in column {name!r}")
+        columns.append(np.asarray(column.to_numpy(), dtype=np.float64))
+    metadata = pf.schema_arrow.metadata or {}
+    gains = metadata.get(SIDECAR_GAINS_KEY.encode())
+    embedded = None
+    if gains is not None:
+        try:
+            value = json.loads(gains)
+        except (UnicodeDecodeError, json.JSONDecodeError):
+            raise where.header(f"metadata {SIDECAR_GAINS_KEY} {gains!r} is not JSON") from None
+        embedded = _gains_array(f"{where.path}: metadata", value)
+    return layout, np.column_stack(columns), embedded
+
+
+def write_parquet(
+    path: str | Path,
+    names: Sequence[str],
+    data: np.ndarray,
+    metadata: Mapping[str, Any] | None = None,
+) -> None:
+    """Write columns ``names`` of ``data`` (rows, len(names)) as float64 to a Parquet file,
+    in that order; ``metadata`` goes into the file-level metadata, each value as JSON (the
+    sidecar's keys: :func:`read_measurements` takes ``drive_gains_nm_per_a`` from there)."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    values = np.asarray(data, dtype=np.float64)
+    if values.ndim != 2 or values.shape[1] != len(names):
+        raise ValueError(f"data of shape {values.shape} for {len(names)} columns {list(names)}")
+    table = pa.Table.from_arrays([pa.array(column) for column in values.T], names=list(names))
+    meta = {str(k).encode(): json.dumps(v).encode() for k, v in (metadata or {}).items()}
+    pq.write_table(table.replace_schema_metadata(meta), Path(path))
 
 
 def write_measurements(path: str | Path, m: Measurements, digits: int = WRITE_DIGITS) -> None:

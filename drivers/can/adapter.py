@@ -6,15 +6,26 @@ through :func:`drivers.registry.load_adapter` and the entry-point group :data:`A
 
 Contract every adapter follows:
 
-* The controller runs a fixed-rate cycle. Each cycle it reports every joint and then a status
-  that closes the cycle; :meth:`CanAdapter.feed` returns one :class:`CycleFeedback` for a
-  complete, valid cycle and ``None`` for everything else (frames mid-cycle, unknown frames,
-  incomplete or corrupt cycles, which it counts in :attr:`CanAdapter.stats`).
-* The host answers a cycle with one command set (:meth:`CanAdapter.command_frames`), keyed by
-  the cycle's wire counter.
-* Servo power is requested explicitly (:class:`HostRequest`), and the host proves it is alive
-  with :meth:`CanAdapter.heartbeat_frame`.
-* Subclasses are constructed as ``cls(n_joints=...)``.
+* A cycle has a clock, either the controller's or the host's:
+
+  - *controller-clocked* (LTC-1): the controller runs a fixed-rate cycle and reports every
+    joint, then a status that closes the cycle; :attr:`CanAdapter.clock_period_s` is ``None``;
+  - *host-clocked* (CiA 402 drives over CANopen): the host is the SYNC producer. The driver
+    sends :meth:`CanAdapter.clock_frames` every :attr:`CanAdapter.clock_period_s`; each drive
+    answers every SYNC with its process data.
+
+  Either way :meth:`CanAdapter.feed` returns one :class:`CycleFeedback` for a complete, valid
+  cycle and ``None`` for everything else (frames mid-cycle, unknown frames, incomplete or
+  corrupt cycles, which it counts in :attr:`CanAdapter.stats`), and the driver treats both
+  alike: it answers each cycle with one command set (:meth:`CanAdapter.command_frames`), keyed
+  by the cycle's wire counter, before the cycle's deadline.
+* Servo power is requested explicitly (:class:`HostRequest`, :meth:`CanAdapter.request_frames`,
+  repeated at the heartbeat period), and the host proves it is alive with
+  :meth:`CanAdapter.heartbeat_frame`.
+* :meth:`CanAdapter.start` brings the link up once the bus is open and before the cycle
+  (CANopen: NMT start-up and the drives' configuration by SDO); it may block for seconds and
+  raises :class:`~gateway.errors.LinkTimeoutError` or ConfigError naming the node that refused.
+* Adapters are built by :meth:`CanAdapter.from_config` from the ``[can]`` section.
 """
 
 from __future__ import annotations
@@ -84,9 +95,25 @@ class CanAdapter(ABC):
     #: Most joints the protocol can carry.
     max_joints: ClassVar[int]
 
+    #: Host-clocked protocols: the period at which the driver sends :meth:`clock_frames` [s];
+    #: ``None``: the controller clocks the cycle.
+    clock_period_s: float | None = None
+
     def __init__(self, n_joints: int) -> None:
         self.n_joints = n_joints
         self.stats = AdapterStats()
+
+    @classmethod
+    def from_config(cls, config: Any) -> CanAdapter:
+        """The adapter for the ``[can]`` section ``config`` (a CanDriverConfig)."""
+        return cls(n_joints=config.joints)
+
+    def start(self, bus: can.BusABC) -> None:  # noqa: B027 (optional hook)
+        """Bring the link up on the open ``bus`` before the cycle (nothing for LTC-1)."""
+
+    def clock_frames(self) -> list[can.Message]:
+        """The frames that start a host-clocked cycle (CANopen: SYNC); none otherwise."""
+        return []
 
     @abstractmethod
     def feed(self, msg: can.Message) -> CycleFeedback | None:
@@ -106,8 +133,8 @@ class CanAdapter(ABC):
         """
 
     @abstractmethod
-    def request_frame(self, request: HostRequest) -> can.Message:
-        """The frame that asks the controller for ``request``."""
+    def request_frames(self, request: HostRequest) -> list[can.Message]:
+        """The frames that ask the controller for ``request`` (its power stage's state)."""
 
     @abstractmethod
     def heartbeat_frame(self) -> can.Message:

@@ -42,6 +42,81 @@ def _production_transport() -> dict[str, Any]:
 
 
 @dataclass(frozen=True)
+class Cia402Config:
+    """``[can.cia402]``: CiA 402 servo drives over CANopen (``[can] adapter = "cia402"``,
+    drivers/can/cia402.py). The host is the SYNC producer and the NMT master."""
+
+    #: The drives' electronic data sheet (relative to the cell config).
+    eds: str = ""
+    #: The drives' node ids in joint order (empty: 1..joints).
+    node_ids: tuple[int, ...] = ()
+    #: The host's own node id: its heartbeat is COB 0x700 + this.
+    host_node_id: int = 0x7F
+    #: "csp" (cyclic synchronous position: 0x607A target, 0x60B1 velocity offset) or "csv"
+    #: (cyclic synchronous velocity: 0x60FF target velocity).
+    mode: str = "csp"
+    #: SYNC period: the loop rate the host clocks [s] (0x1006 on the drives).
+    cycle_period_s: float = 0.008
+    #: The drives stop (0x6007) when the host's heartbeat is missing this long [s] (0x1016).
+    consumer_heartbeat_s: float = 0.1
+    #: The drives' own heartbeat period [s] (0x1017).
+    producer_heartbeat_s: float = 0.05
+    #: 0x6007 abort connection option code: 1 fault, 2 disable voltage, 3 quick stop.
+    abort_connection_option: int = 3
+    #: Per joint: motor revolutions per joint revolution; checked against each drive's 0x6091.
+    gear_ratio: tuple[float, ...] = ()
+    #: Per joint: the motor's rated current [A]; checked against each drive's 0x6075.
+    rated_current_a: tuple[float, ...] = ()
+    #: Encoder increments per motor revolution; checked against each drive's 0x608F.
+    encoder_increments: int = 1 << 20
+    #: Each SDO request, and the drives' boot-up, must be answered within these [s].
+    sdo_timeout_s: float = 0.5
+    boot_timeout_s: float = 5.0
+
+    def __post_init__(self) -> None:
+        w = "[can.cia402]"
+        require(self.mode in ("csp", "csv"), f"{w}.mode", f"{self.mode!r} is neither csp nor csv")
+        require(1 <= self.host_node_id <= 127, f"{w}.host_node_id", "must be in 1..127")
+        bad = [i for i in self.node_ids if not 1 <= i <= 127 or i == self.host_node_id]
+        require(not bad, f"{w}.node_ids", f"{bad} not in 1..127 or the host's own id")
+        require(len(set(self.node_ids)) == len(self.node_ids), f"{w}.node_ids", "an id given twice")
+        for name in ("cycle_period_s", "consumer_heartbeat_s", "producer_heartbeat_s",
+                     "sdo_timeout_s", "boot_timeout_s"):  # fmt: skip
+            value = getattr(self, name)
+            require(0 < value <= 60, f"{w}.{name}", f"{value!r} must be in (0, 60] s")
+        require(
+            self.consumer_heartbeat_s >= 2 * self.cycle_period_s,
+            f"{w}.consumer_heartbeat_s",
+            "must be at least two cycle periods",
+        )
+        require(
+            self.abort_connection_option in (1, 2, 3),
+            f"{w}.abort_connection_option",
+            "must be 1 (fault), 2 (disable voltage) or 3 (quick stop): a drive must stop when "
+            "the host goes silent",
+        )
+        ok = all(math.isfinite(g) and g > 0 for g in self.gear_ratio)
+        require(ok, f"{w}.gear_ratio", "every ratio must be positive")
+        ok = all(math.isfinite(i) and i > 0 for i in self.rated_current_a)
+        require(ok, f"{w}.rated_current_a", "every current must be positive")
+        require(self.encoder_increments > 0, f"{w}.encoder_increments", "must be positive")
+
+    def check_joints(self, joints: int) -> None:
+        """ConfigError unless the per-joint lists fit ``joints`` (called by the adapter)."""
+        w = "[can.cia402]"
+        require(bool(self.eds), f"{w}.eds", "the drives' EDS file is required")
+        for name in ("gear_ratio", "rated_current_a"):
+            n = len(getattr(self, name))
+            require(n == joints, f"{w}.{name}", f"{n} values for {joints} joints")
+        if self.node_ids:
+            n = len(self.node_ids)
+            require(n == joints, f"{w}.node_ids", f"{n} ids for {joints} joints")
+
+    def ids(self, joints: int) -> tuple[int, ...]:
+        return self.node_ids or tuple(range(1, joints + 1))
+
+
+@dataclass(frozen=True)
 class CanDriverConfig:
     """``[can]`` section of the cell config. Every duration is in seconds."""
 
@@ -130,11 +205,15 @@ class CanDriverConfig:
     #: encoder, not the arm. Above every joint's top speed (a painting robot's wrist: about
     #: 7 rad/s); 0 turns the check off.
     feedback_max_joint_speed_rad_s: float = 10.0
+    #: The CiA 402 adapter's settings (used only with ``adapter = "cia402"``).
+    cia402: Cia402Config = field(default_factory=Cia402Config)
 
     def __post_init__(self) -> None:
         where = "[can]"
         require(bool(self.adapter), f"{where}.adapter", "must name an adapter, e.g. 'ltc_dbc'")
         require(1 <= self.joints <= 16, f"{where}.joints", f"{self.joints} outside 1..16")
+        if self.adapter == "cia402":
+            self.cia402.check_joints(self.joints)
         self._check_transport(dict(self.transport))
         object.__setattr__(self, "transport", dict(self.transport))
         for name, lo, hi in (
@@ -287,4 +366,7 @@ def load_can_config(cell_config_path: str | Path) -> tuple[CanDriverConfig, BusC
     if can_cfg.current_zero_file:
         zero_file = resolve_path(cell_config_path, can_cfg.current_zero_file)
         can_cfg = dataclasses.replace(can_cfg, current_zero_file=str(zero_file))
+    if can_cfg.cia402.eds:
+        eds = str(resolve_path(cell_config_path, can_cfg.cia402.eds))
+        can_cfg = dataclasses.replace(can_cfg, cia402=dataclasses.replace(can_cfg.cia402, eds=eds))
     return can_cfg, bus_cfg

@@ -265,6 +265,8 @@ class HostCore:
         # what we asked for and sent
         self.request_sent: HostRequest | None = None
         self._next_heartbeat_s = -np.inf
+        #: when the next host-clocked cycle starts (the adapter's clock_period_s; inf: never)
+        self._next_clock_s = -np.inf if adapter.clock_period_s is not None else np.inf
         self._next_health_s = -np.inf
         self._last_sent_q: list[float] | None = None
         self._last_sent_dq: list[float] | None = None
@@ -528,15 +530,20 @@ class HostCore:
                 self._last_forward = None
             if desired != self.request_sent:
                 log.info("requesting %s from the controller", desired.name)
-            frames.append(self.adapter.request_frame(desired))
+            frames += self.adapter.request_frames(desired)
             self.request_sent = desired
         if self._reset_wanted:
             self._reset_wanted = False
             fb = self.feedback
             if fb is not None and fb.controller_state == ControllerState.FAULT:
                 log.info("operator reset: asking the controller to leave FAULT (%s)", fb.fault)
-                frames.append(self.adapter.request_frame(HostRequest.RESET_FAULT))
+                frames += self.adapter.request_frames(HostRequest.RESET_FAULT)
                 self.request_sent = HostRequest.RESET_FAULT  # BRAKE follows next pass
+        period = self.adapter.clock_period_s
+        if period is not None and now >= self._next_clock_s:
+            # Last: the answers and requests above take effect at this cycle's start.
+            frames += self.adapter.clock_frames()
+            self._next_clock_s = _next_tick(self._next_clock_s, period, now)
         return frames
 
     def next_tick_s(self) -> float:
@@ -545,7 +552,7 @@ class HostCore:
         A change of request (a lifecycle message, a reset) arrives through a callback; the
         driver also wakes for those at least every few milliseconds.
         """
-        due = self._next_heartbeat_s
+        due = min(self._next_heartbeat_s, self._next_clock_s)
         pending = self.pending
         if pending is not None and not pending.answered:
             due = min(due, pending.answer_by_s)
@@ -562,7 +569,7 @@ class HostCore:
 
     def closing_frames(self) -> list[can.Message]:
         """BRAKE, then a hold for the cycle still waiting for its answer (on exit)."""
-        frames = [self.adapter.request_frame(HostRequest.BRAKE)]
+        frames = list(self.adapter.request_frames(HostRequest.BRAKE))
         self.request_sent = HostRequest.BRAKE
         if self.pending is not None:
             try:

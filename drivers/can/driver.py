@@ -139,7 +139,7 @@ class CanDriver:
         self._clock = clock
         if adapter is None:
             adapter_cls = load_adapter(ADAPTER_GROUP, config.adapter)
-            adapter = adapter_cls(n_joints=config.joints)
+            adapter = adapter_cls.from_config(config)
         self.adapter: CanAdapter = adapter
         require(
             adapter.n_joints == config.joints,
@@ -239,6 +239,8 @@ class CanDriver:
                     _await_socketcand_server(self.config.transport, self.CONNECT_TIMEOUT_S)
                     _quiet_socketcand_partial_reads()
                 self._bus = can.Bus(**self.config.transport)
+            # The link's start-up (CANopen: NMT and the drives' SDO configuration).
+            self.adapter.start(self._bus)
             if self._session is None:
                 self._session = open_peer(self.bus_config, security.CAN_DRIVER)
             session, keys = self._session, self.keys

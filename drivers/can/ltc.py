@@ -815,10 +815,10 @@ class LtcAdapter(CanAdapter):
             for k in range(self.n_joints)
         ]
 
-    def request_frame(self, request: HostRequest) -> can.Message:
+    def request_frames(self, request: HostRequest) -> list[can.Message]:
         msg = self.protocol.encode_request(request, self._request_counter)
         self._request_counter = (self._request_counter + 1) & 0xFF
-        return msg
+        return [msg]
 
     def heartbeat_frame(self) -> can.Message:
         return self.protocol.encode_heartbeat("HOST", NmtState.OPERATIONAL)

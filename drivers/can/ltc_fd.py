@@ -351,10 +351,10 @@ class LtcFdAdapter(CanAdapter):
         q, dq = command_arrays(q_cmd_rad, dq_cmd_rad_s, self.n_joints, "CYCLE_CMD")
         return [self.protocol.encode_command_set(int(counter) & 0xFFFF, q, dq, bool(hold))]
 
-    def request_frame(self, request: HostRequest) -> can.Message:
+    def request_frames(self, request: HostRequest) -> list[can.Message]:
         msg = self.protocol.encode_request(request, self._request_counter)
         self._request_counter = (self._request_counter + 1) & 0xFF
-        return msg
+        return [msg]
 
     def heartbeat_frame(self) -> can.Message:
         return self.protocol.encode_heartbeat("HOST", NmtState.OPERATIONAL)

@@ -55,6 +55,7 @@ from gateway.bus import BusConfig, bus_config_from, open_peer, undeclare_all
 from gateway.config import load_toml
 from gateway.errors import EXIT_CONFIG, ConfigError, MessageError, ModbusReplyError
 from gateway.messages import HEALTH_RATE_HZ, IoState, Keys, PressureSetpoint, encode_json
+from gateway.ratelog import RateLimitedLog
 from gateway.signals import StopSignals
 
 log = logging.getLogger(__name__)
@@ -83,32 +84,6 @@ class _Mailbox(Generic[T]):
         with self._lock:
             item, self._item = self._item, None
         return item
-
-
-class _RateLimitedLog:
-    """Logs a message of one kind at most once per ``period_s``, counting the ones it held back."""
-
-    def __init__(self, logger: logging.Logger, period_s: float, clock: Callable[[], float]) -> None:
-        self._logger = logger
-        self._period_s = period_s
-        self._clock = clock
-        self._next: dict[str, float] = {}
-        self._held: dict[str, int] = {}
-
-    def __call__(self, kind: str, level: int, message: str) -> None:
-        now = self._clock()
-        if now < self._next.get(kind, -math.inf):
-            self._held[kind] = self._held.get(kind, 0) + 1
-            return
-        held = self._held.pop(kind, 0)
-        suffix = f" ({held} similar message(s) suppressed)" if held else ""
-        self._logger.log(level, "%s%s", message, suffix)
-        self._next[kind] = now + self._period_s
-
-    def reset(self, kind: str) -> None:
-        """Forget ``kind`` so its next occurrence is logged at once (after a recovery)."""
-        self._next.pop(kind, None)
-        self._held.pop(kind, None)
 
 
 class ModbusDriver:
@@ -145,7 +120,7 @@ class ModbusDriver:
         self._session = session
         self._keys = keys
         self._clock = clock
-        self._log = _RateLimitedLog(log, self.ERROR_LOG_PERIOD_S, clock)
+        self._log = RateLimitedLog(log, self.ERROR_LOG_PERIOD_S, clock)
         self._setpoints: _Mailbox[tuple[float, float]] = _Mailbox()
         self._rejects: _Mailbox[str] = _Mailbox()
         self._reject_lock = threading.Lock()
@@ -312,7 +287,7 @@ class ModbusDriver:
             self._pub_io.put(state.to_bytes())
         self.polls += 1
         if not self.link_ok:
-            self._log("recovered", logging.INFO, f"I/O polling healthy ({self.config.host})")
+            self._log(logging.INFO, "recovered", "I/O polling healthy (%s)", self.config.host)
             self._log.reset("read")
         self.link_ok = True
         self._healthy = True
@@ -358,15 +333,17 @@ class ModbusDriver:
                 # Reset only by a successful poll: a module that accepts connections but
                 # never answers must not be hammered at the minimum period.
                 self._backoff_s = min(2.0 * self._backoff_s, self.RECONNECT_MAX_S)
-        self._log(kind, logging.ERROR, message)
+        self._log(logging.ERROR, kind, "%s", message)
 
     def _log_rejects(self) -> None:
         reason = self._rejects.take()
         if reason is not None:
             self._log(
-                "setpoint",
                 logging.WARNING,
-                f"pressure set-point refused ({self.setpoints_rejected} so far): {reason}",
+                "setpoint",
+                "pressure set-point refused (%d so far): %s",
+                self.setpoints_rejected,
+                reason,
             )
 
     def health(self) -> dict[str, Any]:

@@ -10,6 +10,7 @@ watchdog; the test sets 13 (0.1 s) so that the driver's rule is what faults the 
 from __future__ import annotations
 
 from sim_bridge.faults import BY_NAME, format_record, run_fault
+from sim_bridge.harness import CAN_PROFILES
 
 
 def test_a_hung_control_process_trips_the_lost_cycle_rule_and_the_arm_stops(tmp_path):
@@ -39,4 +40,24 @@ def test_killing_the_gateway_at_the_speed_limit_stops_the_arm_within_a_few_ms(tm
     assert rec["speed_at_last_command_m_s"] >= 0.2, "not at speed when the commands ceased"
     assert rec["stop_after_command_s"] <= 0.020 + CONTROLLER_CYCLE_S + 1e-9
     assert rec["travel_after_missed_m"] < 0.002
+    assert rec["pass"], rec["checks"]
+
+
+#: the CiA 402 drives' heartbeat watch of the host (deploy/config/sim_cell_cia402.toml
+#: [can.cia402] consumer_heartbeat_s) and the host's heartbeat period ([can] heartbeat_period_s)
+CONSUMER_HEARTBEAT_S, HOST_HEARTBEAT_S = 0.1, 0.02
+
+
+def test_killing_the_whole_product_makes_the_cia402_drives_quick_stop_on_their_own(tmp_path):
+    """kill -9 of the gateway and every process it started, at once, while a hand drags the
+    tool (issue 12): nothing sends a BRAKE or a heartbeat any more. Each CiA 402 drive misses
+    the host's heartbeat within its consumer time (0x1016), quick-stops as 0x6007 = 3 says,
+    and the arm comes to rest."""
+    rec = run_fault(BY_NAME["kill_product"], tmp_path, cell_overrides=CAN_PROFILES["cia402"][1])
+    print(format_record(rec))
+    assert rec["speed_m_s"] > 0.08, "the arm was not moving at the fault: nothing was tested"
+    sim_log = (tmp_path / "sim.log").read_text()
+    assert "abort connection option QUICK_STOP" in sim_log, "no drive quick-stopped by 0x6007"
+    # the last heartbeat came up to one period before the kill; one SYNC period to see it
+    assert rec["reaction_s"] <= CONSUMER_HEARTBEAT_S + HOST_HEARTBEAT_S + 0.016, rec
     assert rec["pass"], rec["checks"]

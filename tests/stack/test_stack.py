@@ -297,10 +297,12 @@ def wait_moving(stack: Stack, speed_m_s: float, timeout_s: float) -> None:
         time.sleep(0.05)
 
 
-def test_killing_control_makes_the_driver_hold_and_the_arm_stop(tmp_path):
+@pytest.mark.parametrize("profile", ["classic", "cia402"])
+def test_killing_control_makes_the_driver_hold_and_the_arm_stop(tmp_path, profile):
     # The operator drags the tool along +x at 0.1 m/s and keeps pulling after the kill.
     operator = {"mode": "path", "path": [[0.0, 0, 0, 0], [0.5, 0, 0, 0], [4.5, 0.4, 0, 0]]}
-    with Stack(tmp_path, sim_overrides={"operator": operator}) as stack:
+    cell = PROFILES[profile][1]
+    with Stack(tmp_path, sim_overrides={"operator": operator}, cell_overrides=cell) as stack:
         stack.start()
         stack.start_teaching()
         stack.wait_teaching(2.0, 30.0)

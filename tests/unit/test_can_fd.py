@@ -365,7 +365,7 @@ def test_command_frames_refuse_bad_sets():
 def test_requests_roll_their_counter_and_the_heartbeat_is_classic():
     adapter = LtcFdAdapter(6)
     counters = [
-        adapter.protocol.decode(adapter.request_frame(HostRequest.SERVO_ON)).counter
+        adapter.protocol.decode(adapter.request_frames(HostRequest.SERVO_ON)[0]).counter
         for _ in range(257)
     ]
     assert counters[:2] == [0, 1] and counters[255:] == [255, 0]
@@ -441,7 +441,7 @@ def test_controller_applies_an_fd_command_set_received_over_a_can_fd_bus(fd_buse
         return [receiver.recv(timeout=1.0) for _ in frames]
 
     for msg in deliver(
-        [host.heartbeat_frame(), host.request_frame(HostRequest.SERVO_ON)], host_bus, ctrl_bus
+        [host.heartbeat_frame(), *host.request_frames(HostRequest.SERVO_ON)], host_bus, ctrl_bus
     ):
         ctrl.on_frame(msg, wall_s=0.0)
     ctrl.begin_cycle(0.0, np.zeros(6), wall_s=0.0)

@@ -410,7 +410,7 @@ def test_command_frames_refuse_bad_sets():
 def test_request_counter_rolls_and_heartbeat_is_operational():
     adapter = LtcAdapter(6)
     counters = [
-        adapter.protocol.decode(adapter.request_frame(HostRequest.BRAKE)).counter
+        adapter.protocol.decode(adapter.request_frames(HostRequest.BRAKE)[0]).counter
         for _ in range(258)
     ]
     assert counters[:3] == [0, 1, 2] and counters[255:] == [255, 0, 1]
