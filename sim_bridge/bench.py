@@ -88,10 +88,14 @@ def run_rate(
         workdir.mkdir(parents=True, exist_ok=True)
         creds = write_credentials(workdir / "bus.credentials")
         cell_overrides = deep_merge(cell_overrides, {"bus": {"credentials_file": str(creds)}})
+    controller_period = period
+    if profile == "cia402":  # the host clocks the cycle: its SYNC period is the rate
+        cell_overrides = deep_merge(cell_overrides, {"can": {"cia402": {"cycle_period_s": period}}})
+        controller_period = min(period, sim_profile["controller"]["cycle_period_s"])  # servo
     overrides = deep_merge(
         sim_profile,
         {
-            "controller": {"cycle_period_s": period},
+            "controller": {"cycle_period_s": controller_period},
             "operator": {"enabling_after_s": 0.0, "mode": "none"},
         },
     )
@@ -184,7 +188,8 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
         "--profile",
         choices=sorted(CAN_PROFILES),
         default="classic",
-        help="CAN profile: classic (LTC-1, 13 frames per cycle) or fd (LTC-1F, 2 frames)",
+        help="CAN profile: classic (LTC-1, 13 frames per cycle), fd (LTC-1F, 2 frames) or "
+        "cia402 (CiA 402 drives over CANopen: SYNC + 24 PDOs, the host clocking the cycle)",
     )
     p.add_argument("--json", type=Path, default=None, help="write the results here as JSON")
     p.add_argument(

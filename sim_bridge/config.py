@@ -18,15 +18,24 @@ from gateway.config import from_mapping, load_toml, require
 
 DEFAULT_TRUTH = Path(__file__).with_name("gr630st_truth.toml")
 
+#: the names these effects had before they took the identification catalogue's
+#: (control/identification/terms.py EFFECT_NAMES): refused, naming the new one
+RENAMED_EFFECT_KINDS = {
+    "ripple": "position_ripple",
+    "load_friction": "load_dependent_friction",
+    "delay": "time_delay",
+    "drift": "thermal_drift",
+    "coupling": "wrist_coupling",
+}
 EFFECT_KINDS = (
     "payload",  # mass on the last link: mass_kg, com_m [3] in the tool frame
     "spring",  # position-proportional spring: joint, k_nm_per_rad, q0_rad
-    "ripple",  # position-periodic torque: joint, amplitude_nm, cycles_per_rev, phase_rad
+    "position_ripple",  # position-periodic torque: joint, amplitude_nm, cycles_per_rev, phase_rad
     "stribeck",  # friction transition shape: joint, amplitude_nm, velocity_rad_s
-    "load_friction",  # load-dependent friction: joint, coefficient (|tau_load| fraction)
-    "delay",  # torque/kinematics time delay at the sensor: delay_s (all joints)
-    "drift",  # slow thermal drift of the torque offset: joint, rate_nm_per_s
-    "coupling",  # wrist cross-coupling: joint, from_joint, coefficient
+    "load_dependent_friction",  # load-dependent friction: joint, coefficient (|tau_load| fraction)
+    "time_delay",  # torque/kinematics time delay at the sensor: delay_s (all joints)
+    "thermal_drift",  # slow thermal drift of the torque offset: joint, rate_nm_per_s
+    "wrist_coupling",  # wrist cross-coupling: joint, from_joint, coefficient
 )
 
 
@@ -436,6 +445,12 @@ class SimConfig:
             "must be a whole number of timesteps",
         )
         for i, eff in enumerate(self.effects):
+            renamed = RENAMED_EFFECT_KINDS.get(str(eff.get("kind")))
+            require(
+                renamed is None,
+                f"[[effects]][{i}].kind",
+                f"{eff.get('kind')!r} is now {renamed!r} (the identification's name for it)",
+            )
             require(
                 eff.get("kind") in EFFECT_KINDS,
                 f"[[effects]][{i}].kind",

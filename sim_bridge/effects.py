@@ -82,7 +82,7 @@ class EffectSet:
                     self.pending_payloads.append((eff, body, mass, pos))
                 else:
                     _add_point_mass(model, body, mass, pos)
-            elif kind == "delay":
+            elif kind == "time_delay":
                 delay = float(eff["delay_s"])
                 require(0 < delay < 0.1, where, "delay_s must be in (0, 0.1)")
                 self.delay_steps = round(delay / timestep_s)
@@ -104,7 +104,7 @@ class EffectSet:
             j, kind = eff["_j"], eff["kind"]
             if kind == "spring":
                 tau[j] -= float(eff["k_nm_per_rad"]) * (q[j] - float(eff.get("q0_rad", 0.0)))
-            elif kind == "ripple":
+            elif kind == "position_ripple":
                 c = float(eff["cycles_per_rev"])
                 tau[j] += float(eff["amplitude_nm"]) * np.sin(
                     c * q[j] + float(eff.get("phase_rad", 0.0))
@@ -114,13 +114,13 @@ class EffectSet:
                 tau[j] -= (
                     float(eff["amplitude_nm"]) * np.exp(-((dq[j] / v) ** 2)) * np.tanh(dq[j] / 1e-3)
                 )
-            elif kind == "load_friction":
+            elif kind == "load_dependent_friction":
                 tau[j] -= (
                     float(eff["coefficient"]) * abs(plant.tau_motor_nm[j]) * np.tanh(dq[j] / 0.01)
                 )
-            elif kind == "drift":
+            elif kind == "thermal_drift":
                 tau[j] += float(eff["rate_nm_per_s"]) * plant.t_s
-            elif kind == "coupling":
+            elif kind == "wrist_coupling":
                 k = int(eff["from_joint"]) - 1
                 tau[j] -= float(eff["coefficient"]) * plant.tau_motor_nm[k]
         return tau

@@ -40,6 +40,8 @@ import logging
 import math
 import struct
 import threading
+import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -58,6 +60,9 @@ SYNC_COB_ID = 0x080
 DEVICE_TYPE_402 = 402  #: the low word of 0x1000 of a CiA 402 drive
 MODES = {"csp": 8, "csv": 9}  #: 0x6060 modes of operation
 NMT_OPERATIONAL = 0x05  #: the state byte of an operational node's heartbeat
+#: a drive whose heartbeat is this many of its periods (0x1017) late is lost (the host's side
+#: of the heartbeat watch; the drives watch the host's with 0x1016)
+HEARTBEAT_LATE_FACTOR = 3.0
 
 
 class DriveState(enum.Enum):
@@ -189,6 +194,7 @@ class _Joint:
     tpdo2: _Pdo
     state: DriveState = S.NOT_READY_TO_SWITCH_ON
     nmt_state: int = -1  #: state byte of its newest heartbeat (-1: none yet)
+    heartbeat_s: float | None = None  #: when its newest heartbeat came (monotonic) [s]
     emergency: str = ""  #: the newest EMCY error code, as text
     last_target_inc: int | None = None  #: the target position it was last sent
     position_inc: int = 0  #: its newest position actual value
@@ -203,8 +209,11 @@ class Cia402Adapter(CanAdapter):
     #: the drives' consumer heartbeat time of the host; per instance (from the config)
     host_heartbeat_timeout_s: float = 0.1
 
-    def __init__(self, n_joints: int, config: Cia402Config) -> None:
+    def __init__(
+        self, n_joints: int, config: Cia402Config, clock: Callable[[], float] = time.monotonic
+    ) -> None:
         super().__init__(n_joints)
+        self._clock = clock
         if not 1 <= n_joints <= self.max_joints:
             raise ConfigError(f"[can].joints: CiA 402 adapter carries 1..16 joints, not {n_joints}")
         config.check_joints(n_joints)
@@ -268,7 +277,7 @@ class Cia402Adapter(CanAdapter):
                     f"CiA 402 drive node(s) {missing} did not boot up within "
                     f"{cfg.boot_timeout_s:g} s after NMT reset communication"
                 )
-            self._joints = [self._configure(k, node) for k, node in enumerate(nodes)]
+            joints = [self._configure(k, node) for k, node in enumerate(nodes)]
             network.nmt.send_command(0x01)  # start remote node: process data flows
         except SdoCommunicationError as exc:
             raise LinkTimeoutError(f"CiA 402 start-up: an SDO went unanswered: {exc}") from None
@@ -278,12 +287,7 @@ class Cia402Adapter(CanAdapter):
             notifier.stop(0.5)
             for nid in self.node_ids:
                 network.unsubscribe(0x700 + nid, on_boot_up)
-        self._by_cob = {}
-        for k, j in enumerate(self._joints):
-            self._by_cob[j.tpdo1.cob_id] = (k, "tpdo1")
-            self._by_cob[j.tpdo2.cob_id] = (k, "tpdo2")
-            self._by_cob[0x700 + j.node_id] = (k, "heartbeat")
-            self._by_cob[0x080 + j.node_id] = (k, "emcy")
+        self._attach(joints)
         log.info(
             "CiA 402 drives %s operational: %s, SYNC every %.1f ms, heartbeat watch %.0f ms",
             list(self.node_ids),
@@ -291,6 +295,16 @@ class Cia402Adapter(CanAdapter):
             cfg.cycle_period_s * 1e3,
             cfg.consumer_heartbeat_s * 1e3,
         )
+
+    def _attach(self, joints: list[_Joint]) -> None:
+        """Take the configured drives: their PDOs' COB-IDs route the frames :meth:`feed` gets."""
+        self._joints = joints
+        self._by_cob = {}
+        for k, j in enumerate(self._joints):
+            self._by_cob[j.tpdo1.cob_id] = (k, "tpdo1")
+            self._by_cob[j.tpdo2.cob_id] = (k, "tpdo2")
+            self._by_cob[0x700 + j.node_id] = (k, "heartbeat")
+            self._by_cob[0x080 + j.node_id] = (k, "emcy")
 
     def _configure(self, k: int, node: Any) -> _Joint:
         cfg, nid = self.config, node.id
@@ -381,6 +395,7 @@ class Cia402Adapter(CanAdapter):
         data = bytes(msg.data)
         if kind == "heartbeat":
             joint.nmt_state = data[0] & 0x7F if data else -1
+            joint.heartbeat_s = self._clock()
             return None
         if kind == "emcy":
             code = int.from_bytes(data[:2], "little") if len(data) >= 2 else 0
@@ -415,6 +430,9 @@ class Cia402Adapter(CanAdapter):
         n = self.n_joints
         q, dq, amps = np.empty(n), np.empty(n), np.empty(n)
         faults = []
+        now = self._clock()
+        #: a drive's heartbeat (0x1017) is late past this: the host's consumer side
+        heartbeat_limit_s = HEARTBEAT_LATE_FACTOR * self.config.producer_heartbeat_s
         for k, j in enumerate(self._joints):
             statusword, position = tp1[k]  # type: ignore[misc]
             velocity, current, _torque = tp2[k]  # type: ignore[misc]
@@ -437,6 +455,8 @@ class Cia402Adapter(CanAdapter):
                 faults.append(f"J{k + 1} quick stop")
             elif j.nmt_state not in (-1, NMT_OPERATIONAL):
                 faults.append(f"J{k + 1} NMT state 0x{j.nmt_state:02X}")
+            elif j.heartbeat_s is not None and now - j.heartbeat_s > heartbeat_limit_s:
+                faults.append(f"J{k + 1} heartbeat lost ({now - j.heartbeat_s:.2f} s)")
         states = [j.state for j in self._joints]
         enabled = all(s == S.OPERATION_ENABLED for s in states)
         if self._dropped:
@@ -491,7 +511,7 @@ class Cia402Adapter(CanAdapter):
             pos, vel = q[k] * j.inc_per_rad, dq[k] * j.inc_per_rad
             if not (math.isfinite(pos) and math.isfinite(vel)) or max(abs(pos), abs(vel)) >= 2**31:
                 raise FrameError(
-                    f"CiA 402 J{k + 1}: command {q[k]!r} rad, {dq[k]!r} rad/s does not fit int32"
+                    f"CiA 402 J{k + 1}: command {q[k]:g} rad, {dq[k]:g} rad/s does not fit int32"
                 )
             frames.append(self._rpdo1(k, round(pos)))
             frames.append(

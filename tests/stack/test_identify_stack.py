@@ -128,7 +128,7 @@ def assert_current_zero_measures_the_offsets(path: Path | None, plant_seed: int)
 def test_identification_names_a_hose_spring_and_a_gear_ripple(tmp_path):
     effects = [
         {"kind": "spring", "joint": 1, "k_nm_per_rad": 300.0, "q0_rad": 0.0},
-        {"kind": "ripple", "joint": 4, "amplitude_nm": 1.5, "cycles_per_rev": 27.0},
+        {"kind": "position_ripple", "joint": 4, "amplitude_nm": 1.5, "cycles_per_rev": 27.0},
     ]
     summary = identify(tmp_path, effects)
     found = {(e["name"], tuple(e["joints"])): e for e in summary["effects"]}
