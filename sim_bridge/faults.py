@@ -154,10 +154,14 @@ def _kill_gateway(stack: Stack) -> None:
 
 def _kill_product(stack: Stack) -> None:
     """kill -9 of the gateway and every process it started, at once (the service's control
-    group killed, the cell PC's power gone): no BRAKE, no heartbeat, no answer any more."""
-    for pid in stack.product_pids():
-        with contextlib.suppress(ProcessLookupError):
-            os.kill(pid, signal.SIGKILL)
+    group killed, the cell PC's power gone): no BRAKE, no heartbeat, no answer any more.
+    Every process is stopped (SIGSTOP) before any is killed: a child that outlived the
+    gateway by a moment would get its SIGTERM and send the BRAKE this fault must not have."""
+    pids = list(stack.product_pids())
+    for sig in (signal.SIGSTOP, signal.SIGKILL):
+        for pid in pids:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, sig)
 
 
 def _operator_stop(stack: Stack) -> None:
