@@ -8,57 +8,27 @@ and a drive whose units differ from the cell config refused at start."""
 from __future__ import annotations
 
 import dataclasses
-import threading
 import time
 
 import can
 import numpy as np
 import pytest
+from cia402_rig import cia402_cell
 
 from drivers.can.adapter import HostRequest
 from drivers.can.cia402 import Cia402Adapter
 from drivers.can.config import load_can_config
 from gateway.errors import ConfigError
 from gateway.messages import ControllerState
-from sim_bridge.config import load_sim_config
-from sim_bridge.harness import REPO, SIM_CELL_CIA402, TRUTH_CIA402, free_port, unique_can_address
-from sim_bridge.sim import make_virtual_cell
+from sim_bridge.harness import REPO, SIM_CELL_CIA402
 
 SYNC_PERIOD_S = 0.008
 
 
 @pytest.fixture
 def cell():
-    """The CiA 402 virtual cell on a segment of its own, its loop in a thread; lock-step, one
-    servo cycle of the SYNC period per SYNC (exact plant time however loaded the machine)."""
-    controller = load_sim_config(TRUTH_CIA402).controller
-    cfg = load_sim_config(
-        TRUTH_CIA402,
-        {
-            "endpoints": {"can_channel": unique_can_address(), "modbus_port": free_port()},
-            "realtime": False,
-            "controller": {**vars(controller), "cycle_period_s": SYNC_PERIOD_S},
-        },
-    )
-    vc = make_virtual_cell(cfg)
-    vc.open()
-    errors: list[BaseException] = []
-
-    def run() -> None:
-        try:
-            vc.run()
-        except BaseException as exc:
-            errors.append(exc)
-
-    loop = threading.Thread(target=run, name="cia402-cell")
-    loop.start()
-    try:
+    with cia402_cell(SYNC_PERIOD_S) as vc:
         yield vc
-    finally:
-        vc.stop()
-        loop.join()
-        vc.close()
-    assert not errors, errors
 
 
 @pytest.fixture

@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 import pytest
+from test_live_view import SUBPROTOCOLS, _recv_json
 from websockets.sync.client import connect
 
 from control.robot.description import DEFAULT_DESCRIPTION_PATH, load_description
@@ -30,22 +31,10 @@ from gateway.live_view import ARM_RATE_HZ, LiveView
 from gateway.messages import ControllerState, Lifecycle, LifecycleMsg, make_joint_state
 from gateway.view_page.arm import cell_description
 
-SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
 #: a different angle on every joint, so that a joint order mix-up moves the tool [rad]
 Q_TEST_RAD = np.array([0.31, -0.42, 0.57, 0.26, -0.63, 0.74])
 ARM_TOPICS = ("/tf", "/arm", "/arm/points", "/robot_description")
 CHROMIUM = Path("/usr/bin/chromium")
-
-
-def _recv_json(ws, op: str, timeout_s: float = 5.0) -> dict:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        msg = ws.recv(timeout=max(deadline - time.monotonic(), 0.01))
-        if isinstance(msg, str):
-            obj = json.loads(msg)
-            if obj.get("op") == op:
-                return obj
-    raise AssertionError(f"no {op!r} message within {timeout_s} s")
 
 
 def _advertised(ws, topics: set[str], put=None, timeout_s: float = 5.0) -> dict[str, dict]:

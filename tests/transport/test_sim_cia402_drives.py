@@ -13,7 +13,6 @@ import math
 import signal
 import subprocess
 import sys
-import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -21,11 +20,11 @@ from pathlib import Path
 import can
 import canopen
 import pytest
+from cia402_rig import cia402_cell
 
 from sim_bridge.cia402_drives import EDS_PATH
-from sim_bridge.config import load_sim_config
 from sim_bridge.harness import REPO, free_port, unique_can_address
-from sim_bridge.sim import VirtualCell, make_virtual_cell
+from sim_bridge.sim import VirtualCell
 
 CIA402_TRUTH = REPO / "sim_bridge" / "gr630st_truth_cia402.toml"
 NODES = range(1, 7)
@@ -173,37 +172,8 @@ def wait_for(cond: Callable[[], bool], what: str, timeout_s: float = 5.0) -> Non
 
 @pytest.fixture
 def cell():
-    """The CiA 402 virtual cell serving a segment of its own, its loop in a thread: lock-step,
-    one servo cycle of the host's SYNC period per SYNC, so the plant's time is exact however
-    late this loaded process runs the host or the cell."""
-    controller = load_sim_config(CIA402_TRUTH).controller
-    cfg = load_sim_config(
-        CIA402_TRUTH,
-        {
-            "endpoints": {"can_channel": unique_can_address(), "modbus_port": free_port()},
-            "realtime": False,
-            "controller": {**vars(controller), "cycle_period_s": SYNC_PERIOD_S},
-        },
-    )
-    vc = make_virtual_cell(cfg)
-    vc.open()
-    errors: list[BaseException] = []
-
-    def run() -> None:
-        try:
-            vc.run()
-        except BaseException as exc:  # the test fails with it
-            errors.append(exc)
-
-    loop = threading.Thread(target=run, name="cia402-cell")
-    loop.start()
-    try:
+    with cia402_cell(SYNC_PERIOD_S) as vc:
         yield vc
-    finally:
-        vc.stop()
-        loop.join()
-        vc.close()
-    assert not errors, errors
 
 
 @pytest.fixture
