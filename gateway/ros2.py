@@ -36,6 +36,7 @@ from typing import Any
 
 import numpy as np
 import zenoh
+import zenoh.ext as zx
 
 from gateway.bus import (
     CONNECT_TIMEOUT_S,
@@ -176,8 +177,6 @@ def attachment(sequence_number: int, source_timestamp_ns: int, gid: bytes) -> by
     and the 16-byte publisher GID as a sequence, in zenoh's serialization format."""
     if len(gid) != 16:
         raise ValueError(f"a publisher GID has 16 bytes, got {len(gid)}")
-    import zenoh.ext as zx
-
     payload = zx.z_serialize((zx.Int64(sequence_number), zx.Int64(source_timestamp_ns), gid))
     return payload.to_bytes()
 
@@ -391,9 +390,10 @@ class Ros2Bridge:
             t.sequence += 1
             seq = t.sequence
         # The bus stamps are CLOCK_MONOTONIC of this machine; ROS stamps are wall clock.
-        stamp_ns = time.time_ns() - round((now_mono - mono_stamp_s) * 1e9)
+        now_ns = time.time_ns()
+        stamp_ns = now_ns - round((now_mono - mono_stamp_s) * 1e9)
         payload = self._cdr.encode(stamp_ns, self._names, q, dq)
-        t.publisher.put(payload, attachment=attachment(seq, time.time_ns(), t.gid))
+        t.publisher.put(payload, attachment=attachment(seq, now_ns, t.gid))
         with self._lock:
             t.published += 1
 

@@ -105,24 +105,9 @@ class Cia402Cell(VirtualCell):
         drives.estop = self.estop_open
         drives.begin_cycle(plant.t_s, plant.q_rad, time.monotonic())
         teaching = drives.following
-        if teaching:
-            op.mark_onset(plant.t_s, plant.tool_position_m())
-            if plant.effects.onset_s is None:
-                plant.effects.onset_s = plant.t_s
-        released = not drives.servo_on and op.brakes_released(plant.t_s)
-        if released:
-            op.mark_onset(plant.t_s, plant.tool_position_m())
-        reference = drives.reference(plant.t_s)
-        plant.run(self.substeps, reference, brakes_released=released, power_cut=drives.power_cut)
-        p_meas = plant.measured_pressure_bar()
-        enabling = op.enabling(plant.t_s)
-        self.io.set_inputs(
-            float(p_meas[0]), float(p_meas[1]), enabling, not self.estop_open,
-            op.mark_pressed(plant.t_s),
-        )  # fmt: skip
-        plant.pressure_set_bar[:] = self.io.setpoints()
-        q_m, dq_m = plant.effects.measured_kinematics(plant)
-        i_m = plant.measured_current_a()
+        p_meas, enabling, q_m, dq_m, i_m = self._advance_plant(
+            teaching, drives.servo_on, drives.reference(plant.t_s), drives.power_cut
+        )
         drives.sample(q_m, dq_m, i_m)
         latencies = drives.take_latencies()
         self.latencies_s += latencies

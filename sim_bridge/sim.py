@@ -280,24 +280,10 @@ class VirtualCell:
         ctrl.estop = self.estop_open
         ctrl.begin_cycle(plant.t_s, plant.q_rad, time.monotonic())
         teaching = ctrl.state == ControllerState.EXTERNAL and not ctrl.ref_is_hold
-        if teaching:
-            op.mark_onset(plant.t_s, plant.tool_position_m())
-            if plant.effects.onset_s is None:
-                plant.effects.onset_s = plant.t_s
-        released = not ctrl.servo_on and op.brakes_released(plant.t_s)
-        if released:
-            op.mark_onset(plant.t_s, plant.tool_position_m())
         reference = (ctrl.q_ref, ctrl.dq_ref, ctrl.t_ref) if ctrl.servo_on else None
-        plant.run(self.substeps, reference, brakes_released=released, power_cut=ctrl.power_cut)
-        p_meas = plant.measured_pressure_bar()
-        enabling = op.enabling(plant.t_s)
-        self.io.set_inputs(
-            float(p_meas[0]), float(p_meas[1]), enabling, not self.estop_open,
-            op.mark_pressed(plant.t_s),
-        )  # fmt: skip
-        plant.pressure_set_bar[:] = self.io.setpoints()
-        q_m, dq_m = plant.effects.measured_kinematics(plant)
-        i_m = plant.measured_current_a()
+        p_meas, enabling, q_m, dq_m, i_m = self._advance_plant(
+            teaching, ctrl.servo_on, reference, ctrl.power_cut
+        )
         # what the frame's signals can carry (q, dq, i in one clip)
         fb = np.clip(np.concatenate((q_m, dq_m, i_m)), -self._fb_limit, self._fb_limit)
         n = self.n
@@ -335,6 +321,37 @@ class VirtualCell:
             )
             if ctrl.cycle % LOG_FLUSH_CYCLES == 0:
                 self._log.flush()  # readers (demo, tests) follow the run as it happens
+
+    def _advance_plant(
+        self,
+        teaching: bool,
+        servo_on: bool,
+        reference: tuple[np.ndarray, np.ndarray, float] | None,
+        power_cut: bool,
+    ) -> tuple[np.ndarray, bool, np.ndarray, np.ndarray, np.ndarray]:
+        """One cycle of the plant and the I/O module, whatever controller drives it: the
+        operator's onset, the plant run towards ``reference`` (None: servo off), the I/O
+        module's inputs and set-points. Returns the measured pressures, the enabling device,
+        and the measured q, dq and motor currents."""
+        assert self.io is not None
+        plant, op = self.plant, self.operator
+        if teaching:
+            op.mark_onset(plant.t_s, plant.tool_position_m())
+            if plant.effects.onset_s is None:
+                plant.effects.onset_s = plant.t_s
+        released = not servo_on and op.brakes_released(plant.t_s)
+        if released:
+            op.mark_onset(plant.t_s, plant.tool_position_m())
+        plant.run(self.substeps, reference, brakes_released=released, power_cut=power_cut)
+        p_meas = plant.measured_pressure_bar()
+        enabling = op.enabling(plant.t_s)
+        self.io.set_inputs(
+            float(p_meas[0]), float(p_meas[1]), enabling, not self.estop_open,
+            op.mark_pressed(plant.t_s),
+        )  # fmt: skip
+        plant.pressure_set_bar[:] = self.io.setpoints()
+        q_m, dq_m = plant.effects.measured_kinematics(plant)
+        return p_meas, enabling, q_m, dq_m, plant.measured_current_a()
 
     def _heartbeat(self, now_s: float) -> None:
         assert self.can is not None

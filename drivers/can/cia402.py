@@ -115,6 +115,10 @@ TRANSITIONS: dict[int, tuple[DriveState, DriveState, int]] = {
     15: (S.FAULT, S.SWITCH_ON_DISABLED, CW_FAULT_RESET),
     16: (S.QUICK_STOP_ACTIVE, S.OPERATION_ENABLED, CW_ENABLE_OPERATION),
 }
+#: the transition that takes a drive one step towards operation enabled (SERVO_ON) ...
+SERVO_ON_STEPS = {S.SWITCH_ON_DISABLED: 2, S.READY_TO_SWITCH_ON: 3, S.SWITCHED_ON: 4}
+#: ... and towards ready to switch on, by disable operation first (BRAKE)
+BRAKE_STEPS = {S.OPERATION_ENABLED: 5, S.SWITCHED_ON: 6, S.SWITCH_ON_DISABLED: 2}
 
 
 def decode_state(statusword: int) -> DriveState:
@@ -142,16 +146,12 @@ def controlword_for(state: DriveState, request: HostRequest) -> tuple[int, int |
     if state == S.QUICK_STOP_ACTIVE:
         return CW_QUICK_STOP, None
     if request == HostRequest.SERVO_ON:
-        step = {
-            S.SWITCH_ON_DISABLED: 2,
-            S.READY_TO_SWITCH_ON: 3,
-            S.SWITCHED_ON: 4,
-        }.get(state)
+        step = SERVO_ON_STEPS.get(state)
         if step is None:
             return CW_ENABLE_OPERATION if state == S.OPERATION_ENABLED else CW_SHUTDOWN, None
         return TRANSITIONS[step][2], step
     # BRAKE (and RESET_FAULT of a drive that is not in fault)
-    step = {S.OPERATION_ENABLED: 5, S.SWITCHED_ON: 6, S.SWITCH_ON_DISABLED: 2}.get(state)
+    step = BRAKE_STEPS.get(state)
     if step is None:
         return CW_SHUTDOWN, None
     return TRANSITIONS[step][2], step
