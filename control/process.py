@@ -75,7 +75,7 @@ from gateway.program import ProgramError, read_program
 from gateway.ratelog import RateLimitedLog
 from gateway.replay import MAX_JOINT_SPEED_RAD_S as MAX_REPLAY_JOINT_SPEED_RAD_S
 from gateway.replay import MAX_SPEED_MM_S
-from gateway.signals import StopSignals
+from gateway.runner import run_service
 
 log = logging.getLogger("leadthrough.control")
 
@@ -1327,7 +1327,8 @@ class ControlProcess:
             "problem": self.adaptation_problem,
         }
 
-    def run(self) -> None:
+    def run(self, notifier: Any = None) -> None:
+        """The slow loop (pressure set-points, health, telemetry) until :attr:`stop_event`."""
         s = self.session
         assert s is not None
         period = 1.0 / HEALTH_RATE_HZ
@@ -1393,12 +1394,11 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
 
 
 def cli_main(args: argparse.Namespace) -> int:
-    cfg, bus = load_control_config(args.config)
-    proc = ControlProcess(cfg, bus.with_overrides(args.bus))
-    with StopSignals(proc.stop_event):
-        proc.open()
-        try:
-            proc.run()
-        finally:
-            proc.close()
-    return 0
+    """Run until SIGTERM/SIGINT (:func:`gateway.runner.run_service`): 0 on a clean stop,
+    EXIT_CONFIG (78) on a bad config, 1 on any other failure."""
+
+    def build() -> ControlProcess:
+        cfg, bus = load_control_config(args.config)
+        return ControlProcess(cfg, bus.with_overrides(args.bus))
+
+    return run_service("control", build)

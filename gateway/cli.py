@@ -38,7 +38,10 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
         "benchmark lead-through strategies on a raster spray path (virtual cell)",
     ),
     "bench": ("sim_bridge.bench", "measure wire-to-wire loop latency on the virtual cell"),
-    "identify": ("control.identify", "run identification experiments on the cell and fit"),
+    "identify": (
+        "control.identification.on_cell",
+        "run identification experiments on the cell and fit",
+    ),
     "record": ("gateway.recorder", "record everything on the bus into an MCAP file"),
     "export": (
         "gateway.export_cli",
@@ -99,11 +102,24 @@ def _operator_main(args: argparse.Namespace) -> int:
         if isinstance(engagement, dict) and engagement.get("phase") == "probing":
             print(f"  - the arm is measuring its model's error ({engagement.get('left_s')} s "
                   "left): hold the tool lightly, do not push yet")  # fmt: skip
+        refused = reply.get("bus_refused") if args.command == "status" else None
+        if isinstance(refused, dict) and refused.get("total"):
+            print(f"  - {refusal_line(refused)}")
         adapted = reply.get("model_adaptation") if args.command == "status" else None
         if isinstance(adapted, dict):
             for line in adaptation_lines(adapted):
                 print(f"  - {line}")
     return 0 if reply.get("ok") else 1
+
+
+def refusal_line(refused: dict) -> str:
+    """What `leadthrough status` says of the messages the locked bus refused."""
+    parts = [
+        f"{e.get('identity')} {e.get('action')} on {e.get('key')} x{e.get('count')}"
+        for e in refused.get("by", [])
+        if isinstance(e, dict)
+    ]
+    return f"the bus refused {refused.get('total')} message(s): " + ", ".join(parts)
 
 
 def adaptation_lines(adapted: dict) -> list[str]:

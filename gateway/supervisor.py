@@ -29,8 +29,9 @@ import numpy as np
 import zenoh
 
 from gateway.bus import BusConfig, bus_config_from, open_router, undeclare_all
+from gateway.bus_refusals import BusRefusals, count_bus_refusals
 from gateway.config import from_mapping, load_toml, require, resolve_path
-from gateway.errors import EXIT_CONFIG, MessageError
+from gateway.errors import EXIT_CONFIG, ConfigError, MessageError
 from gateway.lifecycle import DRIVER_TRIPS, LifecycleMachine, Limits, Observations
 from gateway.messages import (
     LAYOUT_VERSION,
@@ -46,8 +47,8 @@ from gateway.messages import (
     encode_json,
 )
 from gateway.program import ProgramError, TeachRecorder, program_path
+from gateway.runner import run_service
 from gateway.sd_notify import Notifier
-from gateway.signals import StopSignals
 
 #: A static-load check older than this (at the control process's last health) does not count [s].
 LOAD_CHECK_MAX_AGE_S = 0.5
@@ -285,6 +286,10 @@ class Gateway:
         self.teach = TeachRecorder(str(cell_path))
         self._mark_button = False  #: the teach handle's mark button, as last seen
         self._handle_marks = 0  #: presses of it not yet recorded
+        #: what the locked bus's access-control list refused (None on an open bus)
+        self.refusals: BusRefusals | None = None
+        #: the children's standard output: the gateway's own, or the one before the tap
+        self._child_stdout: int | None = None
 
     # --- processes ----------------------------------------------------------------------
     def _argv(self, name: str) -> list[str]:
@@ -295,7 +300,9 @@ class Gateway:
         log.info("starting %s", child.name)
         # Same process group as the gateway (a terminal's Ctrl-C or a killpg reaches them all),
         # and the kernel sends SIGTERM if the gateway itself dies.
-        child.proc = subprocess.Popen(child.argv, preexec_fn=_die_with_parent)
+        child.proc = subprocess.Popen(
+            child.argv, preexec_fn=_die_with_parent, stdout=self._child_stdout
+        )
         child.started_s = time.monotonic()
         child.restart_at_s = None
 
@@ -467,6 +474,7 @@ class Gateway:
             # admittance measures the model's error at engagement
             "engagement": self.engagement,
             "model_adaptation": self.model_adaptation,
+            "bus_refused": None if self.refusals is None else self.refusals.summary(),
         }
 
     def _on_experiment(self, sample) -> None:
@@ -631,6 +639,9 @@ class Gateway:
 
     # --- main -----------------------------------------------------------------------------
     def open(self) -> None:
+        if self.bus.locked:  # before the router opens: its refusals are logged from then on
+            self.refusals, tap = count_bus_refusals()
+            self._child_stdout = tap.original_fd
         self.session = open_router(self.bus)
         s = self.session
         self._state_sub = s.declare_subscriber(
@@ -713,27 +724,28 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
 
 
 def cli_main(args: argparse.Namespace) -> int:
-    cfg, bus = load_gateway_config(args.config)
-    if not args.no_spawn:  # the children's sections, reported here once (config_check.py)
-        from gateway.config_check import GATEWAY_START_SECTIONS, problems
+    """Run until SIGTERM/SIGINT (:func:`gateway.runner.run_service`, as systemd's main
+    process): 0 on a clean stop, EXIT_CONFIG (78) when any section of the cell config is
+    refused (each error logged once, with file, section and key), 1 on any other failure."""
 
-        errors = problems(args.config, GATEWAY_START_SECTIONS)
-        for message in errors:
-            log.error("cell config refused: %s", message)
-        if errors:
-            log.error("%d error(s) in %s: the gateway does not start", len(errors), args.config)
-            return EXIT_CONFIG
-    gw = Gateway(args.config.resolve(), bus.with_overrides(args.bus), cfg, spawn=not args.no_spawn)
-    notifier = Notifier()
-    with StopSignals(gw.stop_event):
-        gw.open()
-        try:
-            notifier.ready(f"serving the cell on {gw.bus.endpoint}")
-            gw.run(notifier)
-        finally:
-            notifier.stopping()
-            gw.close()
-    return 0
+    def build() -> Gateway:
+        cfg, bus = load_gateway_config(args.config)
+        if not args.no_spawn:  # the children's sections, reported here once (config_check.py)
+            from gateway.config_check import GATEWAY_START_SECTIONS, problems
+
+            errors = problems(args.config, GATEWAY_START_SECTIONS)
+            for message in errors:
+                log.error("cell config refused: %s", message)
+            if errors:
+                raise ConfigError(
+                    f"{len(errors)} error(s) in {args.config}: the gateway does not start"
+                )
+        bus = bus.with_overrides(args.bus)
+        return Gateway(args.config.resolve(), bus, cfg, spawn=not args.no_spawn)
+
+    return run_service(
+        "gateway", build, notify=True, status=lambda gw: f"serving the cell on {gw.bus.endpoint}"
+    )
 
 
 def operator_request(bus: BusConfig, command: str, timeout_s: float = 3.0, **fields) -> dict:

@@ -3,11 +3,11 @@
 A drawn plant (:mod:`sim_bridge.truth`) is a robot the product knows nothing about: its model
 comes from `leadthrough identify`, run on the virtual cell in lock-step (faster than real time)
 through the whole product, exactly as on the real cell: the gateway identifies, the control
-process plays :data:`control.identify.QUICK_PLAN` (friction sweeps, inner-loop velocity steps,
-multi-sines), the CAN driver forwards it, the bus is recorded and fitted. The output folder holds
-``model.json`` (the dynamic model), ``inner_loop.json`` (ω and Υ_I of eq. 21) and
-``current_zero.json`` (the current sensors' zero the model was identified with), which
-``[control] model``, ``[control] inner_loop`` and ``[can] current_zero_file`` point at.
+process plays :data:`control.identification.on_cell.QUICK_PLAN` (friction sweeps, inner-loop
+velocity steps, multi-sines), the CAN driver forwards it, the bus is recorded and fitted. The
+output folder holds ``model.json`` (the dynamic model), ``inner_loop.json`` (ω and Υ_I of
+eq. 21) and ``current_zero.json`` (the current sensors' zero the model was identified with),
+which ``[control] model``, ``[control] inner_loop`` and ``[can] current_zero_file`` point at.
 
 :func:`commissioned` keeps one such folder per plant seed and *code version* (a digest of every
 source file of the product and of the virtual cell, and of the plan): a change to either builds
@@ -109,7 +109,7 @@ def commissioned(
 ) -> Commissioned:
     """The commissioned model of ``plant_seed`` for this code: from the cache, or built now by
     :func:`commission` (about a minute) and kept."""
-    from control.identify import QUICK_PLAN
+    from control.identification.on_cell import QUICK_PLAN
 
     if plant_seed < 0:
         raise ValueError(f"plant seed {plant_seed} must be >= 0")

@@ -23,7 +23,7 @@ import socket
 import subprocess
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -70,6 +70,54 @@ CAN_PROFILES: dict[str, tuple[dict[str, Any], dict[str, Any]]] = {
 }
 #: [can].adapter → the virtual controller's [controller].can_profile that speaks to it
 VIRTUAL_PROFILE = {"ltc_dbc": "classic", "ltc_fd": "fd", "cia402": "cia402"}
+
+
+class TruthTail:
+    """The newest rows of the simulator's truth log, read incrementally: each
+    :meth:`update` parses only the lines appended since the last one, and only ``columns``.
+    A whole read of the growing file (:meth:`Stack.truth`) takes tens of ms of CPU once the
+    log holds seconds at 500 rows a second: from the product it runs beside, and between a
+    condition seen and acted on. ``first_teaching_t_s`` and ``last_teaching_t_s`` are the
+    first and the newest row's ``t_s`` with ``teaching`` set (when both columns are read)."""
+
+    def __init__(self, path: Path, columns: Sequence[str], keep: int = 100) -> None:
+        self.path, self.names, self.keep = path, list(columns), keep
+        self._offset, self._pending = 0, b""
+        self._index: list[int] | None = None
+        self._rows = np.zeros((0, len(self.names)))
+        self.first_teaching_t_s: float | None = None
+        self.last_teaching_t_s: float | None = None
+
+    def update(self) -> np.ndarray:
+        """The newest (at most ``keep``) rows, shape (k, len(columns))."""
+        if not self.path.exists():
+            return self._rows
+        with self.path.open("rb") as fh:
+            fh.seek(self._offset)
+            chunk = fh.read()
+        self._offset += len(chunk)
+        *lines, self._pending = (self._pending + chunk).split(b"\n")
+        new: list[list[float]] = []
+        for line in lines:
+            parts = line.split(b",")
+            if self._index is None:
+                header = [p.decode() for p in parts]
+                self._index = [header.index(n) for n in self.names]
+                self._width = len(header)
+                continue
+            if len(parts) == self._width:
+                new.append([float(parts[i]) for i in self._index])
+        if new:
+            rows = np.array(new)
+            if {"t_s", "teaching"} <= set(self.names):
+                t, teach = rows[:, self.names.index("t_s")], rows[:, self.names.index("teaching")]
+                on = np.flatnonzero(teach > 0.5)
+                if on.size:
+                    if self.first_teaching_t_s is None:
+                        self.first_teaching_t_s = float(t[on[0]])
+                    self.last_teaching_t_s = float(t[on[-1]])
+            self._rows = np.vstack([self._rows, rows])[-self.keep :]
+        return self._rows
 
 
 def free_port() -> int:
@@ -436,32 +484,16 @@ class Stack:
     def wait_teaching(self, seconds: float, timeout_s: float) -> dict[str, np.ndarray]:
         """Wait until the truth log holds ``seconds`` of teaching; returns the log.
 
-        The log is read incrementally (only the lines added since the last look, two columns
-        parsed): parsing the whole growing file four times a second took tens of ms of CPU
-        each time from the product it was waiting for."""
+        The log is read incrementally (:class:`TruthTail`): parsing the whole growing file four
+        times a second took tens of ms of CPU each time from the product it was waiting for."""
         deadline = time.monotonic() + timeout_s
-        offset, pending = 0, b""
-        columns: list[bytes] | None = None
-        first = last = None
+        tail = TruthTail(self.truth_log, ("t_s", "teaching"), keep=1)
         while time.monotonic() < deadline:
             self.check_alive()
-            if self.truth_log.exists():
-                with self.truth_log.open("rb") as fh:
-                    fh.seek(offset)
-                    chunk = fh.read()
-                offset += len(chunk)
-                *lines, pending = (pending + chunk).split(b"\n")
-                for line in lines:
-                    parts = line.split(b",")
-                    if columns is None:
-                        columns = parts
-                        i_t, i_teach = columns.index(b"t_s"), columns.index(b"teaching")
-                        continue
-                    if len(parts) == len(columns) and float(parts[i_teach]) > 0.5:
-                        last = float(parts[i_t])
-                        first = last if first is None else first
-                if first is not None and last is not None and last - first >= seconds:
-                    return self.truth()
+            tail.update()
+            first, last = tail.first_teaching_t_s, tail.last_teaching_t_s
+            if first is not None and last is not None and last - first >= seconds:
+                return self.truth()
             time.sleep(0.25)
         raise TimeoutError(f"no {seconds} s of teaching within {timeout_s} s")
 

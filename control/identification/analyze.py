@@ -71,6 +71,7 @@ from control.identification.preprocess import (
     Prepared,
     TooShortError,
     concatenate,
+    keeps_a_stretch,
     prepare,
     sliding_mask,
 )
@@ -690,7 +691,7 @@ def _load(
     has_p = any(m.p is not None for m in [*train_m, *test_m])
     desc = _description(options, has_p)
     ratios = _gear_ratios(options, reg, desc, clock)
-    options, cutoff = _resolve_cutoffs(options, reg, train_m, desc, clock)
+    options, cutoff = _resolve_cutoffs(options, reg, train_m, test_m, desc, clock)
     train = remove_cylinders(_prepare(train_m, options, clock, skipped), reg, desc)
     test = remove_cylinders(_prepare(test_m, options, clock, skipped), reg, desc)
     if test.p_joints != train.p_joints:
@@ -729,12 +730,19 @@ def _resolve_cutoffs(
     options: AnalyzeOptions,
     reg: RobotRegressor,
     train_m: Sequence[Measurements],
+    test_m: Sequence[Measurements],
     desc: RobotDescription | None,
     clock: _Clock,
 ) -> tuple[AnalyzeOptions, CutoffChoice | None]:
     """``options`` with both cutoffs set: a missing position cutoff chosen on the training
     files (:func:`.cutoff.choose_cutoff`; 20 Hz where they are too short to compare two
-    candidates), a missing torque cutoff the highest candidate, never below the position one."""
+    candidates), a missing torque cutoff the highest candidate, never below the position one.
+
+    Only candidates that leave every file something to analyse are compared: a low cutoff
+    trims EDGE_PERIODS / cutoff at both ends of each gap-free stretch, and a recording whose
+    stretches are short (the CAN driver's holds and coasts cut them) would lose a test file
+    whole to a cutoff chosen on the training files. The test files lend only their time
+    stamps to that, never their values."""
     choice = None
     if options.position_cutoff_hz is None:
 
@@ -750,7 +758,19 @@ def _resolve_cutoffs(
 
         sample_hz = min(1.0 / float(np.median(np.diff(m.t))) for m in train_m)
         grid = list(candidates(options.rate_hz, sample_hz))
-        while choice is None:
+        files = [m for m in [*train_m, *test_m] if keeps_a_stretch(m, max(grid))]
+        usable = [c for c in grid if all(keeps_a_stretch(m, c) for m in files)]
+        # without a comparison: the one candidate left, else 20 Hz (or the lowest usable)
+        fallback = DEFAULT_POSITION_CUTOFF_HZ
+        if len(usable) < len(grid):
+            fallback = usable[0] if len(usable) == 1 else max(fallback, usable[0])
+            short = next(m for m in files if not keeps_a_stretch(m, grid[0]))
+            clock.say(
+                f"cutoffs below {usable[0]:g} Hz left out: they would trim all of "
+                f"{short.source} (gap-free stretches too short)"
+            )
+            grid = usable
+        while choice is None and len(grid) >= 2:
             try:
                 choice = choose_cutoff(
                     reg, prepared, options.rate_hz, sample_hz, options.stick_velocity_rad_s,
@@ -762,11 +782,11 @@ def _resolve_cutoffs(
                 grid = grid[1:]
                 if len(grid) < 2:
                     clock.say(
-                        "training files too short to compare cutoffs: position cutoff "
-                        f"{DEFAULT_POSITION_CUTOFF_HZ:g} Hz"
+                        f"training files too short to compare cutoffs: position cutoff "
+                        f"{fallback:g} Hz"
                     )
                     break
-        cutoff = choice.cutoff_hz if choice is not None else DEFAULT_POSITION_CUTOFF_HZ
+        cutoff = choice.cutoff_hz if choice is not None else fallback
         options = replace(options, position_cutoff_hz=cutoff)
     if options.torque_cutoff_hz is None:
         top = max(choice.candidates_hz) if choice is not None else DEFAULT_TORQUE_CUTOFF_HZ

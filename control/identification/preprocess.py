@@ -171,6 +171,26 @@ def _segments(t: np.ndarray) -> list[tuple[int, int]]:
     return [(int(a), int(b)) for a, b in pairwise(bounds)]
 
 
+def _edge_samples(cutoff_hz: float, fs_hz: float) -> int:
+    """Samples a filter at ``cutoff_hz`` spoils at each end of a stretch (EDGE_PERIODS)."""
+    return int(np.ceil(EDGE_PERIODS / cutoff_hz * fs_hz))
+
+
+def keeps_a_stretch(m: Measurements, cutoff_hz: float) -> bool:
+    """Whether :func:`prepare` at position cutoff ``cutoff_hz`` keeps some stretch of ``m``:
+    a lower cutoff trims more at each end of every gap-free stretch (from the time stamps
+    only, not the values)."""
+    for a, b in _segments(m.t):
+        t = m.t[a:b]
+        if t.size < 2:
+            continue
+        step = float(np.median(np.diff(t)))
+        n = min(t.size, int(np.floor((t[-1] - t[0]) / step + 1e-9)) + 1)  # after any regrid
+        if n >= 2 * _edge_samples(cutoff_hz, 1.0 / step) + MIN_SEGMENT_SAMPLES:
+            return True
+    return False
+
+
 @functools.lru_cache(maxsize=64)
 def _butter_sos(cutoff_hz: float, fs_hz: float) -> np.ndarray:
     """The low-pass's second-order sections, designed once per (cutoff, rate): the analysis
@@ -269,7 +289,7 @@ def prepare(
                 for k, v in signals.items()
             }
             t = grid
-        edge = int(np.ceil(EDGE_PERIODS / (edge_cutoff_hz or position_cutoff_hz) * fs))
+        edge = _edge_samples(edge_cutoff_hz or position_cutoff_hz, fs)
         if t.size < 2 * edge + MIN_SEGMENT_SAMPLES:
             continue
         tau_cut = min(torque_cutoff_hz, 0.4 * min(rate_hz, fs))

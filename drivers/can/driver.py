@@ -39,17 +39,17 @@ from gateway.bus import (
     undeclare_all,
 )
 from gateway.config import require
-from gateway.errors import EXIT_CONFIG, ConfigError, LinkTimeoutError
+from gateway.errors import ConfigError, LinkTimeoutError
 from gateway.latency import Histogram
 from gateway.messages import HEALTH_RATE_HZ, encode_json
 from gateway.ratelog import RateLimitedLog
-from gateway.signals import StopSignals
+from gateway.runner import run_service
 
 log = logging.getLogger(__name__)
 
 PROCESS_NAME = "can_driver"
 
-__all__ = ["PROCESS_NAME", "REJECT_REASONS", "STAGES", "CanDriver", "run"]
+__all__ = ["PROCESS_NAME", "REJECT_REASONS", "STAGES", "CanDriver", "CanDriverProcess"]
 
 #: Stages of one loop cycle the driver times (health "stages"), all on CLOCK_MONOTONIC:
 #: decode — the cycle's last frame received → its JointState handed to zenoh;
@@ -482,31 +482,36 @@ class CanDriver:
 
 
 # --- process entry points -------------------------------------------------------------------
-def run(
-    cell_config_path: str | Path,
-    bus_endpoint: str | None = None,
-    *,
-    stop_event: threading.Event | None = None,
-) -> None:
-    """Run the CAN driver until SIGTERM/SIGINT (or ``stop_event``), then brake and close.
+class CanDriverProcess:
+    """The CAN driver as a product process (:func:`gateway.runner.run_service`): its loop
+    thread serves until the stop event (SIGTERM/SIGINT), then :meth:`close` brakes the arm.
 
-    Raises ConfigError for a bad cell config, and re-raises the error that stopped the loop.
-    """
-    can_cfg, bus_cfg = load_can_config(cell_config_path)
-    bus_cfg = bus_cfg.with_overrides(bus_endpoint)
-    driver = CanDriver(can_cfg, bus_cfg)
-    stop = stop_event or threading.Event()
-    with StopSignals(stop):
-        try:
-            driver.start()
-            while not stop.wait(0.1):
-                if not driver.running:
-                    break
-            if driver.failed is not None:
-                raise driver.failed
-        finally:
-            driver.close()
-            log.info("CAN driver stopped")
+    Raises ConfigError for a bad cell config; :meth:`run` re-raises the error that stopped
+    the loop."""
+
+    def __init__(
+        self,
+        cell_config_path: str | Path,
+        bus_endpoint: str | None = None,
+        *,
+        stop_event: threading.Event | None = None,
+    ) -> None:
+        can_cfg, bus_cfg = load_can_config(cell_config_path)
+        self.driver = CanDriver(can_cfg, bus_cfg.with_overrides(bus_endpoint))
+        self.stop_event = stop_event or threading.Event()
+
+    def open(self) -> None:
+        self.driver.start()
+
+    def run(self, notifier: Any = None) -> None:
+        while not self.stop_event.wait(0.1):
+            if not self.driver.running:
+                break
+        if self.driver.failed is not None:
+            raise self.driver.failed
+
+    def close(self) -> None:
+        self.driver.close()
 
 
 def configure_parser(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
@@ -537,21 +542,9 @@ def configure_parser(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
 
 
 def cli_main(args: argparse.Namespace) -> int:
-    """Run from parsed arguments; 0 on a clean stop, EXIT_CONFIG (78) for a bad config, 1 for
-    other errors."""
-    if not logging.getLogger().handlers:
-        logging.basicConfig(
-            level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s"
-        )
-    try:
-        run(args.config, args.bus)
-    except ConfigError as exc:
-        log.error("configuration refused: %s", exc)
-        return EXIT_CONFIG
-    except Exception as exc:  # anything else: report it, the controller brakes on its own
-        log.error("CAN driver failed: %s: %s", type(exc).__name__, exc)
-        return 1
-    return 0
+    """Run from parsed arguments (:func:`gateway.runner.run_service`): 0 on a clean stop,
+    EXIT_CONFIG (78) for a bad config, 1 for other errors."""
+    return run_service(PROCESS_NAME, lambda: CanDriverProcess(args.config, args.bus))
 
 
 def main(argv: list[str] | None = None) -> int:

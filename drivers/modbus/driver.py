@@ -51,12 +51,12 @@ from drivers.modbus.adapter import PressureIoAdapter, create_adapter
 from drivers.modbus.client import ModbusLinkError
 from drivers.modbus.config import ModbusDriverConfig
 from gateway import bus_security as security
-from gateway.bus import BusConfig, bus_config_from, open_peer, undeclare_all
+from gateway.bus import bus_config_from, open_peer, undeclare_all
 from gateway.config import load_toml
-from gateway.errors import EXIT_CONFIG, ConfigError, MessageError, ModbusReplyError
+from gateway.errors import LeadthroughError, MessageError, ModbusReplyError
 from gateway.messages import HEALTH_RATE_HZ, IoState, Keys, PressureSetpoint, encode_json
 from gateway.ratelog import RateLimitedLog
-from gateway.signals import StopSignals
+from gateway.runner import run_service
 
 log = logging.getLogger(__name__)
 
@@ -400,66 +400,62 @@ def configure_parser(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
     return p
 
 
-def cli_main(args: argparse.Namespace) -> int:
-    """Run the driver until SIGTERM/SIGINT. Returns 0 on a clean stop, EXIT_CONFIG (78) on a
-    bad config, 1 on any other failure."""
-    logging.basicConfig(
-        level=getattr(logging, getattr(args, "log_level", "INFO"), logging.INFO),
-        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
-    )
-    try:
-        cell = load_toml(args.config)
-        bus = bus_config_from(cell, str(args.config))
-        bus = bus.with_overrides(args.bus)
-        config = ModbusDriverConfig.from_cell_config(cell, str(args.config))
-        adapter = create_adapter(config)
-    except ConfigError as exc:
-        log.error("configuration refused: %s", exc)
-        return EXIT_CONFIG
-    if getattr(args, "log_level", "INFO") != "DEBUG":
-        # pymodbus logs every failed connect itself; the driver reports those rate-limited.
-        logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
+class ModbusDriverProcess:
+    """The Modbus driver as a product process (:func:`gateway.runner.run_service`): polls the
+    I/O module and publishes until the stop event. Raises ConfigError for a bad cell config;
+    :meth:`run` raises when the poll thread died."""
 
-    stop = threading.Event()
-    with StopSignals(stop):
-        return _serve(config, bus, adapter, stop)
+    def __init__(self, cell_config_path: Path, bus_endpoint: str | None = None) -> None:
+        cell = load_toml(cell_config_path)
+        self.bus = bus_config_from(cell, str(cell_config_path)).with_overrides(bus_endpoint)
+        self.config = ModbusDriverConfig.from_cell_config(cell, str(cell_config_path))
+        self.adapter: PressureIoAdapter = create_adapter(self.config)
+        self.stop_event = threading.Event()
+        self.session: zenoh.Session | None = None
+        self.driver: ModbusDriver | None = None
 
-
-def _serve(
-    config: ModbusDriverConfig, bus: BusConfig, adapter: PressureIoAdapter, stop: threading.Event
-) -> int:
-    """Poll the I/O module and publish until ``stop``; the exit code."""
-    session: zenoh.Session | None = None
-    driver: ModbusDriver | None = None
-    try:
-        session = open_peer(bus, security.MODBUS_DRIVER)
-        driver = ModbusDriver(config, session, bus.keys, adapter=adapter)
-        driver.start()
+    def open(self) -> None:
+        self.session = open_peer(self.bus, security.MODBUS_DRIVER)
+        self.driver = ModbusDriver(self.config, self.session, self.bus.keys, adapter=self.adapter)
+        self.driver.start()
         log.info(
             "modbus driver running: I/O %s:%d every %.0f ms, bus %s",
-            config.host,
-            config.port,
-            config.poll_period_s * 1000.0,
-            bus.endpoint,
+            self.config.host,
+            self.config.port,
+            self.config.poll_period_s * 1000.0,
+            self.bus.endpoint,
         )
-        while not stop.wait(0.2):
-            if not driver.running:
-                log.error("poll thread died")
-                return 1
-        log.info("stopping")
-        return 0
-    except Exception as exc:
-        log.error("modbus driver failed: %s", exc)
-        return 1
-    finally:
+
+    def run(self, notifier: Any = None) -> None:
+        assert self.driver is not None
+        while not self.stop_event.wait(0.2):
+            if not self.driver.running:
+                raise LeadthroughError("the Modbus poll thread died")
+
+    def close(self) -> None:
         try:
-            if driver is not None:
-                driver.close()
+            if self.driver is not None:
+                self.driver.close()
             else:
-                adapter.close()
+                self.adapter.close()
         finally:
-            if session is not None:
-                session.close()
+            if self.session is not None:
+                self.session.close()
+                self.session = None
+
+
+def cli_main(args: argparse.Namespace) -> int:
+    """Run the driver until SIGTERM/SIGINT (:func:`gateway.runner.run_service`): 0 on a clean
+    stop, EXIT_CONFIG (78) on a bad config, 1 on any other failure."""
+    level = getattr(args, "log_level", "INFO")
+    if level != "DEBUG":
+        # pymodbus logs every failed connect itself; the driver reports those rate-limited.
+        logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
+    return run_service(
+        PROCESS_NAME,
+        lambda: ModbusDriverProcess(args.config, args.bus),
+        log_level=getattr(logging, level, logging.INFO),
+    )
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -62,6 +62,16 @@ def test_a_locked_bus_teaches_and_no_other_identity_reaches_a_driver(tmp_path):
         forged = sum(_forge(stack.bus, identity) for identity in (sec.OPERATOR, sec.OBSERVER))
         status = stack.request("status")
         assert status["state"] == "teaching", status
+        # every forged put was refused at the router, and counted there
+        deadline = time.monotonic() + 5.0
+        while status["bus_refused"]["total"] < forged and time.monotonic() < deadline:
+            time.sleep(0.2)
+            status = stack.request("status")
+        refused = {(e["identity"], e["key"]): e["count"] for e in status["bus_refused"]["by"]}
+        keys = stack.bus.keys
+        for identity in (sec.OPERATOR, sec.OBSERVER):
+            for key in (keys.lifecycle, keys.io_state, keys.joint_command):
+                assert refused.get((identity, key), 0) > 0.8 * FORGE_HZ * FORGE_S, refused
         # and a session without credentials does not get on the bus at all
         with pytest.raises(LinkTimeoutError):
             open_client(BusConfig(endpoint=stack.bus.endpoint), connect_timeout_s=1.0)
@@ -69,6 +79,7 @@ def test_a_locked_bus_teaches_and_no_other_identity_reaches_a_driver(tmp_path):
         cli = [sys.executable, "-m", "gateway.cli", "status", "--config", str(stack.cell_path)]
         out = subprocess.run(cli, capture_output=True, text=True, timeout=30)
         assert out.returncode == 0 and "state: teaching" in out.stdout, out.stdout + out.stderr
+        assert "the bus refused" in out.stdout, out.stdout
         stack.request("stop")
         truth = stack.truth()
     assert forged > 0.8 * 3 * FORGE_HZ * FORGE_S * 2

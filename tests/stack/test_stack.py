@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from gateway.messages import ControllerState
+from sim_bridge.cia402_drives import MOVED_WITHIN_SYNCS
 from sim_bridge.harness import CAN_PROFILES, Stack
 
 pytestmark = pytest.mark.stack
@@ -290,6 +291,22 @@ def tool_speed_m_s(truth: dict[str, np.ndarray], k: int, back: int = 60) -> floa
     return float(np.linalg.norm(d) / (truth["t_s"][k] - truth["t_s"][k - back]))
 
 
+def follow_after_kill_bound_s(profile: str) -> float:
+    """How long after the control process dies the arm may still follow commands [s].
+
+    The command already computed is forwarded, the next cycle coasts on it (at most
+    ``[can].deadline_s`` old), the one after holds; 20 ms more for this 2-core machine's
+    scheduling. CiA 402 drives apply a set at the SYNC after it arrives, and the virtual drives'
+    truth counts a setpoint moved within ``MOVED_WITHIN_SYNCS`` SYNCs as followed: that many
+    more cycles of the host's SYNC period."""
+    cell = PROFILES[profile][1]
+    deadline_s = cell.get("can", {}).get("deadline_s", 0.010)
+    bound_s = deadline_s + 0.020
+    if (cia402 := cell.get("can", {}).get("cia402")) is not None:
+        bound_s += (1 + MOVED_WITHIN_SYNCS) * cia402["cycle_period_s"]
+    return bound_s
+
+
 def wait_moving(stack: Stack, speed_m_s: float, timeout_s: float) -> None:
     """Wait (at most ``timeout_s``) until the tool moves faster than ``speed_m_s``: the hand
     drags the weightless arm up to speed, sooner on a fast machine than on a slow one."""
@@ -325,7 +342,10 @@ def test_killing_control_makes_the_driver_hold_and_the_arm_stop(tmp_path, profil
     # Commands computed by control stop, and the driver's hold takes over within its deadline.
     following = np.flatnonzero(truth["teaching"][k:] > 0.5)
     last_follow_s = truth["wall_s"][k + following[-1]] - t_kill if following.size else 0.0
-    assert last_follow_s < 0.010 + 0.02, f"kept following for {last_follow_s * 1e3:.1f} ms"
+    bound_s = follow_after_kill_bound_s(profile)
+    assert last_follow_s < bound_s, (
+        f"kept following for {last_follow_s * 1e3:.1f} ms (at most {bound_s * 1e3:.0f} ms)"
+    )
     after = tool_xyz(truth, np.arange(k, wall.size))
     travel_m = np.linalg.norm(after - after[0], axis=1).max()
     print(

@@ -26,7 +26,13 @@ import pytest
 from conftest_can import ControlStub, FakeController, GatewayStub, free_port, wait_for
 
 from drivers.can.config import CanDriverConfig
-from drivers.can.driver import CanDriver, cli_main, configure_parser, run
+from drivers.can.driver import (
+    PROCESS_NAME,
+    CanDriver,
+    CanDriverProcess,
+    cli_main,
+    configure_parser,
+)
 from drivers.can.ltc import (
     ControllerStatus,
     FaultCode,
@@ -46,6 +52,7 @@ from gateway.messages import (
     JointState,
     Lifecycle,
 )
+from gateway.runner import run_service
 from sim_bridge.can_endpoint import SocketcandServerBus
 from sim_bridge.can_hub import SeqpacketHubBus
 from sim_bridge.harness import unique_can_address
@@ -420,10 +427,16 @@ host = "127.0.0.1"
 port = {cell.server.port}
 """
     )
-    cell.driver.close()  # the fixture's driver leaves; run() brings its own
+    cell.driver.close()  # the fixture's driver leaves; the process brings its own
     n_before = len(cell.control.joint_states())
     stop = threading.Event()
-    thread = threading.Thread(target=run, args=(config,), kwargs={"stop_event": stop})
+    status: list[int] = []
+
+    def process() -> None:
+        build = lambda: CanDriverProcess(config, stop_event=stop)  # noqa: E731
+        status.append(run_service(PROCESS_NAME, build))
+
+    thread = threading.Thread(target=process)
     thread.start()
     try:
         wait_for(lambda: len(cell.control.joint_states()) >= n_before + 5, what="joint states")
@@ -431,6 +444,7 @@ port = {cell.server.port}
         stop.set()
         thread.join(5.0)
     assert not thread.is_alive()
+    assert status == [0]
     assert cell.controller.request_log()[-1] == HostRequest.BRAKE
 
 

@@ -282,4 +282,4 @@ def test_process_publishes_and_exits_cleanly_on_sigterm(bus, io_server, tmp_path
             proc.kill()
             proc.communicate()
     assert proc.returncode == 0, out.decode(errors="replace")
-    assert b"stopping" in out
+    assert b"modbus_driver stopped" in out

@@ -123,7 +123,7 @@ def test_the_driver_refuses_to_start_on_a_bad_zero_file(tmp_path):
 
 
 def test_identify_reads_the_zero_from_the_drivers_health_by_its_name():
-    from control.identify import CAN_DRIVER
+    from control.identification.on_cell import CAN_DRIVER
     from drivers.can.driver import PROCESS_NAME
 
     assert CAN_DRIVER == PROCESS_NAME

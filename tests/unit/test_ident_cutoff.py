@@ -114,3 +114,38 @@ def test_short_files_drop_the_low_cutoffs_they_cannot_hold(tmp_path, seconds):
     lowest = min(choice["candidates_hz"])
     assert (lowest > 2.0) if seconds < 5.0 else (lowest == 2.0)
     assert summary["cutoff_hz"]["position"] == choice["cutoff_hz"] in choice["candidates_hz"]
+
+
+def test_a_test_file_cut_short_by_gaps_keeps_the_cutoffs_it_can_hold(tmp_path):
+    """A long training file would allow 2 Hz, but the test file's gap-free stretches (holds
+    and coasts cut a recording of the cell) are 3 s each: a cutoff chosen below what they hold
+    would trim the whole test file away. The candidates start where every file keeps rows, and
+    the lowest left is one they hold; the test file's values play no part."""
+    from control.identification.analyze import AnalyzeOptions, analyze
+    from control.identification.datafile import write_measurements
+    from control.identification.preprocess import keeps_a_stretch
+
+    train = _recording(1e-3, rate_hz=125.0, seconds=30.0)
+    write_measurements(tmp_path / "train.csv", Measurements(*_fields(train, 0.0), "train"))
+    test = _recording(1e-3, rate_hz=125.0, seconds=9.0)
+    keep = (test.t % 3.0) > 0.2  # a 0.2 s gap every 3 s
+    cut = Measurements(test.t[keep], test.q[keep], test.dq[keep], test.tau[keep], None, "test")
+    write_measurements(tmp_path / "test.csv", Measurements(*_fields(cut, 40.0), "test"))
+    assert not keeps_a_stretch(cut, 2.0) and keeps_a_stretch(cut, 8.0)
+    (tmp_path / "p.urdf").write_text(PENDULUM)
+    lines: list[str] = []
+    summary = analyze(
+        tmp_path / "p.urdf",
+        [tmp_path / "train.csv"],
+        [tmp_path / "test.csv"],
+        tmp_path / "out",
+        AnalyzeOptions(plots=False, find_effects=False),
+        progress=lines.append,
+    )
+    lowest = min(summary["cutoff_hz"]["choice"]["candidates_hz"])
+    assert keeps_a_stretch(cut, lowest) and lowest > 2.0
+    assert any("left out" in line and "test.csv" in line for line in lines), lines
+
+
+def _fields(m: Measurements, shift_s: float) -> tuple:
+    return m.t + shift_s, m.q, m.dq, m.tau, None

@@ -16,7 +16,13 @@ import pytest
 
 from control.identification.analyze import AnalyzeOptions, analyze
 from control.identification.datafile import read_measurements, write_measurements
-from control.identification.effects import ALL_ALONG, BETWEEN
+from control.identification.effects import (
+    ALL_ALONG,
+    BETWEEN,
+    Options,
+    Verdict,
+    best_ripple_neighbour,
+)
 from control.identification.fit import IdentifiedModel
 from control.identification.rigid import RobotRegressor
 from control.identification.synthetic import (
@@ -28,7 +34,7 @@ from control.identification.synthetic import (
     point_mass_torque,
     synthesize,
 )
-from control.identification.terms import EFFECT_NAMES
+from control.identification.terms import EFFECT_NAMES, EffectTerm
 from control.robot.description import load_description
 from control.robot.urdf import to_urdf
 
@@ -146,13 +152,47 @@ def test_position_ripple_present_all_along_is_found(bench):
     (effect,) = s["effects"]
     assert effect["joints"] == [4]
     assert effect["appeared"] == ALL_ALONG
-    assert abs(effect["parameters"]["cycles_per_rev"] - 27) <= 1
+    assert effect["parameters"]["cycles_per_rev"] == 27
     assert effect["parameters"]["amplitude_nm"] == pytest.approx(1.5, rel=0.1)
     assert s["rms_after"][3] <= 0.5 * s["rms_before"][3]
     # the model file carries the effect: it reproduces the reported held-out error
     np.testing.assert_allclose(
         bench.model_rms("ripple", test), s["rms_after_all_samples"], rtol=1e-9
     )
+
+
+def _ripple_verdict(c: int, score: float, accepted: bool = True) -> Verdict:
+    term = EffectTerm("position_ripple", (3,), {"cycles_per_rev": c})
+    return Verdict(term, None, accepted, score, np.zeros(6), (3,), 0.0, 0.0)  # type: ignore[arg-type]
+
+
+def test_the_ripple_walks_from_the_periodogram_peak_to_the_refit_best_neighbour():
+    # The refit scores peak at 27 cycles per rev; the periodogram handed over 25.
+    scores = {c: 10.0 - abs(c - 27) for c in range(1, 201)}
+    asked: list[int] = []
+
+    def judge(terms):
+        asked.extend(t.setting["cycles_per_rev"] for t in terms)
+        return [
+            _ripple_verdict(t.setting["cycles_per_rev"], scores[t.setting["cycles_per_rev"]])
+            for t in terms
+        ]
+
+    best = _ripple_verdict(25, scores[25])
+    out = best_ripple_neighbour(best, [best], [], Options(), judge)
+    assert out.term.setting["cycles_per_rev"] == 27
+    assert sorted(asked) == [24, 26, 27, 28]  # down one (worse), then up to the top and one past
+    # a neighbour the round already judged is not refitted; a refused one stops the walk
+    asked.clear()
+    out = best_ripple_neighbour(
+        best, [best, _ripple_verdict(26, 9.0, accepted=False)], [], Options(), judge
+    )
+    assert out is best and asked == [24]
+    # a cycle count already taken on the joint is not offered again
+    taken = [EffectTerm("position_ripple", (3,), {"cycles_per_rev": 26})]
+    asked.clear()
+    assert best_ripple_neighbour(best, [best], taken, Options(), judge) is best
+    assert asked == [24]
 
 
 def test_payload_mounted_after_training_is_found_in_the_test_files(bench, clean_train):

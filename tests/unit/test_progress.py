@@ -135,7 +135,12 @@ def test_the_identification_benchmark_takes_no_progress():
 
 
 def test_identify_counts_the_experiments_the_cell_plays():
-    from control.identify import QUICK_PLAN, experiments_done, plan_labels, time_left_note
+    from control.identification.on_cell import (
+        QUICK_PLAN,
+        experiments_done,
+        plan_labels,
+        time_left_note,
+    )
 
     labels = plan_labels(QUICK_PLAN, 6)
     friction = 6 * len(QUICK_PLAN["friction"]["speeds_deg_s"])
