@@ -351,12 +351,14 @@ def choose_family(fits: dict[str, FrictionFit]) -> str:
 
     Joints carry torques of very different size, so each joint's held-out MSE is divided by
     the best family's on that joint before summing: a family is judged by how much worse than
-    the best it does, joint by joint, not by the largest joint alone.
+    the best it does, joint by joint, not by the largest joint alone. A joint without rows
+    (it never slid) has no say.
     """
-    mse = {k: f.evaluation.cv_sse / f.evaluation.n_rows for k, f in fits.items()}
-    best = np.min(np.array(list(mse.values())), axis=0)
+    mse = {k: f.evaluation.cv_rms**2 for k, f in fits.items()}
+    judged = np.isfinite(np.array(list(mse.values()))).all(axis=0)
+    best = np.min(np.array(list(mse.values()))[:, judged], axis=0)
     scale = np.where(best > 0, best, 1.0)
-    return min(mse, key=lambda k: float(np.sum(mse[k] / scale)))
+    return min(mse, key=lambda k: float(np.sum(mse[k][judged] / scale)))
 
 
 def plain_least_squares(

@@ -14,6 +14,7 @@ goes to stdout, and on a terminal a bar on stderr counts the stages (``--no-prog
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
@@ -23,6 +24,7 @@ from control.identification.preprocess import (
     DEFAULT_RATE_HZ,
     DEFAULT_STICK_VELOCITY_RAD_S,
 )
+from control.identification.report import NO_SAMPLES
 from control.identification.rigid import DEFAULT_GRAVITY_M_S2
 from control.identification.terms import FRICTION_MODELS
 from gateway.errors import ConfigError, LeadthroughError
@@ -178,6 +180,10 @@ def options_from_args(args: argparse.Namespace) -> AnalyzeOptions:
     )
 
 
+def _cell(v: float) -> str:
+    return f"{v:12.4g}" if math.isfinite(v) else f"{NO_SAMPLES:>12}"
+
+
 def cli_main(args: argparse.Namespace) -> int:
     """Run the analysis; prints progress and a per-joint RMS table. Returns 0.
 
@@ -186,10 +192,15 @@ def cli_main(args: argparse.Namespace) -> int:
     with stage_bar(progress_enabled(args)) as bar:
         summary = analyze(args.urdf, args.train, args.test, args.out, options, bar=bar)
     print(f"{'joint':>10} {'RMS before':>12} {'RMS after':>12}  [N·m, held-out test files]")
+    unjudged = []
     for name, b, a in zip(
         summary["joints"], summary["rms_before"], summary["rms_after"], strict=True
     ):
-        print(f"{name:>10} {b:12.4g} {a:12.4g}")
+        if not (math.isfinite(b) and math.isfinite(a)):
+            unjudged.append(name)
+        print(f"{name:>10} {_cell(b)} {_cell(a)}")
+    if unjudged:
+        print(f"{NO_SAMPLES:>10}: {', '.join(unjudged)} did not slide in the test files")
     if summary["effects"]:
         for e in summary["effects"]:
             print(

@@ -60,11 +60,20 @@ class Evaluation:
 
     @property
     def cv_rms(self) -> np.ndarray:
-        return np.sqrt(self.cv_sse / self.n_rows)
+        """Held-out RMS per joint; NaN for a joint without rows (it never slid)."""
+        return _rms_of(self.cv_sse, self.n_rows)
 
     @property
     def fit_rms(self) -> np.ndarray:
-        return np.sqrt(self.fit_sse / self.n_rows)
+        """In-sample RMS per joint; NaN for a joint without rows."""
+        return _rms_of(self.fit_sse, self.n_rows)
+
+
+def _rms_of(sse: np.ndarray, n_rows: np.ndarray) -> np.ndarray:
+    sse = np.asarray(sse, dtype=float)
+    out = np.full(sse.shape, np.nan)
+    np.divide(sse, n_rows, out=out, where=np.asarray(n_rows) > 0)
+    return np.sqrt(out)
 
 
 def tsvd_solve(

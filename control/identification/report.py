@@ -8,11 +8,13 @@ without / with the accepted effects), ``relative_before`` / ``relative_after``
 the keys), "appeared": "all_along" | "between_train_and_test", "improved_joints",
 "heldout_rms_before", "heldout_rms_after"}``), ``friction_comparison`` (per family: train and
 test RMS and q_e), ``timing_s`` (seconds per stage and ``total``), plus file names and counts.
+A figure with no samples behind it (a joint that never slid in the test files) is ``null``.
 """
 
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 from typing import Any
 
@@ -29,8 +31,31 @@ _FITTED = {
 }
 
 
-def _fmt(v: float) -> str:
+#: what a table shows for a figure with no samples behind it (a joint that never slid in the
+#: test files has no held-out error on sliding samples: null in summary.json)
+NO_SAMPLES = "—"
+
+
+def _fmt(v: float | None) -> str:
+    if v is None or not math.isfinite(v):
+        return NO_SAMPLES
     return f"{v:.3g}" if abs(v) < 1000 else f"{v:.0f}"
+
+
+def _pct(v: float | None) -> str:
+    return NO_SAMPLES if v is None or not math.isfinite(v) else f"{100 * v:.1f} %"
+
+
+def finite_or_none(obj: Any) -> Any:
+    """``obj`` with every NaN or infinity (a figure with no samples behind it) as None: JSON
+    has no NaN, and a reader of summary.json must not get one."""
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: finite_or_none(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [finite_or_none(v) for v in obj]
+    return obj
 
 
 def _param_text(params: dict[str, Any]) -> str:
@@ -74,15 +99,22 @@ def render_markdown(summary: dict[str, Any]) -> str:
         "| rel. after | change | train RMS [N·m] |",
         "|---|---|---|---|---|---|---|---|",
     ]
+    unjudged = []
     for j, name in enumerate(joints):
         before, after = summary["rms_before"][j], summary["rms_after"][j]
-        change = f"{100 * (after - before) / before:+.1f} %" if before > 0 else "-"
+        judged = all(v is not None and math.isfinite(v) for v in (before, after))
+        change = f"{100 * (after - before) / before:+.1f} %" if judged and before > 0 else "-"
+        if not judged:
+            unjudged.append(name)
         lines.append(
             f"| {name} | {_fmt(summary['rms_measured_test'][j])} | {_fmt(before)} | "
-            f"{100 * summary['relative_before'][j]:.1f} % | {_fmt(after)} | "
-            f"{100 * summary['relative_after'][j]:.1f} % | {change} | "
+            f"{_pct(summary['relative_before'][j])} | {_fmt(after)} | "
+            f"{_pct(summary['relative_after'][j])} | {change} | "
             f"{_fmt(summary['rms_train'][j])} |"
         )
+    if unjudged:
+        lines += ["", f"{NO_SAMPLES}: {', '.join(unjudged)} did not slide in the test files (no "
+                  "sample above the stick velocity to judge the model on)."]  # fmt: skip
     lines += ["", "## Effects found in the residual", ""]
     if not summary.get("effects_searched", True):
         lines.append("The effect search was switched off (`--no-effects`).")
@@ -151,5 +183,6 @@ def write_report(out_dir: str | Path, summary: dict[str, Any]) -> None:
     """Write ``summary.json`` and ``report.md`` into ``out_dir``."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
+    clean = finite_or_none(summary)
+    (out / "summary.json").write_text(json.dumps(clean, indent=1, allow_nan=False) + "\n")
     (out / "report.md").write_text(render_markdown(summary))

@@ -85,7 +85,7 @@ def test_the_demo_leaves_a_recording_any_mcap_and_json_tool_reads(tmp_path):
         "--out", str(analysis), "--no-plots",
     )  # fmt: skip
     assert done.returncode == 0, done.stderr[-4000:]
-    result = json.loads((analysis / "summary.json").read_text())
+    result = _strict_json((analysis / "summary.json").read_bytes())  # null, never NaN
     assert len(result["rms_before"]) == len(result["rms_after"]) == 6
 
 
