@@ -15,6 +15,15 @@ is counted (:class:`BusRefusals`); every other line goes on to where standard ou
 before, unchanged. A refusal costs the router one formatted line and this thread one regular
 expression; a flood of forged puts is counted, and logged at most once a second per identity.
 
+What zenoh logs, and so what is counted (zenoh 1.10.2, measured): each message on a key
+expression the sender did not declare, once per message; for a key expression a session
+declares (a publisher, a subscriber), zenoh decides every action on it once, at the
+declaration, logs the denied ones then, and later drops that publisher's puts without a
+line. So a forger's ``session.put`` is counted put by put, a forger's declared publisher once
+per action at its declaration; and each product process shows one or two entries per key it
+subscribes to (the actions it may not take on it: ``control`` may not put joint states), which
+are decisions, not attempts. `leadthrough status` names the most refused entries first.
+
 Only in the gateway, only on a locked bus, once per process (zenoh's log is global). With
 ``RUST_LOG`` set, zenoh takes that filter instead of this one, and the count stays at zero
 unless it keeps ``zenoh::net::routing::interceptor::access_control=trace``.

@@ -112,14 +112,23 @@ def _operator_main(args: argparse.Namespace) -> int:
     return 0 if reply.get("ok") else 1
 
 
+#: how many (identity, action, key) entries `leadthrough status` names, the most refused first
+REFUSALS_SHOWN = 6
+
+
 def refusal_line(refused: dict) -> str:
-    """What `leadthrough status` says of the messages the locked bus refused."""
+    """What `leadthrough status` says of the locked bus's refusals: the total and the most
+    refused (identity, action, key); every entry is in ``--json``."""
+    entries = sorted(
+        (e for e in refused.get("by", []) if isinstance(e, dict)),
+        key=lambda e: -int(e.get("count") or 0),
+    )
     parts = [
         f"{e.get('identity')} {e.get('action')} on {e.get('key')} x{e.get('count')}"
-        for e in refused.get("by", [])
-        if isinstance(e, dict)
+        for e in entries[:REFUSALS_SHOWN]
     ]
-    return f"the bus refused {refused.get('total')} message(s): " + ", ".join(parts)
+    more = f" and {len(entries) - REFUSALS_SHOWN} more" if len(entries) > REFUSALS_SHOWN else ""
+    return f"the bus refused {refused.get('total')}: " + ", ".join(parts) + more
 
 
 def adaptation_lines(adapted: dict) -> list[str]:
