@@ -185,10 +185,9 @@ def main(argv: list[str] | None = None) -> int:
     # Build only the parser needed: importing every subcommand would load MuJoCo for `status`.
     parser = build_parser() if not argv or argv[0] not in SUBCOMMANDS else _single(argv[0])
     args = parser.parse_args(argv)
-    logging.basicConfig(
-        level=logging.DEBUG if getattr(args, "verbose", False) else logging.INFO,
-        format=f"%(asctime)s {args.command} %(levelname)s %(name)s: %(message)s",
-    )
+    from gateway.runner import setup_logging
+
+    setup_logging(args.command, logging.DEBUG if getattr(args, "verbose", False) else logging.INFO)
     try:
         if args.command in OPERATOR_COMMANDS:
             return _operator_main(args)

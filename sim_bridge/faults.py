@@ -58,7 +58,7 @@ from typing import Any
 
 import numpy as np
 
-from sim_bridge.harness import CAN_PROFILES, Stack, TruthTail
+from sim_bridge.harness import CAN_PROFILES, TOOL_COLUMNS, Stack, TruthTail, tail_tool_speed
 
 #: after the injection, how long the gateway's status is watched before the truth is read [s]
 WATCH_S = 3.0
@@ -278,22 +278,16 @@ def _moving(stack: Stack, speed_m_s: float, timeout_s: float) -> None:
     speed now and then (to 80 mm/s for 0.4 s on CiA 402 drives): a fault injected as a dip
     begins, after the ~0.1 s a whole read of the truth log took on a loaded machine, found
     the arm at 94 mm/s. The log is read incrementally, every 10 ms."""
-    tail = TruthTail(stack.truth_log, ("t_s", "teaching", "tool_x", "tool_y", "tool_z"))
+    tail = TruthTail(stack.truth_log, (*TOOL_COLUMNS, "teaching"))
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
         rows = tail.update()
-        if rows.shape[0] > 2 * SPAN and rows[-1, 1] > 0.5:
-            now, before = _window_speed(rows, -1), _window_speed(rows, -1 - SPAN)
+        if rows.shape[0] > 2 * SPAN and rows[-1, 4] > 0.5:
+            now, before = tail_tool_speed(rows, SPAN), tail_tool_speed(rows, SPAN, -1 - SPAN)
             if now > speed_m_s and now >= 0.98 * before:
                 return
         time.sleep(0.01)
     raise TimeoutError(f"the hand did not drag the tool past {speed_m_s} m/s in {timeout_s} s")
-
-
-def _window_speed(rows: np.ndarray, end: int) -> float:
-    """Tool speed [m/s] over the SPAN rows up to ``end`` of (t_s, teaching, tool xyz) rows."""
-    a, b = rows[end - SPAN], rows[end]
-    return float(np.linalg.norm(b[2:5] - a[2:5]) / (b[0] - a[0]))
 
 
 def _watch(stack: Stack, seconds: float) -> list[tuple[float, dict[str, Any] | None]]:

@@ -120,6 +120,17 @@ class TruthTail:
         return self._rows
 
 
+#: the columns :func:`tail_tool_speed` reads, in this order
+TOOL_COLUMNS = ("t_s", "tool_x", "tool_y", "tool_z")
+
+
+def tail_tool_speed(rows: np.ndarray, span: int, end: int = -1) -> float:
+    """Tool speed [m/s] over the ``span`` rows up to row ``end`` of :class:`TruthTail` rows
+    whose first columns are :data:`TOOL_COLUMNS`."""
+    a, b = rows[end - span], rows[end]
+    return float(np.linalg.norm(b[1:4] - a[1:4]) / (b[0] - a[0]))
+
+
 def free_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
         s.bind(("127.0.0.1", 0))

@@ -16,7 +16,7 @@ import pytest
 
 from gateway.messages import ControllerState
 from sim_bridge.cia402_drives import MOVED_WITHIN_SYNCS
-from sim_bridge.harness import CAN_PROFILES, Stack, TruthTail
+from sim_bridge.harness import CAN_PROFILES, TOOL_COLUMNS, Stack, TruthTail, tail_tool_speed
 
 pytestmark = pytest.mark.stack
 
@@ -312,14 +312,12 @@ def wait_moving(stack: Stack, speed_m_s: float, timeout_s: float) -> None:
     drags the weightless arm up to speed, sooner on a fast machine than on a slow one. The
     truth log is read incrementally (TruthTail): a whole read each poll took CPU from the
     product on these 2 cores, and time between the speed seen and the test's next step."""
-    tail = TruthTail(stack.truth_log, ("t_s", "tool_x", "tool_y", "tool_z"), keep=61)
+    tail = TruthTail(stack.truth_log, TOOL_COLUMNS, keep=61)
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
         rows = tail.update()
-        if rows.shape[0] > 60:
-            d = np.linalg.norm(rows[-1, 1:] - rows[-61, 1:]) / (rows[-1, 0] - rows[-61, 0])
-            if d > speed_m_s:
-                return
+        if rows.shape[0] > 60 and tail_tool_speed(rows, 60) > speed_m_s:
+            return
         time.sleep(0.05)
 
 
