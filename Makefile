@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test bench faults soak lint format clean
+.PHONY: demo test test-loaded bench faults soak lint format clean
 
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -18,6 +18,13 @@ test: $(STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
 	$(BIN)/pytest -q
+
+# The stack tier beside a competing CPU load: one busy process per core, so the product gets
+# about half of each (a slow machine of our class; tests/cpu_load.py). LOAD_ARGS="--taskset 0"
+# also pins the product to CPU 0 beside the load there.
+LOAD_ARGS ?=
+test-loaded: $(STAMP)
+	$(BIN)/python tests/cpu_load.py $(LOAD_ARGS) -- $(BIN)/pytest -q -m stack
 
 bench: $(STAMP)
 	$(BIN)/leadthrough bench --rates 250 500 --cycles 10000 --json bench_out/bench.json

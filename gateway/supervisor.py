@@ -484,6 +484,9 @@ class Gateway:
         except (MessageError, KeyError) as exc:
             log.warning("ignored experiment message: %s", exc)
             return
+        if state == "planning":  # the control process builds it; the arm holds meanwhile
+            with self.lock:
+                self.machine.plan_progress(plan_id, 0.0, "planning")
         if state == "running":
             progress = msg.get("progress")
             playing = [s.get("label") for s in msg.get("segments") or []

@@ -1,0 +1,74 @@
+"""Run a command beside a competing CPU load: the suite's way to prove on a fast machine what a
+slow cell PC does (issue 45). `make test-loaded` runs the stack tier this way.
+
+One busy process is pinned to each CPU named by ``--cores`` (default: every CPU this process
+may use), at the product's own priority, for as long as the command runs. With one busy
+process per core, the scheduler gives the product about half of each core: a machine of our
+class about twice as slow (a 10 M-iteration Python loop: 0.56 s on the fastest, 1.62 s on the
+slowest, so about the slowest there is). ``--taskset CPUS`` also pins the command (and every
+process it starts) to those CPUs, as ``taskset -c`` does.
+
+    python tests/cpu_load.py [--cores 0,1] [--taskset 0] -- COMMAND ...
+
+Exits with the command's exit status; the busy processes end with it (also on Ctrl-C).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import subprocess
+import sys
+
+
+def _cpus(text: str) -> list[int]:
+    try:
+        cpus = sorted({int(c) for c in text.split(",") if c.strip()})
+    except ValueError:
+        why = f"{text!r}: a comma-separated list of CPU numbers"
+        raise argparse.ArgumentTypeError(why) from None
+    allowed = os.sched_getaffinity(0)
+    if not cpus or not set(cpus) <= allowed:
+        raise argparse.ArgumentTypeError(f"{text!r}: this process may use CPUs {sorted(allowed)}")
+    return cpus
+
+
+def _busy(cpu: int) -> subprocess.Popen:
+    """A process that spins on ``cpu`` until killed."""
+    code = f"import os\nos.sched_setaffinity(0, {{{cpu}}})\nwhile True:\n    pass\n"
+    return subprocess.Popen([sys.executable, "-c", code], stdin=subprocess.DEVNULL)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--cores", type=_cpus, default=sorted(os.sched_getaffinity(0)),
+                   help="CPUs to load, one busy process each (default: all)")  # fmt: skip
+    p.add_argument("--taskset", type=_cpus, default=None, help="pin the command to these CPUs")
+    p.add_argument("command", nargs=argparse.REMAINDER, help="-- then the command to run")
+    args = p.parse_args(argv)
+    command = args.command[1:] if args.command[:1] == ["--"] else args.command
+    if not command:
+        p.error("no command given (put it after --)")
+    busy = [_busy(cpu) for cpu in args.cores]
+    pin = None if args.taskset is None else set(args.taskset)
+    print(f"cpu_load: {len(busy)} busy process(es) on CPU(s) {args.cores}; command on "
+          f"{'any CPU' if pin is None else f'CPU(s) {sorted(pin)}'}", flush=True)  # fmt: skip
+    try:
+        child = subprocess.Popen(
+            command, preexec_fn=None if pin is None else lambda: os.sched_setaffinity(0, pin)
+        )
+        try:
+            return child.wait()
+        except KeyboardInterrupt:
+            child.send_signal(signal.SIGINT)
+            return child.wait()
+    finally:
+        for b in busy:
+            b.kill()
+        for b in busy:
+            b.wait()
+
+
+if __name__ == "__main__":
+    sys.exit(main())

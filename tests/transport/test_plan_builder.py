@@ -1,0 +1,135 @@
+"""Plans built off the cycle (control/plan_builder.py): the replay path is built in a worker
+process while the player answers every cycle with a hold where the plan starts; the built plan
+is the one built in place; a refused plan and a worker that dies fail the plan with the reason;
+a plan that takes too long fails and the arm was held all along."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+from control.plan_builder import PlanBuilder, PlanRefused, build_parts
+from control.process import PlanPlayer
+from control.robot.description import load_description
+from gateway.messages import FLAG_SERVO_POWER, ControllerState, make_joint_state
+from gateway.program import ProgramWriter
+
+PERIOD_S = 0.008
+Q_HELD = np.array([0.0, 0.15, 0.25, 0.0, -0.4, 0.0])
+#: a worker process starts (a fresh interpreter, numpy, pinocchio) and builds a short replay
+#: path well within this on the slowest machine of our class [s]
+BUILD_TIMEOUT_S = 60.0
+
+
+def _state(cycle: int):
+    z = np.zeros(6)
+    return make_joint_state(cycle, 0.0, ControllerState.EXTERNAL, FLAG_SERVO_POWER, Q_HELD, z, z,
+                            Q_HELD, z, PERIOD_S)  # fmt: skip
+
+
+def _program(path, q_start: np.ndarray) -> None:
+    w = ProgramWriter(path, [f"j{k}" for k in range(1, 7)])
+    w.open()
+    w.teach(True, 0.0)
+    for k in range(300):
+        s = 0.5 - 0.5 * np.cos(np.pi * k / 299)
+        w.trace(0.01 * k, k, q_start + s * np.array([0.15, 0.0, 0.05, 0.0, 0.0, 0.0]))
+    w.close(3.0)
+
+
+@pytest.fixture
+def builder():
+    b = PlanBuilder()
+    b.start()
+    yield b
+    b.close()
+
+
+def _until_not_planning(player: PlanPlayer, first_cycle: int) -> tuple[int, list]:
+    """Cycles fed (one per PERIOD_S of wall time, as the driver would) until the player left
+    ``planning``, and what it answered meanwhile."""
+    held, cycle, deadline = [], first_cycle, time.monotonic() + BUILD_TIMEOUT_S
+    while time.monotonic() < deadline:
+        cycle += 1
+        out = player.command(_state(cycle))
+        if player.state != "planning":
+            return cycle, held
+        held.append(out)
+        time.sleep(PERIOD_S)
+    raise AssertionError(f"still planning after {BUILD_TIMEOUT_S} s")
+
+
+def test_a_replay_is_built_in_the_worker_while_every_cycle_is_answered_with_a_hold(
+    tmp_path, builder
+):
+    desc = load_description()
+    program = tmp_path / "p.jsonl"
+    _program(program, np.array([0.1, 0.2, 0.3, 0.0, -0.3, 0.0]))
+    plan = {"plan_id": "r", "replay": {"program": str(program), "speed_m_s": 0.1}}
+    player = PlanPlayer(desc.lower_rad, desc.upper_rad, desc, builder)
+    player.start(plan, _state(100), PERIOD_S)
+    assert player.state == "planning" and player.report()["state"] == "planning"
+    _, held = _until_not_planning(player, 100)
+    assert player.state == "running", player.reason
+    assert held, "the plan was built before the next cycle: nothing shows it ran elsewhere"
+    for q, dq in held:  # every cycle meanwhile: the pose the robot holds, at rest
+        np.testing.assert_array_equal(q, Q_HELD)
+        np.testing.assert_array_equal(dq, np.zeros(6))
+    # the worker's plan is the one built in place
+    in_place = PlanPlayer(desc.lower_rad, desc.upper_rad, desc)
+    in_place.start(plan, _state(100), PERIOD_S)
+    np.testing.assert_array_equal(player.q, in_place.q)
+    np.testing.assert_array_equal(player.dq, in_place.dq)
+    assert player.segments == in_place.segments
+    assert player.report()["planning_s"] > 0
+
+
+def test_a_refused_plan_fails_with_the_reason_and_nothing_moves(builder):
+    desc = load_description()
+    player = PlanPlayer(desc.lower_rad, desc.upper_rad, desc, builder)
+    plan = {"plan_id": "bad", "replay": {"program": "/nonexistent.jsonl", "speed_m_s": 0.1}}
+    player.start(plan, _state(100), PERIOD_S)
+    cycle, _ = _until_not_planning(player, 100)
+    assert player.state == "failed" and "cannot read program" in player.reason
+    assert player.command(_state(cycle + 1)) is None
+
+
+def test_a_plan_not_built_in_time_fails_and_the_arm_was_held(builder, tmp_path):
+    desc = load_description()
+    program = tmp_path / "p.jsonl"
+    _program(program, np.array([0.1, 0.2, 0.3, 0.0, -0.3, 0.0]))
+    player = PlanPlayer(desc.lower_rad, desc.upper_rad, desc, builder)
+    player.MAX_PLANNING_S = 0.0  # any plan takes longer than no time
+    player.start({"plan_id": "r", "replay": {"program": str(program), "speed_m_s": 0.1}},
+                 _state(100), PERIOD_S)  # fmt: skip
+    out = player.command(_state(101))
+    assert player.state == "failed" and "not planned within" in player.reason
+    assert out is None
+
+
+def test_a_worker_that_dies_fails_the_plan_and_the_next_plan_gets_a_new_one(builder, tmp_path):
+    desc = load_description()
+    program = tmp_path / "p.jsonl"
+    _program(program, np.array([0.1, 0.2, 0.3, 0.0, -0.3, 0.0]))
+    plan = {"plan_id": "r", "replay": {"program": str(program), "speed_m_s": 0.1}}
+    player = PlanPlayer(desc.lower_rad, desc.upper_rad, desc, builder)
+    player.start(plan, _state(100), PERIOD_S)
+    assert builder._proc is not None
+    builder._proc.kill()
+    builder._proc.wait(5.0)
+    _until_not_planning(player, 100)
+    assert player.state == "failed" and "process ended" in player.reason
+    player.start({**plan, "plan_id": "r2"}, _state(200), PERIOD_S)
+    _until_not_planning(player, 200)
+    assert player.state == "running", player.reason
+
+
+def test_build_parts_names_what_was_wrong():
+    desc = load_description()
+    with pytest.raises(PlanRefused, match="replay speed"):
+        build_parts({"replay": {"program": "p.jsonl", "speed_m_s": 9.0}}, Q_HELD,
+                    desc.lower_rad, desc.upper_rad, PERIOD_S, 0.05, desc,
+                    {"max_speed_m_s": 0.25, "max_joint_speed_rad_s": 0.3,
+                     "max_point_speed_m_s": 0.2})  # fmt: skip
