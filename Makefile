@@ -19,9 +19,9 @@ test: $(STAMP)
 	$(BIN)/ruff format --check .
 	$(BIN)/pytest -q
 
-# The stack tier beside a competing CPU load: one busy process per core, so the product gets
-# about half of each (a slow machine of our class; tests/cpu_load.py). LOAD_ARGS="--taskset 0"
-# also pins the product to CPU 0 beside the load there.
+# The stack tier beside a competing CPU load: a busy process pinned to CPU 0 at the product's
+# priority (tests/cpu_load.py). LOAD_ARGS="--taskset 0" also pins the product to CPU 0 beside
+# it; LOAD_ARGS="--cores 0,1" loads every core.
 LOAD_ARGS ?=
 test-loaded: $(STAMP)
 	$(BIN)/python tests/cpu_load.py $(LOAD_ARGS) -- $(BIN)/pytest -q -m stack

@@ -20,6 +20,7 @@ import contextlib
 import logging
 import math
 import os
+import signal
 import subprocess
 import sys
 from multiprocessing.connection import Connection
@@ -120,6 +121,9 @@ def _serve(requests: Connection, replies: Connection) -> None:
     over ``replies``, until the control process closes its end."""
     with contextlib.suppress(OSError):  # not allowed here: still outside the cycle's process
         os.nice(WORKER_NICENESS)
+    # Ctrl-C in a terminal reaches the whole process group: the control process ends this
+    # worker (it closes the pipe, or terminates it), never a traceback from the middle of a plan
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     captured = _Captured()
     root = logging.getLogger()
     root.addHandler(captured)
@@ -131,7 +135,7 @@ def _serve(requests: Connection, replies: Connection) -> None:
     while True:
         try:
             job_id, args = requests.recv()
-        except (EOFError, OSError, KeyboardInterrupt):
+        except (EOFError, OSError):
             return
         captured.records = []
         try:

@@ -134,7 +134,6 @@ class VirtualCell:
         #: real time: how late each cycle started after its deadline [s]
         self.wake_late_s = array("d")
         self.scheduling: dict[str, Any] = {}  #: what [scheduling] achieved
-        self._scheduled = False  #: [scheduling] applied (by open(), or run())
         self._next_heartbeat_s = -math.inf  #: monotonic [s]
         self._fb_sent_wall: float | None = None
         self._set_arrival_wall: float | None = None
@@ -160,10 +159,6 @@ class VirtualCell:
 
     # --- endpoints ----------------------------------------------------------------------
     def open(self) -> None:
-        if self.cfg.realtime:
-            # first: the CAN hub's thread and the I/O module's process started below inherit it
-            self.scheduling = apply_scheduling(self.cfg.scheduling)
-            self._scheduled = True
         ep = self.cfg.endpoints
         self.can = open_can_endpoint(ep, fd=self._can_fd)
         # The valves power up holding the initial pressures: a 0 bar set-point would let the arm
@@ -367,15 +362,12 @@ class VirtualCell:
     def run(self, duration_s: float | None = None) -> None:
         """Run cycles until ``duration_s`` of simulated time or :meth:`stop`.
 
-        Real time applies ``[scheduling]`` to the calling thread first, unless :meth:`open`
-        did (to the whole process: the thread that calls both).
+        Real time applies ``[scheduling]`` to the calling thread first.
         """
         assert self.can is not None
         self._next_heartbeat_s = -math.inf
         if self.cfg.realtime:
-            if not self._scheduled:
-                self.scheduling = apply_scheduling(self.cfg.scheduling)
-                self._scheduled = True
+            self.scheduling = apply_scheduling(self.cfg.scheduling)
             self._run_realtime(duration_s)
         else:
             self._run_lockstep(duration_s)

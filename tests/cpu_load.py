@@ -1,14 +1,15 @@
 """Run a command beside a competing CPU load: the suite's way to prove on a fast machine what a
 slow cell PC does (issue 45). `make test-loaded` runs the stack tier this way.
 
-One busy process is pinned to each CPU named by ``--cores`` (default: every CPU this process
-may use), at the product's own priority, for as long as the command runs. With one busy
-process per core, the scheduler gives the product about half of each core: a machine of our
-class about twice as slow (a 10 M-iteration Python loop: 0.56 s on the fastest, 1.62 s on the
-slowest, so about the slowest there is). ``--taskset CPUS`` also pins the command (and every
-process it starts) to those CPUs, as ``taskset -c`` does.
+One busy process is pinned to each CPU named by ``--cores`` (default: CPU 0), at the product's
+own priority, for as long as the command runs. One busy process on one of two cores leaves the
+product (and the virtual cell, which shares the machine in tests) about one and a half cores.
+A busy process on every core leaves half of each: the virtual controller then starves with the
+product (its cycles start up to 59 ms late, its I/O module answers 0.1 s late), and the gateway
+faults for want of joint states, which says nothing about the product. ``--taskset CPUS`` also
+pins the command (and every process it starts) to those CPUs, as ``taskset -c`` does.
 
-    python tests/cpu_load.py [--cores 0,1] [--taskset 0] -- COMMAND ...
+    python tests/cpu_load.py [--cores 0] [--taskset 0] -- COMMAND ...
 
 Exits with the command's exit status; the busy processes end with it (also on Ctrl-C).
 """
@@ -42,8 +43,8 @@ def _busy(cpu: int) -> subprocess.Popen:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--cores", type=_cpus, default=sorted(os.sched_getaffinity(0)),
-                   help="CPUs to load, one busy process each (default: all)")  # fmt: skip
+    p.add_argument("--cores", type=_cpus, default=[min(os.sched_getaffinity(0))],
+                   help="CPUs to load, one busy process each (default: the first)")  # fmt: skip
     p.add_argument("--taskset", type=_cpus, default=None, help="pin the command to these CPUs")
     p.add_argument("command", nargs=argparse.REMAINDER, help="-- then the command to run")
     args = p.parse_args(argv)
