@@ -110,7 +110,6 @@ def make_process(cell: Path) -> tuple[ControlProcess, _NullPublisher]:
     if cfg.uncommissioned:
         raise ConfigError(f"{cell}: {cfg.uncommissioned}")
     proc = ControlProcess(cfg, BusConfig())
-    proc.skip_superseded = False  # the bench's states are stamped on a clock of their own
     pub = _NullPublisher()
     proc._pub_cmd = pub
     _refresh(proc)

@@ -20,7 +20,6 @@ import contextlib
 import logging
 import math
 import os
-import signal
 import subprocess
 import sys
 from multiprocessing.connection import Connection
@@ -121,9 +120,6 @@ def _serve(requests: Connection, replies: Connection) -> None:
     over ``replies``, until the control process closes its end."""
     with contextlib.suppress(OSError):  # not allowed here: still outside the cycle's process
         os.nice(WORKER_NICENESS)
-    # Ctrl-C in a terminal reaches the whole process group: the control process ends this
-    # worker (it closes the pipe, or terminates it), never a traceback from the middle of a plan
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
     captured = _Captured()
     root = logging.getLogger()
     root.addHandler(captured)
@@ -182,6 +178,9 @@ class PlanBuilder:
                 pass_fds=(to_worker_r, from_worker_w),
                 stdin=subprocess.DEVNULL,
                 stdout=subprocess.DEVNULL,
+                # Ctrl-C in a terminal reaches the control process, which ends the worker
+                # (closing the pipe, or terminate); a dead owner's pipe ends it too (EOF)
+                start_new_session=True,
             )  # fmt: skip
         except OSError:
             for fd in (to_worker_r, to_worker_w, from_worker_r, from_worker_w):

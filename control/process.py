@@ -90,13 +90,6 @@ PRESSURE_PUBLISH_PERIOD_S = 0.1
 SCHEDULE_MOVING_RAD_S = 0.01
 #: the static-load check runs at most this often [s] (the gateway accepts one up to 0.5 s old)
 LOAD_CHECK_PERIOD_S = 0.1
-#: a joint state this many of its cycle periods old (its stamp, the CAN driver's receipt of
-#: the cycle, against this process's receipt; one CLOCK_MONOTONIC on the cell PC) is
-#: superseded: the next cycle's frames came one period after it, and the driver then answered
-#: it itself (drivers/can/core.py: late_cycle). Half a period more covers the controller's own
-#: jitter. A process that fell behind (a burst of other work, a busy core) catches up by
-#: skipping such states instead of answering each too late, which kept it behind for seconds.
-SUPERSEDED_PERIODS = 1.5
 #: the admittance measures its estimate's noise on at least this many held states
 MIN_NOISE_STATES = 16
 #: the admittance's engagement probe breaks a stuck joint away within this share of a quarter
@@ -1060,11 +1053,7 @@ class ControlProcess:
         self.io: IoState | None = None
         self.lifecycle: LifecycleMsg | None = None
         self.lifecycle_rx_s = -1e9
-        self.stats = {"states": 0, "commands": 0, "bad_messages": 0, "io_stale": 0,
-                      "superseded": 0}  # fmt: skip
-        #: skip states whose cycle the driver answered already (SUPERSEDED_PERIODS); off
-        #: only where states are replayed with stamps of another clock (control/bench_loop.py)
-        self.skip_superseded = True
+        self.stats = {"states": 0, "commands": 0, "bad_messages": 0, "io_stale": 0}
         self.lifecycle_order = LifecycleOrder()
         self._ratelog = RateLimitedLog(log, 5.0, time.monotonic)
         self.stop_event = threading.Event()
@@ -1210,18 +1199,6 @@ class ControlProcess:
         ctl = self.ctl
         following = st.controller_state in (ControllerState.HOLD, ControllerState.EXTERNAL)
         period = st.cycle_period_s or self.cfg.default_cycle_period_s
-        if (
-            mode is not None
-            and following
-            and self.skip_superseded
-            and now - st.stamp_s > SUPERSEDED_PERIODS * period
-        ):  # its cycle is answered already: computing it would make the next one late too
-            self.stats["superseded"] += 1
-            self._ratelog(
-                logging.WARNING, "superseded", "joint state of cycle %d skipped: %.1f ms old, "
-                "its cycle was answered by the CAN driver", st.cycle, (now - st.stamp_s) * 1e3,
-            )  # fmt: skip
-            return
         if mode is None or not following:
             if ctl is not None:
                 ctl.disengage()
