@@ -7,8 +7,8 @@ answers every cycle, it held that callback back: on a slow machine 88 commands c
 one second and the CAN driver stopped the arm. Built in another thread of the control process it
 would still hold the cycle back, since the GIL is one lock for both.
 
-So :class:`PlanBuilder` builds plans in a worker *process*, started once with the control
-process, at a lower CPU priority than the cycle (:data:`WORKER_NICENESS`): the cycle callback
+So :class:`PlanBuilder` builds plans in a worker *process*, started with the first plan and
+kept, at a lower CPU priority than the cycle (:data:`WORKER_NICENESS`): the cycle callback
 submits the plan and answers every cycle with a hold while the worker builds
 (control/process.py ``PlanPlayer``, state ``planning``). :func:`build_parts` is the one
 function that builds a plan; the worker runs it, and so do pure tests without a worker.

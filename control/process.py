@@ -1043,7 +1043,9 @@ class ControlProcess:
                 f"{self.n} joints"
             )
         desc = load_description() if self.ctl is None else self.ctl.model.desc
-        #: builds plans in a worker process (control/plan_builder.py), started by open()
+        #: builds plans in a worker process (control/plan_builder.py), started with the first
+        #: plan (its interpreter's start-up, 1-2 s of CPU, would otherwise compete with every
+        #: teaching session's start for the cores; the arm is held while it starts)
         self.plan_builder = PlanBuilder()
         self.player = PlanPlayer(np.array([j.lower_rad for j in joints]),
                                  np.array([j.upper_rad for j in joints]), desc,
@@ -1124,7 +1126,6 @@ class ControlProcess:
         self._adaptation_restored = True
 
     def open(self) -> None:
-        self.plan_builder.start()
         self.session = open_peer(self.bus, security.CONTROL)
         s = self.session
         self._pub_cmd = declare_loop_publisher(s, self.keys.joint_command)
@@ -1437,4 +1438,4 @@ def cli_main(args: argparse.Namespace) -> int:
         cfg, bus = load_control_config(args.config)
         return ControlProcess(cfg, bus.with_overrides(args.bus))
 
-    return run_service("control", build, on_cycle=True)
+    return run_service("control", build)

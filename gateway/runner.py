@@ -29,7 +29,6 @@ logged in one line; anything else is a bug and gets its traceback too. Both exit
 from __future__ import annotations
 
 import logging
-import sys
 import threading
 from collections.abc import Callable
 from typing import Any, Protocol
@@ -44,15 +43,6 @@ log = logging.getLogger(__name__)
 EXIT_FAILED = 1
 
 LOG_FORMAT = "%(asctime)s {process} %(levelname)s %(name)s: %(message)s"
-
-#: the GIL's switch interval in a process on the cycle (the CAN driver, control) [s]. A thread
-#: that wants the GIL waits up to this long for another that holds it in Python (a slow loop's
-#: health, eq. 29's batch, a log line): Python's default, 5 ms, is more than the CAN driver's
-#: answer window (half a cycle: 4 ms at 125 Hz, 2 ms at 250 Hz), so the cycle's callback could
-#: miss its cycle behind the process's own slow work. 0.5 ms bounds that wait to a quarter of
-#: the 250 Hz window; the price is more GIL hand-overs between busy threads, which the cycle's
-#: processes seldom have.
-CYCLE_SWITCH_INTERVAL_S = 0.5e-3
 
 
 class Service(Protocol):
@@ -85,15 +75,11 @@ def run_service(
     notify: bool = False,
     status: Callable[[Any], str] | None = None,
     log_level: int = logging.INFO,
-    on_cycle: bool = False,
 ) -> int:
     """Build, open and run one product process until it is asked to stop; its exit status:
     0 on a clean stop, :data:`EXIT_CONFIG` for a refused configuration, :data:`EXIT_FAILED`
-    for anything else (module docstring). ``status(service)`` is systemd's line once ready;
-    ``on_cycle``: the process answers every control cycle (:data:`CYCLE_SWITCH_INTERVAL_S`)."""
+    for anything else (module docstring). ``status(service)`` is systemd's line once ready."""
     setup_logging(process, log_level)
-    if on_cycle:
-        sys.setswitchinterval(CYCLE_SWITCH_INTERVAL_S)
     try:
         service = build()
     except ConfigError as exc:
