@@ -9,12 +9,12 @@ import time
 
 import numpy as np
 import pytest
+from example_program import write_program
 
 from control.plan_builder import PlanBuilder, PlanRefused, build_parts
 from control.process import PlanPlayer
 from control.robot.description import load_description
 from gateway.messages import FLAG_SERVO_POWER, ControllerState, make_joint_state
-from gateway.program import ProgramWriter
 
 PERIOD_S = 0.008
 Q_HELD = np.array([0.0, 0.15, 0.25, 0.0, -0.4, 0.0])
@@ -29,14 +29,11 @@ def _state(cycle: int):
                             Q_HELD, z, PERIOD_S)  # fmt: skip
 
 
-def _program(path, q_start: np.ndarray) -> None:
-    w = ProgramWriter(path, [f"j{k}" for k in range(1, 7)])
-    w.open()
-    w.teach(True, 0.0)
-    for k in range(300):
-        s = 0.5 - 0.5 * np.cos(np.pi * k / 299)
-        w.trace(0.01 * k, k, q_start + s * np.array([0.15, 0.0, 0.05, 0.0, 0.0, 0.0]))
-    w.close(3.0)
+def _replay_plan(tmp_path) -> dict:
+    """The replay plan of a short taught program written into ``tmp_path``."""
+    program = tmp_path / "p.jsonl"
+    write_program(program, np.array([0.1, 0.2, 0.3, 0.0, -0.3, 0.0]))
+    return {"plan_id": "r", "replay": {"program": str(program), "speed_m_s": 0.1}}
 
 
 @pytest.fixture
@@ -65,9 +62,7 @@ def test_a_replay_is_built_in_the_worker_while_every_cycle_is_answered_with_a_ho
     tmp_path, builder
 ):
     desc = load_description()
-    program = tmp_path / "p.jsonl"
-    _program(program, np.array([0.1, 0.2, 0.3, 0.0, -0.3, 0.0]))
-    plan = {"plan_id": "r", "replay": {"program": str(program), "speed_m_s": 0.1}}
+    plan = _replay_plan(tmp_path)
     player = PlanPlayer(desc.lower_rad, desc.upper_rad, desc, builder)
     player.start(plan, _state(100), PERIOD_S)
     assert player.state == "planning" and player.report()["state"] == "planning"
@@ -98,12 +93,10 @@ def test_a_refused_plan_fails_with_the_reason_and_nothing_moves(builder):
 
 def test_a_plan_not_built_in_time_fails_and_the_arm_was_held(builder, tmp_path):
     desc = load_description()
-    program = tmp_path / "p.jsonl"
-    _program(program, np.array([0.1, 0.2, 0.3, 0.0, -0.3, 0.0]))
+    plan = _replay_plan(tmp_path)
     player = PlanPlayer(desc.lower_rad, desc.upper_rad, desc, builder)
     player.MAX_PLANNING_S = 0.0  # any plan takes longer than no time
-    player.start({"plan_id": "r", "replay": {"program": str(program), "speed_m_s": 0.1}},
-                 _state(100), PERIOD_S)  # fmt: skip
+    player.start(plan, _state(100), PERIOD_S)
     out = player.command(_state(101))
     assert player.state == "failed" and "not planned within" in player.reason
     assert out is None
@@ -111,9 +104,7 @@ def test_a_plan_not_built_in_time_fails_and_the_arm_was_held(builder, tmp_path):
 
 def test_a_worker_that_dies_fails_the_plan_and_the_next_plan_gets_a_new_one(builder, tmp_path):
     desc = load_description()
-    program = tmp_path / "p.jsonl"
-    _program(program, np.array([0.1, 0.2, 0.3, 0.0, -0.3, 0.0]))
-    plan = {"plan_id": "r", "replay": {"program": str(program), "speed_m_s": 0.1}}
+    plan = _replay_plan(tmp_path)
     player = PlanPlayer(desc.lower_rad, desc.upper_rad, desc, builder)
     player.start(plan, _state(100), PERIOD_S)
     assert builder._proc is not None

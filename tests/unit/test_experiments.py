@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from example_program import write_program
 
 from control.experiments import build_plan, friction_runs, multisine, reciprocating
 from control.process import MAX_REPLAY_JOINT_SPEED_RAD_S, PlanPlayer
@@ -180,23 +181,11 @@ def test_a_plan_held_too_long_fails_with_the_reason():
     assert report["state"] == "failed" and report["repeated_samples"] > 0
 
 
-def _program(path, q_start: np.ndarray) -> None:
-    from gateway.program import ProgramWriter
-
-    w = ProgramWriter(path, [f"j{k}" for k in range(1, 7)])
-    w.open()
-    w.teach(True, 0.0)
-    for k in range(300):
-        s = 0.5 - 0.5 * np.cos(np.pi * k / 299)
-        w.trace(0.01 * k, k, q_start + s * np.array([0.15, 0.0, 0.05, 0.0, 0.0, 0.0]))
-    w.close(3.0)
-
-
 def test_a_replay_plan_approaches_the_taught_path_and_ends_at_its_end(tmp_path):
     desc = load_description()
     program = tmp_path / "p.jsonl"
     q_start = np.array([0.1, 0.2, 0.3, 0.0, -0.3, 0.0])
-    _program(program, q_start)
+    write_program(program, q_start)
     player = PlanPlayer(desc.lower_rad, desc.upper_rad, desc)
     plan = {"plan_id": "r", "replay": {"program": str(program), "speed_m_s": 0.1}}
     player.start(plan, _state(100), PERIOD_S)
@@ -222,7 +211,7 @@ def test_a_replay_plan_approaches_the_taught_path_and_ends_at_its_end(tmp_path):
 )
 def test_a_bad_replay_plan_fails_with_the_reason(tmp_path, spec, match):
     desc = load_description()
-    _program(tmp_path / "p.jsonl", np.array([0.1, 0.2, 0.3, 0.0, -0.3, 0.0]))
+    write_program(tmp_path / "p.jsonl", np.array([0.1, 0.2, 0.3, 0.0, -0.3, 0.0]))
     if isinstance(spec, dict) and spec.get("program") == "PROGRAM":
         spec = {**spec, "program": str(tmp_path / "p.jsonl")}
     player = PlanPlayer(desc.lower_rad, desc.upper_rad, desc)
