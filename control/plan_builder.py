@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from control.robot.description import RobotDescription
+from gateway.realtime import normal_priority_children
 
 log = logging.getLogger(__name__)
 
@@ -172,16 +173,17 @@ class PlanBuilder:
         to_worker_r, to_worker_w = os.pipe()
         from_worker_r, from_worker_w = os.pipe()
         try:
-            proc = subprocess.Popen(
-                [sys.executable, "-m", "control.plan_builder",
-                 str(to_worker_r), str(from_worker_w)],
-                pass_fds=(to_worker_r, from_worker_w),
-                stdin=subprocess.DEVNULL,
-                stdout=subprocess.DEVNULL,
-                # Ctrl-C in a terminal reaches the control process, which ends the worker
-                # (closing the pipe, or terminate); a dead owner's pipe ends it too (EOF)
-                start_new_session=True,
-            )  # fmt: skip
+            with normal_priority_children():
+                proc = subprocess.Popen(
+                    [sys.executable, "-m", "control.plan_builder",
+                     str(to_worker_r), str(from_worker_w)],
+                    pass_fds=(to_worker_r, from_worker_w),
+                    stdin=subprocess.DEVNULL,
+                    stdout=subprocess.DEVNULL,
+                    # Ctrl-C in a terminal reaches the control process, which ends the worker
+                    # (closing the pipe, or terminate); a dead owner's pipe ends it too (EOF)
+                    start_new_session=True,
+                )  # fmt: skip
         except OSError:
             for fd in (to_worker_r, to_worker_w, from_worker_r, from_worker_w):
                 os.close(fd)

@@ -20,10 +20,12 @@ unit (``deploy/systemd``) grants the limits these need; the same settings belong
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import ctypes.util
 import logging
 import os
+from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any
 
@@ -110,6 +112,26 @@ def _mlockall(what: str) -> bool | str:
         why = str(exc)
     log.warning("%s: mlockall not applied: %s", what, why)
     return f"not applied: {why}"
+
+
+@contextlib.contextmanager
+def normal_priority_children() -> Iterator[None]:
+    """Within the block the calling thread runs at normal priority, so a process it starts
+    there (a plan builder's worker) does not inherit SCHED_FIFO: at the cycle's priority a
+    CPU-bound child would hold a shared core until it blocked (a replay's planning starved the
+    CAN driver into "no fresh joint state", 2026-11-29). The thread's policy comes back after
+    it. SCHED_RESET_ON_FORK would do it for children but also for the threads created later
+    (zenoh's), which must inherit the cycle's priority."""
+    policy = os.sched_getscheduler(0)
+    if policy not in (os.SCHED_FIFO, os.SCHED_RR):
+        yield
+        return
+    param = os.sched_getparam(0)
+    os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    try:
+        yield
+    finally:
+        os.sched_setscheduler(0, policy, param)
 
 
 def apply_realtime(cfg: Realtime, process: str) -> dict[str, Any]:

@@ -329,6 +329,10 @@ class OperatorScript:
     release_after_s: float | None = None  #: after onset: enabling released (None: never)
     #: after onset: the operator hits the e-stop, which stays open (None: never)
     estop_after_s: float | None = None
+    #: release_after_s and estop_after_s wait, once due, for a cycle in which the tool moves
+    #: at least this fast [m/s]: a hand that lets go, or hits the e-stop, in motion (0: at the
+    #: time; a tool that never gets this fast is never released)
+    event_min_speed_m_s: float = 0.0
     #: after onset: the host's CAN interface goes bus-off for bus_off_s (its kernel then
     #: restarts it, restart-ms): error frames BUSOFF then RESTARTED reach the host, and no
     #: frame passes either way in between (None: never)
@@ -363,6 +367,11 @@ class OperatorScript:
 
     def __post_init__(self) -> None:
         require(self.mode in ("none", "force", "path"), "[operator].mode", f"{self.mode!r}")
+        require(
+            0 <= self.event_min_speed_m_s <= 1.0,
+            "[operator].event_min_speed_m_s",
+            f"{self.event_min_speed_m_s} not in 0..1 m/s",
+        )
         require(
             0 <= self.tremor_m <= 0.01, "[operator].tremor_m", f"{self.tremor_m} not in 0..0.01 m"
         )

@@ -8,6 +8,7 @@ measures with its force sensor.
 
 from __future__ import annotations
 
+from collections import deque
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -18,6 +19,9 @@ if TYPE_CHECKING:
     from sim_bridge.plant import Plant
 
 
+#: ``event_min_speed_m_s`` is the tool's mean speed over this window [s] (a stop test's
+#: "speed at the release" is a mean over 80 ms before it)
+EVENT_SPEED_WINDOW_S = 0.1
 #: the tremor's frequency per axis, relative, and phases [rad] (:attr:`OperatorScript.tremor_m`)
 _TREMOR_AXES = np.array([1.0, 1.13, 0.87])
 _TREMOR_PHASES = np.array([0.0, 2.1, 4.2])
@@ -28,6 +32,11 @@ class Operator:
         self.s = script
         self.onset_s: float | None = None  #: sim time teaching began
         self.origin_m: np.ndarray | None = None  #: tool position at onset
+        #: with ``event_min_speed_m_s``: the tool's recent positions and the sim times the
+        #: release and the e-stop happened (:meth:`observe`)
+        self._track: deque[tuple[float, np.ndarray]] = deque()
+        self._release_at_s: float | None = None
+        self._estop_at_s: float | None = None
         if script.mode == "path":
             wp = np.array(script.path, dtype=float)
             self._t, self._xyz = wp[:, 0], wp[:, 1:4]
@@ -36,16 +45,48 @@ class Operator:
         if self.onset_s is None:
             self.onset_s, self.origin_m = t_s, tool_m.copy()
 
+    def observe(self, t_s: float, tool_m: np.ndarray) -> None:
+        """The tool's position at the end of each cycle: with ``event_min_speed_m_s`` the
+        release and the e-stop, once due, happen at the first cycle by which the tool has
+        moved that fast on average over each of the last two :data:`EVENT_SPEED_WINDOW_S`
+        (in steady motion, not just breaking away)."""
+        if self.s.event_min_speed_m_s <= 0 or self.onset_s is None:
+            return
+        track, window = self._track, EVENT_SPEED_WINDOW_S
+        track.append((t_s, tool_m.copy()))
+        while len(track) > 2 and t_s - track[1][0] >= 2 * window:
+            track.popleft()
+        if t_s - track[0][0] < 2 * window:
+            return
+        mid = next(p for p in reversed(track) if t_s - p[0] >= window)
+        speeds = (
+            float(np.linalg.norm(mid[1] - track[0][1])) / (mid[0] - track[0][0]),
+            float(np.linalg.norm(tool_m - mid[1])) / (t_s - mid[0]),
+        )
+        if min(speeds) < self.s.event_min_speed_m_s:
+            return
+        tau = t_s - self.onset_s
+        release, estop = self.s.release_after_s, self.s.estop_after_s
+        if self._release_at_s is None and release is not None and tau >= release:
+            self._release_at_s = t_s
+        if self._estop_at_s is None and estop is not None and tau >= estop:
+            self._estop_at_s = t_s
+
     def enabling(self, t_s: float) -> bool:
         if t_s < self.s.enabling_after_s:
             return False
         if self.onset_s is not None and self.s.release_after_s is not None:
+            if self.s.event_min_speed_m_s > 0:
+                return self._release_at_s is None or t_s < self._release_at_s
             return t_s - self.onset_s < self.s.release_after_s
         return True
 
     def estop_pressed(self, t_s: float) -> bool:
-        """The e-stop is open now (``estop_after_s`` after onset; it latches)."""
+        """The e-stop is open now (``estop_after_s`` after onset, in motion with
+        ``event_min_speed_m_s``; it latches)."""
         after = self.s.estop_after_s
+        if self.s.event_min_speed_m_s > 0:
+            return self._estop_at_s is not None and t_s >= self._estop_at_s
         return after is not None and self.onset_s is not None and t_s - self.onset_s >= after
 
     def bus_off(self, t_s: float) -> bool:

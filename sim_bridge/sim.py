@@ -134,6 +134,7 @@ class VirtualCell:
         #: real time: how late each cycle started after its deadline [s]
         self.wake_late_s = array("d")
         self.scheduling: dict[str, Any] = {}  #: what [scheduling] achieved
+        self._scheduled = False  #: [scheduling] applied (by open(), or run())
         self._next_heartbeat_s = -math.inf  #: monotonic [s]
         self._fb_sent_wall: float | None = None
         self._set_arrival_wall: float | None = None
@@ -159,6 +160,10 @@ class VirtualCell:
 
     # --- endpoints ----------------------------------------------------------------------
     def open(self) -> None:
+        if self.cfg.realtime:
+            # first: the CAN hub's thread and the I/O module's process started below inherit it
+            self.scheduling = apply_scheduling(self.cfg.scheduling)
+            self._scheduled = True
         ep = self.cfg.endpoints
         self.can = open_can_endpoint(ep, fd=self._can_fd)
         # The valves power up holding the initial pressures: a 0 bar set-point would let the arm
@@ -343,6 +348,8 @@ class VirtualCell:
         if released:
             op.mark_onset(plant.t_s, plant.tool_position_m())
         plant.run(self.substeps, reference, brakes_released=released, power_cut=power_cut)
+        if op.s.event_min_speed_m_s > 0:
+            op.observe(plant.t_s, plant.tool_position_m())
         p_meas = plant.measured_pressure_bar()
         enabling = op.enabling(plant.t_s)
         self.io.set_inputs(
@@ -362,12 +369,15 @@ class VirtualCell:
     def run(self, duration_s: float | None = None) -> None:
         """Run cycles until ``duration_s`` of simulated time or :meth:`stop`.
 
-        Real time applies ``[scheduling]`` to the calling thread first.
+        Real time applies ``[scheduling]`` to the calling thread first, unless :meth:`open`
+        did (to the whole process: the thread that calls both).
         """
         assert self.can is not None
         self._next_heartbeat_s = -math.inf
         if self.cfg.realtime:
-            self.scheduling = apply_scheduling(self.cfg.scheduling)
+            if not self._scheduled:
+                self.scheduling = apply_scheduling(self.cfg.scheduling)
+                self._scheduled = True
             self._run_realtime(duration_s)
         else:
             self._run_lockstep(duration_s)

@@ -189,8 +189,13 @@ class CanDriverConfig:
     bus_error_window_s: float = 1.0
     #: A cycle forwarding was allowed for whose command did not come in time is *lost*
     #: (lost_cycles.py): answered with "coast" (the last command moved on by its velocity,
-    #: while it is at most deadline_s old, then a hold) or "hold" (at once).
+    #: while it answered one of the coast_max_cycles cycles before, then a hold) or "hold"
+    #: (at once).
     lost_cycle_answer: str = "coast"
+    #: A late cycle coasts only on the command forwarded for one of this many cycles before
+    #: it: 1, one late cycle costs nothing and a second in a row holds (open loop for at most
+    #: one period, 2 mm at the tool at 0.25 m/s and 8 ms).
+    coast_max_cycles: int = 1
     #: This many lost cycles in a row, or lost_cycles_max_per_window within
     #: lost_cycles_window_s, trip: the arm is stopped as for a released enabling device and
     #: the gateway faults until the operator re-arms. 0 turns a rule off. 50 cycles is 0.4 s
@@ -277,6 +282,8 @@ class CanDriverConfig:
             f"{where}.lost_cycle_answer",
             f"{self.lost_cycle_answer!r} is neither {COAST_ANSWER!r} nor {HOLD_ANSWER!r}",
         )
+        require_count(self.coast_max_cycles, f"{where}.coast_max_cycles", 10, "cycles")
+        require(self.coast_max_cycles >= 1, f"{where}.coast_max_cycles", "must be at least 1")
         for name in ("current_zero_cycles", "current_zero_settle_cycles"):
             require_count(getattr(self, name), f"{where}.{name}", 100_000, "cycles")
         require(

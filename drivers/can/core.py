@@ -798,18 +798,36 @@ class HostCore:
 
     def _coast(self, pending: Cycle, now: float) -> list[can.Message]:
         """Answer a cycle whose command is late with the last forwarded command, moved on by
-        its own velocity, as long as that command is not older than ``deadline_s``; [] if
-        coasting is not allowed."""
+        its own velocity, as long as that command answered one of the ``coast_max_cycles``
+        cycles before this one (and, against a controller whose cycles stalled, is at most
+        ``deadline_s`` plus one period more than that many old), and moved on stays within the
+        following error and limits a forwarded command must meet; [] if coasting is not
+        allowed. A hold after it keeps the coasted position: the controller was sent there.
+
+        The bound counts the periods the coast spans: the command of the cycle before is one
+        period plus the answer deadline old when it coasts, 12 ms at LTC-1's 8 ms, so a bound
+        of ``deadline_s`` (10 ms) alone let nothing coast at that rate and every late command
+        became a hold, a dead stop of an arm the hand was moving (0.2 rad/s to 0 within one
+        cycle on J2, 54 A, in the stack's release test, 2026-11-29). The age bound stays: a
+        controller whose cycles stalled gets a hold, not a command extrapolated over the
+        stall."""
         last = self._last_forward
+        max_cycles = self.config.coast_max_cycles
         if (
             self.config.lost_cycle_answer == HOLD_ANSWER
             or last is None
             or self._holding
-            or now - last[0] > self.config.deadline_s
+            or pending.cycle - last[1] > max_cycles
+            or now - last[0] > self.config.deadline_s + (max_cycles + 1) * last[4]
         ):
             return []
         _stamp, cycle, q, dq, period = last
         q_coast = q + dq * (pending.cycle - cycle) * period
+        # what a forwarded command must meet: near the arm's measured position, in the limits
+        if np.any(np.abs(q_coast - pending.q_rad) > self._max_fe) or np.any(
+            (q_coast < self._lower) | (q_coast > self._upper)
+        ):
+            return []
         try:
             frames = self.adapter.command_frames(pending.counter, q_coast, dq, False)
         except FrameError:
@@ -817,6 +835,7 @@ class HostCore:
         pending.answer = COAST
         self.coasted += 1
         self._last_sent_q, self._last_sent_dq = q_coast.tolist(), dq.tolist()
+        self._last_forwarded_q = q_coast  # a hold that follows does not pull the arm back
         return frames
 
     def _wants_servo(self, now: float) -> bool:

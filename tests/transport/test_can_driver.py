@@ -156,6 +156,11 @@ def make_cell(router: str) -> Iterator[Callable[..., Cell]]:
     assert not leaked, f"threads left running: {leaked}"
 
 
+#: how far from the measured position :func:`follow`'s commands reach [rad]: its offset, plus
+#: one period of its velocity for a late cycle the driver coasts on the last command
+FOLLOW_REACH_RAD = 0.01 + 0.05 * PERIOD_S
+
+
 def follow(offset_rad: float = 0.01, dq_rad_s: float = 0.05) -> Callable[[JointState], Any]:
     """A control process that commands the measured position plus ``offset_rad``."""
 
@@ -199,8 +204,13 @@ def test_fresh_command_is_forwarded_with_counter_and_crc(make_cell):
     cell = make_cell()
     cell.teach(follow(offset_rad=0.01, dq_rad_s=0.05))
     sets = wait_for(at_least(10, lambda: cell.controller.command_sets(hold=False)))
+    coasts, forwarded = 0, []
     for cset in sets:
         sent = cell.controller.sent[cset.cycle_counter]
+        if np.allclose(cset.q_cmd_rad, sent.q_rad + FOLLOW_REACH_RAD, atol=1.5e-6):
+            coasts += 1  # a late cycle: the last command moved on by its velocity (the arm rests)
+            continue
+        forwarded.append(cset)
         np.testing.assert_allclose(cset.q_cmd_rad, sent.q_rad + 0.01, atol=1.5e-6)
         np.testing.assert_allclose(cset.dq_cmd_rad_s, 0.05, atol=0.5e-4)
         for k, msg in enumerate(cset.raw):
@@ -208,7 +218,9 @@ def test_fresh_command_is_forwarded_with_counter_and_crc(make_cell):
             assert msg.data[6] == cset.cycle_counter & 0xFF, "counter = low byte of the cycle"
             id_bytes = bytes((msg.arbitration_id & 0xFF, msg.arbitration_id >> 8))
             assert msg.data[7] == crc8_sae_j1850(id_bytes + bytes(msg.data[:7]))
-    assert np.median([s.after_status_s for s in sets]) < DEADLINE_S
+    assert coasts <= cell.driver.coasted
+    # the commands came in time (a coast is sent at the answer deadline, when one did not)
+    assert forwarded and np.median([s.after_status_s for s in forwarded]) < DEADLINE_S
     assert cell.controller.bad_frames == []
     assert cell.controller.state == ControllerState.EXTERNAL
     assert cell.driver.forwarded >= 10
@@ -601,7 +613,8 @@ def test_100k_random_frames_never_reach_a_measurement_or_a_command(make_cell):
         np.testing.assert_allclose(s.dq_rad_s, sent.dq_rad_s, atol=0.5e-4)
     for cset in cell.controller.command_sets(hold=False):
         truth = cell.controller.sent[cset.cycle_counter].q_rad
-        assert np.all(np.abs(cset.q_cmd_rad - truth) <= 0.01 + 1e-5), "a command left reach"
+        reach = np.abs(cset.q_cmd_rad - truth)
+        assert np.all(reach <= FOLLOW_REACH_RAD + 1e-5), "a command left reach"
     assert cell.controller.bad_frames == [], "the driver itself sent malformed frames"
     # the operator re-arms: teaching commands again
     cell.gateway.set(Lifecycle.STOPPED)
@@ -637,7 +650,7 @@ def test_random_frames_that_decode_as_feedback_never_move_the_arm(make_cell):
     assert cell.driver.running, f"the driver died: {cell.driver.failed!r}"
     for cset in cell.controller.command_sets(hold=False):
         truth = cell.controller.sent[cset.cycle_counter].q_rad
-        assert np.all(np.abs(cset.q_cmd_rad - truth) <= 0.01 + 1e-5), (
+        assert np.all(np.abs(cset.q_cmd_rad - truth) <= FOLLOW_REACH_RAD + 1e-5), (
             f"cycle {cset.cycle_counter}: command {cset.q_cmd_rad} for true position {truth}"
         )
 
@@ -678,6 +691,6 @@ def test_a_forged_measurement_with_the_right_counter_never_moves_the_arm(make_ce
     assert cell.driver.forwarded > 100, "the true cycles between the forged ones were taken"
     for cset in cell.controller.command_sets(hold=False):
         truth = cell.controller.sent[cset.cycle_counter].q_rad
-        assert np.all(np.abs(cset.q_cmd_rad - truth) <= 0.01 + 1e-5), (
+        assert np.all(np.abs(cset.q_cmd_rad - truth) <= FOLLOW_REACH_RAD + 1e-5), (
             f"cycle {cset.cycle_counter}: command {cset.q_cmd_rad} for true position {truth}"
         )

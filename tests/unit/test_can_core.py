@@ -59,8 +59,9 @@ class Cell:
         self.core.on_io(io.to_bytes(), self.t)
 
     def cycle(
-        self, q=Q0, state=ControllerState.EXTERNAL, current=(1.5,) * N, power=True
-    ) -> tuple[JointState, list]:
+        self, q=Q0, state=ControllerState.EXTERNAL, current=(1.5,) * N, power=True,
+        period_us=PERIOD_US,
+    ) -> tuple[JointState, list]:  # fmt: skip
         """Feed one controller cycle; returns its JointState and the frames sent at once."""
         self.counter = (self.counter + 1) & 0xFFFF
         frames = [
@@ -69,7 +70,7 @@ class Cell:
             )
             for k in range(N)
         ]
-        status = ControllerStatus(self.counter, state, FaultCode.NONE, 0, False, power, PERIOD_US)
+        status = ControllerStatus(self.counter, state, FaultCode.NONE, 0, False, power, period_us)
         frames.append(self.proto.encode_status(status))
         out, payload = [], None
         for msg in frames:
@@ -175,7 +176,29 @@ def test_the_next_deadline_is_the_answer_time_of_an_unanswered_cycle():
     assert cell.core.next_tick_s() == pytest.approx(T0 + 0.1)  # next heartbeat
 
 
-def test_a_late_command_coasts_then_holds_once_the_last_command_is_too_old():
+def test_at_ltc1s_8_ms_one_late_command_coasts_and_a_second_in_a_row_holds():
+    """The coast's bound is one cycle, whatever the period: at 8 ms the command of the cycle
+    before is 12 ms old when the late cycle is answered (past deadline_s, 10 ms), and still
+    coasts; the next late cycle holds."""
+    cell = Cell(deadline_s=0.010)
+    cell.gateway(Lifecycle.TEACHING)
+    cell.tick()
+    js, _ = cell.cycle(period_us=8000)
+    assert cell.command(js, Q0 + 0.001, 0.2)[0] == COMMAND
+    coasted = Q0 + 0.001 + 0.2 * 0.008
+    for answer, q in ((COAST, coasted), (HOLD, coasted)):  # the hold keeps the coast's place
+        cell.t += 0.008
+        cell.gateway(Lifecycle.TEACHING)
+        cell.cycle(period_us=8000)
+        cell.t += 0.0041  # past the answer deadline, half the period
+        sent = commands(cell.tick())
+        assert cell.core.pending.answer == answer
+        assert all(f.hold == (answer == HOLD) for f in sent) and len(sent) == N
+        np.testing.assert_allclose([f.q_cmd_rad for f in sent], q, atol=2e-6)
+        cell.t -= 0.0041
+
+
+def test_a_late_command_coasts_then_the_next_late_one_holds_where_the_coast_went():
     cell = Cell(deadline_s=0.010)
     cell.gateway(Lifecycle.TEACHING)
     cell.tick()  # servo on requested: a new servo-on period begins
@@ -188,14 +211,15 @@ def test_a_late_command_coasts_then_holds_once_the_last_command_is_too_old():
     coast = commands(cell.tick())
     assert cell.core.pending.answer == COAST and not any(f.hold for f in coast)
     np.testing.assert_allclose([f.q_cmd_rad for f in coast], Q0 + 0.001 + 0.2 * 0.004, atol=2e-6)
-    cell.t += 0.010  # the forwarded command is now older than deadline_s
+    cell.t += 0.010  # the next cycle is late too: two cycles after the forwarded command
     cell.gateway(Lifecycle.TEACHING)
     js, _ = cell.cycle()
     assert js.flags & FLAG_PREV_COAST
     cell.t += 0.0021
     hold = commands(cell.tick())
     assert all(f.hold for f in hold) and cell.core.pending.answer == HOLD
-    np.testing.assert_allclose([f.q_cmd_rad for f in hold], Q0 + 0.001, atol=2e-6)
+    # where the controller was sent last: a hold at the forwarded command would pull it back
+    np.testing.assert_allclose([f.q_cmd_rad for f in hold], Q0 + 0.001 + 0.2 * 0.004, atol=2e-6)
 
 
 @pytest.mark.parametrize(

@@ -15,7 +15,13 @@ import tomli_w
 
 from gateway.cli import main
 from gateway.errors import EXIT_CONFIG, ConfigError
-from gateway.realtime import Realtime, apply_realtime, apply_scheduling, realtime_config_from
+from gateway.realtime import (
+    Realtime,
+    apply_realtime,
+    apply_scheduling,
+    normal_priority_children,
+    realtime_config_from,
+)
 from sim_bridge.harness import pin_process_tree, placement
 
 
@@ -119,3 +125,22 @@ def test_a_process_tree_is_pinned_thread_by_thread_children_included(own_affinit
                 os.kill(int(pid), 9)
         proc.kill()
         proc.wait()
+
+
+def test_a_child_started_by_a_fifo_thread_runs_at_normal_priority_and_the_thread_keeps_fifo():
+    """normal_priority_children: the plan builder's worker must not inherit the cycle's
+    SCHED_FIFO (a CPU-bound child at that priority holds a shared core)."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(5))
+    except PermissionError:
+        pytest.skip("no CAP_SYS_NICE here: SCHED_FIFO cannot be set")
+    probe = "import os; print(os.sched_getscheduler(0), os.sched_getparam(0).sched_priority)"
+    try:
+        with normal_priority_children():
+            inside = os.sched_getscheduler(0)
+            child = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True)
+        after = os.sched_getscheduler(0), os.sched_getparam(0).sched_priority
+    finally:
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    assert child.stdout.split() == [str(os.SCHED_OTHER), "0"], child.stdout + child.stderr
+    assert inside == os.SCHED_OTHER and after == (os.SCHED_FIFO, 5)
