@@ -19,8 +19,8 @@ if TYPE_CHECKING:
     from sim_bridge.plant import Plant
 
 
-#: ``event_min_speed_m_s`` is the tool's mean speed over this window [s] (a stop test's
-#: "speed at the release" is a mean over 80 ms before it)
+#: ``event_min_speed_m_s`` holds for the tool's mean speed over each of the last two such
+#: windows [s] (a stop test's "speed at the release" is a mean over 80 ms before it)
 EVENT_SPEED_WINDOW_S = 0.1
 #: the tremor's frequency per axis, relative, and phases [rad] (:attr:`OperatorScript.tremor_m`)
 _TREMOR_AXES = np.array([1.0, 1.13, 0.87])
