@@ -11,34 +11,47 @@ $(STAMP): pyproject.toml
 	$(BIN)/pip install --quiet -e '.[dev]'
 	touch $(STAMP)
 
-demo: $(STAMP)
+# The compiled cycle (issue 48): cargo builds it from the crate registry at the versions
+# Cargo.lock pins (the first build compiles the zenoh crate: minutes), and the Python extension
+# goes next to the package that imports it.
+CARGO ?= cargo
+RT_SRC := Cargo.toml Cargo.lock drivers/can/rt/Cargo.toml $(wildcard drivers/can/rt/src/*.rs)
+RT_SO := drivers/can/_rt.abi3.so
+
+$(RT_SO): $(RT_SRC) $(STAMP)
+	PYO3_PYTHON=$(abspath $(BIN)/python) $(CARGO) build --release --locked \
+		-p leadthrough-can-rt --features python
+	cp target/release/libcan_rt.so $@
+
+demo: $(STAMP) $(RT_SO)
 	$(BIN)/leadthrough demo --out demo_out
 
-test: $(STAMP)
+test: $(STAMP) $(RT_SO)
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
+	$(CARGO) test --locked --quiet -p leadthrough-can-rt
 	$(BIN)/pytest -q
 
 # The stack tier beside a competing CPU load: a busy process pinned to CPU 0 at the product's
 # priority (tests/cpu_load.py). LOAD_ARGS="--taskset 0" also pins the product to CPU 0 beside
 # it; LOAD_ARGS="--cores 0,1" loads every core.
 LOAD_ARGS ?=
-test-loaded: $(STAMP)
+test-loaded: $(STAMP) $(RT_SO)
 	$(BIN)/python tests/cpu_load.py $(LOAD_ARGS) -- $(BIN)/pytest -q -m stack
 
-bench: $(STAMP)
+bench: $(STAMP) $(RT_SO)
 	$(BIN)/leadthrough bench --rates 250 500 --cycles 10000 --json bench_out/bench.json
 	$(BIN)/python -m gateway.zenoh_bench --n 3000
 	$(BIN)/python -m drivers.can.codec_bench
 	$(BIN)/python -m control.identification.bench
 	$(BIN)/leadthrough teach-bench --plant-seed 0 --out bench_out/teach_bench
 
-faults: $(STAMP)
+faults: $(STAMP) $(RT_SO)
 	$(BIN)/python -m sim_bridge.faults --out faults_out
 	LEADTHROUGH_FUZZ_REPLIES=100000 $(BIN)/pytest -q -p no:cacheprovider -s \
 		tests/transport/test_modbus_fuzz.py
 
-soak: $(STAMP)
+soak: $(STAMP) $(RT_SO)
 	$(BIN)/python -m sim_bridge.soak --minutes 10 --rate-hz 250 --frame-loss 0.01 --out soak_out
 
 lint: $(STAMP)
@@ -48,4 +61,4 @@ format: $(STAMP)
 	$(BIN)/ruff format .
 
 clean:
-	rm -rf $(VENV) demo_out faults_out soak_out .cache
+	rm -rf $(VENV) demo_out faults_out soak_out .cache target $(RT_SO)

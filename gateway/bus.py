@@ -102,9 +102,13 @@ CONNECT_TIMEOUT_S = 10.0
 
 
 def _zenoh_config(
-    mode: str, listen: list[str], connect: list[str], connect_timeout_s: float = CONNECT_TIMEOUT_S
-) -> zenoh.Config:
-    cfg = zenoh.Config()
+    mode: str,
+    listen: list[str],
+    connect: list[str],
+    connect_timeout_s: float = CONNECT_TIMEOUT_S,
+    cfg: Any = None,
+) -> Any:
+    cfg = zenoh.Config() if cfg is None else cfg
     cfg.insert_json5("mode", json.dumps(mode))
     cfg.insert_json5("scouting/multicast/enabled", "false")
     cfg.insert_json5("scouting/gossip/enabled", json.dumps(mode != "client"))
@@ -170,11 +174,35 @@ def open_peer(bus: BusConfig, identity: str) -> zenoh.Session:
     """Open a product process's session: on an open bus a peer that connects to the router,
     then directly to the other peers; on a locked bus a client of the router as ``identity``
     (see :mod:`gateway.bus_security` for why)."""
+    return _open_linked(_peer_config(bus, zenoh.Config()), bus, identity, CONNECT_TIMEOUT_S)
+
+
+def _peer_config(bus: BusConfig, cfg: Any) -> Any:
+    """:func:`open_peer`'s session settings, inserted into ``cfg`` (anything with zenoh.Config's
+    ``insert_json5``)."""
+    mode, listen = ("client", []) if bus.locked else ("peer", [bus.peer_listen])
+    return _zenoh_config(mode, listen, [bus.endpoint], cfg=cfg)
+
+
+class _Entries:
+    """Records ``insert_json5`` calls: a zenoh config as (key, JSON5 value) pairs."""
+
+    def __init__(self) -> None:
+        self.items: list[tuple[str, str]] = []
+
+    def insert_json5(self, key: str, value: str) -> None:
+        self.items.append((key, value))
+
+
+def peer_config_entries(bus: BusConfig, identity: str) -> list[tuple[str, str]]:
+    """The settings :func:`open_peer` gives a session of ``identity``, as (key, JSON5 value)
+    pairs: a compiled piece (drivers/can/rt) opens its own zenoh session (the zenoh crate, the
+    same version as this wheel) with exactly these, so it joins the bus as its process does."""
+    entries = _peer_config(bus, _Entries())
+    bus.insert_tls(entries)
     if bus.locked:
-        cfg = _zenoh_config("client", [], [bus.endpoint])
-    else:
-        cfg = _zenoh_config("peer", [bus.peer_listen], [bus.endpoint])
-    return _open_linked(cfg, bus, identity, CONNECT_TIMEOUT_S)
+        security.insert_session_credentials(entries, bus.credentials_file, identity)
+    return entries.items
 
 
 def on_receiving_thread(callback: Callable[[zenoh.Sample], Any]) -> zenoh.handlers.Callback:

@@ -31,10 +31,10 @@ from gateway.messages import PLAYING, ControllerState, Lifecycle
 #: Each faults the cell and refuses a reset while it stands; the driver clears it once the
 #: cell is stopped and the cause has gone.
 DRIVER_TRIPS = {
-    "speed_trip": "CAN driver's speed monitor",  # drivers/can/speed_monitor.py
-    "standstill_trip": "CAN driver's standstill monitor",  # drivers/can/stop_ramp.py
-    "bus_fault": "CAN bus",  # drivers/can/bus_errors.py: bus-off, an error burst
-    "lost_cycles_trip": "CAN driver's command link",  # drivers/can/lost_cycles.py
+    "speed_trip": "CAN driver's speed monitor",  # drivers/can/rt/src/speed_monitor.rs
+    "standstill_trip": "CAN driver's standstill monitor",  # drivers/can/rt/src/stop_ramp.rs
+    "bus_fault": "CAN bus",  # drivers/can/rt/src/bus_errors.rs: bus-off, an error burst
+    "lost_cycles_trip": "CAN driver's command link",  # drivers/can/rt/src/lost_cycles.rs
 }
 
 

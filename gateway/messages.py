@@ -251,7 +251,8 @@ class StateWindow:
     states, the fastest joint speed any of them read, each joint's lowest and highest position
     among them, and the newest state whole (its JointState bytes, decoded by the reader). The
     CAN driver publishes one every ``[can] state_window_s`` and at once when the controller's
-    state or its e-stop or servo-power flag changes (drivers/can/core.py StateWindowBuilder)."""
+    state or its e-stop or servo-power flag changes (drivers/can/rt/src/window.rs
+    StateWindowBuilder)."""
 
     MAGIC: ClassVar[bytes] = b"LTSW"
     _HEAD: ClassVar[struct.Struct] = struct.Struct("<4sBBId")  #: magic, version, n, states, speed

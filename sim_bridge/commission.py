@@ -43,7 +43,7 @@ CACHE_ENV = "LEADTHROUGH_CACHE"
 CYCLE_S = 0.008
 #: Source trees whose files make up the code version.
 CODE_TREES = ("control", "drivers", "gateway", "sim_bridge", "deploy/config")
-CODE_SUFFIXES = (".py", ".toml", ".xml", ".dbc", ".json")
+CODE_SUFFIXES = (".py", ".toml", ".xml", ".dbc", ".json", ".rs")  # .rs: the compiled cycle
 #: Longest a commissioning may take before it is abandoned (robot stopped) [s].
 IDENTIFY_TIMEOUT_S = 600.0
 

@@ -15,8 +15,8 @@ Example (virtual controller)::
     connect_timeout_s = 5.0
 
 Production differs only in the transport: ``interface = "socketcan"``, ``channel = "can0"``.
-A virtual controller on another machine serves socketcand instead: ``interface = "socketcand"``,
-``channel = "vcan0"``, ``host``, ``port``, ``tcp_tune = true``.
+The compiled CAN driver speaks only these two interfaces (drivers/can/rt/src/can_socket.rs);
+any other is refused.
 """
 
 from __future__ import annotations
@@ -27,12 +27,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from drivers.can.lost_cycles import COAST_ANSWER, HOLD_ANSWER
 from drivers.can.seqpacket import address_problem
 from gateway.bus import BusConfig, bus_config_from
 from gateway.config import from_mapping, load_toml, require, require_count, resolve_path
 
+#: ``lost_cycle_answer`` values (drivers/can/rt/src/lost_cycles.rs)
+COAST_ANSWER, HOLD_ANSWER = "coast", "hold"
+
 _TRANSPORT_SCALARS = (str, int, float, bool)
+#: The interfaces the compiled CAN driver speaks (drivers/can/rt/src/can_socket.rs).
+TRANSPORT_INTERFACES = ("socketcan", "seqpacket")
 #: Keyword arguments SeqpacketBus takes; anything else would be silently ignored, so refuse it.
 _SEQPACKET_KEYS = ("interface", "channel", "fd", "connect_timeout_s")
 
@@ -129,7 +133,7 @@ class CanDriverConfig:
     transport: dict[str, Any] = field(default_factory=_production_transport)
     #: A JointCommand older than this (driver clock − its state_stamp_s) is never forwarded [s].
     #: An unanswered cycle is answered with a hold set at this age, or earlier if the
-    #: controller's cycle period demands it (see driver.py).
+    #: controller's cycle period demands it (see drivers/can/rt/src/core.rs).
     deadline_s: float = 0.010
     #: An unanswered cycle is answered (coast or hold) this far into the controller's period
     #: at the latest [1]: the rest is margin for the frames to reach the controller before its
@@ -153,8 +157,9 @@ class CanDriverConfig:
     #: Per joint (or one value for all): a command with |dq_cmd| beyond this is rejected [rad/s].
     max_velocity_rad_s: float | tuple[float, ...] = 1.0
     #: The current sensors' zero is the mean of the newest this-many cycles reported with the
-    #: servo power off, subtracted from every published current (current_zero.py); the first
-    #: servo-on waits for it. 0: off (currents as the drives report them).
+    #: servo power off, subtracted from every published current
+    #: (drivers/can/rt/src/current_zero.rs); the first servo-on waits for it. 0: off (currents
+    #: as the drives report them).
     current_zero_cycles: int = 0
     #: Cycles skipped after the servo power goes off before they count towards the zero.
     current_zero_settle_cycles: int = 5
@@ -163,8 +168,9 @@ class CanDriverConfig:
     #: agree with the identified model (current_zero.py). "": none, measure it.
     current_zero_file: str = ""
     #: Hand guiding's speed limit for the tool point and the flange [m/s], monitored from the
-    #: measured positions while teaching or replaying (speed_monitor.py): past it the driver
-    #: holds every cycle and reports the trip; the gateway faults. 0: no monitor.
+    #: measured positions while teaching or replaying (drivers/can/rt/src/speed_monitor.rs):
+    #: past it the driver holds every cycle and reports the trip; the gateway faults. 0: no
+    #: monitor.
     hand_guiding_max_speed_m_s: float = 0.25
     #: A command with a position closer than this to a joint's limit (the robot description's,
     #: the datasheet's) is rejected and the cycle held [rad]: the driver's own joint limits,
@@ -173,24 +179,24 @@ class CanDriverConfig:
     #: Per joint (or one value for all): releasing the enabling device, or the lifecycle
     #: leaving a commanding state for READY, ramps the last command's velocity to zero at
     #: this deceleration, every joint over the same time, then holds (stop category 2,
-    #: stop_ramp.py) [rad/s²].
+    #: drivers/can/rt/src/stop_ramp.rs) [rad/s²].
     stop_deceleration_rad_s2: float | tuple[float, ...] = 2.0
     #: Monitored standstill while the driver holds with the servo on: after settling this
     #: long [s], a joint more than standstill_band_rad from the hold in
     #: standstill_confirm_cycles cycles in a row trips it; the driver asks for the brakes and
-    #: the gateway faults (stop_ramp.py).
+    #: the gateway faults (drivers/can/rt/src/stop_ramp.rs).
     standstill_settle_s: float = 0.5
     standstill_band_rad: float = 0.02
     standstill_confirm_cycles: int = 3
     #: This many CAN error frames within bus_error_window_s latch a bus fault, as a bus-off
     #: does at once; the fault clears once no error frame came for the window and the cell is
-    #: stopped (bus_errors.py).
+    #: stopped (drivers/can/rt/src/bus_errors.rs).
     bus_error_limit: int = 10
     bus_error_window_s: float = 1.0
     #: A cycle forwarding was allowed for whose command did not come in time is *lost*
-    #: (lost_cycles.py): answered with "coast" (the last command moved on by its velocity,
-    #: while it answered one of the coast_max_cycles cycles before, then a hold) or "hold"
-    #: (at once).
+    #: (drivers/can/rt/src/lost_cycles.rs): answered with "coast" (the last command moved on
+    #: by its velocity, while it answered one of the coast_max_cycles cycles before, then a
+    #: hold) or "hold" (at once).
     lost_cycle_answer: str = "coast"
     #: A late cycle coasts only on the command forwarded for one of this many cycles before
     #: it: 1, one late cycle costs nothing and a second in a row holds (open loop for at most
@@ -206,9 +212,9 @@ class CanDriverConfig:
     lost_cycles_max_per_window: int = 100
     lost_cycles_window_s: float = 2.0
     #: A cycle in which a joint's measured position moved faster than this from the last
-    #: cycle taken is dropped as implausible (plausibility.py): a broken node or a glitched
-    #: encoder, not the arm. Above every joint's top speed (a painting robot's wrist: about
-    #: 7 rad/s); 0 turns the check off.
+    #: cycle taken is dropped as implausible (drivers/can/rt/src/plausibility.rs): a broken
+    #: node or a glitched encoder, not the arm. Above every joint's top speed (a painting
+    #: robot's wrist: about 7 rad/s); 0 turns the check off.
     feedback_max_joint_speed_rad_s: float = 10.0
     #: The CiA 402 adapter's settings (used only with ``adapter = "cia402"``).
     cia402: Cia402Config = field(default_factory=Cia402Config)
@@ -316,9 +322,10 @@ class CanDriverConfig:
         where = "[can].transport"
         interface = t.get("interface")
         require(
-            isinstance(interface, str) and bool(interface),
+            interface in TRANSPORT_INTERFACES,
             f"{where}.interface",
-            f"{interface!r}: name a python-can interface, e.g. 'socketcan' or 'seqpacket'",
+            f"{interface!r}: the CAN driver speaks only 'socketcan' (the cell) and 'seqpacket' "
+            "(the virtual controller)",
         )
         for key, value in t.items():
             require(
@@ -350,18 +357,6 @@ class CanDriverConfig:
                 and 0.0 <= timeout <= 60.0,
                 f"{where}.connect_timeout_s",
                 f"{timeout!r} s outside 0..60",
-            )
-        if interface == "socketcand":
-            require(
-                isinstance(t.get("host"), str) and bool(t.get("host")),
-                f"{where}.host",
-                f"{t.get('host')!r}: socketcand needs the server's host",
-            )
-            port = t.get("port")
-            require(
-                isinstance(port, int) and not isinstance(port, bool) and 0 < port < 65536,
-                f"{where}.port",
-                f"{port!r}: socketcand needs the server's TCP port 1..65535",
             )
 
 

@@ -3,7 +3,7 @@ faults, as `make faults` runs it, so the campaign's own code is exercised by `ma
 
 A control process that hangs (SIGSTOP) sends no more commands while its zenoh session and
 process stay up: the CAN driver coasts, then holds, and after [can]
-lost_cycles_max_consecutive lost cycles trips (drivers/can/lost_cycles.py): the cell faults
+lost_cycles_max_consecutive lost cycles trips (drivers/can/rt/src/lost_cycles.rs): the cell faults
 naming the command link. The default, 50 cycles (0.4 s), races the gateway's 0.5 s health
 watchdog; the test sets 13 (0.1 s) so that the driver's rule is what faults the cell."""
 

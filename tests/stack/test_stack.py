@@ -75,7 +75,7 @@ def test_weightless_arm_without_operator_drifts_less_than_1mm_in_5s(tmp_path, pr
 
 
 def test_the_can_drivers_speed_monitor_stops_an_arm_the_law_lets_run(tmp_path):
-    """The CAN driver's own speed monitor (drivers/can/speed_monitor.py), from measured
+    """The CAN driver's own speed monitor (drivers/can/rt/src/speed_monitor.rs), from measured
     positions: with the control law's speed limit taken away ([control] max_tool_speed_m_s =
     0), a hand that drags the tool towards a point moving along x at 350 mm/s (a
     spring-damper, 80 N at most: enough to break J2 and J3 away from their stiction) takes
@@ -193,7 +193,7 @@ def stop_while_dragging(tmp_path, event: str = "release", cell_overrides=None) -
 
 @pytest.mark.parametrize("profile", ["classic", "cia402"])
 def test_releasing_the_enabling_device_ramps_the_arm_to_a_held_standstill(tmp_path, profile):
-    """Stop category 2 (drivers/can/stop_ramp.py): released at about 0.16 m/s, the CAN
+    """Stop category 2 (drivers/can/rt/src/stop_ramp.rs): released at about 0.16 m/s, the CAN
     driver ramps the last command to standstill at [can] stop_deceleration_rad_s2 (2 rad/s²
     per joint) along its path, then holds; the monitored standstill does not trip, the cell
     stays READY. Measured on this machine (stop_while_dragging with cell_overrides
@@ -232,7 +232,7 @@ def test_a_bus_off_faults_the_cell_which_stays_stopped_until_it_is_re_armed(tmp_
     """The host's CAN interface goes bus-off for 0.1 s while the hand drags the tool
     (``[operator] bus_off_after_s``: the virtual cell reports the kernel's error frames,
     BUSOFF then RESTARTED, and passes no frame in between). The CAN driver latches a bus
-    fault (drivers/can/bus_errors.py), the cell faults and the arm stops; the bus works again
+    fault (drivers/can/rt/src/bus_errors.rs), the cell faults and the arm stops; the bus works again
     at once, but the cell stays stopped until the operator resets it, and then it starts."""
     operator = {"mode": "path", "path": [[0.0, 0, 0, 0], [0.5, 0, 0, 0], [4.5, 0.4, 0, 0]],
                 "bus_off_after_s": 2.0, "bus_off_s": 0.1}  # fmt: skip

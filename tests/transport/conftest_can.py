@@ -1,6 +1,6 @@
 """Test doubles around the CAN driver, on real in-process transports.
 
-* :class:`FakeController` — a minimal LTC-1 controller on a :class:`SocketcandServerBus`: sends
+* :class:`FakeController` — a minimal LTC-1 controller on a :class:`SeqpacketHubBus`: sends
   feedback and status every cycle, records every frame the host sends, runs the BRAKED / HOLD /
   EXTERNAL / FAULT transitions of PROTOCOL.md §6 that the tests need, and can drop or corrupt
   chosen feedback frames.
@@ -43,7 +43,7 @@ from gateway.messages import (
     LifecycleMsg,
     decode_json,
 )
-from sim_bridge.can_endpoint import SocketcandServerBus
+from sim_bridge.can_hub import SeqpacketHubBus
 
 WAIT_S = 5.0
 #: injected frames sent per turn of the controller's loop
@@ -92,7 +92,7 @@ class FakeController:
 
     def __init__(
         self,
-        server: SocketcandServerBus,
+        server: SeqpacketHubBus,
         n_joints: int = 6,
         period_s: float = 0.02,
         first_counter: int = 0,

@@ -1,68 +1,13 @@
-"""The current sensors' zero (drivers/can/current_zero.py): the mean of the newest cycles
-reported with the servo power off, after the settle cycles, frozen while powered."""
+"""The current sensors' zero of the commissioning (drivers/can/current_zero.py): its file, and
+the driver refusing a bad one. The zero the driver measures (the mean of the newest cycles
+reported with the servo power off) is drivers/can/rt/src/current_zero.rs, tested there."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from drivers.can.current_zero import (
-    CurrentZero,
-    StoredZeroError,
-    read_stored_zero,
-    write_stored_zero,
-)
-
-
-def test_the_zero_is_the_mean_of_the_newest_unpowered_cycles_after_settling():
-    z = CurrentZero(2, window=3, settle=1)
-    z.update(np.array([5.0, 5.0]), servo_power=False)  # settling: the filter's powered ticks
-    assert z.samples == 0 and not z.offset_a.any()
-    for v in (1.0, 2.0, 3.0, 4.0):
-        z.update(np.array([v, -v]), servo_power=False)
-    np.testing.assert_allclose(z.offset_a, [3.0, -3.0])  # the newest three
-    z.update(np.array([100.0, 100.0]), servo_power=True)
-    np.testing.assert_allclose(z.correct(np.array([10.0, 0.0])), [7.0, 3.0])
-    z.update(np.array([100.0, 100.0]), servo_power=False)  # settling again after power-off
-    np.testing.assert_allclose(z.offset_a, [3.0, -3.0])
-    z.update(np.array([np.nan, 0.0]), servo_power=False)  # a NaN never enters the mean
-    np.testing.assert_allclose(z.offset_a, [3.0, -3.0])
-
-
-def test_a_zero_window_disables_it_and_negative_sizes_are_refused():
-    z = CurrentZero(1, window=0, settle=0)
-    z.update(np.array([0.5]), servo_power=False)
-    assert z.samples == 0 and z.correct(np.array([1.0]))[0] == 1.0
-    with pytest.raises(ValueError, match="window"):
-        CurrentZero(1, window=-1, settle=0)
-
-
-def test_the_commissioning_zero_is_used_at_once_and_a_fresh_one_only_watches_it():
-    stored = (np.array([0.1, -0.2]), 250, np.array([0.02, 0.02]))
-    z = CurrentZero(2, window=4, settle=0, stored=stored)
-    assert z.ready and z.source == "commissioning"
-    np.testing.assert_allclose(z.correct(np.array([1.0, 1.0])), [0.9, 1.2])
-    rng = np.random.default_rng(3)
-    for _ in range(4):  # the same offsets again, measured with noise
-        z.update(np.array([0.1, -0.2]) + 0.02 * rng.standard_normal(2), servo_power=False)
-    np.testing.assert_allclose(z.offset_a, [0.1, -0.2])  # still the commissioning's
-    assert z.drift_a is not None and np.all(np.abs(z.drift_a) < 0.06)
-    assert not z.drift_significant()
-    for _ in range(4):  # the sensors changed: 0.1 A more on joint 2
-        z.update(np.array([0.1, -0.1]) + 0.002 * rng.standard_normal(2), servo_power=False)
-    np.testing.assert_allclose(z.measured_a, [0.1, -0.1], atol=0.01)
-    np.testing.assert_allclose(z.offset_a, [0.1, -0.2])
-    assert z.drift_significant()
-
-
-def test_a_measured_zero_has_no_drift_and_an_off_zero_says_so():
-    z = CurrentZero(1, window=2, settle=0)
-    assert z.source == "measured" and not z.ready and z.drift_a is None
-    z.update(np.array([0.3]), servo_power=False)
-    z.update(np.array([0.5]), servo_power=False)
-    assert z.ready and z.drift_a is None and not z.drift_significant()
-    np.testing.assert_allclose(z.noise_a(), [np.std([0.3, 0.5], ddof=1)])
-    assert CurrentZero(1, window=0, settle=0).source == "off"
+from drivers.can.current_zero import StoredZeroError, read_stored_zero, write_stored_zero
 
 
 def test_stored_zero_round_trip(tmp_path):

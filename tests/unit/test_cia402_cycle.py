@@ -155,31 +155,3 @@ def test_commands_carry_the_targets_in_increments_and_refuse_what_int32_cannot(r
         adapter.command_frames(1, np.array([1e3, 0.0]), np.zeros(2), hold=False)
     with pytest.raises(FrameError, match=r"J1: command nan rad"):
         adapter.command_frames(1, np.array([math.nan, 0.0]), np.zeros(2), hold=False)
-
-
-def test_the_driver_clocks_the_drives_and_its_exit_brake_ends_with_the_sync_that_applies_it(rig):
-    """The driver's core sends SYNC on the adapter's period (no CiA 402 case of its own) and,
-    on exit, the BRAKE RPDOs then a SYNC: RPDOs take effect at the next SYNC, and without one
-    the drives ran on until their heartbeat watch stopped them (120 ms, 13-22 mm at 120-220
-    mm/s on the virtual drives, 2026-11-28)."""
-    from drivers.can.config import CanDriverConfig
-    from drivers.can.core import HostCore
-
-    adapter, _ = rig
-    config = CanDriverConfig(transport={"interface": "virtual", "channel": "unused"},
-                             heartbeat_period_s=0.02)  # fmt: skip
-    core = HostCore(config, adapter)
-    period = adapter.clock_period_s
-    syncs = []
-    for k in range(5):
-        now = 100.0 + k * period
-        assert core.next_tick_s() <= now + 1e-9
-        syncs += [f for f in core.on_tick(now) if f.arbitration_id == 0x080]
-    assert len(syncs) == 5
-    assert core.next_tick_s() == pytest.approx(100.0 + 5 * period)
-    _cycle(adapter)
-    frames = core.closing_frames()
-    ids = [f.arbitration_id for f in frames]
-    assert ids[-1] == 0x080 and ids.count(0x080) == 1
-    cws = [struct.unpack_from("<H", f.data)[0] for f in frames if 0x200 < f.arbitration_id < 0x280]
-    assert cws and all(cw == 0x07 for cw in cws)  # disable operation (5): drives hold, brakes

@@ -1,5 +1,7 @@
 from dataclasses import replace
 
+import pytest
+
 from gateway.lifecycle import CONTROLLER_RESET_UPDATES, LifecycleMachine, Observations
 from gateway.messages import ControllerState, Lifecycle
 
@@ -185,3 +187,30 @@ def test_a_controller_that_stays_in_fault_after_reset_faults_again():
     m.command("reset", faulted)
     states = {m.update(faulted) for _ in range(CONTROLLER_RESET_UPDATES + 1)}
     assert states == {Lifecycle.STOPPED, Lifecycle.FAULT} and m.state == Lifecycle.FAULT
+
+
+@pytest.mark.parametrize(
+    ("field", "trip", "named"),
+    [
+        ("speed_trip", "the tool moved at 262 mm/s", "speed monitor"),
+        ("standstill_trip", "joint 2 left its hold by 25.0 mrad", "standstill monitor"),
+        ("bus_fault", "the CAN interface went bus-off", "CAN bus"),
+    ],
+)
+def test_the_gateway_faults_on_the_trip_and_resets_once_it_is_cleared(field, trip, named):
+    """The CAN driver's latched trips (speed and standstill monitors, bus fault): each faults
+    the cell with what it measured, and a reset is refused while it stands."""
+    machine = LifecycleMachine()
+    ok = Observations(0.01, 0.01, ControllerState.EXTERNAL, True, True, max_speed_rad_s=0.0,
+                      still_for_s=5.0)  # fmt: skip
+    machine.command("start", ok)
+    machine.update(ok)
+    assert machine.state == Lifecycle.TEACHING
+    tripped = Observations(0.01, 0.01, ControllerState.EXTERNAL, True, True,
+                           driver_trips={field: trip})  # fmt: skip
+    machine.update(tripped)
+    assert machine.state == Lifecycle.FAULT and trip in machine.reason
+    assert named in machine.reason
+    accepted, message = machine.command("reset", tripped)
+    assert not accepted and named in message
+    assert machine.command("reset", ok)[0] and machine.state == Lifecycle.STOPPED

@@ -105,3 +105,11 @@ def test_joint_command_pack_equals_the_dataclass_encoding_and_refuses_nan():
         JointCommand.pack(9, 1.5, 1.6, q, [0.0, float("nan"), 0.0])
     with pytest.raises(MessageError, match="stamps"):
         JointCommand.pack(9, float("inf"), 1.6, q, dq)
+
+
+def test_joint_state_pack_equals_the_dataclass_encoding():
+    rng = np.random.default_rng(3)
+    q, dq, i, qc, dqc = rng.normal(size=(5, 6))
+    ref = JointState(70001, 12.5, ControllerState.EXTERNAL, 6, q, dq, i, qc, dqc, 0.004)
+    fast = JointState.pack(70001, 12.5, 2, 6, 0.004, *(v.tolist() for v in (q, dq, i, qc, dqc)))
+    assert fast == ref.to_bytes()
