@@ -414,9 +414,15 @@ class VirtualCell:
     def _run_lockstep(self, duration_s: float | None) -> None:
         clock = time.monotonic
         ctrl = self.ctrl
+        wall0, sim0 = clock(), self.plant.t_s
+        speedup = self.cfg.lockstep_max_speedup
         while not self.stop_event.is_set():
             if duration_s is not None and self.plant.t_s >= duration_s:
                 break
+            # no faster than lockstep_max_speedup × real time (the I/O's sampling, config.py)
+            ahead = (self.plant.t_s - sim0) / speedup - (clock() - wall0)
+            if ahead > 0:
+                self.stop_event.wait(ahead)
             self._cycle()
             self._heartbeat(clock())
             deadline = clock() + self.cfg.lockstep_timeout_s
