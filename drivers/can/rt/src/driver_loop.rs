@@ -174,37 +174,20 @@ impl DriverLoop {
                 .congestion_control(CongestionControl::Drop)
                 .wait()
                 .map_err(z)?;
-            let mut subscribers = Vec::new();
-            let s = shared.clone();
-            subscribers.push(
+            // each subscriber's callback runs on zenoh's receiving thread (no hand-off)
+            let subscribe = |key: &String, handler: fn(&Shared, &[u8])| {
+                let s = shared.clone();
                 session
-                    .declare_subscriber(keys.joint_command.clone())
-                    .callback(move |sample| on_command(&s, &sample.payload().to_bytes()))
+                    .declare_subscriber(key.clone())
+                    .callback(move |sample| handler(&s, &sample.payload().to_bytes()))
                     .wait()
-                    .map_err(z)?,
-            );
-            let s = shared.clone();
-            subscribers.push(
-                session
-                    .declare_subscriber(keys.lifecycle.clone())
-                    .callback(move |sample| {
-                        let now = monotonic_s();
-                        s.lock().core.on_lifecycle(&sample.payload().to_bytes(), now);
-                    })
-                    .wait()
-                    .map_err(z)?,
-            );
-            let s = shared.clone();
-            subscribers.push(
-                session
-                    .declare_subscriber(keys.io_state.clone())
-                    .callback(move |sample| {
-                        let now = monotonic_s();
-                        s.lock().core.on_io(&sample.payload().to_bytes(), now);
-                    })
-                    .wait()
-                    .map_err(z)?,
-            );
+                    .map_err(z)
+            };
+            let subscribers = vec![
+                subscribe(&keys.joint_command, on_command)?,
+                subscribe(&keys.lifecycle, on_lifecycle)?,
+                subscribe(&keys.io_state, on_io)?,
+            ];
             Ok((state_pub, window_pub, subscribers))
         })();
         let (state_pub, window_pub, subscribers) = match declared {
@@ -385,6 +368,16 @@ fn periodic(shared: &Shared) {
     if !l.out.is_empty() {
         l.send_out(&shared.socket);
     }
+}
+
+fn on_lifecycle(shared: &Shared, payload: &[u8]) {
+    let now = monotonic_s();
+    shared.lock().core.on_lifecycle(payload, now);
+}
+
+fn on_io(shared: &Shared, payload: &[u8]) {
+    let now = monotonic_s();
+    shared.lock().core.on_io(payload, now);
 }
 
 fn on_command(shared: &Shared, payload: &[u8]) {
