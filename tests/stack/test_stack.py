@@ -127,8 +127,8 @@ def test_the_can_drivers_speed_monitor_stops_an_arm_the_law_lets_run(tmp_path):
 
 STOP_REPORT = (
     "{event} at {speed_m_s:.3f} m/s: stopped in {stop_s:.3f} s over {distance_m:.4f} m, peak "
-    "deceleration {peak_decel_m_s2:.2f} m/s², went back {back_m:.4f} m, moved {tail_m:.5f} m "
-    "in the last 0.5 s, {state}"
+    "deceleration {peak_decel_m_s2:.2f} m/s² (a joint's {joint_decel_rad_s2:.2f} rad/s²), went "
+    "back {back_m:.4f} m, moved {tail_m:.5f} m in the last 0.5 s, {state}"
 )
 
 
@@ -139,7 +139,8 @@ def stop_while_dragging(tmp_path, event: str = "release", cell_overrides=None) -
     ("estop", the hand still pulling): the tool's speed then [m/s], its stopping time [s]
     and distance [m], the largest deceleration on the way [m/s²] (over 5 truth rows), how far
     it went back towards where the stop began [m], how far it moved in the last 0.5 s [m],
-    and the lifecycle state and reason after 1.5 s."""
+    and the lifecycle state and reason after 1.5 s; also the largest change of a joint's speed
+    over the same windows [rad/s²] (true positions, 40 ms windows as the tool's)."""
     operator = {"mode": "path", "path": [[0.0, 0, 0, 0], [0.5, 0, 0, 0], [4.5, 0.6, 0, 0]],
                 "hand_stiffness_n_per_m": 1500.0, "hand_damping_n_s_per_m": 100.0,
                 "max_force_n": 80.0,  # enough to break J2 and J3 away from their stiction
@@ -178,7 +179,13 @@ def stop_while_dragging(tmp_path, event: str = "release", cell_overrides=None) -
     decel = -np.diff(speed) / np.diff(mid_t)
     travel = (xyz[pre:] - xyz[pre]) @ direction
     tail = np.flatnonzero(t >= t[-1] - 0.5)
+    # each joint's speed over the same windows (the ramp is per joint, [rad/s])
+    n = sum(1 for name in truth if re.fullmatch(r"q\d+", name))
+    q = np.stack([truth[f"q{j + 1}"][rows] for j in range(n)], axis=1)
+    dq = (q[span:] - q[:-span]) / (t[rows[span:]] - t[rows[:-span]])[:, None]
+    joint_decel = np.abs(np.diff(dq, axis=0)) / np.diff(mid_t)[:, None]
     return {
+        "joint_decel_rad_s2": float(joint_decel[pre - span : pre + stop + 1].max()),
         "event": "enabling released" if event == "release" else "e-stop",
         "speed_m_s": float(speed[pre - ten : pre].mean()),
         "stop_s": float(t[rows[pre + stop]] - t[k0]),
@@ -196,19 +203,28 @@ def test_releasing_the_enabling_device_ramps_the_arm_to_a_held_standstill(tmp_pa
     """Stop category 2 (drivers/can/rt/src/stop_ramp.rs): released at about 0.16 m/s, the CAN
     driver ramps the last command to standstill at [can] stop_deceleration_rad_s2 (2 rad/s²
     per joint) along its path, then holds; the monitored standstill does not trip, the cell
-    stays READY. Measured on this machine (stop_while_dragging with cell_overrides
-    {"can": {"stop_deceleration_rad_s2": x}}, with a 60 N hand; 80 N now): 2 rad/s² stopped
-    in 0.18 s over 13.5 mm at 1.46 m/s² at most, 0.3 mm back (80 N: 12.8-14.2 mm, 1.8
-    m/s²); 1 rad/s² 22 mm at 0.86 m/s²; 4 rad/s² 8.4 mm at 3.0 m/s². A hold at once (1000
-    rad/s², what the driver did before) braked at 4.2 m/s² and pulled the tool 1.6 mm back
-    to where the hold had latched: both checks below fail on it. (The 60 N hand once left
-    the arm at 0.054 m/s at the release, stuck in its stiction: 80 N breaks it away.)"""
+    stays READY.
+
+    The ramp is per joint, so it is checked on the joints' true speeds: their largest change
+    over 40 ms windows stays under 1.5 × 2 rad/s². Above the ramp's 2, the arm springs back by
+    the deflection the hand's 80 N held against the inner loop (seven runs on this machine:
+    2.17-2.65 rad/s², both profiles); a hold at once (stop_deceleration_rad_s2 = 1000, what the
+    driver did before) braked the joints at 7.96 rad/s² (LTC) and 8.45 (CiA 402) and fails it.
+    The tool's deceleration is reported, not bounded: a joint ramp at 2 rad/s² is 1.5-3.7 m/s²
+    at the tool depending on the lever of the pose (4.29 m/s² held at once).
+
+    What comes back after the stop is that same deflection: the arm settles onto the ramped
+    command once the hand lets go (0.4-1.5 mm in seven runs; 1.6-1.9 mm held at once, where all
+    of it comes back). It does not tell the ramp from a hold (the deceleration does); bounded
+    at 2.5 mm, it catches a stop that pulls the arm back past where the hand had it (a hold
+    latched on a stale position). (The 60 N hand once left the arm at 0.054 m/s at the
+    release, stuck in its stiction: 80 N breaks it away.)"""
     r = stop_while_dragging(tmp_path, cell_overrides=PROFILES[profile][1])
     print(profile, STOP_REPORT.format(**r))
     assert r["speed_m_s"] > 0.08, "the arm was not moving at the release: nothing was tested"
     assert r["state"] == "ready", "the standstill monitor or something else faulted the cell"
-    assert r["peak_decel_m_s2"] < 2.5
-    assert r["distance_m"] < 0.025 and r["back_m"] < 1e-3
+    assert r["joint_decel_rad_s2"] < 1.5 * 2.0, "the joints braked harder than the ramp"
+    assert r["distance_m"] < 0.025 and r["back_m"] < 2.5e-3
     assert r["tail_m"] < 1e-3
 
 
