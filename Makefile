@@ -15,13 +15,18 @@ $(STAMP): pyproject.toml
 # Cargo.lock pins (the first build compiles the zenoh crate: minutes), and the Python extension
 # goes next to the package that imports it.
 CARGO ?= cargo
-RT_SRC := Cargo.toml Cargo.lock drivers/can/rt/Cargo.toml $(wildcard drivers/can/rt/src/*.rs)
-RT_SO := drivers/can/_rt.abi3.so
+CARGO_BUILD = PYO3_PYTHON=$(abspath $(BIN)/python) $(CARGO) build --release --locked
+CAN_SO := drivers/can/_rt.abi3.so
+CONTROL_SO := control/_rt.abi3.so
+RT_SO := $(CAN_SO) $(CONTROL_SO)
 
-$(RT_SO): $(RT_SRC) $(STAMP)
-	PYO3_PYTHON=$(abspath $(BIN)/python) $(CARGO) build --release --locked \
-		-p leadthrough-can-rt --features python
+$(CAN_SO): Cargo.toml Cargo.lock drivers/can/rt/Cargo.toml $(wildcard drivers/can/rt/src/*.rs) $(STAMP)
+	$(CARGO_BUILD) -p leadthrough-can-rt --features python
 	cp target/release/libcan_rt.so $@
+
+$(CONTROL_SO): Cargo.toml Cargo.lock control/rt/Cargo.toml $(wildcard control/rt/src/*.rs) $(STAMP)
+	$(CARGO_BUILD) -p leadthrough-control-rt --features python
+	cp target/release/libcontrol_rt.so $@
 
 demo: $(STAMP) $(RT_SO)
 	$(BIN)/leadthrough demo --out demo_out
@@ -29,7 +34,7 @@ demo: $(STAMP) $(RT_SO)
 test: $(STAMP) $(RT_SO)
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
-	$(CARGO) test --locked --quiet -p leadthrough-can-rt
+	$(CARGO) test --locked --quiet -p leadthrough-can-rt -p leadthrough-control-rt
 	$(BIN)/pytest -q
 
 # The stack tier beside a competing CPU load: a busy process pinned to CPU 0 at the product's

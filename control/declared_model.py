@@ -21,12 +21,13 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
-import pinocchio as pin
 
-from control.model.cylinders import CylinderTorques, cylinder_torque_nm
+from control import _rt
+from control.model.cylinders import cylinder_torque_nm
 from control.model.dynamics import RigidBodyModel
 from control.model.friction import Eq15Friction, FrictionParams
 from control.robot.description import RobotDescription, load_description
+from control.rt_tables import point_model_table, to_json
 from gateway.config import ConfigError, from_mapping, load_toml, require, resolve_path
 
 if TYPE_CHECKING:
@@ -57,7 +58,8 @@ class DeclaredModel:
         self.heldout_rms_nm: tuple[float, ...] | None = None
         self.rigid = RigidBodyModel.from_description(desc)
         self.friction = Eq15Friction(friction)
-        self.cylinders = CylinderTorques(desc, self.n)
+        #: the compiled per-cycle form (control/rt/src/point_model.rs)
+        self.point = _rt.PointModel(to_json(point_model_table(self)))
 
     @classmethod
     def load(cls, path: str | Path) -> DeclaredModel:
@@ -97,18 +99,14 @@ class DeclaredModel:
         self, q_rad: np.ndarray, dq_rad_s: Sequence[float], p_bar: Sequence[float]
     ) -> tuple[list[float], list[float]]:
         """``(gravity_nm(q) - cylinder_nm(q, p), friction_nm(q, dq))`` of one sample as plain
-        floats [N·m]: the per-cycle form of those three methods, equal to them to rounding.
+        floats [N·m], from the compiled model (control/rt/src/point_model.rs), equal to those
+        three methods to rounding.
 
-        ``q_rad`` is a float64 array of shape (n,) (not checked: the caller did); ``dq_rad_s``
-        [rad/s] and ``p_bar`` [bar] are plain floats. Raises ``ValueError`` or
-        ``ArithmeticError`` where the array methods would return NaN or inf.
+        ``q_rad`` is a float64 array of shape (n,); ``dq_rad_s`` [rad/s] and ``p_bar`` [bar]
+        are sequences of floats. Raises ``ArithmeticError`` naming the joint where the torque
+        is not finite, ``ValueError`` on a wrong length.
         """
-        rigid = self.rigid
-        g = pin.computeGeneralizedGravity(rigid.model, rigid.data, q_rad).tolist()
-        q = q_rad.tolist()
-        cyl = self.cylinders.joint_torques_nm(q, p_bar)
-        static = [gj - cj for gj, cj in zip(g, cyl, strict=True)]
-        return static, self.friction.joint_torques_nm(q, dq_rad_s)
+        return self.point.cycle_torques_nm(q_rad.tolist(), list(dq_rad_s), list(p_bar))
 
 
 class IdentifiedControlModel(DeclaredModel):
@@ -124,18 +122,21 @@ class IdentifiedControlModel(DeclaredModel):
         """From a ``model.json`` path, or an :class:`IdentifiedModel` already in memory (the
         model adapted in replay, control/model_adaptation.py)."""
         from control.identification.fit import IdentifiedModel
-        from control.identification.point import PointModel
 
         loaded = isinstance(path, IdentifiedModel)
         where = "model" if loaded else str(path)
         self.identified = path if loaded else IdentifiedModel.load(path)
-        self.point = PointModel(self.identified)
         self.desc = desc or load_description()
         self.n = len(self.desc.joints)
         if self.identified.n != self.n:
             raise ConfigError(f"{where}: model has {self.identified.n} joints, robot {self.n}")
         self._zeros = np.zeros(self.n)
-        self.cylinders = CylinderTorques(self.desc, self.n)
+        #: the compiled per-cycle form (control/rt/src/point_model.rs); an effect it cannot
+        #: evaluate is refused here, by name
+        try:
+            self.point = _rt.PointModel(to_json(point_model_table(self)))
+        except ValueError as exc:
+            raise ConfigError(f"{where}: {exc}") from None
         rms = self.identified.metadata.get("heldout_rms_nm")
         self.heldout_rms_nm = None if rms is None else tuple(float(v) for v in rms)
         if rms is not None and (len(rms) != self.n or not all(v >= 0 for v in rms)):
@@ -143,17 +144,6 @@ class IdentifiedControlModel(DeclaredModel):
 
     def gravity_nm(self, q_rad: np.ndarray) -> np.ndarray:
         return self.identified.torque_nm(q_rad, self._zeros, self._zeros)
-
-    def cycle_torques_nm(
-        self, q_rad: np.ndarray, dq_rad_s: Sequence[float], p_bar: Sequence[float]
-    ) -> tuple[list[float], list[float]]:
-        # The torque at rest is both the static part and what friction_nm subtracts: once.
-        point = self.point
-        at_rest = point.torque_nm(q_rad)
-        moving = point.torque_nm(q_rad, np.asarray(dq_rad_s, dtype=float))
-        cyl = self.cylinders.joint_torques_nm(q_rad.tolist(), p_bar)
-        static = [gj - cj for gj, cj in zip(at_rest, cyl, strict=True)]
-        return static, [m - r for m, r in zip(moving, at_rest, strict=True)]
 
     def friction_nm(self, q_rad: np.ndarray, dq_rad_s: np.ndarray) -> np.ndarray:
         im = self.identified

@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from control import _rt
 from control.admittance import Admittance, EngageProbe
 from control.config import ControlConfig
 from control.declared_model import DeclaredModel, IdentifiedControlModel
@@ -42,6 +43,7 @@ from control.plan_builder import Parts, PlanBuilder, PlanRefused, build_parts
 from control.pressure_schedule import PressureSchedule, ScheduleSettings
 from control.rest_hold import RestHold, hold_band_nm
 from control.robot.description import RobotDescription, load_description
+from control.rt_tables import chain_table, to_json
 from gateway import bus_security as security
 from gateway.bus import (
     BusConfig,
@@ -144,6 +146,16 @@ def load_control_config(cell_path: str | Path) -> tuple[ControlConfig, BusConfig
 FRICTION_LEVEL_SPEEDS_RAD_S = (0.002, 0.005, 0.01, 0.02)
 
 
+def nominal_chain(desc: RobotDescription) -> _rt.Chain:
+    """The datasheet's rigid body with its rotor inertias and tool frame, compiled
+    (control/rt/src/chain.rs): M(q) and the tool's Jacobian every cycle, no pinocchio."""
+    from control.model.dynamics import RigidBodyModel
+
+    rigid = RigidBodyModel.from_description(desc)
+    tool = rigid.model.frames[rigid.tool_frame_id].name
+    return _rt.Chain(to_json(chain_table(rigid.model, rigid.armature_kgm2, tool)))
+
+
 class GuidedFriction:
     """Whether the zero-moment arm is being guided, for its friction compensation.
 
@@ -226,7 +238,7 @@ class ZeroMomentController:
         #: the state when a command takes effect (control/delay.py), on the datasheet's
         #: nominal rigid body (with rotor inertias) for M(q)
         self.predictor = DelayPredictor(cfg.command_delay_cycles)
-        self._inertia = None
+        self._inertia: _rt.Chain | None = None
         #: the tool point in the link-6 frame [m]: the flange is that far back along it
         self._tool_in_6 = np.array(model.desc.tool.position_in_link6_m)
         if (
@@ -235,9 +247,7 @@ class ZeroMomentController:
             or cfg.friction_ramp_factor
             or cfg.inertia_compensation
         ):
-            from control.model.dynamics import RigidBodyModel
-
-            self._inertia = RigidBodyModel.from_description(model.desc)
+            self._inertia = nominal_chain(model.desc)
         #: (q it was computed at, M(q)⁻¹, M(q)) for the predictor and the inertia compensation:
         #: M changes slowly with q, and the predictor holds with M off by 30 %, so it is
         #: recomputed only after a joint moved more than INERTIA_STEP_RAD (a 6×6 crba and
@@ -360,7 +370,7 @@ class ZeroMomentController:
         assert self._inertia is not None
         cached = self._m_inv
         if cached is None or float(np.max(np.abs(q - cached[0]))) > INERTIA_STEP_RAD:
-            m = self._inertia.mass_matrix(q, include_armature=True)
+            m = np.array(self._inertia.mass_matrix(q.tolist(), armature=True))
             cached = self._m_inv = (q.copy(), np.linalg.inv(m), m)
         return cached[1]
 
@@ -422,8 +432,8 @@ class ZeroMomentController:
         cached = self._speed_jac
         if cached is None or float(np.max(np.abs(q - cached[0]))) > SPEED_JACOBIAN_STEP_RAD:
             assert self._inertia is not None
-            jac = self._inertia.tool_jacobian_world(q)
-            r = self._inertia.world_T_tool(q)[:3, :3] @ self._tool_in_6
+            jac = np.array(self._inertia.tool_jacobian(q.tolist()))
+            r = np.array(self._inertia.tool_pose(q.tolist())[0]) @ self._tool_in_6
             skew = np.array([[0.0, -r[2], r[1]], [r[2], 0.0, -r[0]], [-r[1], r[0], 0.0]])
             stacked = np.vstack([jac[:3], jac[:3] + skew @ jac[3:]])
             cached = self._speed_jac = (q.copy(), stacked)
@@ -638,9 +648,7 @@ class AdmittanceController(ZeroMomentController):
     def __init__(self, cfg: ControlConfig, model: DeclaredModel) -> None:
         super().__init__(cfg, model)
         if self._inertia is None:
-            from control.model.dynamics import RigidBodyModel
-
-            self._inertia = RigidBodyModel.from_description(model.desc)
+            self._inertia = nominal_chain(model.desc)
         band = hold_band_nm(
             cfg.rest_hold_nm or [0.0] * model.n,
             cfg.admittance_band_rms_factor,
@@ -707,7 +715,7 @@ class AdmittanceController(ZeroMomentController):
             if np.isfinite(m).all() and np.linalg.eigvalsh(m).min() > 0:
                 return m
         assert self._inertia is not None
-        return self._inertia.mass_matrix(q, include_armature=True)
+        return np.array(self._inertia.mass_matrix(q.tolist(), armature=True))
 
     def model_torque(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray, p_bar) -> np.ndarray:
         """What the drives must give for the arm to move so, without a hand [N·m]: M̂ q̈ +

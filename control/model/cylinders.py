@@ -20,7 +20,6 @@ holding torque is ``g(q) - T_cyl(q, p)``.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 
 import numpy as np
@@ -82,42 +81,6 @@ def cylinder_torque_nm(
         j = spec.joint_index
         tau[..., j] = torque_per_pa(spec, q[..., j]) * p[..., k] * BAR_TO_PA
     return tau
-
-
-class CylinderTorques:
-    """Eqs. (10) and (12) with each cylinder's constants gathered once: the per-cycle form of
-    :func:`cylinder_torque_nm` for one sample, on plain floats (for two cylinders about ten
-    times faster than the array form, which it equals to rounding).
-
-    Not numpy: ``math`` raises where numpy would return NaN or inf (``ValueError``,
-    ``ArithmeticError``), so callers refuse the sample either way.
-    """
-
-    def __init__(self, desc_or_specs: RobotDescription | Sequence[CylinderSpec], n_dof: int):
-        self.n = n_dof
-        #: per cylinder: joint index, is-crank, |AB|, |AC|, area·|AB|(·|AC|), torque sign
-        self._terms = []
-        for spec in _specs(desc_or_specs):
-            if not 0 <= spec.joint_index < n_dof:
-                raise ValueError(f"cylinder on joint index {spec.joint_index}, robot has {n_dof}")
-            crank = spec.kind == "j2_crank"
-            ab, ac = spec.ab_m, float(spec.ac_m) if crank else 0.0  # type: ignore[arg-type]
-            lever = spec.piston_area_m2 * ab * ac if crank else spec.piston_area_m2 * ab
-            self._terms.append((spec.joint_index, crank, ab, ac, lever, spec.torque_sign))
-
-    def joint_torques_nm(self, q_rad: Sequence[float], p_bar: Sequence[float]) -> list[float]:
-        """Joint torques the cylinders apply [N·m], ``n`` floats (zero on other joints), for
-        joint angles ``q_rad`` [rad] and one pressure per cylinder ``p_bar`` [bar]."""
-        tau = [0.0] * self.n
-        for (j, crank, ab, ac, lever, sign), p in zip(self._terms, p_bar, strict=True):
-            if crank:
-                phi = math.pi - q_rad[j]  # ∠B2A2C2 of eqs. (4)-(8)
-                bc = math.sqrt(ab**2 + ac**2 - 2.0 * ab * ac * math.cos(phi))  # eq. (5)
-                gain = lever * math.sin(phi) / bc  # eq. (10) / P2
-            else:
-                gain = lever * math.cos(q_rad[j])  # eq. (12) / P3
-            tau[j] = sign * gain * p * BAR_TO_PA
-        return tau
 
 
 def pressure_for_torque(

@@ -35,7 +35,6 @@ Units: q [rad], dq [rad/s], torques [N·m] on the joint side.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import astuple, dataclass
 from typing import Any
@@ -172,7 +171,7 @@ class Eq15Friction:
         self._half_inv_sign = 1.0 / (2.0 * p["sign_rad_s"])
         self._inv_qe = 1.0 / p["q_e_rad_s"]
         self._inv_r = 1.0 / p["gear_ratio"]
-        #: per joint, for :meth:`joint_torques_nm` (:func:`eq15_row`)
+        #: per joint, for the compiled cycle (:attr:`rows`)
         self._rows = [
             eq15_row(f.linear_parameters().tolist(), f.q_e_rad_s, f.gear_ratio, f.sign_rad_s)
             for f in params_list
@@ -199,13 +198,11 @@ class Eq15Friction:
         viscous = p["tau_v1_nm_s_per_rad"] * dq + p["tau_v2_nm_s2_per_rad2"] * dq * np.abs(dq)
         return coulomb_like * s + viscous
 
-    def joint_torques_nm(self, q_rad: Sequence[float], dq_rad_s: Sequence[float]) -> list[float]:
-        """Friction torque [N·m] of one sample, ``n`` floats: :meth:`__call__` on plain floats,
-        the per-cycle form (for six joints about four times faster than numpy on (n,) arrays,
-        and equal to it to rounding). ``math`` raises where numpy would return NaN."""
-        return [
-            eq15_point(row, q, dq) for row, q, dq in zip(self._rows, q_rad, dq_rad_s, strict=True)
-        ]
+    @property
+    def rows(self) -> list[tuple[float, ...]]:
+        """Per joint, the constants of :func:`eq15_row`: what the compiled cycle evaluates
+        (control/rt/src/friction.rs)."""
+        return self._rows
 
 
 def eq15_row(
@@ -214,32 +211,14 @@ def eq15_row(
     gear_ratio: float,
     sign_width_rad_s: float | None = None,
 ) -> tuple[float, ...]:
-    """The constants :func:`eq15_point` takes: the ten coefficients (:data:`EQ15_PARAM_NAMES`),
-    then 1/(2 q_sgn), 1/q_e, 1/R (q_sgn = ``sign_width_rad_s``, or q_e without one)."""
+    """The constants the compiled cycle's eq. (15) takes (control/rt/src/friction.rs): the ten
+    coefficients (:data:`EQ15_PARAM_NAMES`), then 1/(2 q_sgn), 1/q_e, 1/R (q_sgn =
+    ``sign_width_rad_s``, or q_e without one)."""
     c = [float(v) for v in coef]
     if len(c) != len(EQ15_PARAM_NAMES):
         raise ValueError(f"eq. (15) takes {len(EQ15_PARAM_NAMES)} coefficients, got {len(c)}")
     sign = q_e_rad_s if sign_width_rad_s is None else sign_width_rad_s
     return (*c, 1.0 / (2.0 * sign), 1.0 / q_e_rad_s, 1.0 / gear_ratio)
-
-
-def eq15_point(row: tuple[float, ...], q: float, dq: float) -> float:
-    """Eq. (15) friction [N·m] of one joint at one sample, on plain floats; ``row`` from
-    :func:`eq15_row`. ``math`` raises where numpy would return NaN."""
-    ts, tc, f1, f2, f3, f4, f5, f6, v1, v2, half_inv_sign, inv_qe, inv_r = row
-    s = math.tanh(dq * half_inv_sign)  # smooth_sign
-    qr = q * inv_r
-    coulomb_like = (
-        ts * math.exp(-abs(dq) * inv_qe)
-        + tc
-        + f1 * math.sin(qr)
-        + f2 * math.cos(qr)
-        + f3 * math.sin(2.0 * qr)
-        + f4 * math.cos(2.0 * qr)
-        + f5 * math.sin(q)
-        + f6 * math.cos(q)
-    )
-    return coulomb_like * s + (v1 * dq + v2 * dq * abs(dq))
 
 
 def friction_eq15(

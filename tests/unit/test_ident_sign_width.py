@@ -12,18 +12,28 @@ import math
 import numpy as np
 import pytest
 
+from control import _rt
 from control.identification.effects import forward_gain
 from control.identification.fit import fit_rigid_friction
 from control.identification.lsq import BlockLS, contiguous_folds
-from control.identification.point import _friction_fn
 from control.identification.terms import Context, FrictionTerm
-from control.model.friction import (
-    Eq15Friction,
-    FrictionParams,
-    eq15_basis,
-    eq15_point,
-    eq15_row,
-)
+from control.model.friction import Eq15Friction, FrictionParams, eq15_basis
+from control.rt_tables import MODEL_FORMAT, MODEL_VERSION, friction_table, to_json
+
+
+def _compiled(term: FrictionTerm, coef: np.ndarray) -> _rt.PointModel:
+    """The control cycle's compiled model (control/rt) of one massless joint with ``term``."""
+    eye = np.eye(3).tolist()
+    chain = {"format": "leadthrough-rigid-chain", "version": 1, "gravity_m_s2": [0, 0, -9.81],
+             "joints": [{"parent": None, "kind": "revolute", "axis": [0, 0, 1], "armature": 0,
+                         "placement": {"rotation": eye, "translation": [0, 0, 0]},
+                         "inertia": [0.0] * 10}],
+             "tool": {"joint": 0,
+                      "placement": {"rotation": eye, "translation": [0, 0, 0]}}}  # fmt: skip
+    table = {"format": MODEL_FORMAT, "version": MODEL_VERSION, "chain": chain, "coriolis": True,
+             "w_rigid": [[0.0] * 10], "w_payload": None, "envelope": None, "effects": [],
+             "cylinders": [], "friction": [friction_table(term, coef)]}  # fmt: skip
+    return _rt.PointModel(to_json(table))
 
 
 def _params(sign_width: float | None) -> FrictionParams:
@@ -34,7 +44,7 @@ def _params(sign_width: float | None) -> FrictionParams:
 
 
 @pytest.mark.parametrize("width", [None, 0.001])
-def test_model_basis_and_point_agree_with_a_sign_width(width):
+def test_model_basis_and_the_compiled_cycle_agree_with_a_sign_width(width):
     rng = np.random.default_rng(4)
     q = rng.uniform(-2, 2, 300)
     dq = rng.uniform(-0.2, 0.2, 300)
@@ -42,12 +52,11 @@ def test_model_basis_and_point_agree_with_a_sign_width(width):
     batched = Eq15Friction([p])(q[:, None], dq[:, None])[:, 0]
     basis = eq15_basis(q, dq, p.q_e_rad_s, p.gear_ratio, width)
     np.testing.assert_allclose(basis @ p.linear_parameters(), batched, atol=1e-12)
-    row = eq15_row(p.linear_parameters(), p.q_e_rad_s, p.gear_ratio, width)
-    for k in range(0, 300, 37):
-        assert eq15_point(row, q[k], dq[k]) == pytest.approx(batched[k], abs=1e-12)
     term = FrictionTerm(0, "eq15", p.q_e_rad_s, p.gear_ratio, width)
-    fn = _friction_fn(term, p.linear_parameters())
-    assert fn(q[5], dq[5]) == pytest.approx(batched[5], abs=1e-12)
+    compiled = _compiled(term, p.linear_parameters())
+    for k in range(0, 300, 37):
+        got = compiled.torque_nm([q[k]], [dq[k]])[0]
+        assert got == pytest.approx(batched[k], abs=1e-12)
     assert FrictionParams.from_linear(p.linear_parameters(), 0.04, 2.0, width) == p
 
 

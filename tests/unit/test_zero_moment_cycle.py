@@ -17,7 +17,7 @@ import pytest
 from example_cell import EXAMPLE_MODEL, example_cell
 
 from control.declared_model import DeclaredModel
-from control.model.cylinders import CylinderTorques, cylinder_torque_nm
+from control.model.cylinders import cylinder_torque_nm
 from control.process import ZeroMomentController, load_control_config
 from gateway.errors import ConfigError, MessageError
 from gateway.messages import ControllerState, JointCommand, make_joint_state
@@ -55,24 +55,18 @@ def random_states(model: DeclaredModel, rng: np.random.Generator, count: int):
         yield q, dq, rng.uniform(0.0, 10.0, 2)
 
 
-def test_friction_per_cycle_equals_eq15_on_arrays(model):
-    rng = np.random.default_rng(1)
-    for q, dq, _ in random_states(model, rng, 500):
-        got = model.friction.joint_torques_nm(q.tolist(), dq.tolist())
-        np.testing.assert_allclose(got, model.friction(q, dq), rtol=RTOL, atol=ATOL)
-
-
 def test_cylinders_per_cycle_equal_eqs_10_and_12_on_arrays(model):
     rng = np.random.default_rng(2)
-    cyl = CylinderTorques(model.desc, model.n)
     for q, _, p in random_states(model, rng, 500):
-        got = cyl.joint_torques_nm(q.tolist(), p.tolist())
+        got = model.point.cylinder_torques_nm(q.tolist(), p.tolist())
         want = cylinder_torque_nm(q, p, model.desc)
         np.testing.assert_allclose(got, want, rtol=RTOL, atol=ATOL)
         assert [j for j, t in enumerate(got) if t != 0.0] == [1, 2]  # J2 and J3 only
 
 
 def test_model_cycle_torques_equal_the_array_methods(model):
+    """The compiled model (control/rt/src/point_model.rs): the static part is gravity less
+    the cylinders, the moving part eq. (15) alone."""
     rng = np.random.default_rng(3)
     for q, dq, p in random_states(model, rng, 300):
         static, friction = model.cycle_torques_nm(q, dq.tolist(), p.tolist())
@@ -508,12 +502,15 @@ def test_inertia_compensation_settings_are_checked(at_once):
 
 def test_tool_speed_scale_keeps_the_tool_and_the_flange_under_the_limit(at_once, model):
     """The speed limit's Jacobians against finite differences of the tool point's and the
-    flange's positions (nominal kinematics): exact where they were computed, and within 2 %
-    of the speed anywhere within SPEED_JACOBIAN_STEP_RAD of there (the cache's reach)."""
+    flange's positions (nominal kinematics, pinocchio's, not the compiled chain the law uses):
+    exact where they were computed, and within 2 % of the speed anywhere within
+    SPEED_JACOBIAN_STEP_RAD of there (the cache's reach)."""
+    from control.model.dynamics import RigidBodyModel
     from control.process import SPEED_JACOBIAN_STEP_RAD
 
     ctl = ZeroMomentController(at_once, model)
-    kin, p6 = ctl._inertia, np.array(model.desc.tool.position_in_link6_m)
+    kin = RigidBodyModel.from_description(model.desc)
+    p6 = np.array(model.desc.tool.position_in_link6_m)
 
     def points(q):
         pose = kin.world_T_tool(q)

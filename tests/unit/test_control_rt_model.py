@@ -1,18 +1,22 @@
-"""The per-cycle form of an identified model computes what the model file says.
+"""The compiled per-cycle model computes what the model file says.
 
-:class:`control.identification.point.PointModel` re-states :meth:`IdentifiedModel.torque_nm`
-on plain floats for the control cycle. These tests pin the two together for every friction
-family, every effect of the vocabulary, plain joints and the training envelope, on samples
-inside and well outside that envelope and at exactly zero velocity.
+The control cycle evaluates the model it compensates in Rust (control/rt/src/point_model.rs,
+from the table control/rt_tables.py makes), a re-statement of :meth:`IdentifiedModel.torque_nm`
+for one state. These tests pin the two together for every friction family, every effect of the
+vocabulary, plain joints and the training envelope, on samples inside and well outside that
+envelope and at exactly zero velocity; and the declared model's and the cylinders' per-cycle
+torques to their vectorised forms.
 """
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
+from example_cell import EXAMPLE_MODEL
 
+from control import _rt
+from control.declared_model import DeclaredModel, IdentifiedControlModel
 from control.identification.fit import IdentifiedModel, PlainJoint
-from control.identification.point import NOT_AT_RUN_TIME, PointModel
 from control.identification.rigid import RobotRegressor
 from control.identification.terms import (
     EFFECT_NAMES,
@@ -24,6 +28,7 @@ from control.identification.terms import (
 )
 from control.robot.description import load_description
 from control.robot.urdf import to_urdf
+from control.rt_tables import NOT_AT_RUN_TIME, point_model_table, to_json
 
 RTOL, ATOL = 1e-12, 1e-9
 
@@ -83,6 +88,11 @@ def model_with(regressor, kinds, rng, *, envelope=True, plain=(), effects=True):
     )
 
 
+def PointModel(model: IdentifiedModel) -> _rt.PointModel:
+    """The compiled model of an identified one, as the control process builds it."""
+    return _rt.PointModel(to_json(point_model_table(IdentifiedControlModel(model))))
+
+
 def samples(n: int, rng: np.random.Generator, count: int):
     """q and dq inside and far outside the envelope above; every fifth sample at rest, and one
     joint at exactly zero velocity in each other sample."""
@@ -112,9 +122,10 @@ def test_point_model_equals_torque_nm(regressor, case):
     zeros = np.zeros(regressor.n)
     for q, dq in samples(regressor.n, rng, 100):
         want = model.torque_nm(q, dq, zeros)
-        np.testing.assert_allclose(point.torque_nm(q, dq), want, rtol=RTOL, atol=ATOL)
+        got = point.torque_nm(q.tolist(), dq.tolist())
+        np.testing.assert_allclose(got, want, rtol=RTOL, atol=ATOL)
         at_rest = model.torque_nm(q, zeros, zeros)
-        np.testing.assert_allclose(point.torque_nm(q), at_rest, rtol=RTOL, atol=ATOL)
+        np.testing.assert_allclose(point.torque_nm(q.tolist()), at_rest, rtol=RTOL, atol=ATOL)
 
 
 def test_every_friction_family_is_covered():
@@ -128,10 +139,10 @@ def test_effects_without_a_run_time_torque_are_the_ones_torque_nm_skips(regresso
     rng = np.random.default_rng(3)
     bare = model_with(regressor, ["eq15"] * 6, rng, effects=False)
     q, dq = np.full(6, 0.3), np.full(6, 0.02)  # within the Stribeck velocity
-    base = np.asarray(PointModel(bare).torque_nm(q, dq))
+    base = np.asarray(PointModel(bare).torque_nm(q.tolist(), dq.tolist()))
     for term, coef, appeared in every_effect(rng):
         bare.effects = [(term, coef, appeared)]
-        delta = np.asarray(PointModel(bare).torque_nm(q, dq)) - base
+        delta = np.asarray(PointModel(bare).torque_nm(q.tolist(), dq.tolist())) - base
         if term.name in NOT_AT_RUN_TIME:
             assert not np.any(delta), term.name
         else:
@@ -144,3 +155,12 @@ def test_an_effect_it_cannot_evaluate_is_refused_at_load(regressor):
     model.effects = [(EffectTerm("gear_backlash", (1,)), np.ones(1), "training")]
     with pytest.raises(ValueError, match="gear_backlash"):
         PointModel(model)
+
+
+def test_a_torque_that_is_not_finite_is_refused_naming_the_joint():
+    model = DeclaredModel.load(EXAMPLE_MODEL)
+    q = np.zeros(model.n)
+    with pytest.raises(ArithmeticError, match="joint 2"):
+        model.cycle_torques_nm(q, [0.0] * model.n, [float("inf"), 1.0])
+    with pytest.raises(ValueError, match="p_bar needs 2 values"):
+        model.cycle_torques_nm(q, [0.0] * model.n, [1.0])

@@ -1,0 +1,16 @@
+//! The control law's per-cycle model, compiled (issue 48): the rigid-body chain, friction,
+//! the identified effects and the cylinders, evaluated for one state with no allocation.
+//!
+//! The pure arithmetic is plain Rust, tested with `cargo test`; the `python` feature adds the
+//! extension `control._rt` the control process calls (control/rt_tables.py builds its tables).
+
+pub mod chain;
+pub mod cylinders;
+pub mod effects;
+pub mod friction;
+pub mod point_model;
+pub mod spatial;
+pub mod table;
+
+#[cfg(feature = "python")]
+mod py;
