@@ -15,6 +15,7 @@ use serde_json::Value;
 use crate::spatial::{
     axis_rotation, body_wrench, cross, dot, mat_vec, motion_cross, scale, sub, Placement, Six, Vec3,
 };
+use crate::table;
 
 pub const MAX_JOINTS: usize = 16;
 pub const CHAIN_FORMAT: &str = "leadthrough-rigid-chain";
@@ -84,19 +85,9 @@ impl Default for Work {
     }
 }
 
+/// [`table::numbers`] with the chain's prefix on its error.
 fn numbers<const N: usize>(value: Option<&Value>, what: &str) -> Result<[f64; N], String> {
-    let items = value
-        .and_then(Value::as_array)
-        .filter(|a| a.len() == N)
-        .ok_or_else(|| format!("rigid chain: {what} must be {N} numbers"))?;
-    let mut out = [0.0; N];
-    for (o, item) in out.iter_mut().zip(items) {
-        *o = item
-            .as_f64()
-            .filter(|v| v.is_finite())
-            .ok_or_else(|| format!("rigid chain: {what} must be {N} finite numbers"))?;
-    }
-    Ok(out)
+    table::numbers(value, what).map_err(|e| format!("rigid chain: {e}"))
 }
 
 fn placement(value: Option<&Value>, what: &str) -> Result<Placement, String> {

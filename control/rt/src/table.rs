@@ -11,7 +11,10 @@ pub fn numbers<const N: usize>(value: Option<&Value>, what: &str) -> Result<[f64
         .filter(|a| a.len() == N)
         .ok_or_else(|| format!("{what} must be {N} numbers"))?;
     for (o, item) in out.iter_mut().zip(items) {
-        *o = finite(Some(item), what)?;
+        *o = item
+            .as_f64()
+            .filter(|v| v.is_finite())
+            .ok_or_else(|| format!("{what} must be {N} finite numbers"))?;
     }
     Ok(out)
 }
