@@ -222,5 +222,8 @@ impl PyPointModel {
 fn _rt(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyChain>()?;
     m.add_class::<PyPointModel>()?;
+    crate::py_delay::register(m)?;
+    crate::py_guided_friction::register(m)?;
+    crate::py_rest_hold::register(m)?;
     Ok(())
 }
