@@ -1,5 +1,5 @@
-"""The Smith predictor over the command delay (control/delay.py), closed with eq. (21) around
-a one-joint drive and arm that are not the predictor's model: the vendor's PI loop of eq.
+"""The Smith predictor over the command delay (control/rt/src/law/delay.rs), closed with eq. (21)
+around a one-joint drive and arm that are not the predictor's model: the vendor's PI loop of eq.
 (19) at a 1 kHz servo tick, each command applied ``d`` cycles after the state it answers,
 velocity noise, and an inertia and loop gains the product has only estimates of."""
 
@@ -7,8 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from control._rt import DelayPredictor
 
-from control.delay import DelayPredictor
 from control.outer_loop import OuterLoop
 
 K, KP, KI = 66.18, 375.3, 12510.0  # a J2-sized drive [N·m/A, A s/rad, A/rad]

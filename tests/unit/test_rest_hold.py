@@ -1,14 +1,14 @@
-"""The rest hold (control/rest_hold.py): a weightless joint with a static model error stays
-where it was left, an operator who pushes past the band moves it against the band only, and
-the hold's torque has no step."""
+"""The rest hold (control/rt/src/law/rest_hold.rs): a weightless joint with a static model error
+stays where it was left, an operator who pushes past the band moves it against the band only,
+and the hold's torque has no step."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
+from control._rt import RestHold, hold_band_nm
 
 from control.config import ControlConfig
-from control.rest_hold import RestHold, hold_band_nm
 from gateway.errors import ConfigError
 
 DT = 0.004

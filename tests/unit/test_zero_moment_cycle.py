@@ -439,7 +439,7 @@ def test_a_negative_friction_ramp_factor_is_refused(tmp_path):
 def test_friction_is_compensated_in_full_while_a_positioning_joint_slides_past_its_ramp():
     """GuidedFriction: the wrists' motion alone is no guiding (a chatter of theirs must not
     switch the ramp off); J2 past its ramp is, until J1-J3 have been slow for hold_s."""
-    from control.process import GuidedFriction
+    from control._rt import GuidedFriction
 
     g = GuidedFriction(0.3)
     ramps = [0.01, 0.01, 0.01, 0.1, 0.1, 0.1]

@@ -16,4 +16,10 @@ pub mod table;
 #[cfg(feature = "python")]
 mod py;
 #[cfg(feature = "python")]
+mod py_delay;
+#[cfg(feature = "python")]
+mod py_guided_friction;
+#[cfg(feature = "python")]
 mod py_inner_estimate;
+#[cfg(feature = "python")]
+mod py_rest_hold;

@@ -223,5 +223,8 @@ fn _rt(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyChain>()?;
     m.add_class::<PyPointModel>()?;
     crate::py_inner_estimate::register(m)?;
+    crate::py_delay::register(m)?;
+    crate::py_guided_friction::register(m)?;
+    crate::py_rest_hold::register(m)?;
     Ok(())
 }

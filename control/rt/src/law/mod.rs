@@ -1,1 +1,4 @@
+pub mod delay;
+pub mod guided_friction;
 pub mod inner_estimate;
+pub mod rest_hold;
