@@ -9,22 +9,20 @@ beyond the model (no force sensor):
 
     τ̂_h = M̂(q) q̈_r + g(q) + f(q, q̇_r) − τ_cyl(q, p) − K i − b                        (A1)
 
-with ``K i`` the motor torque in the datasheet's unit (the identified model is in that unit
-too, so a drive-gain error scales τ̂_h and nothing else), q̈_r the reference acceleration of
-the cycle the current was measured over (known exactly: the product computed it), and ``b``
-the residual at rest when teaching engages (the operator's hand on the handle but not
-pushing), which takes the model's static error at that pose and the current sensors' offsets
-out. τ̂_h is low-passed (the motor current's noise is several N·m on the big joints) and
-passes a dead zone of the model's uncertainty (the rest hold's band, control/rest_hold.py):
-below it the arm stays where it is, however long. Like a joint's friction, the zone has a
-static and a kinetic width: a joint at rest breaks away only when the push exceeds
-:data:`NOISE_SIGMAS` standard deviations of the filtered estimate's noise (measured on the
-currents while the arm rests in the hold before teaching engages; at least the configured
-band), so noise alone seldom moves it; once one joint moves, the arm is being guided and every
-joint follows every push beyond the configured band (the model's held-out RMS), which is all
-the painter pays while guiding the tool, until every joint is back inside it or the reference
-has crept slower than :data:`SETTLE_RAD_S` for :data:`SETTLE_S`. The reference
-then follows
+with ``K i`` the motor torque in the datasheet's unit (the identified model is in that unit too, so
+a drive-gain error scales τ̂_h and nothing else), q̈_r the reference acceleration of the cycle the
+current was measured over (known exactly: the product computed it), and ``b`` the residual at rest
+when teaching engages (the operator's hand on the handle but not pushing), which takes the model's
+static error at that pose and the current sensors' offsets out. τ̂_h is low-passed (the motor
+current's noise is several N·m on the big joints) and passes a dead zone of the model's uncertainty
+(the rest hold's band, control/rt/src/law/rest_hold.rs): below it the arm stays where it is, however
+long. Like a joint's friction, the zone has a static and a kinetic width: a joint at rest breaks
+away only when the push exceeds :data:`NOISE_SIGMAS` standard deviations of the filtered estimate's
+noise (measured on the currents while the arm rests in the hold before teaching engages; at least
+the configured band), so noise alone seldom moves it; once one joint moves, the arm is being guided
+and every joint follows every push beyond the configured band (the model's held-out RMS), which is
+all the painter pays while guiding the tool, until every joint is back inside it or the reference
+has crept slower than :data:`SETTLE_RAD_S` for :data:`SETTLE_S`. The reference then follows
 
     α M̂(q) q̈_r + D q̇_r = dz(τ̂_h) + τ_walls                                           (A2)
 

@@ -144,23 +144,23 @@ class ControlConfig:
     #: the held arm's motor torque and the model's static load beyond the model's breakaway
     #: friction, per joint [N·m]; empty: none beyond the friction
     load_check_margin_nm: tuple[float, ...] = ()
-    #: rest hold (control/rest_hold.py): the arm sticks where it is left until pushed harder
-    #: than a band per joint: ``rest_hold_rms_factor`` × the model's held-out RMS, at least
-    #: ``rest_hold_nm`` [N·m] (empty: no floor; a model without a held-out RMS and no floor:
-    #: no hold)
+    #: rest hold (control/rt/src/law/rest_hold.rs): the arm sticks where it is left until pushed
+    #: harder than a band per joint: ``rest_hold_rms_factor`` × the model's held-out RMS, at least
+    #: ``rest_hold_nm`` [N·m] (empty: no floor; a model without a held-out RMS and no floor: no
+    #: hold)
     rest_hold_nm: tuple[float, ...] = ()
     rest_hold_rms_factor: float = 2.0
     #: the hold's stiffness is band / deflection [rad]
     rest_hold_deflection_rad: float = 1e-3
     #: the drives' velocity-loop (servo) rate from their datasheet [Hz], for the online
-    #: inner-loop estimate (control/inner_loop_estimate.py); 0: fast enough to be continuous
+    #: inner-loop estimate (control/rt/src/law/inner_estimate.rs); 0: fast enough to be continuous
     drive_servo_rate_hz: float = 0.0
-    #: run the online inner-loop estimate while teaching (control/inner_loop_estimate.py;
+    #: run the online inner-loop estimate while teaching (control/rt/src/law/inner_estimate.rs;
     #: telemetry): ~50-80 µs of CPU per cycle, so off unless asked for
     inner_loop_estimate: bool = False
     #: per joint, the amplitude [A] of a sinusoidal torque dither (K times it, at 4.0 + 0.4 j
     #: Hz) added to the desired torque in teaching, so the online inner-loop estimate sees K_p
-    #: apart from K_I (control/inner_loop_estimate.py); () none
+    #: apart from K_I (control/rt/src/law/inner_estimate.rs); () none
     inner_loop_dither_a: tuple[float, ...] = ()
 
     @property

@@ -23,8 +23,8 @@ torque it delivered is measured (``τ_m = K i``, K the datasheet's torque consta
 regressor is the command the drive actually followed, not the designed τ_d: with the cycle
 means u₁ = mean(dq_c - dq) and u₂ = mean(q_c - q) of the command that drove the cycle, the
 estimates predict ``τ̂ = (u₁ + Υ̂_I u₂) / ω̂``, which is τ_d when the arm moved as the delay
-predictor said (control/delay.py). When it did not (the hand pushed, the model's inertia is
-off), τ_d no longer says what the drive was asked for, and a gradient on it learnt the
+predictor said (control/rt/src/law/delay.rs). When it did not (the hand pushed, the model's
+inertia is off), τ_d no longer says what the drive was asked for, and a gradient on it learnt the
 mismatch as a gain error (teach-bench, seed 0: J6's ω̂ ended at 0.67 of the drive's after
 59 s of teaching, J1's at 0.93; with τ̂, see the README). We take the normalised gradient
 Λ = γ ω̂ / τ̂² per joint, in the log of ω̂, which makes the convergence rate γ independent of
@@ -63,7 +63,7 @@ printed:
   one-joint simulation of the drive with a one-cycle command delay ended 20-75 % off). So
   the regressors are the ones the drive actually saw, the cycle means u₁ = mean(dq_c - dq)
   and u₂ = mean(q_c - q) of the command that drove the cycle (:func:`cycle_means` of
-  control/inner_loop_estimate.py):
+  control/rt/src/law/inner_estimate.rs):
   eq. (19) says ``τ_m = K* (u₁ + Υ_I u₂)``, the estimates predict
   ``τ̂ = (u₁ + Υ̂_I u₂)/ω̂`` (= τ_d when the command went out as designed, which makes this
   eqs. 28 and 30), and the laws descend the gradient of ``(τ_m - τ̂)²/2``.
@@ -92,7 +92,7 @@ static gain K K_I = Υ_I/ω converges in seconds, but ω̂ and Υ̂_I apart conv
 constant of about 20 s at u₁ = 10 % of Υ_I u₂, 70 s at 3 % and 200 s at 1 % (γ = 1/s,
 one joint fed eq. 19's torque: tests/unit/test_paper_adaptation.py). Least squares, which
 inverts the regressors' covariance, separates them within seconds where the data allow
-(control/inner_loop_estimate.py).
+(control/rt/src/law/inner_estimate.rs).
 """
 
 from __future__ import annotations

@@ -27,9 +27,7 @@ from control import _rt
 from control.admittance import Admittance, EngageProbe
 from control.config import ControlConfig
 from control.declared_model import DeclaredModel, IdentifiedControlModel
-from control.delay import DelayPredictor
 from control.identification.inner_loop import read_outer_loop_gains
-from control.inner_loop_estimate import InnerLoopEstimator, cycle_means
 from control.load_check import REST_RAD_S, LoadCheck, friction_levels_nm, static_load_check
 from control.model_adaptation import (
     AdaptationSettings,
@@ -41,7 +39,6 @@ from control.model_adaptation import (
 from control.outer_loop import HoldAverage, OmegaAdaptation, OuterLoop, PaperAdaptation
 from control.plan_builder import Parts, PlanBuilder, PlanRefused, build_parts
 from control.pressure_schedule import PressureSchedule, ScheduleSettings
-from control.rest_hold import RestHold, hold_band_nm
 from control.robot.description import RobotDescription, load_description
 from control.rt_tables import chain_table, to_json
 from gateway import bus_security as security
@@ -156,45 +153,6 @@ def nominal_chain(desc: RobotDescription) -> _rt.Chain:
     return _rt.Chain(to_json(chain_table(rigid.model, rigid.armature_kgm2, tool)))
 
 
-class GuidedFriction:
-    """Whether the zero-moment arm is being guided, for its friction compensation.
-
-    The compensation ramps in with speed (:meth:`ZeroMomentController.friction_ramps`) so that
-    an arm at rest does not chatter on its stiction. A guided arm pays for it: on the teach
-    bench's raster (stiction, seed 0) many joints move slower than their ramps or reverse, and
-    the painter pushed 55 N on average with the ramp against 22 N without it. So the ramp
-    applies only to an arm at rest: once one of the positioning joints (the first
-    :data:`POSITIONING_JOINTS`, whose inertia makes a chatter of theirs unlikely: a few mrad/s
-    at rest, against ramps of ~10 mrad/s) slides faster than its ramp, every joint's friction
-    is compensated in full until all of them have been slower than their ramps for
-    ``hold_s``. A painter who only turns the wrist pays the wrists' ramps."""
-
-    POSITIONING_JOINTS = 3
-
-    def __init__(self, hold_s: float) -> None:
-        self.hold_s = float(hold_s)
-        self.guided = False
-        self._slow_s = 0.0
-
-    def update(self, dq_rad_s: np.ndarray, ramps: Sequence[float], dt_s: float) -> bool:
-        """Take in a cycle's measured velocities and the joints' ramp speeds; True while the
-        arm is guided."""
-        if self.hold_s <= 0.0:
-            return False
-        k = self.POSITIONING_JOINTS
-        pairs = zip(dq_rad_s[:k].tolist(), ramps[:k], strict=True)
-        sliding = any(abs(v) > r > 0.0 for v, r in pairs)
-        if sliding:
-            self.guided, self._slow_s = True, 0.0
-        elif self.guided:
-            self._slow_s += dt_s
-            self.guided = self._slow_s < self.hold_s
-        return self.guided
-
-    def reset(self) -> None:
-        self.guided, self._slow_s = False, 0.0
-
-
 class ZeroMomentController:
     """The computation, free of I/O: JointState (+ pressures) → JointCommand.
 
@@ -235,9 +193,9 @@ class ZeroMomentController:
         )
         #: the drives' torque constants (datasheet) [N·m/A]: measured motor torque = K i
         self._k_nm_per_a = [j.drive_gain_nm_per_a for j in model.desc.joints]
-        #: the state when a command takes effect (control/delay.py), on the datasheet's
+        #: the state when a command takes effect (control/rt/src/law/delay.rs), on the datasheet's
         #: nominal rigid body (with rotor inertias) for M(q)
-        self.predictor = DelayPredictor(cfg.command_delay_cycles)
+        self.predictor = _rt.DelayPredictor(cfg.command_delay_cycles)
         self._inertia: _rt.Chain | None = None
         #: the tool point in the link-6 frame [m]: the flange is that far back along it
         self._tool_in_6 = np.array(model.desc.tool.position_in_link6_m)
@@ -267,7 +225,7 @@ class ZeroMomentController:
         #: (:meth:`friction_ramps`), and the model's friction level at low speed [N·m]
         self._ramps: list[float] = [0.0] * n
         self._no_ramps: list[float] = [0.0] * n
-        self._guided = GuidedFriction(cfg.friction_ramp_guided_s)
+        self._guided = _rt.GuidedFriction(cfg.friction_ramp_guided_s)
         self._friction_level = np.zeros(n)
         self._lower, self._upper = self.lower.tolist(), self.upper.tolist()
         self.engaged = False
@@ -275,16 +233,16 @@ class ZeroMomentController:
         self._waited = 0
         self.last_cycle: int | None = None
         self._tau_d_nm: list[float] = [0.0] * n
-        band = hold_band_nm(
+        band = _rt.hold_band_nm(
             cfg.rest_hold_nm or [0.0] * n, cfg.rest_hold_rms_factor, model.heldout_rms_nm
         )
-        self.rest_hold = RestHold(band, cfg.rest_hold_deflection_rad)
+        self.rest_hold = _rt.RestHold(band, cfg.rest_hold_deflection_rad)
         self._no_hold = [0.0] * n
         #: online estimate of the drives' K_p, K_I from the measured current (telemetry)
-        self.inner_estimate: InnerLoopEstimator | None = None
+        self.inner_estimate: _rt.InnerLoopEstimator | None = None
         if cfg.inner_loop_estimate and cfg.omega_rad_s_per_nm:
             kp0 = 1.0 / (np.array(self._k_nm_per_a) * np.array(cfg.omega_rad_s_per_nm))
-            self.inner_estimate = InnerLoopEstimator(
+            self.inner_estimate = _rt.InnerLoopEstimator(
                 kp0, kp0 * np.array(cfg.upsilon_i_per_s), self._k_nm_per_a
             )
         #: eq. (28), or (28) and (30), adapt on the cycles the drive followed
@@ -306,7 +264,7 @@ class ZeroMomentController:
             maxlen=cfg.command_delay_cycles + 1
         )
         self._prev_state: tuple[np.ndarray, np.ndarray] | None = None
-        #: the dither's torque amplitude per joint [N·m] (control/inner_loop_estimate.py)
+        #: the dither's torque amplitude per joint [N·m] (control/rt/src/law/inner_estimate.rs)
         if cfg.inner_loop_dither_a and len(cfg.inner_loop_dither_a) != n:
             raise ConfigError(
                 f"[control].inner_loop_dither_a has {len(cfg.inner_loop_dither_a)} values; "
@@ -332,8 +290,8 @@ class ZeroMomentController:
         """Zero-moment torque: what the motors must give so the operator feels no load.
 
         The reference form of the physics; each cycle computes it in :meth:`cycle_command`,
-        which adds the rest hold (control/rest_hold.py: it depends on the path of q, so it has
-        no reference form here).
+        which adds the rest hold (control/rt/src/law/rest_hold.rs: it depends on the path of q,
+        so it has no reference form here).
         """
         m = self.model
         tau = m.gravity_nm(q) - m.cylinder_nm(q, p_bar)
@@ -551,8 +509,11 @@ class ZeroMomentController:
             k_star, ups = self._drive_model or (1.0 / self.loop.omega, self.loop.upsilon_i)
             if self.cfg.inertia_compensation:
                 self._tau_inertia = self.inertia_torque(q, st.dq_rad_s, period, gap == 1)
-            q, dq = self.predictor.predict(
-                q, dq, st.q_cmd_rad, st.dq_cmd_rad_s, period, gap == 1, m_inv, k_star, ups
+            q, dq = (
+                np.asarray(v)
+                for v in self.predictor.predict(
+                    q, dq, st.q_cmd_rad, st.dq_cmd_rad_s, period, gap == 1, m_inv, k_star, ups
+                )
             )
             if self.cfg.max_tool_speed_m_s > 0:  # on the speed the arm will have, predicted
                 self._speed_target = self.speed_target(q, dq)
@@ -590,10 +551,10 @@ class ZeroMomentController:
                 dq_start=prev[1], dq_end=st.dq_rad_s, ticks=ticks,
             )  # fmt: skip
         if self._adapts:
-            u1, u2 = cycle_means(
+            u1, u2 = _rt.cycle_means(
                 q_cmd, dq_cmd, prev[0], st.q_rad, period_s, prev[1], st.dq_rad_s, ticks
             )
-            self.loop.adapt(u1.tolist(), u2.tolist(), self.motor_torque_nm(st), period_s)
+            self.loop.adapt(u1, u2, self.motor_torque_nm(st), period_s)
 
     def cycle_command(
         self, q_rad: np.ndarray, dq_rad_s: np.ndarray, p_bar: Sequence[float], dt_s: float
@@ -649,7 +610,7 @@ class AdmittanceController(ZeroMomentController):
         super().__init__(cfg, model)
         if self._inertia is None:
             self._inertia = nominal_chain(model.desc)
-        band = hold_band_nm(
+        band = _rt.hold_band_nm(
             cfg.rest_hold_nm or [0.0] * model.n,
             cfg.admittance_band_rms_factor,
             model.heldout_rms_nm,
@@ -857,9 +818,9 @@ class AdmittanceController(ZeroMomentController):
         return self.answer(st, p_bar)
 
 
-def _finite_or_none(values: np.ndarray) -> list[float | None]:
+def _finite_or_none(values: Sequence[float]) -> list[float | None]:
     """5 significant digits, None where not finite (JSON has no NaN)."""
-    return [float(f"{v:.5g}") if math.isfinite(v) else None for v in values.tolist()]
+    return [float(f"{v:.5g}") if math.isfinite(v) else None for v in values]
 
 
 class PlanPlayer:
@@ -1417,7 +1378,7 @@ class ControlProcess:
                         "omega_rad_s_per_nm": _finite_or_none(est.omega_rad_s_per_nm),
                         "upsilon_i_per_s": _finite_or_none(est.upsilon_i_per_s),
                         "rel_std": [[round(float(v), 4) for v in r] for r in est.rel_std],
-                        "rejected_cycles": est.rejected.tolist(),
+                        "rejected_cycles": est.rejected,
                         "seconds": round(est.seconds, 2),
                     }
                 s.put(self.keys.control_telemetry, encode_json(tele))

@@ -203,7 +203,7 @@ class ControllerSpec:
     #: takes effect at a later boundary: 1 (the default) is the physical minimum. 0 applies it
     #: at the boundary that accepted it, in the same simulated instant as the measurement it
     #: answers. The product measures it (the inner-loop experiment) and sends each command for
-    #: the state the arm will be in then (control/delay.py).
+    #: the state the arm will be in then (control/rt/src/law/delay.rs).
     command_delay_cycles: int = 1
     #: CAN profile of LTC-1 the controller speaks (drivers/can/PROTOCOL.md): "classic" (§2,
     #: JOINT_FB/JOINT_CMD per joint, host adapter "ltc_dbc") or "fd" (§10, one CAN FD frame

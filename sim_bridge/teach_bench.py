@@ -103,7 +103,7 @@ PRODUCT_STRATEGIES = {
     "admittance": {"strategy": "admittance"},
 }
 #: ``--online-estimate``: the torque dither that lets the online inner-loop estimate see K_p,
-#: per joint [A] (control/inner_loop_estimate.py)
+#: per joint [A] (control/rt/src/law/inner_estimate.rs)
 DITHER_A = 0.03
 
 

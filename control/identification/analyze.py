@@ -957,8 +957,8 @@ def _analyze(
     plots = _plots(out, options, run, fits, base_fit, pred_before, pred_after, bool(accepted))
     clock.lap("validate")
 
-    # What the control's rest hold (control/rest_hold.py) sizes its band by: the held-out error
-    # where the joint slides, or over every row where it never did.
+    # What the control's rest hold (control/rt/src/law/rest_hold.rs) sizes its band by: the
+    # held-out error where the joint slides, or over every row where it never did.
     model.metadata["heldout_rms_nm"] = [
         float(a if np.isfinite(a) else b) for a, b in zip(rms_after, rms_after_all, strict=True)
     ]

@@ -354,7 +354,7 @@ def test_control_process_loads_the_identified_model(cylinder_run, tmp_path):
 
     model = DeclaredModel.load(cylinder_run["out"] / "model.json")
     assert isinstance(model, IdentifiedControlModel)
-    # the held-out error the rest hold sizes its band by (control/rest_hold.py)
+    # the held-out error the rest hold sizes its band by (control/rt/src/law/rest_hold.rs)
     summary = json.loads((cylinder_run["out"] / "summary.json").read_text())
     np.testing.assert_allclose(model.heldout_rms_nm, summary["rms_after"])
     desc = load_description()

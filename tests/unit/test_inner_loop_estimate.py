@@ -1,4 +1,4 @@
-"""The online inner-loop estimate (control._rt's, compiled from control/inner_loop_estimate.py)
+"""The online inner-loop estimate (control/rt/src/law/inner_estimate.rs, control._rt)
 finds a PI loop's gains from its averaged current, starting from commissioned values that are
 wrong."""
 

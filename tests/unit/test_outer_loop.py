@@ -4,7 +4,7 @@ delivers converges to the desired torque."""
 import numpy as np
 import pytest
 
-from control.inner_loop_estimate import cycle_means
+from control._rt import cycle_means
 from control.outer_loop import OmegaAdaptation, OuterLoop
 
 K = np.array([46.21, 66.18, 39.0])
@@ -99,7 +99,7 @@ def run(loop, tau_d, seconds, arm=held, cycle_s=0.008):
     tau_m = None
     for c in range(round(seconds / cycle_s)):
         u1, u2, tau_m = drive_cycle(loop, tau_d, arm, c * cycle_s, cycle_s)
-        loop.adapt(u1.tolist(), u2.tolist(), tau_m.tolist(), cycle_s)
+        loop.adapt(u1, u2, tau_m.tolist(), cycle_s)
     return tau_m
 
 

@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from control._rt import RestHold, hold_band_nm
 
+from control._rt import RestHold, hold_band_nm
 from control.config import ControlConfig
 from gateway.errors import ConfigError
 

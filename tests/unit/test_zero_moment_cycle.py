@@ -318,7 +318,7 @@ def test_friction_that_does_not_oppose_motion_is_not_compensated(cfg, model):
 
 def test_the_inner_loop_dither_adds_its_sinusoid_to_the_desired_torque(cfg, model):
     """[control].inner_loop_dither_a: K times that current, at 4.0 + 0.4 j Hz per joint, is
-    added to the desired torque (control/inner_loop_estimate.py); its length is checked."""
+    added to the desired torque (control/rt/src/law/inner_estimate.rs); its length is checked."""
     amp = (0.03, 0.02, 0.03, 0.01, 0.01, 0.05)
     plain = ZeroMomentController(dataclasses.replace(cfg, inner_loop_dither_a=()), model)
     dithered = ZeroMomentController(dataclasses.replace(cfg, inner_loop_dither_a=amp), model)

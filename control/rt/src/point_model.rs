@@ -179,12 +179,24 @@ impl PointModel {
     /// Joint torque [N·m] at (q, dq) and ddq = 0 (`dq` None: at rest) into `out`: rigid body
     /// (+ payload) + friction + effects, cylinders excluded.
     pub fn torque(&mut self, q: &[f64], dq: Option<&[f64]>, out: &mut [f64]) {
-        let n = self.n;
         let zeros = [0.0; MAX_JOINTS];
-        let dq = dq.unwrap_or(&zeros[..n]);
+        let dq = dq.unwrap_or(&zeros[..self.n]);
+        self.regress(q, dq);
+        self.combine(q, dq, out);
+    }
+
+    /// The chain's regressor at (q, dq) (at rest for a model without Coriolis) into `self.y`.
+    fn regress(&mut self, q: &[f64], dq: &[f64]) {
+        let zeros = [0.0; MAX_JOINTS];
+        let n = self.n;
         let dq_rigid = if self.coriolis { dq } else { &zeros[..n] };
         self.chain
             .regressor(q, dq_rigid, &zeros[..n], &mut self.work, &mut self.y);
+    }
+
+    /// [`Self::torque`] at (q, dq) from the regressor in `self.y` ([`Self::regress`]).
+    fn combine(&self, q: &[f64], dq: &[f64], out: &mut [f64]) {
+        let n = self.n;
         let width = 10 * n;
         let mut rigid = [0.0; MAX_JOINTS];
         let mut fr = [0.0; MAX_JOINTS];
@@ -233,8 +245,16 @@ impl PointModel {
         let n = self.n;
         let mut rest = [0.0; MAX_JOINTS];
         let mut cyl = [0.0; MAX_JOINTS];
-        self.torque(q, None, &mut rest[..n]);
-        self.torque(q, Some(dq), friction);
+        let zeros = [0.0; MAX_JOINTS];
+        if self.coriolis {
+            self.torque(q, None, &mut rest[..n]);
+            self.torque(q, Some(dq), friction);
+        } else {
+            // the rigid body at rest for both: one regressor (the costliest part)
+            self.regress(q, &zeros[..n]);
+            self.combine(q, &zeros[..n], &mut rest[..n]);
+            self.combine(q, dq, friction);
+        }
         self.cylinder_torques(q, p_bar, &mut cyl[..n]);
         for j in 0..n {
             stat[j] = rest[j] - cyl[j];

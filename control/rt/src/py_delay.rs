@@ -1,5 +1,5 @@
 //! `control._rt.DelayPredictor` (law/delay.rs): the Smith predictor over the command delay,
-//! with the API of control/delay.py's class, and its constants as `DELAY_SUBSTEP_S`,
+//! as the control process and the tests use it, and its constants as `DELAY_SUBSTEP_S`,
 //! `DELAY_STIFF_STEP`, `DELAY_MAX_SUBSTEPS`.
 
 use std::sync::{Mutex, MutexGuard};

@@ -1,5 +1,4 @@
-//! `control._rt.GuidedFriction` (law/guided_friction.rs), with the API of control/process.py's
-//! class.
+//! `control._rt.GuidedFriction` (law/guided_friction.rs).
 
 use std::sync::{Mutex, MutexGuard};
 

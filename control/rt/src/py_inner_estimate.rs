@@ -1,5 +1,5 @@
-//! `control._rt`'s online inner-loop estimate (law/inner_estimate.rs), with the API of
-//! control/inner_loop_estimate.py: `cycle_means(...)`, `InnerLoopEstimator` and the constant
+//! `control._rt`'s online inner-loop estimate (law/inner_estimate.rs), as the control
+//! process and the tests use it: `cycle_means(...)`, `InnerLoopEstimator` and the constant
 //! `REJECT_SIGMA`. Per-joint results are lists of floats where Python returned numpy arrays
 //! (`rel_std` a list of `[K_p, K_I]` pairs, `rejected` a list of ints). A wrong length or a bad
 //! setting raises ValueError naming it.

@@ -1,5 +1,4 @@
-//! `control._rt.RestHold` and `control._rt.hold_band_nm` (law/rest_hold.rs), with the API of
-//! control/rest_hold.py.
+//! `control._rt.RestHold` and `control._rt.hold_band_nm` (law/rest_hold.rs).
 
 use std::sync::{Mutex, MutexGuard};
 

@@ -1,16 +1,29 @@
-//! Rest hold: the weightless arm stays where the operator leaves it, despite model error
-//! (control/rest_hold.py, whose module docstring gives the reasoning).
+//! Rest hold: the weightless arm stays where the operator leaves it, despite model error.
 //!
+//! Zero-moment mode asks the drives for the model's torque and nothing else, so a static model
+//! error δ (the gravity of a payload estimated from a short run, a few tenths of a per cent of
+//! the load) is a torque nobody balances: the arm creeps at δ over the damping, about a
+//! millimetre in 5 s at the tool for 0.2 N·m on a wrist joint. A real gearbox's stiction would
+//! hold it; the model's friction compensation takes exactly that stiction away.
+//!
+//! This module gives the arm a stiction of its own, bounded by what the model does not know.
 //! Per joint, an elasto-plastic element (the Dahl / "reset integrator" friction model) between
-//! the joint and an anchor,
+//! the joint and an anchor:
 //!
-//! ```text
-//! τ_h = clip(k (a - q), ±band),   k = band / deflection,
-//! ```
+//!     τ_h = clip(k (a - q), ±band),   k = band / deflection,
 //!
 //! whose anchor slides with the joint whenever the clip is active, so the element never pushes
-//! more than `band` and τ_h has no step. `band` per joint is what the model does not know
-//! ([`hold_band_nm`]).
+//! more than `band`. A static error below the band deflects the arm by at most δ/k (less than
+//! `deflection`) and it stays, however long. A push above the band moves the arm, against a
+//! constant `band` (a Coulomb friction the operator pays; the product has no way to tell a
+//! hand that pushes less than the model's error from the error itself), and when the push
+//! falls below the band the arm stops. τ_h has no step.
+//!
+//! `band` per joint is what the model does not know: `rms_factor` × the model's held-out RMS
+//! on that joint (`heldout_rms_nm` of an identified `model.json`), at least the configured
+//! floor. The operator pays it as that Coulomb friction whenever a joint moves; a band of 2 RMS
+//! on the GR630ST's J2 is about 2 N·m, a newton at the tool, and all six joints together cost
+//! about 2-4 N of mean force on teach-bench's raster path.
 
 use crate::chain::MAX_JOINTS;
 
