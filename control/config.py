@@ -58,7 +58,7 @@ class ControlConfig:
     #: estimated on this cell's drives, in place of the two lists above
     inner_loop: Path | None = None
     #: eq. (28): γ, how fast ω̂ follows the measured motor current [1/s]; 0: ω fixed
-    #: (control/outer_loop.py)
+    #: (control/rt/src/law/outer_loop.rs)
     omega_adaptation_per_s: float = 1.0
     #: per joint: ω̂ adapts only while |τ_d| exceeds this [N·m] (the current's noise would
     #: otherwise dominate); needed when the rate is > 0
@@ -73,7 +73,7 @@ class ControlConfig:
     engage_max_wait_states: int = 125
     #: the lead-through law: "zero_moment" (the paper's eq. 21 with the model's torque, ω̂
     #: adapted by the normalised eq. 28 above), "paper" (the same with the paper's eqs. 28
-    #: and 30 adapting ω̂ and Υ̂_I together, control/outer_loop.py) or "admittance"
+    #: and 30 adapting ω̂ and Υ̂_I together, control/rt/src/law/outer_loop.rs) or "admittance"
     #: (control/admittance.py: the hand's torque from the motor current, the arm on a
     #: reference of ``admittance_mass_fraction`` of its inertia and the damping above)
     strategy: str = "zero_moment"

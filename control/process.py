@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from control import _rt
+from control._rt import HoldAverage, OmegaAdaptation, OuterLoop, PaperAdaptation
 from control.admittance import Admittance, EngageProbe
 from control.config import ControlConfig
 from control.declared_model import DeclaredModel, IdentifiedControlModel
@@ -36,7 +37,6 @@ from control.model_adaptation import (
     model_sha256,
     save_state,
 )
-from control.outer_loop import HoldAverage, OmegaAdaptation, OuterLoop, PaperAdaptation
 from control.plan_builder import Parts, PlanBuilder, PlanRefused, build_parts
 from control.pressure_schedule import PressureSchedule, ScheduleSettings
 from control.robot.description import RobotDescription, load_description
@@ -506,7 +506,10 @@ class ZeroMomentController:
                 self._ramps = self.friction_ramps(m_inv, period)
                 if self._guided.update(st.dq_rad_s, self._ramps, dt):
                     self._ramps = self._no_ramps
-            k_star, ups = self._drive_model or (1.0 / self.loop.omega, self.loop.upsilon_i)
+            k_star, ups = self._drive_model or (
+                1.0 / np.array(self.loop.omega),
+                np.array(self.loop.upsilon_i),
+            )
             if self.cfg.inertia_compensation:
                 self._tau_inertia = self.inertia_torque(q, st.dq_rad_s, period, gap == 1)
             q, dq = (

@@ -24,8 +24,8 @@ Strategies:
   spring-damper), which a law can only lower by rendering less than the arm's mass;
 - ``paper``: the paper's adaptive method, ``[control] strategy = "paper"``: the zero-moment
   law with eqs. (28) and (30) adapting ω̂ and Υ̂_I together from the measured current
-  (control/outer_loop.py, PaperAdaptation), Υ̂_I starting from the paper's 1.2/s and ω̂ from
-  the same static gain as commissioned, run as ``best`` is;
+  (control/rt/src/law/outer_loop.rs, PaperAdaptation), Υ̂_I starting from the paper's 1.2/s
+  and ω̂ from the same static gain as commissioned, run as ``best`` is;
 - ``best``: the product's zero-moment lead-through (the whole product on the virtual cell as
   separate processes, real time, the controller applying each command one cycle late; ω̂
   adapted by the normalised eq. 28 alone, Υ̂_I as commissioned);
@@ -96,7 +96,7 @@ COMPLETED_WITHIN_M = 0.05
 MOVING_M_S = 1e-3
 STRATEGIES = ("offservo", "inertia", "paper", "best", "admittance")
 #: the ``[control]`` settings of each product strategy; "paper" starts Υ̂_I from the paper's
-#: 1.2/s and adapts it with ω̂ (eqs. 28, 30; control/outer_loop.py)
+#: 1.2/s and adapts it with ω̂ (eqs. 28, 30; control/rt/src/law/outer_loop.rs)
 PRODUCT_STRATEGIES = {
     "paper": {"strategy": "paper", "paper_upsilon_i0_per_s": 1.2},
     "best": {},

@@ -1,5 +1,5 @@
 """The paper's adaptive law (``[control] strategy = "paper"``: eqs. 28 and 30 adapt ω̂ and Υ̂_I
-from the measured current, control/outer_loop.py) on the virtual cell, every part its own
+from the measured current, control/rt/src/law/outer_loop.rs) on the virtual cell, every part its own
 process, starting from the paper's Υ̂_I(0) = 1.2/s (the drives' is about 30/s): a push moves
 the tool along it within hand guiding's speed, the arm stops once the hand lets go, and the
 control process's published Υ̂_I has moved from 1.2/s towards the drive's while the static

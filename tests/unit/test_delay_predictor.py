@@ -8,8 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from control._rt import DelayPredictor
-from control.outer_loop import OuterLoop
+from control._rt import DelayPredictor, OuterLoop
 
 K, KP, KI = 66.18, 375.3, 12510.0  # a J2-sized drive [N·m/A, A s/rad, A/rad]
 J = 230.0  # the arm's inertia about the joint [kg·m²]

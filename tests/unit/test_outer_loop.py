@@ -4,8 +4,7 @@ delivers converges to the desired torque."""
 import numpy as np
 import pytest
 
-from control._rt import cycle_means
-from control.outer_loop import OmegaAdaptation, OuterLoop
+from control._rt import OmegaAdaptation, OuterLoop, cycle_means
 
 K = np.array([46.21, 66.18, 39.0])
 KP = np.array([224.4, 375.3, 226.0])

@@ -1,4 +1,4 @@
-"""The paper's eqs. (28) and (30) together (control/outer_loop.py, PaperAdaptation).
+"""The paper's eqs. (28) and (30) together (control/rt/src/law/outer_loop.rs, PaperAdaptation).
 
 The drive is eq. (19) averaged over a cycle: ``τ_m = K* (u₁ + Υ_I u₂)`` with u₁, u₂ the
 cycle means of the velocity and position errors. These tests feed the law those means and
@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 from example_cell import example_cell
 
+from control._rt import OmegaAdaptation, OuterLoop, PaperAdaptation
 from control.declared_model import DeclaredModel
-from control.outer_loop import OmegaAdaptation, OuterLoop, PaperAdaptation
 from control.process import ZeroMomentController, load_control_config
 from gateway.config import ConfigError
 
@@ -108,7 +108,7 @@ def test_the_dead_zone_and_the_torque_floor_stop_the_adaptation():
     assert loop.omega[1] != OMEGA[1] * 1.02  # adapted
     assert loop.omega[2] == OMEGA[2] * 1.02  # |φ| under the joint's torque floor
     loop.set_dead_zone([1.0, 2.0, 3.0])  # 3 σ of the hold's torque noise, at least the floor
-    assert loop._dead_zone == [1e4, 6.0, 9.0]
+    assert loop.dead_zone_nm == [1e4, 6.0, 9.0]
 
 
 def test_a_non_finite_cycle_is_no_step_and_the_estimates_stay_within_their_bounds():
@@ -121,7 +121,8 @@ def test_a_non_finite_cycle_is_no_step_and_the_estimates_stay_within_their_bound
     for _ in range(round(60.0 / T)):
         loop.adapt([0.001] * 3, [0.001] * 3, [1e6] * 3, T)
     assert np.all(loop.omega >= OMEGA / 50 * (1 - 1e-12))
-    assert np.all((loop.upsilon_i <= UPS * 50 * (1 + 1e-12)) & (loop.upsilon_i > 0))
+    ups = np.array(loop.upsilon_i)
+    assert np.all((ups <= UPS * 50 * (1 + 1e-12)) & (ups > 0))
 
 
 def test_eq28_alone_moves_only_omega_on_the_same_call():
@@ -151,7 +152,9 @@ def test_the_paper_strategy_starts_from_its_upsilon_with_the_commissioned_static
     assert isinstance(ctl.loop.adaptation, PaperAdaptation)
     np.testing.assert_allclose(ctl.loop.upsilon_i, 1.2)
     commissioned = np.array(cfg.upsilon_i_per_s) / np.array(cfg.omega_rad_s_per_nm)
-    np.testing.assert_allclose(ctl.loop.upsilon_i / ctl.loop.omega, commissioned, rtol=1e-12)
+    np.testing.assert_allclose(
+        np.array(ctl.loop.upsilon_i) / ctl.loop.omega, commissioned, rtol=1e-12
+    )
     kept = ZeroMomentController(dataclasses.replace(cfg, strategy="paper"), model)
     np.testing.assert_allclose(kept.loop.upsilon_i, cfg.upsilon_i_per_s)
 

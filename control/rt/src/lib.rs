@@ -21,5 +21,6 @@ mod py_delay;
 mod py_guided_friction;
 #[cfg(feature = "python")]
 mod py_inner_estimate;
+mod py_outer_loop;
 #[cfg(feature = "python")]
 mod py_rest_hold;

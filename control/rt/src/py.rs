@@ -226,5 +226,6 @@ fn _rt(m: &Bound<'_, PyModule>) -> PyResult<()> {
     crate::py_delay::register(m)?;
     crate::py_guided_friction::register(m)?;
     crate::py_rest_hold::register(m)?;
+    crate::py_outer_loop::register(m)?;
     Ok(())
 }

@@ -1,4 +1,5 @@
 pub mod delay;
 pub mod guided_friction;
 pub mod inner_estimate;
+pub mod outer_loop;
 pub mod rest_hold;
