@@ -21,6 +21,7 @@ mod py_delay;
 mod py_guided_friction;
 #[cfg(feature = "python")]
 mod py_inner_estimate;
+#[cfg(feature = "python")]
 mod py_outer_loop;
 #[cfg(feature = "python")]
 mod py_rest_hold;

@@ -5,8 +5,10 @@
 //! that a command (q_cmd, dq_cmd) drove, between the states at its start (q₀) and end (q₁), the
 //! means are, with the controller's reference `q_cmd + dq_cmd (t - t_N)` (§5):
 //!
-//!     mean(dq_c - dq) = dq_cmd - (q₁ - q₀)/T,
-//!     mean(q_c - q)   = q_cmd + dq_cmd T/2 - (q₀ + q₁)/2,
+//! ```text
+//! mean(dq_c - dq) = dq_cmd - (q₁ - q₀)/T,
+//! mean(q_c - q)   = q_cmd + dq_cmd T/2 - (q₀ + q₁)/2,
+//! ```
 //!
 //! so every cycle the drive followed as sent is one linear equation in (K_p, K_I): eq. (26)'s
 //! regressors for Δω and Δω_I written on the current (τ_d and q_c - q, since the outer loop
@@ -88,10 +90,11 @@ impl Cycle<'_> {
     }
 }
 
-/// `(u₁, u₂)` = (mean(dq_c - dq) [rad/s], mean(q_c - q) [rad]) per joint over the cycle the
-/// command drove, from the measured positions at its start and end (module docstring); with
-/// the drive's servo `ticks` per cycle and the measured velocities, the means its PI saw (it samples the state at each tick's start). Non-finite
-/// inputs give non-finite means. `u1`, `u2` have the command's length.
+/// `(u₁, u₂)` = (mean(dq_c - dq) [rad/s], mean(q_c - q) [rad]) per joint over the cycle the command
+/// drove, from the measured positions at its start and end (module docstring); with the drive's
+/// servo `ticks` per cycle and the measured velocities, the means its PI saw (it samples the state
+/// at each tick's start). Non-finite inputs give non-finite means. `u1`, `u2` have the command's
+/// length.
 pub fn cycle_means(c: &Cycle, u1: &mut [f64], u2: &mut [f64]) -> Result<(), String> {
     let n = c.n();
     c.check(n)?;

@@ -1,3 +1,8 @@
+//! The control law's per-cycle pieces: eq. (21) and the adaptation of its gains
+//! (outer_loop), the Smith predictor over the command delay (delay), the rest hold
+//! (rest_hold), the friction ramp's guided switch (guided_friction), the online inner-loop
+//! estimate (inner_estimate) and the sensorless admittance (admittance).
+
 pub mod delay;
 pub mod guided_friction;
 pub mod inner_estimate;

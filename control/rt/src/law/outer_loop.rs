@@ -5,7 +5,9 @@
 //! `Υ_I = K_p⁻¹ K_I` (eq. 20). Eq. (21) chooses the command so that this torque equals
 //! `diag(ω) τ_d` scaled back by `K*`:
 //!
-//!     dq_c + Υ_I q_c = dq + Υ_I q + diag(ω) τ_d                                   (21)
+//! ```text
+//! dq_c + Υ_I q_c = dq + Υ_I q + diag(ω) τ_d                                   (21)
+//! ```
 //!
 //! Writing the command as an offset from the measurement, `e = q_c - q`, eq. (21) is the stable
 //! first-order filter `de/dt = -Υ_I e + ω τ_d`. We integrate it exactly over one controller cycle
@@ -13,24 +15,26 @@
 //! true Υ_I, the inner loop delivers τ = τ_d (eq. 23 with Δω = 0, ΔΥ_I = 0).
 //!
 //! **ω adapts to the measured motor current, eq. (28).** With estimates ω̂ and Υ̂_I the inner loop
-//! delivers `τ = K*[ω̂ τ_d + (Υ_I - Υ̂_I) e]` (eq. 23); holding a load (e at its steady value
-//! ω̂ τ_d / Υ̂_I) that is `τ = τ_d · K* ω̂ Υ_I / Υ̂_I`: a static gain that is 1 only for exact
-//! estimates. A zero-moment arm has nothing else holding it, so a 2 % error in the identified
-//! K_I lets a 1,000 kg arm sink (measured on the virtual cell: 0.6 m in 5 s with a spray gun
-//! mounted, against 0.5 mm with the exact gains). The drive reports its motor current, so the
-//! torque it delivered is measured (`τ_m = K i`, K the datasheet's torque constant) and eq. (28),
-//! `dω̂/dt = -Λ τ_d (τ_m - τ_d)`, drives the error to zero. As for the paper's laws below, the
-//! regressor is the command the drive actually followed, not the designed τ_d: with the cycle
-//! means u₁ = mean(dq_c - dq) and u₂ = mean(q_c - q) of the command that drove the cycle, the
-//! estimates predict `τ̂ = (u₁ + Υ̂_I u₂) / ω̂`, which is τ_d when the arm moved as the delay
-//! predictor said (control/rt/src/law/delay.rs). When it did not (the hand pushed, the model's
-//! inertia is off), τ_d no longer says what the drive was asked for, and a gradient on it learnt the
-//! mismatch as a gain error (teach-bench, seed 0: J6's ω̂ ended at 0.67 of the drive's after
-//! 59 s of teaching, J1's at 0.93; with τ̂, see the README). We take the normalised gradient
-//! Λ = γ ω̂ / τ̂² per joint, in the log of ω̂, which makes the convergence rate γ independent of
-//! the load and keeps ω̂ > 0::
+//! delivers `τ = K*[ω̂ τ_d + (Υ_I - Υ̂_I) e]` (eq. 23); holding a load (e at its steady value ω̂
+//! τ_d / Υ̂_I) that is `τ = τ_d · K* ω̂ Υ_I / Υ̂_I`: a static gain that is 1 only for exact
+//! estimates. A zero-moment arm has nothing else holding it, so a 2 % error in the identified K_I
+//! lets a 1,000 kg arm sink (measured on the virtual cell: 0.6 m in 5 s with a spray gun mounted,
+//! against 0.5 mm with the exact gains). The drive reports its motor current, so the torque it
+//! delivered is measured (`τ_m = K i`, K the datasheet's torque constant) and eq. (28), `dω̂/dt =
+//! -Λ τ_d (τ_m - τ_d)`, drives the error to zero. As for the paper's laws below, the regressor is
+//! the command the drive actually followed, not the designed τ_d: with the cycle means u₁ =
+//! mean(dq_c - dq) and u₂ = mean(q_c - q) of the command that drove the cycle, the estimates
+//! predict `τ̂ = (u₁ + Υ̂_I u₂) / ω̂`, which is τ_d when the arm moved as the delay predictor said
+//! (control/rt/src/law/delay.rs). When it did not (the hand pushed, the model's inertia is off),
+//! τ_d no longer says what the drive was asked for, and a gradient on it learnt the mismatch as a
+//! gain error (teach-bench, seed 0: J6's ω̂ ended at 0.67 of the drive's after 59 s of teaching,
+//! J1's at 0.93; with τ̂, see the README). We take the normalised gradient Λ = γ ω̂ / τ̂² per
+//! joint, in the log of ω̂, which makes the convergence rate γ independent of the load and
+//! keeps ω̂ > 0:
 //!
-//!     ω̂ ← ω̂ · exp(-γ dt · clip((τ_m - τ̂) / τ̂, ±0.5)),   projected onto [ω̂₀/2, 2 ω̂₀]
+//! ```text
+//! ω̂ ← ω̂ · exp(-γ dt · clip((τ_m - τ̂) / τ̂, ±0.5)),   projected onto [ω̂₀/2, 2 ω̂₀]
+//! ```
 //!
 //! with ω̂₀ the commissioned value. Before the first cycle, while the drive still holds the arm at
 //! rest (q_c fixed, dq = dq_c = 0), eq. (19) reads `K i = K K_I (q_c - q)`: the held offset and
@@ -48,7 +52,9 @@
 //! **The paper's laws (28) and (30) together** (:class:`PaperAdaptation`, `[control] strategy =
 //! "paper"`). Eq. (23) says the torque the drive delivers is
 //!
-//!     τ = τ_d + K* [(ω̂ - ω) τ_d - (Υ̂_I - Υ_I)(q_c - q)],
+//! ```text
+//! τ = τ_d + K* [(ω̂ - ω) τ_d - (Υ̂_I - Υ_I)(q_c - q)],
+//! ```
 //!
 //! so with e = τ_m - τ_d (measured minus desired), gradient descent on e²/2 is eq. (28),
 //! `dω̂/dt = -Λ τ_d e`, and `dΥ̂_I/dt = +Λ_I (q_c - q) e`. The paper prints eq. (30) with a
@@ -73,8 +79,10 @@
 //!   ω̂ and Υ̂_I (which keeps both positive), the paper's ratio Λ_I/Λ = 2 kept
 //!   (`upsilon_ratio`): with φ = ∂τ̂/∂(ln ω̂, ln Υ̂_I) = (-τ̂, Υ̂_I u₂ / ω̂) [N·m],
 //!
-//!       (ln ω̂, ln Υ̂_I) ← (ln ω̂, ln Υ̂_I) + γ T diag(1, Λ_I/Λ) φ s / |φ|,
-//!       s = clip((τ_m - τ̂) / |φ|, ±0.5),
+//! ```text
+//!   (ln ω̂, ln Υ̂_I) ← (ln ω̂, ln Υ̂_I) + γ T diag(1, Λ_I/Λ) φ s / |φ|,
+//!   s = clip((τ_m - τ̂) / |φ|, ±0.5),
+//! ```
 //!
 //!   outside a dead zone |τ_m - τ̂| ≤ ν (3 standard deviations of the motor torque measured in
 //!   the hold before teaching, at least `dead_zone_nm`: below it the error is the current's
@@ -397,8 +405,8 @@ fn joints(v: &[f64]) -> [f64; MAX_JOINTS] {
 }
 
 impl OuterLoop {
-    /// `omega` ω = 1/(K K_p) per joint [rad/s per N·m] and `upsilon_i` Υ_I = K_I/K_p [1/s],
-    /// both positive; the limits on the offset [rad] and the velocity command [rad/s]; the adaptation
+    /// `omega` ω = 1/(K K_p) per joint [rad/s per N·m] and `upsilon_i` Υ_I = K_I/K_p [1/s], both
+    /// positive; the limits on the offset [rad] and the velocity command [rad/s]; the adaptation
     /// checked for the joint count. An error names what was wrong.
     pub fn new(
         omega: &[f64],

@@ -10,7 +10,9 @@
 //! Per joint, an elasto-plastic element (the Dahl / "reset integrator" friction model) between
 //! the joint and an anchor:
 //!
-//!     τ_h = clip(k (a - q), ±band),   k = band / deflection,
+//! ```text
+//! τ_h = clip(k (a - q), ±band),   k = band / deflection,
+//! ```
 //!
 //! whose anchor slides with the joint whenever the clip is active, so the element never pushes
 //! more than `band`. A static error below the band deflects the arm by at most δ/k (less than
