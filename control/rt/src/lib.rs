@@ -8,9 +8,12 @@ pub mod chain;
 pub mod cylinders;
 pub mod effects;
 pub mod friction;
+pub mod law;
 pub mod point_model;
 pub mod spatial;
 pub mod table;
 
 #[cfg(feature = "python")]
 mod py;
+#[cfg(feature = "python")]
+mod py_admittance;

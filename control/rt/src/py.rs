@@ -222,5 +222,6 @@ impl PyPointModel {
 fn _rt(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyChain>()?;
     m.add_class::<PyPointModel>()?;
+    crate::py_admittance::register(m)?;
     Ok(())
 }
