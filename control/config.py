@@ -74,7 +74,7 @@ class ControlConfig:
     #: the lead-through law: "zero_moment" (the paper's eq. 21 with the model's torque, ω̂
     #: adapted by the normalised eq. 28 above), "paper" (the same with the paper's eqs. 28
     #: and 30 adapting ω̂ and Υ̂_I together, control/rt/src/law/outer_loop.rs) or "admittance"
-    #: (control/admittance.py: the hand's torque from the motor current, the arm on a
+    #: (control/rt/src/law/admittance.rs: the hand's torque from the motor current, the arm on a
     #: reference of ``admittance_mass_fraction`` of its inertia and the damping above)
     strategy: str = "zero_moment"
     #: "paper": γ of eqs. (28) and (30) [1/s]
@@ -92,15 +92,15 @@ class ControlConfig:
     admittance_band_rms_factor: float = 1.0
     #: the damping while no joint is pushed beyond its dead zone, × ``damping_nm_s_per_rad``
     admittance_rest_damping_factor: float = 10.0
-    #: the admittance's engagement probe (control/admittance.py, EngageProbe): every joint
-    #: moves out and back to either side at this cruise speed [rad/s] (at least; each joint's
-    #: is sized to break its friction away) over ``admittance_probe_s`` [s], so the residual
-    #: b is measured sliding both ways, free of the load stiction carries at rest; 0: b is
-    #: the residual at rest (a robot without stiction)
+    #: the admittance's engagement probe (control/rt/src/law/admittance.rs, EngageProbe): every
+    #: joint moves out and back to either side at this cruise speed [rad/s] (at least; each joint's
+    #: is sized to break its friction away) over ``admittance_probe_s`` [s], so the residual b is
+    #: measured sliding both ways, free of the load stiction carries at rest; 0: b is the residual
+    #: at rest (a robot without stiction)
     admittance_probe_speed_rad_s: float = 0.008
     admittance_probe_s: float = 0.8
-    #: a joint at rest has its hand torque estimate dead-zoned by this × the model's friction
-    #: level (control/admittance.py, stick zone): its friction then carries any torque up to
+    #: a joint at rest has its hand torque estimate dead-zoned by this × the model's friction level
+    #: (control/rt/src/law/admittance.rs, stick zone): its friction then carries any torque up to
     #: its static level, which the current cannot tell from a hand; 0: none
     admittance_stick_zone: float = 1.0
     #: the speed limit of hand guiding on the tool point and the flange [m/s], kept by the

@@ -24,8 +24,14 @@ from typing import Any
 import numpy as np
 
 from control import _rt
-from control._rt import HoldAverage, OmegaAdaptation, OuterLoop, PaperAdaptation
-from control.admittance import Admittance, EngageProbe
+from control._rt import (
+    Admittance,
+    EngageProbe,
+    HoldAverage,
+    OmegaAdaptation,
+    OuterLoop,
+    PaperAdaptation,
+)
 from control.config import ControlConfig
 from control.declared_model import DeclaredModel, IdentifiedControlModel
 from control.identification.inner_loop import read_outer_loop_gains
@@ -599,7 +605,7 @@ class ZeroMomentController:
 
 
 class AdmittanceController(ZeroMomentController):
-    """Sensorless admittance (control/admittance.py) behind the controller's interface.
+    """Sensorless admittance (control/rt/src/law/admittance.rs) behind the controller's interface.
 
     Engages as :class:`ZeroMomentController` does (after the arm has rested in the driver's
     hold): the hold's mean offset and current calibrate ω̂ (the offset that makes the vendor
@@ -627,19 +633,22 @@ class AdmittanceController(ZeroMomentController):
             cfg.admittance_rest_damping_factor,
         )
         if cfg.max_tool_speed_m_s > 0:
-            self.admittance.speed_limit = self.tool_speed_scale
+            self.admittance.speed_limit = lambda q, dq: self.tool_speed_scale(
+                np.asarray(q), np.asarray(dq)
+            )
         self._bias = np.zeros(model.n)
         self._max_offset = np.array(cfg.max_offset_rad)
         #: reference accelerations sent, newest last: the current of a state was measured over
         #: the cycle the one ``delay + 1`` back drove
         self._sent_ddq: deque[np.ndarray] = deque(maxlen=cfg.command_delay_cycles + 1)
         self._mass: tuple[np.ndarray, np.ndarray] | None = None
-        #: the engagement probe while it runs (control/admittance.py), its first cycle, the
-        #: command it starts from, and the noise measured in the hold before it
+        #: the engagement probe while it runs (control/rt/src/law/admittance.rs), its first cycle,
+        #: the command it starts from, and the noise measured in the hold before it
         self._probe: EngageProbe | None = None
         self._probe_start = 0
         self._probe_q0 = np.zeros(model.n)
         self._probe_noise: np.ndarray | None = None
+        self._probe_offset = self._probe_velocity = np.zeros((0, model.n))
         self._probe_period_s = 0.0
         #: per joint, the hand torque a joint at rest hides in its friction [N·m]
         self._stick = np.zeros(model.n)
@@ -725,6 +734,10 @@ class AdmittanceController(ZeroMomentController):
                     REST_RAD_S,
                 )
                 self._probe_start, self._probe_q0 = st.cycle, st.q_cmd_rad.copy()
+                # the probe's path, read once (each read of the compiled probe's tables
+                # builds them anew)
+                self._probe_offset = np.array(self._probe.offset)
+                self._probe_velocity = np.array(self._probe.velocity)
                 self._probe_noise, self._probe_period_s = noise, period
                 log.info("admittance probe: %.1f s, every joint a few mrad out and back to "
                          "measure the model's error; the painter holds the tool lightly",
@@ -740,7 +753,10 @@ class AdmittanceController(ZeroMomentController):
         self.last_cycle = st.cycle
         q = st.q_rad
         adm = self.admittance
-        drove = self._sent_ddq[0] if len(self._sent_ddq) == self._sent_ddq.maxlen else adm.ddq_r
+        if len(self._sent_ddq) == self._sent_ddq.maxlen:
+            drove = self._sent_ddq[0]
+        else:
+            drove = np.array(adm.ddq_r)
         tau_m = np.array(self.motor_torque_nm(st))
         # the friction the arm met is at its measured speed, not at the reference's
         tau_h = self.model_torque(q, st.dq_rad_s, drove, p_bar) - self._bias - tau_m
@@ -752,9 +768,10 @@ class AdmittanceController(ZeroMomentController):
         walls = -k * np.maximum(q - self.upper, 0.0) + k * np.maximum(self.lower - q, 0.0)
         if not (np.isfinite(tau_h).all() and np.isfinite(walls).all()):
             raise MessageError(f"cycle {st.cycle}: hand torque estimate undefined")
-        q_r, dq_r = adm.step(tau_h, walls, self.mass(adm.q_r), dt)
-        self._sent_ddq.append(adm.ddq_r.copy())
-        tau = self.model_torque(q_r, dq_r, adm.ddq_r, p_bar) - self._bias
+        q_r, dq_r = (np.array(v) for v in adm.step(tau_h, walls, self.mass(np.array(adm.q_r)), dt))
+        ddq_r = np.array(adm.ddq_r)
+        self._sent_ddq.append(ddq_r)
+        tau = self.model_torque(q_r, dq_r, ddq_r, p_bar) - self._bias
         self._tau_d_nm = tau.tolist()
         offset = np.clip(self.loop.omega * tau / self.loop.upsilon_i, -self._max_offset,
                          self._max_offset)  # fmt: skip
@@ -806,8 +823,11 @@ class AdmittanceController(ZeroMomentController):
             probe.observe(drove, st.dq_rad_s, residual)
         if drove < len(probe) - 1:
             i = min(k, len(probe) - 1)
-            return (self._probe_q0 + probe.offset[i]).tolist(), probe.velocity[i].tolist()
-        self._bias, kept = probe.bias(self._bias, self._friction_level)
+            return (self._probe_q0 + self._probe_offset[i]).tolist(), self._probe_velocity[
+                i
+            ].tolist()
+        bias, kept = probe.bias(self._bias, self._friction_level)
+        self._bias = np.array(bias)
         log.info("admittance probe: sliding samples (+, -) per joint %s", probe.samples())
         if kept:
             log.warning("admittance probe: joints %s did not slide both ways; their "

@@ -30,7 +30,7 @@ Strategies:
   separate processes, real time, the controller applying each command one cycle late; ω̂
   adapted by the normalised eq. 28 alone, Υ̂_I as commissioned);
 - ``admittance``: the product's sensorless admittance (``[control] strategy = "admittance"``,
-  control/admittance.py), run as ``best`` is.
+  control/rt/src/law/admittance.rs), run as ``best`` is.
 
 Eq. (29), the adaptation of the dynamic parameters, is not run while teaching: the hand's
 torque is indistinguishable from a model error in the measured current, so it would be learnt

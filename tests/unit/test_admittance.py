@@ -1,6 +1,6 @@
-"""The sensorless admittance (control/admittance.py): the reference it integrates, and the
-controller that estimates the hand's torque from the motor current and commands the vendor loop
-with it."""
+"""The sensorless admittance (control/rt/src/law/admittance.rs, as control._rt): the reference
+it integrates, and the controller that estimates the hand's
+torque from the motor current and commands the vendor loop with it."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from example_cell import example_cell
 
-from control.admittance import PROBE_MIN_SAMPLES, Admittance, EngageProbe
+from control import _rt
 from control.declared_model import DeclaredModel
 from control.process import AdmittanceController, load_control_config
 from gateway.errors import ConfigError
@@ -20,10 +20,10 @@ N = 6
 DT = 0.004
 
 
-def law(**kw) -> Admittance:
+def law(**kw) -> _rt.Admittance:
     args = {"mass_fraction": 0.5, "damping": [20.0] * N, "band_nm": [2.0] * N,
             "filter_hz": 5.0, "max_velocity": [1.0] * N} | kw  # fmt: skip
-    return Admittance(**args)
+    return _rt.Admittance(**args)
 
 
 def test_a_hand_torque_inside_the_dead_zone_leaves_the_arm_where_it_is():
@@ -190,8 +190,6 @@ def test_a_guided_arm_that_only_creeps_settles_and_then_needs_the_static_zone_ag
     """Static zone 5 N·m (the noise), kinetic 2 N·m (the model): a 6 N·m push breaks J2
     away; a 2.2 N·m push after it (a model error at the new pose, say) creeps below
     SETTLE_RAD_S, so within SETTLE_S the arm is at rest and stays."""
-    from control.admittance import SETTLE_S
-
     a = law(rest_factor=10.0)
     a.reset(np.zeros(N), noise_std_nm=np.full(N, 5.0 / 3.5))
     np.testing.assert_allclose(a.band, 5.0)
@@ -207,7 +205,7 @@ def test_a_guided_arm_that_only_creeps_settles_and_then_needs_the_static_zone_ag
         a.step(push, np.zeros(N), mass, DT)
         steps += 1
     assert not a.moving, "the creep kept the arm guided"
-    assert steps * DT < 2.0 + SETTLE_S
+    assert steps * DT < 2.0 + _rt.ADMITTANCE_SETTLE_S
     for _ in range(500):
         a.step(push, np.zeros(N), mass, DT)
     assert a.dq_r[1] == pytest.approx(0.0, abs=1e-9)
@@ -217,10 +215,11 @@ def test_the_probe_takes_the_models_error_free_of_what_friction_carried_at_rest(
     """J1 slides after sticking a while at each reversal: residual = error − friction ·
     direction − a hand's spring on the probe's offset (+ noise); J2 never slides: it keeps
     its residual at rest beyond its friction level."""
-    probe = EngageProbe(np.full(2, 0.01), 0.5, DT, 2e-3)
-    assert len(probe) == 4 * 31 + 1 and np.allclose(probe.offset[-1], 0.0, atol=1e-15)
-    assert np.all(np.abs(probe.offset).max(axis=0) < 0.01 * 0.125 + 1e-12)
-    assert probe.offset[:, 0].max() == pytest.approx(-probe.offset[:, 0].min())
+    probe = _rt.EngageProbe(np.full(2, 0.01), 0.5, DT, 2e-3)
+    offset = np.array(probe.offset)
+    assert len(probe) == 4 * 31 + 1 and np.allclose(offset[-1], 0.0, atol=1e-15)
+    assert np.all(np.abs(offset).max(axis=0) < 0.01 * 0.125 + 1e-12)
+    assert offset[:, 0].max() == pytest.approx(-offset[:, 0].min())
     rng = np.random.default_rng(3)
     error, friction, carried = 4.0, 30.0, -25.0
     lag = 0
@@ -229,10 +228,10 @@ def test_the_probe_takes_the_models_error_free_of_what_friction_carried_at_rest(
         sliding = way != 0 and lag >= 4
         dq = np.array([way * 0.01 if sliding else 0.0, 0.0])
         r1 = error - friction * way if sliding else error - carried
-        grip = -2e4 * probe.offset[k, 0]  # a hand holding the tool on a spring [N·m/rad]
+        grip = -2e4 * offset[k, 0]  # a hand holding the tool on a spring [N·m/rad]
         probe.observe(k, dq, np.array([r1 + grip + rng.normal(0, 0.5), 7.0]))
     n_pos, n_neg = probe.samples()[0]
-    assert min(n_pos, n_neg) >= PROBE_MIN_SAMPLES and probe.samples()[1] == (0, 0)
+    assert min(n_pos, n_neg) >= _rt.PROBE_MIN_SAMPLES and probe.samples()[1] == (0, 0)
     b, kept = probe.bias(np.array([error - carried, 7.0]), np.array([friction, 5.0]))
     assert b[0] == pytest.approx(error, abs=0.5)
     assert kept == [1] and b[1] == pytest.approx(2.0)

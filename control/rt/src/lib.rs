@@ -16,6 +16,8 @@ pub mod table;
 #[cfg(feature = "python")]
 mod py;
 #[cfg(feature = "python")]
+mod py_admittance;
+#[cfg(feature = "python")]
 mod py_delay;
 #[cfg(feature = "python")]
 mod py_guided_friction;

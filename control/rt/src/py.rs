@@ -227,5 +227,6 @@ fn _rt(m: &Bound<'_, PyModule>) -> PyResult<()> {
     crate::py_guided_friction::register(m)?;
     crate::py_rest_hold::register(m)?;
     crate::py_outer_loop::register(m)?;
+    crate::py_admittance::register(m)?;
     Ok(())
 }

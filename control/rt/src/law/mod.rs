@@ -3,6 +3,7 @@
 //! (rest_hold), the friction ramp's guided switch (guided_friction), the online inner-loop
 //! estimate (inner_estimate) and the sensorless admittance (admittance).
 
+pub mod admittance;
 pub mod delay;
 pub mod guided_friction;
 pub mod inner_estimate;
