@@ -12,6 +12,7 @@ health; the gateway starts teaching only on a passing one.
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import math
 import threading
@@ -35,7 +36,7 @@ from control._rt import (
 from control.config import ControlConfig
 from control.declared_model import DeclaredModel, IdentifiedControlModel
 from control.identification.inner_loop import read_outer_loop_gains
-from control.load_check import REST_RAD_S, LoadCheck, friction_levels_nm, static_load_check
+from control.load_check import REST_RAD_S, LoadCheck, static_load_check
 from control.model_adaptation import (
     AdaptationSettings,
     PayloadAdaptation,
@@ -162,15 +163,20 @@ def nominal_chain(desc: RobotDescription) -> _rt.Chain:
 class ZeroMomentController:
     """The computation, free of I/O: JointState (+ pressures) → JointCommand.
 
-    :meth:`desired_torque` and :meth:`OuterLoop.step` state the physics on arrays; every
-    controller cycle computes the same on plain floats (:meth:`answer` → :meth:`cycle_command`),
-    several times faster for six joints. tests/unit/test_zero_moment_cycle.py pins one to the
-    other.
+    Its cycle is compiled (``control._rt.ZeroMomentCycle``, control/rt/src/law/zero_moment.rs):
+    the zero-moment torque, the delay predictor, the friction ramps, the inertia
+    compensation, the speed limit, eq. (21) and the adaptation of its gains, over the pieces
+    this object builds from the config and owns (:attr:`loop`, :attr:`predictor`,
+    :attr:`rest_hold`, :attr:`hold`, :attr:`inner_estimate`: compiled too), which the
+    telemetry and the admittance read. :meth:`desired_torque` states the physics on arrays,
+    the reference tests/unit/test_zero_moment_cycle.py pins the cycle to.
     """
+
+    #: the nominal rigid body whatever the settings (the admittance needs M(q) and the tool)
+    ALWAYS_CHAIN = False
 
     def __init__(self, cfg: ControlConfig, model: DeclaredModel) -> None:
         self.cfg = cfg
-        self.model = model
         n = model.n
         adaptation: OmegaAdaptation | PaperAdaptation | None = None
         omega, upsilon_i = np.array(cfg.omega_rad_s_per_nm), np.array(cfg.upsilon_i_per_s)
@@ -197,107 +203,129 @@ class ZeroMomentController:
             np.array(cfg.max_velocity_rad_s),
             adaptation,
         )
-        #: the drives' torque constants (datasheet) [N·m/A]: measured motor torque = K i
-        self._k_nm_per_a = [j.drive_gain_nm_per_a for j in model.desc.joints]
-        #: the state when a command takes effect (control/rt/src/law/delay.rs), on the datasheet's
-        #: nominal rigid body (with rotor inertias) for M(q)
+        #: the state when a command takes effect (control/rt/src/law/delay.rs), on the
+        #: datasheet's nominal rigid body (with rotor inertias) for M(q)
         self.predictor = _rt.DelayPredictor(cfg.command_delay_cycles)
         self._inertia: _rt.Chain | None = None
-        #: the tool point in the link-6 frame [m]: the flange is that far back along it
-        self._tool_in_6 = np.array(model.desc.tool.position_in_link6_m)
         if (
-            cfg.command_delay_cycles
+            self.ALWAYS_CHAIN
+            or cfg.command_delay_cycles
             or cfg.max_tool_speed_m_s > 0
             or cfg.friction_ramp_factor
             or cfg.inertia_compensation
         ):
             self._inertia = nominal_chain(model.desc)
-        #: (q it was computed at, M(q)⁻¹, M(q)) for the predictor and the inertia compensation:
-        #: M changes slowly with q, and the predictor holds with M off by 30 %, so it is
-        #: recomputed only after a joint moved more than INERTIA_STEP_RAD (a 6×6 crba and
-        #: inverse cost half the control law)
-        self._m_inv: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
-        #: (q they were computed at, the tool speed limit's Jacobians), :meth:`speed_jacobians`
-        self._speed_jac: tuple[np.ndarray, np.ndarray] | None = None
-        #: the tool speed the commands are held to this cycle [m/s] (:meth:`speed_target`)
-        self._speed_target = self.cfg.max_tool_speed_m_s
         #: the driver's hold at rest before teaching (:meth:`observe_hold`)
         self.hold = HoldAverage()
         self.damping = np.array(cfg.damping_nm_s_per_rad)
         self.lower = np.array([j.lower_rad for j in model.desc.joints]) + cfg.soft_limit_margin_rad
         self.upper = np.array([j.upper_rad for j in model.desc.joints]) - cfg.soft_limit_margin_rad
-        self._damping = self.damping.tolist()
-        #: per joint: the speed [rad/s] over which the friction compensation ramps in
-        #: (:meth:`friction_ramps`), and the model's friction level at low speed [N·m]
-        self._ramps: list[float] = [0.0] * n
-        self._no_ramps: list[float] = [0.0] * n
         self._guided = _rt.GuidedFriction(cfg.friction_ramp_guided_s)
-        self._friction_level = np.zeros(n)
-        self._lower, self._upper = self.lower.tolist(), self.upper.tolist()
-        self.engaged = False
-        #: states answered with a hold while waiting for the arm to rest before engaging
-        self._waited = 0
-        self.last_cycle: int | None = None
-        self._tau_d_nm: list[float] = [0.0] * n
         band = _rt.hold_band_nm(
             cfg.rest_hold_nm or [0.0] * n, cfg.rest_hold_rms_factor, model.heldout_rms_nm
         )
         self.rest_hold = _rt.RestHold(band, cfg.rest_hold_deflection_rad)
-        self._no_hold = [0.0] * n
+        k_nm_per_a = [j.drive_gain_nm_per_a for j in model.desc.joints]
         #: online estimate of the drives' K_p, K_I from the measured current (telemetry)
         self.inner_estimate: _rt.InnerLoopEstimator | None = None
         if cfg.inner_loop_estimate and cfg.omega_rad_s_per_nm:
-            kp0 = 1.0 / (np.array(self._k_nm_per_a) * np.array(cfg.omega_rad_s_per_nm))
+            kp0 = 1.0 / (np.array(k_nm_per_a) * np.array(cfg.omega_rad_s_per_nm))
             self.inner_estimate = _rt.InnerLoopEstimator(
-                kp0, kp0 * np.array(cfg.upsilon_i_per_s), self._k_nm_per_a
+                kp0, kp0 * np.array(cfg.upsilon_i_per_s), k_nm_per_a
             )
-        #: eq. (28), or (28) and (30), adapt on the cycles the drive followed
-        self._adapts = adaptation is not None
         #: the drive model of the delay predictor, (K K_p, Υ_I), when it is not the law's
         #: estimates: the paper's law starts far from the drive (Υ̂_I(0) = 1.2/s against
         #: ~30/s: a K̂* 26 times the drive's made the predictor's explicit integration
         #: diverge, |q_cmd - q| of 10⁴ rad on the virtual cell), so the predictor keeps the
         #: commissioned, measured drive
-        self._drive_model: tuple[np.ndarray, np.ndarray] | None = None
+        drive_model = None
         if cfg.strategy == "paper":
-            self._drive_model = (
-                1.0 / np.array(cfg.omega_rad_s_per_nm),
-                np.array(cfg.upsilon_i_per_s),
-            )
-        #: commands sent, newest last (the one that drove a cycle is delay + 1 back), and the
-        #: previous state's (q, dq), for the estimate and the paper's adaptation
-        self._sent_cmds: deque[tuple[list[float], list[float]]] = deque(
-            maxlen=cfg.command_delay_cycles + 1
-        )
-        self._prev_state: tuple[np.ndarray, np.ndarray] | None = None
+            drive_model = {
+                "k_star": (1.0 / np.array(cfg.omega_rad_s_per_nm)).tolist(),
+                "upsilon": list(cfg.upsilon_i_per_s),
+            }
         #: the dither's torque amplitude per joint [N·m] (control/rt/src/law/inner_estimate.rs)
         if cfg.inner_loop_dither_a and len(cfg.inner_loop_dither_a) != n:
             raise ConfigError(
                 f"[control].inner_loop_dither_a has {len(cfg.inner_loop_dither_a)} values; "
                 f"the robot has {n} joints"
             )
-        dither_a = cfg.inner_loop_dither_a
-        self._dither_nm = (
-            [a * k for a, k in zip(dither_a, self._k_nm_per_a, strict=True)] if dither_a else []
-        )
-        self._dither_phase = 0.0
-        #: inertia compensation (:meth:`inertia_torque`): the low-passed acceleration, the
-        #: last measured velocity, and the torque added this cycle [N·m]
-        self._ddq_f = np.zeros(n)
-        self._dq_last: np.ndarray | None = None
-        self._tau_inertia: list[float] = [0.0] * n
+        dither = cfg.inner_loop_dither_a or ()
+        settings = {
+            "n": n,
+            "default_cycle_period_s": cfg.default_cycle_period_s,
+            "engage_rest_states": cfg.engage_rest_states,
+            "engage_max_wait_states": cfg.engage_max_wait_states,
+            "rest_rad_s": REST_RAD_S,
+            "flag_prev_hold": int(FLAG_PREV_HOLD),
+            "flag_prev_coast": int(FLAG_PREV_COAST),
+            "k_nm_per_a": k_nm_per_a,
+            "friction_deadband_rad_s": cfg.friction_deadband_rad_s,
+            "friction_compensation": cfg.friction_compensation,
+            "wall_stiffness_nm_per_rad": cfg.wall_stiffness_nm_per_rad,
+            "damping_nm_s_per_rad": self.damping.tolist(),
+            "lower_rad": self.lower.tolist(),
+            "upper_rad": self.upper.tolist(),
+            "friction_ramp_factor": cfg.friction_ramp_factor,
+            "command_delay_cycles": cfg.command_delay_cycles,
+            "inertia_compensation": cfg.inertia_compensation,
+            "inertia_compensation_hz": cfg.inertia_compensation_hz,
+            "max_tool_speed_m_s": cfg.max_tool_speed_m_s,
+            "speed_feedback_gain": SPEED_FEEDBACK_GAIN,
+            "inertia_step_rad": INERTIA_STEP_RAD,
+            "speed_jacobian_step_rad": SPEED_JACOBIAN_STEP_RAD,
+            "friction_level_speeds_rad_s": list(FRICTION_LEVEL_SPEEDS_RAD_S),
+            "nominal_pressures_bar": model.desc.nominal_pressures_bar.tolist(),
+            "tool_in_6_m": list(model.desc.tool.position_in_link6_m),
+            "drive_servo_rate_hz": cfg.drive_servo_rate_hz,
+            "dither_nm": [a * k for a, k in zip(dither, k_nm_per_a, strict=True)] if dither else [],
+            "drive_model": drive_model,
+        }
+        #: the compiled cycle over the pieces above
+        self._cycle = _rt.ZeroMomentCycle(
+            json.dumps(settings), self.loop, self.predictor, self.rest_hold, self._guided,
+            self.hold, self.inner_estimate, model.point, self._inertia,
+        )  # fmt: skip
+        self._model = model
+
+    @property
+    def model(self) -> DeclaredModel:
+        """The model the law compensates."""
+        return self._model
+
+    @model.setter
+    def model(self, model: DeclaredModel) -> None:
+        self._cycle.set_model(model.point)
+        self._model = model
+
+    @property
+    def engaged(self) -> bool:
+        return self._cycle.engaged
+
+    @engaged.setter
+    def engaged(self, value: bool) -> None:
+        self._cycle.engaged = value
+
+    @property
+    def last_cycle(self) -> int | None:
+        return self._cycle.last_cycle
+
+    @last_cycle.setter
+    def last_cycle(self, value: int | None) -> None:
+        self._cycle.last_cycle = value
 
     @property
     def tau_d_nm(self) -> np.ndarray:
         """The desired torque of the last cycle [N·m]."""
-        return np.array(self._tau_d_nm)
+        return np.array(self._cycle.tau_d_nm)
 
     def desired_torque(self, q: np.ndarray, dq: np.ndarray, p_bar: np.ndarray) -> np.ndarray:
         """Zero-moment torque: what the motors must give so the operator feels no load.
 
-        The reference form of the physics; each cycle computes it in :meth:`cycle_command`,
-        which adds the rest hold (control/rt/src/law/rest_hold.rs: it depends on the path of q,
-        so it has no reference form here).
+        The reference form of the physics on arrays, with this cycle's friction ramps; the
+        cycle computes the same and adds the rest hold (control/rt/src/law/rest_hold.rs: it
+        depends on the path of q, so it has no reference form here) and the inertia
+        compensation.
         """
         m = self.model
         tau = m.gravity_nm(q) - m.cylinder_nm(q, p_bar)
@@ -305,9 +333,9 @@ class ZeroMomentController:
         dq_f = np.sign(dq) * np.maximum(np.abs(dq) - dead, 0.0)
         friction = m.friction_nm(q, dq_f)
         friction = np.where(friction * dq > 0.0, friction, 0.0)  # it opposes motion, or nothing
-        ramp = np.array(self._ramps)
+        ramp = np.array(self._cycle.ramps)
         share = np.minimum(np.abs(dq_f) / np.where(ramp > 0.0, ramp, 1.0), 1.0)
-        share = np.where(ramp > 0.0, share, 1.0)  # friction_ramps
+        share = np.where(ramp > 0.0, share, 1.0)
         tau = tau + self.cfg.friction_compensation * share * friction
         tau = tau - self.damping * dq
         k = self.cfg.wall_stiffness_nm_per_rad
@@ -319,115 +347,54 @@ class ZeroMomentController:
         ``q``, ``dq``, gives the model's torque there (gravity less the cylinders, friction):
         eq. (21)'s steady state ``ω̂ τ / Υ̂_I``. Position mode without it sags by the load over
         the loop's stiffness (eq. 19 holds a load with a position error, not an integral).
-
-        It runs every replay cycle, so in the model's per-cycle form (``cycle_torques_nm``:
-        0.08 ms on an identified model where its three array methods took 1.7 ms, measured
-        on a fast machine of our class). Raises ``ValueError`` or ``ArithmeticError`` where
-        the model is undefined."""
-        static, friction = self.model.cycle_torques_nm(q, dq.tolist(), p_bar)
-        tau = np.array(static) + np.array(friction)
-        return self.loop.omega * tau / self.loop.upsilon_i
+        It runs every replay cycle (compiled). Raises ``ValueError`` or ``ArithmeticError``
+        where the model is undefined."""
+        return np.array(self._cycle.hold_offset(q.tolist(), dq.tolist(), list(p_bar)))
 
     def inverse_inertia(self, q: np.ndarray) -> np.ndarray:
         """M(q)⁻¹ of the nominal rigid body with rotor inertias, recomputed once a joint has
-        moved more than :data:`INERTIA_STEP_RAD` since the last time."""
-        assert self._inertia is not None
-        cached = self._m_inv
-        if cached is None or float(np.max(np.abs(q - cached[0]))) > INERTIA_STEP_RAD:
-            m = np.array(self._inertia.mass_matrix(q.tolist(), armature=True))
-            cached = self._m_inv = (q.copy(), np.linalg.inv(m), m)
-        return cached[1]
-
-    def inertia_torque(
-        self, q: np.ndarray, dq: np.ndarray, period_s: float, consecutive: bool
-    ) -> list[float]:
-        """``inertia_compensation`` × M(q) q̈ [N·m]: q̈ the difference of the measured
-        velocities of consecutive states, low-passed (first order) at
-        ``inertia_compensation_hz``; after a gap it starts again from zero."""
-        if not consecutive or self._dq_last is None:
-            self._ddq_f[:] = 0.0
-        else:
-            k = 1.0 - math.exp(-2.0 * math.pi * self.cfg.inertia_compensation_hz * period_s)
-            self._ddq_f += k * ((dq - self._dq_last) / period_s - self._ddq_f)
-        self._dq_last = dq.copy()
-        return (self.cfg.inertia_compensation * (self.inertia(q) @ self._ddq_f)).tolist()
+        moved more than :data:`INERTIA_STEP_RAD` since the last time (a 6×6 CRBA and inverse
+        cost half the law, and the predictor holds with M off by 30 %)."""
+        return np.array(self._cycle.inverse_inertia(q.tolist()))
 
     def inertia(self, q: np.ndarray) -> np.ndarray:
         """M(q) of the nominal rigid body with rotor inertias, cached as
         :meth:`inverse_inertia`'s."""
-        self.inverse_inertia(q)
-        assert self._m_inv is not None
-        return self._m_inv[2]
+        return np.array(self._cycle.inertia(q.tolist()))
 
     def tool_speed_scale(self, q: np.ndarray, dq: np.ndarray) -> float:
         """The factor (≤ 1) on ``dq`` that keeps the tool point and the flange within the
-        cycle's target, :attr:`speed_target_m_s` (nominal kinematics; the Jacobians of
-        :meth:`speed_jacobians`)."""
-        fastest = self.point_speed(q, dq)
-        limit = self._speed_target
-        return 1.0 if fastest <= limit else limit / fastest
+        cycle's target, :attr:`speed_target_m_s` (nominal kinematics)."""
+        return self._cycle.tool_speed_scale(q.tolist(), dq.tolist())
 
     @property
     def speed_target_m_s(self) -> float:
         """The tool speed the commands of the last cycle were held to [m/s]."""
-        return self._speed_target
+        return self._cycle.speed_target_m_s
+
+    @speed_target_m_s.setter
+    def speed_target_m_s(self, value: float) -> None:
+        self._cycle.speed_target_m_s = value
 
     def point_speed(self, q: np.ndarray, dq: np.ndarray) -> float:
-        """The faster of the tool point and the flange at (q, dq) [m/s]."""
-        v = (self.speed_jacobians(q) @ dq).tolist()
-        return max(math.hypot(v[0], v[1], v[2]), math.hypot(v[3], v[4], v[5]))
+        """The faster of the tool point and the flange at (q, dq) [m/s] (their Jacobians
+        recomputed once a joint has moved :data:`SPEED_JACOBIAN_STEP_RAD`)."""
+        return self._cycle.point_speed(q.tolist(), dq.tolist())
 
     def speed_target(self, q: np.ndarray, dq: np.ndarray) -> float:
-        """The speed the commands are held to this cycle [m/s]: ``max_tool_speed_m_s``, less
-        :data:`SPEED_FEEDBACK_GAIN` × what the arm's speed at (q, dq) exceeds it by (not below
-        0)."""
-        limit = self.cfg.max_tool_speed_m_s
-        excess = self.point_speed(q, dq) - limit
-        if not excess > 0.0:  # NaN: the limit as it is
-            return limit
-        return max(limit - SPEED_FEEDBACK_GAIN * excess, 0.0)
-
-    def speed_jacobians(self, q: np.ndarray) -> np.ndarray:
-        """(6, n): the tool point's linear velocity Jacobian over the flange's, world axes,
-        recomputed once a joint has moved :data:`SPEED_JACOBIAN_STEP_RAD` since the last time
-        (two kinematics calls cost a third of the control law). The flange sits ``r = R p``
-        behind the tool point (p the tool point in the link-6 frame), so ``v_flange = v_tool -
-        ω × r = (J_v + [r]× J_ω) dq``."""
-        cached = self._speed_jac
-        if cached is None or float(np.max(np.abs(q - cached[0]))) > SPEED_JACOBIAN_STEP_RAD:
-            assert self._inertia is not None
-            jac = np.array(self._inertia.tool_jacobian(q.tolist()))
-            r = np.array(self._inertia.tool_pose(q.tolist())[0]) @ self._tool_in_6
-            skew = np.array([[0.0, -r[2], r[1]], [r[2], 0.0, -r[0]], [-r[1], r[0], 0.0]])
-            stacked = np.vstack([jac[:3], jac[:3] + skew @ jac[3:]])
-            cached = self._speed_jac = (q.copy(), stacked)
-        return cached[1]
+        """The speed the commands are to be held to at (q, dq) [m/s]:
+        ``max_tool_speed_m_s``, less :data:`SPEED_FEEDBACK_GAIN` × what the arm's speed at
+        (q, dq) exceeds it by (not below 0)."""
+        return self._cycle.speed_target(q.tolist(), dq.tolist())
 
     def friction_level_nm(self, q: np.ndarray) -> np.ndarray:
         """The model's friction at ``q`` just above rest [N·m], per joint: the most of it over
         a few low speeds both ways (its static level, where the model has a Stribeck rise);
         0 where the model is undefined. It runs in the cycle at every engagement."""
-        return np.nan_to_num(friction_levels_nm(self.model, q, FRICTION_LEVEL_SPEEDS_RAD_S))
-
-    def friction_ramps(self, m_inv: np.ndarray, period_s: float) -> list[float]:
-        """Per joint, the speed [rad/s] over which the friction compensation ramps in.
-
-        Compensation switched on by a measured velocity acts a loop delay T late (the state's
-        age plus the command delay, ``(delay + 1)`` cycles): a joint of effective inertia
-        1/(M⁻¹)ⱼⱼ that a friction level f compensates in full when it starts to slide is
-        already f T (M⁻¹)ⱼⱼ faster by the time the compensation sees it stop. A plant with
-        stiction then chatters around zero speed (the wrists of the virtual cell did, ±20-40
-        mrad/s, drifting millimetres in seconds). Ramping the compensation in over
-        ``friction_ramp_factor`` times that speed keeps the loop's slope below the delay's
-        limit; the operator pays the missing share at the start of each motion."""
-        factor = self.cfg.friction_ramp_factor
-        lag = (self.cfg.command_delay_cycles + 1) * period_s
-        diag = np.diag(m_inv)
-        return (factor * lag * self._friction_level * diag).tolist()
+        return np.array(self._cycle.friction_level_nm(q.tolist()))
 
     def disengage(self) -> None:
-        self.engaged = False
-        self._waited = 0
+        self._cycle.disengage()
 
     def engagement(self) -> dict[str, Any]:
         """What the law is doing, for the operator's status: ``{"phase": "idle"}`` (not
@@ -436,32 +403,25 @@ class ZeroMomentController:
 
     def motor_torque_nm(self, st: JointState) -> list[float]:
         """The motor torque ``st`` reports: datasheet K × measured current [N·m]."""
-        return [k * i for k, i in zip(self._k_nm_per_a, st.current_a.tolist(), strict=True)]
+        return self._cycle.motor_torque_nm(st.current_a.tolist())
 
     def observe_hold(self, st: JointState) -> None:
         """A state while the arm is held (by the driver, or by this controller waiting to
         engage): at rest, its held offset and current go into :attr:`hold` for the next
         engagement; moving, the average restarts."""
-        held = st.flags & FLAG_PREV_HOLD or (
-            self._waited and not st.flags & FLAG_PREV_COAST
+        self._cycle.observe_hold(
+            st.flags, st.q_rad.tolist(), st.dq_rad_s.tolist(), st.q_cmd_rad.tolist(),
+            st.current_a.tolist(),
         )  # fmt: skip
-        if held and float(np.max(np.abs(st.dq_rad_s))) <= REST_RAD_S:
-            self.hold.add((st.q_cmd_rad - st.q_rad).tolist(), self.motor_torque_nm(st))
-        else:
-            self.hold.clear()
 
     def _still_waiting(self, st: JointState) -> bool:
         """Before engaging: take ``st`` into the hold's average; True while the arm has not
         rested long enough to calibrate ω̂ (and at most ``engage_max_wait_states``): the
         caller then holds on where the driver holds."""
-        self.observe_hold(st)
-        cfg = self.cfg
-        resting = len(self.hold) >= cfg.engage_rest_states
-        if not resting and self._waited < cfg.engage_max_wait_states:
-            self._waited += 1
-            return True
-        self._waited = 0
-        return False
+        return self._cycle.still_waiting(
+            st.flags, st.q_rad.tolist(), st.dq_rad_s.tolist(), st.q_cmd_rad.tolist(),
+            st.current_a.tolist(),
+        )  # fmt: skip
 
     def update(
         self, st: JointState, p_bar: Sequence[float], now_s: float, state_rx_s: float = 0.0
@@ -472,136 +432,20 @@ class ZeroMomentController:
         return make_joint_command(st.cycle, st.stamp_s, now_s, q_cmd, dq_cmd, state_rx_s)
 
     def answer(self, st: JointState, p_bar: Sequence[float]) -> tuple[list[float], list[float]]:
-        """``(q_cmd, dq_cmd)`` answering ``st`` with cylinder pressures ``p_bar`` [bar].
+        """``(q_cmd, dq_cmd)`` answering ``st`` with cylinder pressures ``p_bar`` [bar] (the
+        compiled cycle, class docstring).
 
         Raises MessageError if the model cannot be evaluated at ``st``; a NaN in the result is
         left for :func:`make_joint_command` to refuse.
         """
-        period = st.cycle_period_s or self.cfg.default_cycle_period_s
-        if not self.engaged:
-            if self._still_waiting(st):
-                return st.q_cmd_rad.tolist(), [0.0] * len(st.q_cmd_rad)
-            # Bumpless: start from the command the robot follows now (the driver's hold).
-            if len(self.hold):  # the held offsets and currents measure the drive's K K_I
-                self.loop.calibrate_from_hold(*self.hold.mean())
-                if len(self.hold) >= 2:  # the paper's dead zone: the torque's noise at rest
-                    self.loop.set_dead_zone(self.hold.torque_std())
-            self.hold.clear()
-            self.loop.reset(st.q_cmd_rad - st.q_rad)
-            self.predictor.reset()
-            self.rest_hold.reset()
-            self._guided.reset()
-            self._sent_cmds.clear()
-            self._prev_state = None
-            self._dq_last = None  # inertia_torque: the acceleration starts again from zero
-            if self.cfg.friction_ramp_factor:
-                self._friction_level = self.friction_level_nm(st.q_rad)
-            self.engaged = True
-            self.last_cycle = st.cycle - 1
-        gap = st.cycle - (self.last_cycle if self.last_cycle is not None else st.cycle - 1)
-        dt = period * max(1, min(gap, 50))
-        self.last_cycle = st.cycle
-        # eq. (28): the torque the drive delivered, if it followed the commands as sent
-        followed = gap == 1 and not st.flags & (FLAG_PREV_HOLD | FLAG_PREV_COAST)
-        if self.inner_estimate is not None or self._adapts:
-            self._cycle_regression(st, followed, period)
-        q, dq = st.q_rad, st.dq_rad_s
-        if self._inertia is not None:
-            m_inv = self.inverse_inertia(q)
-            if self.cfg.friction_ramp_factor:
-                self._ramps = self.friction_ramps(m_inv, period)
-                if self._guided.update(st.dq_rad_s, self._ramps, dt):
-                    self._ramps = self._no_ramps
-            k_star, ups = self._drive_model or (
-                1.0 / np.array(self.loop.omega),
-                np.array(self.loop.upsilon_i),
-            )
-            if self.cfg.inertia_compensation:
-                self._tau_inertia = self.inertia_torque(q, st.dq_rad_s, period, gap == 1)
-            q, dq = (
-                np.asarray(v)
-                for v in self.predictor.predict(
-                    q, dq, st.q_cmd_rad, st.dq_cmd_rad_s, period, gap == 1, m_inv, k_star, ups
-                )
-            )
-            if self.cfg.max_tool_speed_m_s > 0:  # on the speed the arm will have, predicted
-                self._speed_target = self.speed_target(q, dq)
         try:
-            q_cmd, dq_cmd = self.cycle_command(q, dq, p_bar, dt)
+            return self._cycle.answer(
+                st.cycle, st.flags, st.cycle_period_s, st.q_rad.tolist(), st.dq_rad_s.tolist(),
+                st.q_cmd_rad.tolist(), st.dq_cmd_rad_s.tolist(), st.current_a.tolist(),
+                [float(v) for v in p_bar],
+            )  # fmt: skip
         except (ValueError, ArithmeticError) as exc:  # where numpy would have given NaN
             raise MessageError(f"cycle {st.cycle}: model torque undefined ({exc})") from None
-        if self.cfg.max_tool_speed_m_s > 0:
-            # Hand guiding's speed limit, in the command path: a velocity command the tool
-            # or the flange would exceed it with is scaled down, and the vendor loop's
-            # velocity gain brakes the arm to it (the operator meets a wall at the limit).
-            scale = self.tool_speed_scale(q, np.array(dq_cmd))
-            if scale < 1.0:
-                dq_cmd = [v * scale for v in dq_cmd]
-        if self.inner_estimate is not None or self._adapts:
-            self._sent_cmds.append((q_cmd, dq_cmd))
-        return q_cmd, dq_cmd
-
-    def _cycle_regression(self, st: JointState, followed: bool, period_s: float) -> None:
-        """Feed the cycle that just ended to :attr:`inner_estimate` and the loop's adaptation
-        (eq. 28, or eqs. 28 and 30) if the drive followed the command that drove it as sent."""
-        est, prev = self.inner_estimate, self._prev_state
-        self._prev_state = (st.q_rad, st.dq_rad_s)
-        if not followed or prev is None:
-            self._sent_cmds.clear()
-            return
-        if len(self._sent_cmds) < self._sent_cmds.maxlen:
-            return
-        q_cmd, dq_cmd = self._sent_cmds[0]
-        rate = self.cfg.drive_servo_rate_hz
-        ticks = round(period_s * rate) if rate else 0
-        if est is not None:
-            est.update(
-                q_cmd, dq_cmd, prev[0], st.q_rad, st.current_a, period_s,
-                dq_start=prev[1], dq_end=st.dq_rad_s, ticks=ticks,
-            )  # fmt: skip
-        if self._adapts:
-            u1, u2 = _rt.cycle_means(
-                q_cmd, dq_cmd, prev[0], st.q_rad, period_s, prev[1], st.dq_rad_s, ticks
-            )
-            self.loop.adapt(u1, u2, self.motor_torque_nm(st), period_s)
-
-    def cycle_command(
-        self, q_rad: np.ndarray, dq_rad_s: np.ndarray, p_bar: Sequence[float], dt_s: float
-    ) -> tuple[list[float], list[float]]:
-        """:meth:`desired_torque`, then eq. (21) over ``dt_s``: ``(q_cmd, dq_cmd)``.
-
-        The same formulas as :meth:`desired_torque` and :meth:`OuterLoop.step`, on plain
-        floats (numpy's per-call overhead dominates on six joints). Raises ``ValueError`` or
-        ``ArithmeticError`` where those would return NaN or inf.
-        """
-        q, dq = q_rad.tolist(), dq_rad_s.tolist()
-        dead = self.cfg.friction_deadband_rad_s
-        # sign(dq) · max(|dq| - deadband, 0)
-        dq_f = [v - dead if v > dead else v + dead if v < -dead else 0.0 for v in dq]
-        p = [float(v) for v in p_bar]
-        static, friction = self.model.cycle_torques_nm(q_rad, dq_f, p)
-        gain = self.cfg.friction_compensation
-        k = self.cfg.wall_stiffness_nm_per_rad
-        tau = []
-        hold = self.rest_hold.torque_nm(q) if self.rest_hold.active else self._no_hold
-        for qj, dqj, vf, s, f, c, lo, up, h, ramp, a in zip(
-            q, dq, dq_f, static, friction, self._damping, self._lower, self._upper, hold,
-            self._ramps, self._tau_inertia, strict=True,
-        ):  # fmt: skip
-            # friction opposes motion: a model that says otherwise there is not compensated
-            share = gain if ramp <= 0.0 else gain * min(1.0, abs(vf) / ramp)
-            t = s + (share * f if f * dqj > 0.0 else 0.0) - c * dqj + h + a
-            if qj > up:  # soft joint limits: a spring pushes back inside
-                t -= k * (qj - up)
-            if qj < lo:
-                t += k * (lo - qj)
-            tau.append(t)
-        if self._dither_nm:
-            self._dither_phase += 2.0 * math.pi * dt_s
-            for j, d in enumerate(self._dither_nm):
-                tau[j] += d * math.sin((4.0 + 0.4 * j) * self._dither_phase + j)
-        self._tau_d_nm = tau
-        return self.loop.step_floats(q, dq, tau, dt_s)
 
 
 class AdmittanceController(ZeroMomentController):
@@ -615,10 +459,10 @@ class AdmittanceController(ZeroMomentController):
     adapt here: the hand's torque is in the current, so eq. (28) would learn it.
     """
 
+    ALWAYS_CHAIN = True
+
     def __init__(self, cfg: ControlConfig, model: DeclaredModel) -> None:
         super().__init__(cfg, model)
-        if self._inertia is None:
-            self._inertia = nominal_chain(model.desc)
         band = _rt.hold_band_nm(
             cfg.rest_hold_nm or [0.0] * model.n,
             cfg.admittance_band_rms_factor,
@@ -652,6 +496,14 @@ class AdmittanceController(ZeroMomentController):
         self._probe_period_s = 0.0
         #: per joint, the hand torque a joint at rest hides in its friction [N·m]
         self._stick = np.zeros(model.n)
+        #: the model's friction level at the engagement's pose [N·m]
+        self._friction_level = np.zeros(model.n)
+        #: the desired torque of the last cycle [N·m]
+        self._tau_d = np.zeros(model.n)
+
+    @property
+    def tau_d_nm(self) -> np.ndarray:
+        return self._tau_d.copy()
 
     def disengage(self) -> None:
         super().disengage()
@@ -749,7 +601,7 @@ class AdmittanceController(ZeroMomentController):
         gap = st.cycle - (self.last_cycle if self.last_cycle is not None else st.cycle - 1)
         dt = period * max(1, min(gap, 50))
         if self.cfg.max_tool_speed_m_s > 0 and self._inertia is not None:
-            self._speed_target = self.speed_target(st.q_rad, st.dq_rad_s)
+            self.speed_target_m_s = self.speed_target(st.q_rad, st.dq_rad_s)
         self.last_cycle = st.cycle
         q = st.q_rad
         adm = self.admittance
@@ -772,7 +624,7 @@ class AdmittanceController(ZeroMomentController):
         ddq_r = np.array(adm.ddq_r)
         self._sent_ddq.append(ddq_r)
         tau = self.model_torque(q_r, dq_r, ddq_r, p_bar) - self._bias
-        self._tau_d_nm = tau.tolist()
+        self._tau_d = tau
         offset = np.clip(self.loop.omega * tau / self.loop.upsilon_i, -self._max_offset,
                          self._max_offset)  # fmt: skip
         # the command may lead the arm by at most the offset limit (the controller faults at

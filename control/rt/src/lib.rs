@@ -27,3 +27,5 @@ mod py_inner_estimate;
 mod py_outer_loop;
 #[cfg(feature = "python")]
 mod py_rest_hold;
+#[cfg(feature = "python")]
+mod py_zero_moment;

@@ -35,9 +35,9 @@ fn rows(flat: &[f64], width: usize) -> Vec<Vec<f64>> {
     flat.chunks(width).map(<[f64]>::to_vec).collect()
 }
 
-struct ChainState {
-    chain: Chain,
-    work: Work,
+pub(crate) struct ChainState {
+    pub(crate) chain: Chain,
+    pub(crate) work: Work,
 }
 
 /// The rigid-body chain (chain.rs).
@@ -48,7 +48,7 @@ pub struct PyChain {
 }
 
 impl PyChain {
-    fn lock(&self) -> PyResult<MutexGuard<'_, ChainState>> {
+    pub(crate) fn lock(&self) -> PyResult<MutexGuard<'_, ChainState>> {
         self.state
             .lock()
             .map_err(|_| PyRuntimeError::new_err("the chain's lock is poisoned"))
@@ -152,7 +152,7 @@ pub struct PyPointModel {
 }
 
 impl PyPointModel {
-    fn lock(&self) -> PyResult<MutexGuard<'_, PointModel>> {
+    pub(crate) fn lock(&self) -> PyResult<MutexGuard<'_, PointModel>> {
         self.model
             .lock()
             .map_err(|_| PyRuntimeError::new_err("the model's lock is poisoned"))
@@ -228,5 +228,6 @@ fn _rt(m: &Bound<'_, PyModule>) -> PyResult<()> {
     crate::py_rest_hold::register(m)?;
     crate::py_outer_loop::register(m)?;
     crate::py_admittance::register(m)?;
+    crate::py_zero_moment::register(m)?;
     Ok(())
 }

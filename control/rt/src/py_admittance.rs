@@ -61,7 +61,7 @@ pub struct PyAdmittance {
 }
 
 impl PyAdmittance {
-    fn lock(&self) -> PyResult<MutexGuard<'_, Admittance>> {
+    pub(crate) fn lock(&self) -> PyResult<MutexGuard<'_, Admittance>> {
         self.law
             .lock()
             .map_err(|_| PyRuntimeError::new_err("the admittance's lock is poisoned"))
@@ -285,7 +285,7 @@ pub struct PyEngageProbe {
 }
 
 impl PyEngageProbe {
-    fn lock(&self) -> PyResult<MutexGuard<'_, EngageProbe>> {
+    pub(crate) fn lock(&self) -> PyResult<MutexGuard<'_, EngageProbe>> {
         self.probe
             .lock()
             .map_err(|_| PyRuntimeError::new_err("the engage probe's lock is poisoned"))

@@ -37,7 +37,7 @@ pub struct PyDelayPredictor {
 }
 
 impl PyDelayPredictor {
-    fn lock(&self) -> PyResult<MutexGuard<'_, DelayPredictor>> {
+    pub(crate) fn lock(&self) -> PyResult<MutexGuard<'_, DelayPredictor>> {
         self.predictor
             .lock()
             .map_err(|_| PyRuntimeError::new_err("the delay predictor's lock is poisoned"))

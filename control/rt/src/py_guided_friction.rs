@@ -15,7 +15,7 @@ pub struct PyGuidedFriction {
 }
 
 impl PyGuidedFriction {
-    fn lock(&self) -> PyResult<MutexGuard<'_, GuidedFriction>> {
+    pub(crate) fn lock(&self) -> PyResult<MutexGuard<'_, GuidedFriction>> {
         self.state
             .lock()
             .map_err(|_| PyRuntimeError::new_err("the guided friction's lock is poisoned"))

@@ -66,7 +66,7 @@ pub struct PyInnerLoopEstimator {
 }
 
 impl PyInnerLoopEstimator {
-    fn lock(&self) -> PyResult<MutexGuard<'_, InnerLoopEstimator>> {
+    pub(crate) fn lock(&self) -> PyResult<MutexGuard<'_, InnerLoopEstimator>> {
         self.est
             .lock()
             .map_err(|_| PyRuntimeError::new_err("the inner-loop estimate's lock is poisoned"))

@@ -165,7 +165,7 @@ pub struct PyHoldAverage {
 }
 
 impl PyHoldAverage {
-    fn lock(&self) -> PyResult<MutexGuard<'_, HoldAverage>> {
+    pub(crate) fn lock(&self) -> PyResult<MutexGuard<'_, HoldAverage>> {
         self.hold
             .lock()
             .map_err(|_| PyRuntimeError::new_err("the hold average's lock is poisoned"))
@@ -266,7 +266,7 @@ pub struct PyOuterLoop {
 }
 
 impl PyOuterLoop {
-    fn lock(&self) -> PyResult<MutexGuard<'_, OuterLoop>> {
+    pub(crate) fn lock(&self) -> PyResult<MutexGuard<'_, OuterLoop>> {
         self.state
             .lock()
             .map_err(|_| PyRuntimeError::new_err("the outer loop's lock is poisoned"))

@@ -17,7 +17,7 @@ pub struct PyRestHold {
 }
 
 impl PyRestHold {
-    fn lock(&self) -> PyResult<MutexGuard<'_, RestHold>> {
+    pub(crate) fn lock(&self) -> PyResult<MutexGuard<'_, RestHold>> {
         self.hold
             .lock()
             .map_err(|_| PyRuntimeError::new_err("the rest hold's lock is poisoned"))

@@ -1,7 +1,8 @@
 //! The control law's per-cycle pieces: eq. (21) and the adaptation of its gains
 //! (outer_loop), the Smith predictor over the command delay (delay), the rest hold
 //! (rest_hold), the friction ramp's guided switch (guided_friction), the online inner-loop
-//! estimate (inner_estimate) and the sensorless admittance (admittance).
+//! estimate (inner_estimate), the sensorless admittance (admittance), and the zero-moment
+//! law's cycle over them (zero_moment).
 
 pub mod admittance;
 pub mod delay;
@@ -9,3 +10,4 @@ pub mod guided_friction;
 pub mod inner_estimate;
 pub mod outer_loop;
 pub mod rest_hold;
+pub mod zero_moment;
