@@ -20,7 +20,9 @@ CAN_SO := drivers/can/_rt.abi3.so
 CONTROL_SO := control/_rt.abi3.so
 RT_SO := $(CAN_SO) $(CONTROL_SO)
 
-$(CAN_SO): Cargo.toml Cargo.lock drivers/can/rt/Cargo.toml $(wildcard drivers/can/rt/src/*.rs) $(STAMP)
+BUS_RS := gateway/rt/Cargo.toml $(wildcard gateway/rt/src/*.rs)
+
+$(CAN_SO): Cargo.toml Cargo.lock drivers/can/rt/Cargo.toml $(wildcard drivers/can/rt/src/*.rs) $(BUS_RS) $(STAMP)
 	$(CARGO_BUILD) -p leadthrough-can-rt --features python
 	cp target/release/libcan_rt.so $@
 
@@ -34,7 +36,8 @@ demo: $(STAMP) $(RT_SO)
 test: $(STAMP) $(RT_SO)
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
-	$(CARGO) test --locked --quiet -p leadthrough-can-rt -p leadthrough-control-rt
+	$(CARGO) fmt --all --check
+	$(CARGO) test --locked --quiet -p leadthrough-bus-rt -p leadthrough-can-rt -p leadthrough-control-rt
 	$(BIN)/pytest -q
 
 # The stack tier beside a competing CPU load: a busy process pinned to CPU 0 at the product's

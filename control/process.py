@@ -53,8 +53,8 @@ from gateway.bus import (
     BusConfig,
     bus_config_from,
     declare_loop_publisher,
-    on_receiving_thread,
     open_peer,
+    peer_config_entries,
     undeclare_all,
 )
 from gateway.config import from_mapping, load_toml, resolve_path
@@ -906,6 +906,12 @@ class ControlProcess:
         self.session = None
         self._subs: list = []
         self._pub_cmd = None
+        #: the compiled joint-state subscription (control/rt/src/py_cycle_loop.rs): the
+        #: zero-moment law answers teaching's states there, every other state comes to
+        #: :meth:`_on_state_bytes`
+        self._loop: _rt.CycleLoop | None = None
+        #: the newest state Python handled: (cycle, q, dq)
+        self._last_state: tuple[int, np.ndarray, np.ndarray] | None = None
         #: the latest static-load check and when it was made (monotonic [s])
         self.load_check: LoadCheck | None = None
         self.load_check_s = -1e9
@@ -921,8 +927,6 @@ class ControlProcess:
                 rate_bar_per_s=cfg.pressure_schedule_rate_bar_per_s,
             )
             self.schedule = PressureSchedule(desc.cylinders, settings, cfg.pressure_setpoint_bar)
-        self._last_q: np.ndarray | None = None
-        self._last_dq: np.ndarray | None = None
         #: eq. (29) in replay (control/model_adaptation.py), and the version of it the law
         #: compensates
         self.adaptation: PayloadAdaptation | None = None
@@ -973,13 +977,20 @@ class ControlProcess:
         self.session = open_peer(self.bus, security.CONTROL)
         s = self.session
         self._pub_cmd = declare_loop_publisher(s, self.keys.joint_command)
+        compiled = type(self.ctl) is ZeroMomentController  # the admittance's law is Python's
+        self._loop = _rt.CycleLoop(
+            peer_config_entries(self.bus, security.CONTROL), self.keys.joint_state,
+            self.keys.joint_command, self.ctl._cycle if compiled else None,
+            self._on_state_bytes,
+        )  # fmt: skip
         self._subs = [
-            s.declare_subscriber(self.keys.joint_state, on_receiving_thread(self._on_state)),
             s.declare_subscriber(self.keys.io_state, self._on_io),
             s.declare_subscriber(self.keys.lifecycle, self._on_lifecycle),
         ]
 
     def close(self) -> None:
+        if self._loop is not None:
+            self._loop.close()
         undeclare_all([*self._subs, self._pub_cmd])
         self._subs, self._pub_cmd = [], None
         if self.session is not None:
@@ -990,11 +1001,14 @@ class ControlProcess:
     # --- callbacks: decode, compute, publish; never block --------------------------------
     def _decode(self, cls, sample):
         """``cls.from_bytes`` of the sample, or None (counted and logged) if malformed."""
+        return self._decode_bytes(cls, sample.payload.to_bytes(), sample.key_expr)
+
+    def _decode_bytes(self, cls, data: bytes, key: str):
         try:
-            return cls.from_bytes(sample.payload.to_bytes())
+            return cls.from_bytes(data)
         except MessageError as exc:
             self.stats["bad_messages"] += 1
-            log.warning("ignored %s on %s: %s", cls.__name__, sample.key_expr, exc)
+            log.warning("ignored %s on %s: %s", cls.__name__, key, exc)
             return None
 
     def _on_io(self, sample) -> None:
@@ -1002,6 +1016,8 @@ class ControlProcess:
         if io is not None:
             with self._lock:
                 self.io = io
+            if self._loop is not None:
+                self._loop.set_io(io.p2_bar, io.p3_bar, io.stamp_s, self.cfg.io_timeout_s)
 
     def _on_lifecycle(self, sample) -> None:
         msg = self._decode(LifecycleMsg, sample)
@@ -1010,6 +1026,11 @@ class ControlProcess:
                 dropped = self.lifecycle_order.admit(msg)
                 if dropped is None:
                     self.lifecycle, self.lifecycle_rx_s = msg, self.clock()
+                    if self._loop is not None:
+                        self._loop.set_lifecycle(
+                            msg.state == Lifecycle.TEACHING, self.lifecycle_rx_s,
+                            self.cfg.lifecycle_timeout_s,
+                        )  # fmt: skip
             if dropped is not None:
                 self._ratelog(
                     logging.WARNING, f"lifecycle_{dropped}", "lifecycle seq %d %s dropped: %s",
@@ -1029,8 +1050,14 @@ class ControlProcess:
         return state if state in COMMANDING else None
 
     def _on_state(self, sample) -> None:
-        now = self.clock()  # receipt: the command's state_rx_stamp_s
-        st = self._decode(JointState, sample)
+        """A joint state as a zenoh sample (the benchmark and the tests drive it so)."""
+        self._on_state_bytes(sample.payload.to_bytes(), self.clock())
+
+    def _on_state_bytes(self, data: bytes, now: float) -> None:
+        """A joint state the compiled loop did not answer (the law's teaching cycle is
+        compiled: control/rt/src/py_cycle_loop.rs), received at ``now`` (monotonic [s]: the
+        command's state_rx_stamp_s)."""
+        st = self._decode_bytes(JointState, data, self.keys.joint_state)
         if st is None:
             return
         self.stats["states"] += 1
@@ -1040,7 +1067,7 @@ class ControlProcess:
             self.stats["bad_messages"] += 1
             log.error("joint state has %d joints, the robot has %d", st.n, self.n)
             return
-        self._last_q, self._last_dq = st.q_rad, st.dq_rad_s
+        self._last_state = (st.cycle, st.q_rad, st.dq_rad_s)
         ctl = self.ctl
         following = st.controller_state in (ControllerState.HOLD, ControllerState.EXTERNAL)
         period = st.cycle_period_s or self.cfg.default_cycle_period_s
@@ -1133,7 +1160,8 @@ class ControlProcess:
         model's error (an arm without stiction drifted 2.3 mm in 5 s on the virtual cell
         while the set-points settled). Identification ramps back to the fixed ones; any
         other state holds."""
-        sched, ctl, q, dq = self.schedule, self.ctl, self._last_q, self._last_dq
+        sched, ctl = self.schedule, self.ctl
+        q, dq = self._last_pose()
         if sched is None or ctl is None:
             return self.cfg.pressure_setpoint_bar
         with self._lock:
@@ -1152,6 +1180,29 @@ class ControlProcess:
         except (ValueError, ArithmeticError):  # the model undefined there: stay
             return sched.hold(now)
         return sched.update(target, now)
+
+    def _last_pose(self) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """The newest measured (q, dq): of the states Python handled or the compiled loop
+        answered."""
+        mine = self._last_state
+        theirs = None if self._loop is None else self._loop.last_state()
+        if theirs is not None and (mine is None or theirs[0] > mine[0]):
+            return np.array(theirs[1]), np.array(theirs[2])
+        return (None, None) if mine is None else (mine[1], mine[2])
+
+    def _loop_report(self) -> dict[str, int]:
+        """The process's counters with the compiled loop's, and its notes logged."""
+        stats = dict(self.stats)
+        if self._loop is None:
+            return stats
+        for note in self._loop.take_notes():
+            log.error("%s", note)
+        c = self._loop.counters()
+        stats["states"] = c["states"]
+        stats["commands"] += c["commands"]
+        stats["bad_messages"] += c["errors"]
+        stats["compiled_commands"] = c["commands"]
+        return stats
 
     def _adapt_model(self, now: float) -> None:
         """Eq. (29) on the replay's states collected since the last call; the law takes the
@@ -1224,7 +1275,7 @@ class ControlProcess:
                 "stamp_s": now,
                 "engaged": self.ctl is not None and self.ctl.engaged,
                 "engagement": None if self.ctl is None else self.ctl.engagement(),
-                **self.stats,
+                **self._loop_report(),
                 "lifecycle_dropped": dict(self.lifecycle_order.dropped),
                 "load_check": None
                 if self.load_check is None

@@ -109,3 +109,32 @@ def test_held_arm_at_rest_is_checked_against_the_models_static_load(rig):
         assert proc.load_check is not None and proc.load_check.ok is (k == 0), proc.load_check
     assert proc.load_check.joint == 3 and "joint 3" in proc.load_check.message
     assert commands == []
+
+
+def test_teaching_is_answered_while_python_holds_the_gil(rig):
+    """The compiled loop (control/rt/src/py_cycle_loop.rs): a teaching state is answered and
+    the command sent while this process's Python is held (a C call that keeps the GIL for
+    0.3 s): no Python on the path from the joint state to the command."""
+    import ctypes
+
+    bus, client, proc, commands = rig
+    keys = bus.keys
+    client.put(keys.io_state, IoState(time.monotonic(), 6.0, 4.0, 6.0, 4.0, True, True).to_bytes())
+    client.put(keys.lifecycle, LifecycleMsg(Lifecycle.TEACHING, 1, time.monotonic()).to_bytes())
+    time.sleep(0.05)
+    client.put(keys.joint_state, state(1))  # engages (the example cell engages at once)
+    settle()
+    assert [c.cycle for c in commands] == [1]
+    client.put(keys.io_state, IoState(time.monotonic(), 6.0, 4.0, 6.0, 4.0, True, True).to_bytes())
+    client.put(keys.lifecycle, LifecycleMsg(Lifecycle.TEACHING, 2, time.monotonic()).to_bytes())
+    time.sleep(0.05)
+    client.put(keys.joint_state, state(2))
+    held_from = time.monotonic()
+    ctypes.PyDLL(None).usleep(300_000)  # PyDLL: the GIL stays held through the call
+    held_until = time.monotonic()
+    settle()
+    assert [c.cycle for c in commands] == [1, 2]
+    assert held_from < commands[1].sent_stamp_s < held_until - 0.2, (
+        held_from, commands[1].sent_stamp_s, held_until
+    )
+    assert proc._loop_report()["compiled_commands"] == 2

@@ -48,6 +48,14 @@ pub struct PyChain {
 }
 
 impl PyChain {
+    /// The lock without the GIL's error type (the compiled loop's thread).
+    pub(crate) fn state_lock(
+        &self,
+    ) -> Result<MutexGuard<'_, ChainState>, std::sync::PoisonError<MutexGuard<'_, ChainState>>>
+    {
+        self.state.lock()
+    }
+
     pub(crate) fn lock(&self) -> PyResult<MutexGuard<'_, ChainState>> {
         self.state
             .lock()
@@ -152,6 +160,14 @@ pub struct PyPointModel {
 }
 
 impl PyPointModel {
+    /// The lock without the GIL's error type (the compiled loop's thread).
+    pub(crate) fn state_lock(
+        &self,
+    ) -> Result<MutexGuard<'_, PointModel>, std::sync::PoisonError<MutexGuard<'_, PointModel>>>
+    {
+        self.model.lock()
+    }
+
     pub(crate) fn lock(&self) -> PyResult<MutexGuard<'_, PointModel>> {
         self.model
             .lock()
@@ -229,5 +245,6 @@ fn _rt(m: &Bound<'_, PyModule>) -> PyResult<()> {
     crate::py_outer_loop::register(m)?;
     crate::py_admittance::register(m)?;
     crate::py_zero_moment::register(m)?;
+    crate::py_cycle_loop::register(m)?;
     Ok(())
 }

@@ -37,6 +37,16 @@ pub struct PyDelayPredictor {
 }
 
 impl PyDelayPredictor {
+    /// The lock without the GIL's error type (the compiled loop's thread).
+    pub(crate) fn state_lock(
+        &self,
+    ) -> Result<
+        MutexGuard<'_, DelayPredictor>,
+        std::sync::PoisonError<MutexGuard<'_, DelayPredictor>>,
+    > {
+        self.predictor.lock()
+    }
+
     pub(crate) fn lock(&self) -> PyResult<MutexGuard<'_, DelayPredictor>> {
         self.predictor
             .lock()

@@ -15,6 +15,16 @@ pub struct PyGuidedFriction {
 }
 
 impl PyGuidedFriction {
+    /// The lock without the GIL's error type (the compiled loop's thread).
+    pub(crate) fn state_lock(
+        &self,
+    ) -> Result<
+        MutexGuard<'_, GuidedFriction>,
+        std::sync::PoisonError<MutexGuard<'_, GuidedFriction>>,
+    > {
+        self.state.lock()
+    }
+
     pub(crate) fn lock(&self) -> PyResult<MutexGuard<'_, GuidedFriction>> {
         self.state
             .lock()

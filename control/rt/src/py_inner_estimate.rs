@@ -66,6 +66,16 @@ pub struct PyInnerLoopEstimator {
 }
 
 impl PyInnerLoopEstimator {
+    /// The lock without the GIL's error type (the compiled loop's thread).
+    pub(crate) fn state_lock(
+        &self,
+    ) -> Result<
+        MutexGuard<'_, InnerLoopEstimator>,
+        std::sync::PoisonError<MutexGuard<'_, InnerLoopEstimator>>,
+    > {
+        self.est.lock()
+    }
+
     pub(crate) fn lock(&self) -> PyResult<MutexGuard<'_, InnerLoopEstimator>> {
         self.est
             .lock()

@@ -165,6 +165,14 @@ pub struct PyHoldAverage {
 }
 
 impl PyHoldAverage {
+    /// The lock without the GIL's error type (the compiled loop's thread).
+    pub(crate) fn state_lock(
+        &self,
+    ) -> Result<MutexGuard<'_, HoldAverage>, std::sync::PoisonError<MutexGuard<'_, HoldAverage>>>
+    {
+        self.hold.lock()
+    }
+
     pub(crate) fn lock(&self) -> PyResult<MutexGuard<'_, HoldAverage>> {
         self.hold
             .lock()
@@ -266,6 +274,13 @@ pub struct PyOuterLoop {
 }
 
 impl PyOuterLoop {
+    /// The lock without the GIL's error type (the compiled loop's thread).
+    pub(crate) fn state_lock(
+        &self,
+    ) -> Result<MutexGuard<'_, OuterLoop>, std::sync::PoisonError<MutexGuard<'_, OuterLoop>>> {
+        self.state.lock()
+    }
+
     pub(crate) fn lock(&self) -> PyResult<MutexGuard<'_, OuterLoop>> {
         self.state
             .lock()

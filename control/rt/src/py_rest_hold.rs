@@ -17,6 +17,13 @@ pub struct PyRestHold {
 }
 
 impl PyRestHold {
+    /// The lock without the GIL's error type (the compiled loop's thread).
+    pub(crate) fn state_lock(
+        &self,
+    ) -> Result<MutexGuard<'_, RestHold>, std::sync::PoisonError<MutexGuard<'_, RestHold>>> {
+        self.hold.lock()
+    }
+
     pub(crate) fn lock(&self) -> PyResult<MutexGuard<'_, RestHold>> {
         self.hold
             .lock()

@@ -74,30 +74,50 @@ impl PyZeroMomentCycle {
         PyValueError::new_err("the law has no nominal chain (no delay, speed limit, friction ramp or inertia compensation)")
     }
 
-    /// Run `f` with the law and every piece locked.
-    fn with_parts<R>(
+    /// Run `f` with the law and every piece locked; needs no GIL (the pieces are frozen
+    /// classes behind their own locks), so the compiled loop calls it from zenoh's thread.
+    pub(crate) fn locked<R>(
         &self,
-        py: Python<'_>,
         f: impl FnOnce(&mut ZeroMoment, &mut Parts) -> Result<R, String>,
-    ) -> PyResult<R> {
-        let mut law = self.lock()?;
-        let mut outer = self.outer.get().lock()?;
-        let mut predictor = self.predictor.get().lock()?;
-        let mut rest_hold = self.rest_hold.get().lock()?;
-        let mut guided = self.guided.get().lock()?;
-        let mut hold = self.hold.get().lock()?;
+    ) -> Result<R, String> {
+        let poisoned = |what: &str| format!("the {what}'s lock is poisoned");
+        let mut law = self.law.lock().map_err(|_| poisoned("law"))?;
+        let mut outer = self
+            .outer
+            .get()
+            .state_lock()
+            .map_err(|_| poisoned("outer loop"))?;
+        let mut predictor = self
+            .predictor
+            .get()
+            .state_lock()
+            .map_err(|_| poisoned("predictor"))?;
+        let mut rest_hold = self
+            .rest_hold
+            .get()
+            .state_lock()
+            .map_err(|_| poisoned("rest hold"))?;
+        let mut guided = self
+            .guided
+            .get()
+            .state_lock()
+            .map_err(|_| poisoned("guided switch"))?;
+        let mut hold = self
+            .hold
+            .get()
+            .state_lock()
+            .map_err(|_| poisoned("hold average"))?;
         let mut inner = match &self.inner {
-            Some(e) => Some(e.get().lock()?),
+            Some(e) => Some(e.get().state_lock().map_err(|_| poisoned("estimate"))?),
             None => None,
         };
-        let model_ref = self
-            .model
-            .lock()
-            .map_err(|_| PyRuntimeError::new_err("the law's model lock is poisoned"))?
-            .clone_ref(py);
-        let mut model = model_ref.get().lock()?;
+        let model_slot = self.model.lock().map_err(|_| poisoned("model slot"))?;
+        let mut model = model_slot
+            .get()
+            .state_lock()
+            .map_err(|_| poisoned("model"))?;
         let mut chain = match &self.chain {
-            Some(c) => Some(c.get().lock()?),
+            Some(c) => Some(c.get().state_lock().map_err(|_| poisoned("chain"))?),
             None => None,
         };
         let chain_parts = chain.as_deref_mut().map(|c| (&c.chain, &mut c.work));
@@ -111,7 +131,40 @@ impl PyZeroMomentCycle {
             model: &mut model,
             chain: chain_parts,
         };
-        f(&mut law, &mut parts).map_err(law_error)
+        f(&mut law, &mut parts)
+    }
+
+    /// [`Self::locked`] for the Python methods: a model error as ArithmeticError, any other
+    /// as ValueError.
+    fn with_parts<R>(
+        &self,
+        _py: Python<'_>,
+        f: impl FnOnce(&mut ZeroMoment, &mut Parts) -> Result<R, String>,
+    ) -> PyResult<R> {
+        self.locked(f).map_err(law_error)
+    }
+
+    /// The answer to one state, for the compiled loop (no GIL): `(q_cmd, dq_cmd)` into the
+    /// outputs; Err as [`ZeroMoment::answer`]'s.
+    pub(crate) fn answer_state(
+        &self,
+        st: &State,
+        p_bar: &[f64],
+        q_cmd: &mut [f64],
+        dq_cmd: &mut [f64],
+    ) -> Result<(), String> {
+        self.locked(|law, parts| law.answer(parts, st, p_bar, q_cmd, dq_cmd))
+    }
+
+    /// Stop following (the loop's error path).
+    pub(crate) fn disengage_now(&self) {
+        if let Ok(mut law) = self.law.lock() {
+            law.disengage();
+        }
+    }
+
+    pub(crate) fn joints(&self) -> usize {
+        self.n
     }
 
     #[allow(clippy::too_many_arguments)]

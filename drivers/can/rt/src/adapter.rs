@@ -8,48 +8,7 @@
 
 use crate::frame::Frame;
 
-/// Most joints any adapter carries (CiA 402: 16 drives).
-pub const MAX_JOINTS: usize = 16;
-
-/// State of the closed robot controller (gateway/messages.py ControllerState).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[repr(u8)]
-pub enum ControllerState {
-    /// brakes engaged, servo off (power-on default)
-    Braked = 0,
-    /// servo on, holding the last valid position command
-    Hold = 1,
-    /// servo on, tracking external position/velocity commands
-    External = 2,
-    /// brakes engaged after a fault; needs a reset request
-    Fault = 3,
-}
-
-impl ControllerState {
-    pub fn name(self) -> &'static str {
-        match self {
-            ControllerState::Braked => "BRAKED",
-            ControllerState::Hold => "HOLD",
-            ControllerState::External => "EXTERNAL",
-            ControllerState::Fault => "FAULT",
-        }
-    }
-
-    pub fn from_u8(v: u8) -> Option<ControllerState> {
-        match v {
-            0 => Some(ControllerState::Braked),
-            1 => Some(ControllerState::Hold),
-            2 => Some(ControllerState::External),
-            3 => Some(ControllerState::Fault),
-            _ => None,
-        }
-    }
-
-    /// HOLD or EXTERNAL: the drives are powered and follow the host.
-    pub fn servoing(self) -> bool {
-        matches!(self, ControllerState::Hold | ControllerState::External)
-    }
-}
+pub use bus_rt::{ControllerState, MAX_JOINTS};
 
 /// What the host asks of the controller's power stage (LTC-1's wire values).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -24,7 +24,11 @@ pub enum Transport {
     /// a SocketCAN interface by name (`can0`)
     SocketCan { channel: String, fd: bool },
     /// `@name` (abstract namespace) or a socket file path; wait this long for the server [s]
-    Seqpacket { channel: String, fd: bool, connect_timeout_s: f64 },
+    Seqpacket {
+        channel: String,
+        fd: bool,
+        connect_timeout_s: f64,
+    },
 }
 
 impl Transport {
@@ -79,14 +83,21 @@ impl CanSocket {
     pub fn open(transport: &Transport) -> io::Result<CanSocket> {
         match transport {
             Transport::SocketCan { channel, fd } => open_socketcan(channel, *fd),
-            Transport::Seqpacket { channel, fd, connect_timeout_s } => {
-                open_seqpacket(channel, *fd, *connect_timeout_s)
-            }
+            Transport::Seqpacket {
+                channel,
+                fd,
+                connect_timeout_s,
+            } => open_seqpacket(channel, *fd, *connect_timeout_s),
         }
     }
 
     fn wrap(fd: libc::c_int, fd_frames: bool) -> CanSocket {
-        CanSocket { fd, fd_frames, malformed: AtomicU64::new(0), first_malformed: Mutex::new(String::new()) }
+        CanSocket {
+            fd,
+            fd_frames,
+            malformed: AtomicU64::new(0),
+            first_malformed: Mutex::new(String::new()),
+        }
     }
 
     pub fn raw_fd(&self) -> libc::c_int {
@@ -95,13 +106,21 @@ impl CanSocket {
 
     /// Datagrams dropped for not being a valid frame, and why the first one was.
     pub fn malformed(&self) -> (u64, String) {
-        let first = self.first_malformed.lock().map(|s| s.clone()).unwrap_or_default();
+        let first = self
+            .first_malformed
+            .lock()
+            .map(|s| s.clone())
+            .unwrap_or_default();
         (self.malformed.load(Ordering::Relaxed), first)
     }
 
     /// Wait until a frame can be read or `timeout_s` passed; true if readable.
     pub fn wait_readable(&self, timeout_s: f64) -> io::Result<bool> {
-        let mut pfd = libc::pollfd { fd: self.fd, events: libc::POLLIN, revents: 0 };
+        let mut pfd = libc::pollfd {
+            fd: self.fd,
+            events: libc::POLLIN,
+            revents: 0,
+        };
         let ms = (timeout_s.max(0.0) * 1e3).ceil().min(i32::MAX as f64) as libc::c_int;
         // SAFETY: one valid pollfd for the call's duration.
         let n = unsafe { libc::poll(&mut pfd, 1, ms) };
@@ -112,9 +131,14 @@ impl CanSocket {
             }
             return Err(e);
         }
-        if n > 0 && pfd.revents & (libc::POLLHUP | libc::POLLERR) != 0 && pfd.revents & libc::POLLIN == 0
+        if n > 0
+            && pfd.revents & (libc::POLLHUP | libc::POLLERR) != 0
+            && pfd.revents & libc::POLLIN == 0
         {
-            return Err(io::Error::new(io::ErrorKind::BrokenPipe, "CAN socket closed by the peer"));
+            return Err(io::Error::new(
+                io::ErrorKind::BrokenPipe,
+                "CAN socket closed by the peer",
+            ));
         }
         Ok(n > 0)
     }
@@ -125,7 +149,12 @@ impl CanSocket {
         loop {
             // SAFETY: buf outlives the call; MSG_DONTWAIT never blocks.
             let n = unsafe {
-                libc::recv(self.fd, buf.as_mut_ptr() as *mut libc::c_void, buf.len(), libc::MSG_DONTWAIT)
+                libc::recv(
+                    self.fd,
+                    buf.as_mut_ptr() as *mut libc::c_void,
+                    buf.len(),
+                    libc::MSG_DONTWAIT,
+                )
             };
             if n < 0 {
                 let e = io::Error::last_os_error();
@@ -136,7 +165,10 @@ impl CanSocket {
                 };
             }
             if n == 0 {
-                return Err(io::Error::new(io::ErrorKind::BrokenPipe, "CAN socket closed by the peer"));
+                return Err(io::Error::new(
+                    io::ErrorKind::BrokenPipe,
+                    "CAN socket closed by the peer",
+                ));
             }
             match Frame::from_wire(&buf[..n as usize], self.fd_frames) {
                 Ok(f) => return Ok(Some(f)),
@@ -154,7 +186,10 @@ impl CanSocket {
     /// Send one frame, waiting at most `timeout_s` for room in the socket's queue.
     pub fn send(&self, frame: &Frame, timeout_s: f64) -> io::Result<()> {
         if frame.fd && !self.fd_frames {
-            return Err(io::Error::new(io::ErrorKind::InvalidInput, "an FD frame on a bus opened without fd"));
+            return Err(io::Error::new(
+                io::ErrorKind::InvalidInput,
+                "an FD frame on a bus opened without fd",
+            ));
         }
         let mut buf = [0u8; CANFD_MTU];
         let n = frame
@@ -164,7 +199,12 @@ impl CanSocket {
         loop {
             // SAFETY: buf outlives the call.
             let sent = unsafe {
-                libc::send(self.fd, buf.as_ptr() as *const libc::c_void, n, libc::MSG_DONTWAIT | libc::MSG_NOSIGNAL)
+                libc::send(
+                    self.fd,
+                    buf.as_ptr() as *const libc::c_void,
+                    n,
+                    libc::MSG_DONTWAIT | libc::MSG_NOSIGNAL,
+                )
             };
             if sent == n as isize {
                 return Ok(());
@@ -175,9 +215,16 @@ impl CanSocket {
                 io::ErrorKind::WouldBlock => {
                     let left = deadline.saturating_duration_since(Instant::now());
                     if left.is_zero() {
-                        return Err(io::Error::new(io::ErrorKind::TimedOut, "CAN send queue full"));
+                        return Err(io::Error::new(
+                            io::ErrorKind::TimedOut,
+                            "CAN send queue full",
+                        ));
                     }
-                    let mut pfd = libc::pollfd { fd: self.fd, events: libc::POLLOUT, revents: 0 };
+                    let mut pfd = libc::pollfd {
+                        fd: self.fd,
+                        events: libc::POLLOUT,
+                        revents: 0,
+                    };
                     let ms = (left.as_secs_f64() * 1e3).ceil() as libc::c_int;
                     // SAFETY: one valid pollfd.
                     unsafe { libc::poll(&mut pfd, 1, ms.max(1)) };
@@ -196,7 +243,8 @@ impl Drop for CanSocket {
 }
 
 fn open_socketcan(channel: &str, fd_frames: bool) -> io::Result<CanSocket> {
-    let name = CString::new(channel).map_err(|_| io::Error::new(io::ErrorKind::InvalidInput, "NUL in the channel name"))?;
+    let name = CString::new(channel)
+        .map_err(|_| io::Error::new(io::ErrorKind::InvalidInput, "NUL in the channel name"))?;
     // SAFETY: plain syscalls on a descriptor we own; structures are zeroed and sized.
     unsafe {
         let index = libc::if_nametoindex(name.as_ptr());
@@ -209,20 +257,41 @@ fn open_socketcan(channel: &str, fd_frames: bool) -> io::Result<CanSocket> {
         }
         let sock = CanSocket::wrap(fd, fd_frames);
         let all_errors: u32 = CAN_EFF_MASK; // CAN_ERR_MASK: receive every error class
-        if libc::setsockopt(fd, SOL_CAN_RAW, CAN_RAW_ERR_FILTER, &all_errors as *const u32 as *const libc::c_void, 4) < 0 {
+        if libc::setsockopt(
+            fd,
+            SOL_CAN_RAW,
+            CAN_RAW_ERR_FILTER,
+            &all_errors as *const u32 as *const libc::c_void,
+            4,
+        ) < 0
+        {
             return Err(last_error("setsockopt(CAN_RAW_ERR_FILTER)"));
         }
         if fd_frames {
             let on: libc::c_int = 1;
-            if libc::setsockopt(fd, SOL_CAN_RAW, CAN_RAW_FD_FRAMES, &on as *const libc::c_int as *const libc::c_void, 4) < 0 {
-                return Err(last_error("setsockopt(CAN_RAW_FD_FRAMES): no CAN FD on this interface"));
+            if libc::setsockopt(
+                fd,
+                SOL_CAN_RAW,
+                CAN_RAW_FD_FRAMES,
+                &on as *const libc::c_int as *const libc::c_void,
+                4,
+            ) < 0
+            {
+                return Err(last_error(
+                    "setsockopt(CAN_RAW_FD_FRAMES): no CAN FD on this interface",
+                ));
             }
         }
         // struct sockaddr_can: family, ifindex, then the address union (unused for CAN_RAW)
         let mut addr = [0u8; 24];
         addr[..2].copy_from_slice(&(PF_CAN as u16).to_ne_bytes());
         addr[4..8].copy_from_slice(&(index as i32).to_ne_bytes());
-        if libc::bind(fd, addr.as_ptr() as *const libc::sockaddr, addr.len() as libc::socklen_t) < 0 {
+        if libc::bind(
+            fd,
+            addr.as_ptr() as *const libc::sockaddr,
+            addr.len() as libc::socklen_t,
+        ) < 0
+        {
             return Err(last_error(&format!("bind to {channel}")));
         }
         Ok(sock)
@@ -236,7 +305,9 @@ fn open_seqpacket(channel: &str, fd_frames: bool, timeout_s: f64) -> io::Result<
     let mut addr: libc::sockaddr_un = unsafe { std::mem::zeroed() };
     addr.sun_family = libc::AF_UNIX as libc::sa_family_t;
     let path: Vec<u8> = if abstract_ns {
-        std::iter::once(0u8).chain(bytes[1..].iter().copied()).collect()
+        std::iter::once(0u8)
+            .chain(bytes[1..].iter().copied())
+            .collect()
     } else {
         bytes.to_vec()
     };
@@ -259,7 +330,12 @@ fn open_seqpacket(channel: &str, fd_frames: bool, timeout_s: f64) -> io::Result<
                 return Err(last_error("socket(AF_UNIX, SOCK_SEQPACKET)"));
             }
             let sock = CanSocket::wrap(fd, fd_frames);
-            if libc::connect(fd, &addr as *const libc::sockaddr_un as *const libc::sockaddr, len) == 0 {
+            if libc::connect(
+                fd,
+                &addr as *const libc::sockaddr_un as *const libc::sockaddr,
+                len,
+            ) == 0
+            {
                 return Ok(sock);
             }
             let e = io::Error::last_os_error();

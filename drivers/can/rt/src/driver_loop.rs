@@ -38,11 +38,21 @@ const MAX_NOTES: usize = 256;
 /// handed to zenoh; zenoh_back — handed to zenoh → received here; encode — received here →
 /// the answer's frames handed to the CAN socket (checks included); answer — the cycle's last
 /// frame received → its computed answer handed to the CAN socket.
-pub const STAGES: [&str; 6] = ["decode", "zenoh_out", "control", "zenoh_back", "encode", "answer"];
+pub const STAGES: [&str; 6] = [
+    "decode",
+    "zenoh_out",
+    "control",
+    "zenoh_back",
+    "encode",
+    "answer",
+];
 
 /// CLOCK_MONOTONIC [s]: Python's `time.monotonic()`, one clock for every process.
 pub fn monotonic_s() -> f64 {
-    let mut ts = libc::timespec { tv_sec: 0, tv_nsec: 0 };
+    let mut ts = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
     // SAFETY: a valid timespec.
     unsafe { libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut ts) };
     ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9
@@ -137,9 +147,12 @@ impl DriverLoop {
     ) -> Result<DriverLoop, String> {
         let mut cfg = zenoh::Config::default();
         for (k, v) in zenoh_config {
-            cfg.insert_json5(k, v).map_err(|e| format!("zenoh config {k} = {v}: {e}"))?;
+            cfg.insert_json5(k, v)
+                .map_err(|e| format!("zenoh config {k} = {v}: {e}"))?;
         }
-        let session = zenoh::open(cfg).wait().map_err(|e| format!("zenoh session: {e}"))?;
+        let session = zenoh::open(cfg)
+            .wait()
+            .map_err(|e| format!("zenoh session: {e}"))?;
         let socket = CanSocket::open(transport).map_err(|e| format!("CAN link: {e}"))?;
         let out = Vec::with_capacity(64);
         let shared = Arc::new(Shared {
@@ -202,7 +215,13 @@ impl DriverLoop {
             .name("can-cycle".into())
             .spawn(move || run(&s, &state_pub, &window_pub))
             .map_err(|e| format!("loop thread: {e}"))?;
-        Ok(DriverLoop { shared, session, subscribers, thread: Some(thread), closed: false })
+        Ok(DriverLoop {
+            shared,
+            session,
+            subscribers,
+            thread: Some(thread),
+            closed: false,
+        })
     }
 
     /// The lock, for health, notes and counters (never held long: the cycle waits for it).
@@ -216,7 +235,11 @@ impl DriverLoop {
 
     /// The error that ended the loop thread, if one did.
     pub fn failed(&self) -> Option<String> {
-        self.shared.failed.lock().unwrap_or_else(|p| p.into_inner()).clone()
+        self.shared
+            .failed
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .clone()
     }
 
     /// The notes of the core and the loop since the last call.
@@ -282,9 +305,14 @@ fn run(shared: &Shared, state_pub: &Publisher<'static>, window_pub: &Publisher<'
             Ok(true) => {
                 for _ in 0..MAX_BURST {
                     match shared.socket.try_recv() {
-                        Ok(Some(frame)) => {
-                            on_frame(shared, &frame, &mut state, &mut window, state_pub, window_pub)
-                        }
+                        Ok(Some(frame)) => on_frame(
+                            shared,
+                            &frame,
+                            &mut state,
+                            &mut window,
+                            state_pub,
+                            window_pub,
+                        ),
                         Ok(None) => break,
                         Err(e) => {
                             recv_failed(shared, &e);
@@ -308,7 +336,8 @@ fn recv_failed(shared: &Shared, e: &std::io::Error) {
         l.io_note(40, "recv", || format!("CAN receive failed: {e}"), now);
     }
     if e.kind() == std::io::ErrorKind::BrokenPipe {
-        *shared.failed.lock().unwrap_or_else(|p| p.into_inner()) = Some(format!("CAN link lost: {e}"));
+        *shared.failed.lock().unwrap_or_else(|p| p.into_inner()) =
+            Some(format!("CAN link lost: {e}"));
         shared.stop.store(true, Ordering::SeqCst);
         return;
     }
@@ -347,7 +376,12 @@ fn on_frame(
     if outcome.state {
         if let Err(e) = state_pub.put(state.as_slice()).wait() {
             let mut l = shared.lock();
-            l.io_note(40, "put", || format!("cannot publish the joint state: {e}"), now);
+            l.io_note(
+                40,
+                "put",
+                || format!("cannot publish the joint state: {e}"),
+                now,
+            );
         }
         if outcome.window {
             let _ = window_pub.put(window.as_slice()).wait();

@@ -45,9 +45,15 @@ pub struct Frame {
 
 impl std::fmt::Debug for Frame {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "Frame(0x{:X}{}{}{}{} [", self.id,
-            if self.extended { " ext" } else { "" }, if self.remote { " rtr" } else { "" },
-            if self.error { " err" } else { "" }, if self.fd { " fd" } else { "" })?;
+        write!(
+            f,
+            "Frame(0x{:X}{}{}{}{} [",
+            self.id,
+            if self.extended { " ext" } else { "" },
+            if self.remote { " rtr" } else { "" },
+            if self.error { " err" } else { "" },
+            if self.fd { " fd" } else { "" }
+        )?;
         for (k, b) in self.payload().iter().enumerate() {
             write!(f, "{}{:02X}", if k > 0 { " " } else { "" }, b)?;
         }
@@ -57,7 +63,11 @@ impl std::fmt::Debug for Frame {
 
 /// The smallest CAN FD length that holds `size` bytes (python-can pads the same).
 pub fn fd_padded(size: usize) -> usize {
-    CANFD_LENGTHS.iter().copied().find(|&n| n >= size).unwrap_or(CANFD_MAX_DLEN)
+    CANFD_LENGTHS
+        .iter()
+        .copied()
+        .find(|&n| n >= size)
+        .unwrap_or(CANFD_MAX_DLEN)
 }
 
 impl Frame {
@@ -107,7 +117,11 @@ impl Frame {
     /// The struct can_frame / canfd_frame bytes; returns how many of `buf` were written
     /// (16 or 72). Err for a frame no CAN bus could carry.
     pub fn to_wire(&self, buf: &mut [u8; CANFD_MTU]) -> Result<usize, String> {
-        let limit = if self.extended || self.error { CAN_EFF_MASK } else { CAN_SFF_MASK };
+        let limit = if self.extended || self.error {
+            CAN_EFF_MASK
+        } else {
+            CAN_SFF_MASK
+        };
         if self.id > limit {
             return Err(format!("id 0x{:X} out of range 0..0x{:X}", self.id, limit));
         }
@@ -141,7 +155,10 @@ impl Frame {
             return Ok(CANFD_MTU);
         }
         if self.len as usize > CAN_MAX_DLEN {
-            return Err(format!("{} data bytes; a classic frame carries at most 8", self.len));
+            return Err(format!(
+                "{} data bytes; a classic frame carries at most 8",
+                self.len
+            ));
         }
         if self.remote {
             can_id |= CAN_RTR_FLAG;
@@ -192,7 +209,10 @@ impl Frame {
             return Err(format!("classic len {len} > 8"));
         }
         if f.id > CAN_SFF_MASK && !(f.extended || f.error) {
-            return Err(format!("standard id 0x{:X} > 0x7FF without CAN_EFF_FLAG", f.id));
+            return Err(format!(
+                "standard id 0x{:X} > 0x7FF without CAN_EFF_FLAG",
+                f.id
+            ));
         }
         f.len = len as u8;
         if !f.remote {
@@ -223,12 +243,18 @@ mod tests {
 
     #[test]
     fn malformed_datagrams_are_named() {
-        assert!(Frame::from_wire(&[0u8; 15], true).unwrap_err().contains("15 bytes"));
+        assert!(Frame::from_wire(&[0u8; 15], true)
+            .unwrap_err()
+            .contains("15 bytes"));
         let mut d = [0u8; CAN_MTU];
         d[4] = 9;
-        assert!(Frame::from_wire(&d, true).unwrap_err().contains("classic len 9"));
+        assert!(Frame::from_wire(&d, true)
+            .unwrap_err()
+            .contains("classic len 9"));
         d[4] = 0;
         d[..4].copy_from_slice(&0x800u32.to_ne_bytes());
-        assert!(Frame::from_wire(&d, true).unwrap_err().contains("standard id"));
+        assert!(Frame::from_wire(&d, true)
+            .unwrap_err()
+            .contains("standard id"));
     }
 }

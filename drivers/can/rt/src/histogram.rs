@@ -20,7 +20,12 @@ impl Histogram {
     /// `bin_s` wide bins up to `span_s`, then one overflow bin [s].
     pub fn new(bin_s: f64, span_s: f64) -> Histogram {
         let bins = (span_s / bin_s).round() as usize;
-        Histogram { bin_s, counts: vec![0; bins + 1], n: 0, max_s: 0.0 }
+        Histogram {
+            bin_s,
+            counts: vec![0; bins + 1],
+            n: 0,
+            max_s: 0.0,
+        }
     }
 
     pub fn add(&mut self, duration_s: f64) {

@@ -21,11 +21,13 @@ pub mod lifecycle;
 pub mod lost_cycles;
 pub mod ltc;
 pub mod ltc_fd;
-pub mod messages;
 pub mod plausibility;
 pub mod speed_monitor;
 pub mod stop_ramp;
 pub mod window;
+
+/// The bus contract (gateway/rt): the messages, shared with every compiled piece.
+pub use bus_rt::messages;
 
 #[cfg(feature = "python")]
 pub mod can_socket;

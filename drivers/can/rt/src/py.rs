@@ -70,7 +70,9 @@ pub struct PyHostCore {
 
 impl PyHostCore {
     fn lock(&self) -> PyResult<MutexGuard<'_, Option<HostCore>>> {
-        self.core.lock().map_err(|_| PyRuntimeError::new_err("the host core's lock is poisoned"))
+        self.core
+            .lock()
+            .map_err(|_| PyRuntimeError::new_err("the host core's lock is poisoned"))
     }
 }
 
@@ -115,9 +117,18 @@ impl PyHostCore {
                     .map_err(PyValueError::new_err)?,
             ),
         };
-        let core = HostCore::new(config, adapter, health_period_s, stored_zero, chain, (lower, upper))
-            .map_err(PyValueError::new_err)?;
-        Ok(PyHostCore { core: Mutex::new(Some(core)) })
+        let core = HostCore::new(
+            config,
+            adapter,
+            health_period_s,
+            stored_zero,
+            chain,
+            (lower, upper),
+        )
+        .map_err(PyValueError::new_err)?;
+        Ok(PyHostCore {
+            core: Mutex::new(Some(core)),
+        })
     }
 
     /// Take one received frame (struct can_frame/canfd_frame bytes): (the JointState to
@@ -140,7 +151,12 @@ impl PyHostCore {
     }
 
     /// Decide on one JointCommand payload: (frames to send, "command"/"hold"/... or "").
-    fn on_command(&self, py: Python<'_>, payload: &[u8], now: f64) -> PyResult<(Vec<Py<PyBytes>>, &'static str)> {
+    fn on_command(
+        &self,
+        py: Python<'_>,
+        payload: &[u8],
+        now: f64,
+    ) -> PyResult<(Vec<Py<PyBytes>>, &'static str)> {
         with_core!(self, core, {
             let mut out = Vec::new();
             let r = core.on_command(payload, now, &mut out);
@@ -199,12 +215,18 @@ impl PyHostCore {
 
     /// (cycle, answer) of the newest cycle, None before the first.
     fn pending(&self) -> PyResult<Option<(i64, &'static str)>> {
-        with_core!(self, core, { Ok(core.pending_cycle().map(|c| (c, answer_name(core.pending_answer())))) })
+        with_core!(self, core, {
+            Ok(core
+                .pending_cycle()
+                .map(|c| (c, answer_name(core.pending_answer()))))
+        })
     }
 
     /// The health's core entries, as a JSON object's text.
     fn health(&self, now: f64) -> PyResult<String> {
-        with_core!(self, core, { Ok(serde_json::Value::Object(core.health(now)).to_string()) })
+        with_core!(self, core, {
+            Ok(serde_json::Value::Object(core.health(now)).to_string())
+        })
     }
 
     /// Notes since the last call: [(level, key, message)], levels as Python's logging.
@@ -242,7 +264,9 @@ impl PyCanLoop {
         let transport = Transport::from_json(&json_arg(transport_json, "[can.transport]")?)
             .map_err(PyValueError::new_err)?;
         let key = |k: &str| {
-            keys.get(k).cloned().ok_or_else(|| PyValueError::new_err(format!("keys: {k} missing")))
+            keys.get(k)
+                .cloned()
+                .ok_or_else(|| PyValueError::new_err(format!("keys: {k} missing")))
         };
         let keys = Keys {
             joint_state: key("joint_state")?,
@@ -251,13 +275,14 @@ impl PyCanLoop {
             lifecycle: key("lifecycle")?,
             io_state: key("io_state")?,
         };
-        let host = core
-            .lock()?
-            .take()
-            .ok_or_else(|| PyRuntimeError::new_err("this HostCore was already moved onto a CanLoop"))?;
+        let host = core.lock()?.take().ok_or_else(|| {
+            PyRuntimeError::new_err("this HostCore was already moved onto a CanLoop")
+        })?;
         let started = py.detach(|| DriverLoop::start(host, &transport, &zenoh_config, &keys));
         let inner = started.map_err(PyOSError::new_err)?;
-        Ok(PyCanLoop { inner: Mutex::new(inner) })
+        Ok(PyCanLoop {
+            inner: Mutex::new(inner),
+        })
     }
 
     /// The process's health entries of the cycle, as a JSON object's text: the core's, the
@@ -300,7 +325,8 @@ impl PyCanLoop {
 
     /// Brake, stop the loop, release the links; the frames sent on the way out. Idempotent.
     fn close(&self, py: Python<'_>) -> PyResult<usize> {
-        py.detach(|| self.lock().close()).map_err(PyOSError::new_err)
+        py.detach(|| self.lock().close())
+            .map_err(PyOSError::new_err)
     }
 }
 

@@ -1,4 +1,4 @@
-//! The zenoh messages the CAN driver's cycle reads and writes, bit-exact with
+//! The zenoh messages the compiled cycles read and write, bit-exact with
 //! gateway/messages.py: the fixed little-endian binary layouts (a 4-byte magic naming the type,
 //! a 1-byte layout version, then fields) of [`JointState`], [`JointCommand`], [`IoState`] and
 //! [`StateWindow`], the `JointState.flags` bits and the gateway's [`Lifecycle`].
@@ -12,8 +12,8 @@
 //! The helpers at the end format numbers as Python's `repr` and `format(v, "g")` do, so the
 //! messages of every ported module read as the Python driver's did.
 
-pub use crate::adapter::ControllerState;
-use crate::adapter::MAX_JOINTS;
+pub use crate::ControllerState;
+use crate::MAX_JOINTS;
 
 /// Layout version of every binary message except [`JointCommand`].
 pub const LAYOUT_VERSION: u8 = 1;
