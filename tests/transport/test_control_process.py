@@ -135,6 +135,8 @@ def test_teaching_is_answered_while_python_holds_the_gil(rig):
     settle()
     assert [c.cycle for c in commands] == [1, 2]
     assert held_from < commands[1].sent_stamp_s < held_until - 0.2, (
-        held_from, commands[1].sent_stamp_s, held_until
+        held_from,
+        commands[1].sent_stamp_s,
+        held_until,
     )
     assert proc._loop_report()["compiled_commands"] == 2
