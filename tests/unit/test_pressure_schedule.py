@@ -111,8 +111,7 @@ def test_the_control_process_follows_the_pose_while_held_or_moving_and_holds_at_
     assert np.abs(np.subtract(target, [6.0, 4.0])).min() > 0.5
 
     def run(state, seconds, t0, moving=False):
-        proc._last_q = q
-        proc._last_dq = np.full(6, 0.05 if moving else 0.001)
+        proc._last_state = (0, q, np.full(6, 0.05 if moving else 0.001))  # the newest pose
         out = None
         for k in range(round(seconds / 0.1)):
             now = t0 + 0.1 * k
