@@ -115,7 +115,9 @@ class IdentifiedControlModel(DeclaredModel):
     ``gravity_nm`` is everything that acts at rest (rigid-body gravity plus position effects
     such as a spring or a ripple); ``friction_nm`` is everything that grows with velocity
     (friction, velocity effects, and the small Coriolis/centrifugal torque). The cylinders
-    stay on the description's eqs. (10), (12): they were taken out before fitting.
+    stay on the description's eqs. (10), (12) (they were taken out before fitting), with the
+    piston diameters the identification measured (control/identification/cylinders.py):
+    :attr:`desc` is the description with those.
     """
 
     def __init__(self, path: Path | IdentifiedModel, desc: RobotDescription | None = None) -> None:
@@ -126,7 +128,12 @@ class IdentifiedControlModel(DeclaredModel):
         loaded = isinstance(path, IdentifiedModel)
         where = "model" if loaded else str(path)
         self.identified = path if loaded else IdentifiedModel.load(path)
-        self.desc = desc or load_description()
+        try:
+            self.desc = self.identified.with_measured_cylinders(desc or load_description())
+        except ValueError as exc:
+            raise ConfigError(f"{where}: {exc}") from None
+        except (KeyError, TypeError, AttributeError) as exc:
+            raise ConfigError(f"{where}: analysis.cylinders malformed: {exc!r}") from None
         self.n = len(self.desc.joints)
         if self.identified.n != self.n:
             raise ConfigError(f"{where}: model has {self.identified.n} joints, robot {self.n}")

@@ -40,6 +40,7 @@ from typing import Any
 import numpy as np
 from threadpoolctl import threadpool_limits
 
+from control.identification import cylinders as cyl
 from control.identification import effects as fx
 from control.identification.cutoff import CutoffChoice, candidates, choose_cutoff
 from control.identification.datafile import Measurements, read_measurements
@@ -284,10 +285,48 @@ def _rigid(ctx: Context, beta: np.ndarray) -> np.ndarray:
 
 
 def _predict(
-    reg: RobotRegressor, ctx: Context, fit: FrictionFit, urdf: str, meta: dict[str, Any]
+    reg: RobotRegressor,
+    ctx: Context,
+    fit: FrictionFit,
+    urdf: str,
+    meta: dict[str, Any],
+    cyl_cols: dict[int, np.ndarray] | None = None,
 ) -> tuple[IdentifiedModel, np.ndarray]:
+    """The model of ``fit`` and what it predicts on ``ctx``; a fit with the cylinder columns
+    (:mod:`.cylinders`) adds their part, on ``cyl_cols`` (those of ``ctx``'s rows)."""
     model = model_from_solution(reg, fit, fit.evaluation.solution, [], urdf, meta)
-    return model, model.torque_from_context(ctx)
+    pred = model.torque_from_context(ctx)
+    coef = fit.evaluation.solution.coef.get(cyl.GROUP)
+    if coef is not None and cyl_cols is not None:
+        pred = pred + cyl.contribution(cyl_cols, np.asarray(coef, dtype=float), reg.n)
+    return model, pred
+
+
+def _settle_cylinders(
+    ls: BlockLS, run: _Run, fit: FrictionFit
+) -> tuple[FrictionFit, cyl.Calibration]:
+    """The cylinder columns of ``fit`` judged (:func:`.cylinders.judge`) and taken out of the
+    fit: kept, their part is taken out of the training and test targets as measured cylinder
+    torque (``run.train``, ``run.test`` and ``ls`` get the corrected torque), refused, the
+    targets stay; either way ``fit`` comes back without them, solved again, and
+    ``run.meta["cylinders"]`` says what was done (the model file carries it)."""
+    assert run.cyl_train is not None and run.cyl_test is not None and run.desc is not None
+    names = [name for name in fit.names if name != cyl.GROUP]
+    without = ls.evaluate(names, fit.weights)
+    coef = np.asarray(fit.evaluation.solution.coef[cyl.GROUP], dtype=float)
+    cal = cyl.judge(run.desc, coef, fit.evaluation.cv_rms, without.cv_rms)
+    ls.remove(cyl.GROUP)
+    evaluation = without
+    if cal.any_kept:
+        n = run.reg.n
+        run.train = run.train.with_tau(run.train.tau - cyl.contribution(run.cyl_train, cal.coef, n))
+        run.test = run.test.with_tau(run.test.tau - cyl.contribution(run.cyl_test, cal.coef, n))
+        ls.set_y(run.train.tau)
+        evaluation = ls.evaluate(names, fit.weights)
+    run.meta["cylinders"] = cal.to_json()
+    for j, s, why in zip(cal.joints, cal.scale, cal.reasons, strict=True):
+        run.clock.say(f"cylinder on J{j + 1}: force scale {s:.4g}, {why}")
+    return replace(fit, evaluation=evaluation, extra=()), cal
 
 
 def _fit_families(
@@ -304,11 +343,14 @@ def _fit_families(
 
     if "rigid" not in ls.cols:
         ls.add("rigid", RigidTerm().columns(run.ctx_train))
+    extra = [cyl.GROUP] if cyl.GROUP in ls.cols else []
 
     def fit_one(kind: str) -> tuple[FrictionFit, dict[str, Any], list[str]]:
         lines: list[str] = []
         own = ls.fork()
-        fit = fit_rigid_friction(own, run.ctx_train, kind, ratios, progress=lines.append)
+        fit = fit_rigid_friction(
+            own, run.ctx_train, kind, ratios, progress=lines.append, extra=extra
+        )
         return fit, own.export([t.key for t in fit.terms]), lines
 
     # the families are independent searches: side by side on a fork of ``ls`` each, in worker
@@ -322,7 +364,7 @@ def _fit_families(
             run.clock.say(line)
         ls.adopt(groups)
         fits[kind] = fit
-        _, pred = _predict(run.reg, run.ctx_test, fit, str(run.urdf), run.meta)
+        _, pred = _predict(run.reg, run.ctx_test, fit, str(run.urdf), run.meta, run.cyl_test)
         comparison[kind] = {
             "rms_train": fit.evaluation.fit_rms.tolist(),
             "rms_train_cv": fit.evaluation.cv_rms.tolist(),
@@ -665,6 +707,10 @@ class _Run:
     ctx_test: Context
     envelope: Envelope
     clock: _Clock
+    #: the described cylinders' torque columns (:mod:`.cylinders`), None without pressures
+    cyl_train: dict[int, np.ndarray] | None = None
+    cyl_test: dict[int, np.ndarray] | None = None
+    desc: RobotDescription | None = None
 
 
 def _load(
@@ -724,7 +770,10 @@ def _load(
         "urdf_xml": urdf_xml,
         "cylinders_removed": has_p,
     }
-    run = _Run(reg, urdf, meta, train, test, ctx_train, ctx_test, envelope, clock)
+    run = _Run(
+        reg, urdf, meta, train, test, ctx_train, ctx_test, envelope, clock,
+        cyl.columns(train, reg, desc), cyl.columns(test, reg, desc), desc,
+    )  # fmt: skip
     return run, ratios, options
 
 
@@ -831,9 +880,16 @@ def _analyze(
     kinds = list(FRICTION_MODELS) if (auto or options.compare_friction) else [options.friction]
     # matplotlib takes half a second to import: done while the families are fitted
     prefetch = import_plotting if options.plots else None
+    if run.cyl_train is not None:
+        ls.add(cyl.GROUP, run.cyl_train)
     fits, comparison = _fit_families(ls, run, kinds, ratios, while_waiting=prefetch)
     kind = _keep_family(ls, fits, options.friction, clock)
     base_fit = fits[kind]
+    calibration = None
+    if run.cyl_train is not None:
+        base_fit, calibration = _settle_cylinders(ls, run, base_fit)
+        fits[kind] = base_fit
+        train, test = run.train, run.test
     _, pred_before = _predict(reg, ctx_test, base_fit, urdf, meta)
     clock.lap("fit")
 
@@ -1066,6 +1122,7 @@ def _analyze(
         "n_samples": {"train": train.n_samples, "test": test.n_samples},
         "rate_hz": train.rate_hz,
         "cylinders_removed": meta["cylinders_removed"],
+        "cylinders": None if calibration is None else calibration.to_json(),
         "files": {
             "urdf": urdf,
             "train": [str(p) for p in train_paths],

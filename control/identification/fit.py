@@ -26,7 +26,10 @@ data determine, and which cannot blow up.
 Assist cylinders: when the files carry ``p2``/``p3`` pressures, the cylinder torque of eqs.
 (10)/(12) (:func:`control.model.cylinders.torque_per_pa`) is added to the measured motor torque
 before fitting (the motor holds ``g - T_cyl``), so the identified model is the arm without
-cylinders; the control process adds them back from live pressures.
+cylinders; the control process adds them back from live pressures. Each cylinder's force is
+measured along (:mod:`.cylinders`: a scale on the described torque, fitted with the arm and
+kept where it lowers its joint's held-out error); the model file carries it as a piston
+diameter, which :meth:`IdentifiedModel.with_measured_cylinders` puts into a description.
 
 The model file (``model.json``, :data:`MODEL_FORMAT` version :data:`MODEL_VERSION`) holds the
 URDF (path, sha256 and text), the base-parameter mapping and values, friction per joint and
@@ -59,7 +62,7 @@ from control.identification.terms import (
     RigidTerm,
     shift_signal,
 )
-from control.model.cylinders import torque_per_pa
+from control.model.cylinders import torque_per_pa, with_measured_cylinders
 from control.robot.description import BAR_TO_PA, CylinderSpec, RobotDescription
 from gateway.errors import ConfigError, DataFileError
 
@@ -177,10 +180,13 @@ class FrictionFit:
     terms: list[FrictionTerm]
     weights: np.ndarray
     evaluation: Evaluation
+    #: groups fitted along with rigid body and friction (the cylinder columns of
+    #: :mod:`.cylinders` until the analysis settles them)
+    extra: tuple[str, ...] = ()
 
     @property
     def names(self) -> list[str]:
-        return ["rigid", *(t.key for t in self.terms)]
+        return ["rigid", *self.extra, *(t.key for t in self.terms)]
 
 
 def fit_rigid_friction(
@@ -191,6 +197,7 @@ def fit_rigid_friction(
     q_e_grid: Sequence[float] = Q_E_GRID_RAD_S,
     progress: Progress | None = None,
     sign_grid: Sequence[float] = SIGN_WIDTH_GRID_RAD_S,
+    extra: Sequence[str] = (),
 ) -> FrictionFit:
     """Rigid body + friction ``kind`` on ``ls`` (whose group "rigid" is already added).
 
@@ -198,7 +205,8 @@ def fit_rigid_friction(
     as the paper writes), by coordinate grid search on the held-out (contiguous K-fold) error
     of the joint, on at most :data:`Q_E_SEARCH_MAX_ROWS` rows: they are model choices, so they
     are chosen on data the fit did not see. Then the two-step weighted LS on all rows; the
-    friction groups are left in ``ls``.
+    friction groups are left in ``ls``. A group of ``extra`` already in ``ls`` (the cylinder
+    columns, :mod:`.cylinders`) is fitted along throughout.
     """
     if kind not in FRICTION_MODELS:
         raise ConfigError(f"--friction: {kind!r} is not one of {list(FRICTION_MODELS)}")
@@ -213,6 +221,8 @@ def fit_rigid_friction(
         mask = None if ls.mask is None else ls.mask[::step]
         target = BlockLS(ls.y[::step], contiguous_folds(rows, len(ls.folds)), mask)
         target.add("rigid", _thin(RigidTerm().columns(ctx), step))
+        for name in extra:
+            target.add(name, _thin(ls.cols[name], step))
     else:
         target = ls
     grid = sorted(float(v) for v in q_e_grid)
@@ -220,7 +230,7 @@ def fit_rigid_friction(
     terms = [FrictionTerm(j, kind, q_e[j], float(gear_ratios[j])) for j in range(n)]
     for term in terms:
         target.add(term.key, _thin(term.columns(ctx), step))
-    names = ["rigid", *(t.key for t in terms)]
+    names = ["rigid", *extra, *(t.key for t in terms)]
     widths: list[float | None] = [None]
     if kind == "eq15" and sign_grid:
         widths += sorted(float(v) for v in sign_grid)
@@ -276,7 +286,7 @@ def fit_rigid_friction(
         f"{np.array2string(evaluation.fit_rms, precision=3)} N·m, held-out (K-fold) "
         f"{np.array2string(evaluation.cv_rms, precision=3)} N·m"
     )
-    return FrictionFit(kind, terms, weights, evaluation)
+    return FrictionFit(kind, terms, weights, evaluation, tuple(extra))
 
 
 # --------------------------------------------------------------------------------------------
@@ -384,6 +394,14 @@ class IdentifiedModel:
             if term.name == "time_delay":
                 return float(term.setting["delay_s"])
         return 0.0
+
+    def with_measured_cylinders(self, desc: RobotDescription) -> RobotDescription:
+        """``desc`` with the piston diameters this model's identification measured
+        (:mod:`.cylinders`): the cylinders it was fitted without, whose torque anything
+        scoring or using the model must take out or add back. ``ValueError`` (naming what)
+        when ``desc``'s cylinders are not the ones measured."""
+        measured = (self.metadata.get("cylinders") or {}).get("cylinders", [])
+        return with_measured_cylinders(desc, measured, "analysis.cylinders")
 
     def _arrays(self, *arrays: np.ndarray) -> tuple[bool, list[np.ndarray]]:
         arrs = [np.asarray(a, dtype=float) for a in arrays]

@@ -91,6 +91,13 @@ def render_markdown(summary: dict[str, Any]) -> str:
             "Assist-cylinder torque (eqs. 10/12, from the measured pressures) was taken out of "
             "the measured torque before fitting."
         )
+    for c in (summary.get("cylinders") or {}).get("cylinders", []):
+        lines.append(
+            f"Cylinder on J{c['joint_index'] + 1}: force {c['torque_scale']:.4g} × described "
+            f"(piston Ø {1000 * c['described_piston_diameter_m']:.4g} → "
+            f"{1000 * c['piston_diameter_m']:.4g} mm), {'kept' if c['kept'] else 'not kept'}: "
+            f"{c['reason']}."
+        )
     lines += [
         "",
         "## Held-out torque error per joint (test files)",

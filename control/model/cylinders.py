@@ -21,6 +21,8 @@ holding torque is ``g(q) - T_cyl(q, p)``.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import replace
+from typing import Any
 
 import numpy as np
 
@@ -106,3 +108,34 @@ def pressure_for_torque(
         ok = np.abs(gain) >= min_gain_nm_per_bar
         out[..., k] = np.where(ok, tau[..., j] / np.where(ok, gain, 1.0), np.nan)
     return out
+
+
+def with_measured_cylinders(
+    desc: RobotDescription, measured: Sequence[dict[str, Any]], where: str
+) -> RobotDescription:
+    """``desc`` with the piston diameters an identified model measured
+    (:mod:`control.identification.cylinders`: its force scale as a diameter, the model file's
+    ``analysis.cylinders.cylinders`` entries). Each entry names the joint and the diameter the
+    description had when it was measured: a description whose cylinder has neither that nor
+    the measured diameter (another cylinder was mounted since) raises ``ValueError`` naming
+    ``where``, since the measurement is of a cylinder that is no longer there. Applying it to
+    a description that already has the measured diameters changes nothing."""
+    cylinders = list(desc.cylinders)
+    for entry in measured:
+        j = int(entry["joint_index"])
+        found = [k for k, c in enumerate(cylinders) if c.joint_index == j]
+        if not found:
+            raise ValueError(f"{where}: a cylinder on J{j + 1} was measured; {desc.name} has none")
+        k = found[0]
+        have = cylinders[k].piston_diameter_m
+        described = float(entry["described_piston_diameter_m"])
+        measured_d = float(entry["piston_diameter_m"])
+        if not (np.isfinite(measured_d) and measured_d > 0):
+            raise ValueError(f"{where}: J{j + 1} cylinder's piston diameter {measured_d!r}")
+        if not (np.isclose(have, described, rtol=1e-9) or np.isclose(have, measured_d, rtol=1e-9)):
+            raise ValueError(
+                f"{where}: J{j + 1} cylinder was measured on a {1000 * described:.4g} mm piston "
+                f"as described then; {desc.name} now describes {1000 * have:.4g} mm: identify again"
+            )
+        cylinders[k] = replace(cylinders[k], piston_diameter_m=measured_d)
+    return replace(desc, cylinders=tuple(cylinders))

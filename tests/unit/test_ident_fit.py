@@ -130,7 +130,9 @@ def test_model_file_reproduces_the_reported_held_out_error(cylinder_run):
     assert model.joint_names == ("j1", "j2", "j3", "j4", "j5", "j6")
     assert model.friction_kind == "eq15"
     test = model.prepare(read_measurements(cylinder_run["paths"]["test"]))
-    test = remove_cylinders(test, model.regressor, cylinder_run["desc"])
+    # the cylinders as the identification measured them (control/identification/cylinders.py)
+    desc = model.with_measured_cylinders(cylinder_run["desc"])
+    test = remove_cylinders(test, model.regressor, desc)
     error = test.tau - model.predict_measured(test)
     window_s = 1.0 / model.metadata["torque_cutoff_hz"]
     on = sliding_mask(test, DEFAULT_STICK_VELOCITY_RAD_S, window_s)
