@@ -63,6 +63,14 @@ NMT_OPERATIONAL = 0x05  #: the state byte of an operational node's heartbeat
 #: a drive whose heartbeat is this many of its periods (0x1017) late is lost (the host's side
 #: of the heartbeat watch; the drives watch the host's with 0x1016)
 HEARTBEAT_LATE_FACTOR = 3.0
+#: Completed cycles after a request that takes the drives out of operation (BRAKE,
+#: RESET_FAULT) in which a drive leaving operation enabled is obeying it, not dropping out on
+#: its own: the request's controlword goes out at once, the drive acts on it at the next SYNC
+#: and that cycle's TPDO1 reports it (one cycle; two when the RPDO1 missed its SYNC; a third
+#: for a late TPDO1). Without it an operator's stop and start within a cycle (a BRAKE, then a
+#: SERVO_ON before the drives' answer to the BRAKE came in) read that answer as a drop-out
+#: and latched a controller FAULT (seen on the CiA 402 demo on one loaded core, 2026-11-29).
+HOST_DISABLE_CYCLES = 3
 
 
 class DriveState(enum.Enum):
@@ -228,6 +236,9 @@ class Cia402Adapter(CanAdapter):
         #: a fault): latched, reported as a controller FAULT, never undone by SERVO_ON (only
         #: by an explicit RESET_FAULT, the operator's reset)
         self._dropped = ""
+        #: ``stats.cycles`` when the last request other than SERVO_ON was made
+        #: (:data:`HOST_DISABLE_CYCLES`); None before any
+        self._disabled_at_cycle: int | None = None
         self._sync_count = 0
         self._tp1: list[tuple[int, ...] | None] = [None] * n_joints
         self._tp2: list[tuple[int, ...] | None] = [None] * n_joints
@@ -442,6 +453,10 @@ class Cia402Adapter(CanAdapter):
                 and j.state != S.OPERATION_ENABLED
                 and self._request == HostRequest.SERVO_ON
                 and not self._dropped
+                and (
+                    self._disabled_at_cycle is None
+                    or self.stats.cycles - self._disabled_at_cycle >= HOST_DISABLE_CYCLES
+                )
             ):
                 self._dropped = f"J{k + 1} left operation enabled on its own ({j.state.value})"
                 log.error("CiA 402: %s; latched until a fault reset", self._dropped)
@@ -530,6 +545,8 @@ class Cia402Adapter(CanAdapter):
         if request == HostRequest.RESET_FAULT and self._dropped:
             log.info("CiA 402: fault reset clears: %s", self._dropped)
             self._dropped = ""
+        if request != HostRequest.SERVO_ON:
+            self._disabled_at_cycle = self.stats.cycles
         self._request = request
         frames = []
         for k, j in enumerate(self._joints):

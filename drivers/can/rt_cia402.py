@@ -22,6 +22,8 @@ parses it exactly: serde_json without its ``float_roundtrip`` feature may be one
     clock_period_s, host_heartbeat_timeout_s, producer_heartbeat_s, heartbeat_late_factor,
     request ("BRAKE" | "SERVO_ON" | "RESET_FAULT": the request the RPDO1s walk towards),
     dropped (the latched "J2 left operation enabled ..." text, "" when none),
+    disabled_at_cycle (stats.cycles at the last request other than SERVO_ON | null: none),
+    host_disable_cycles (cia402.HOST_DISABLE_CYCLES),
     sync_count (the counter of the last SYNC), corrupt (the current cycle had a bad frame),
     stats ({frames, unknown_frames, bad_frames, cycles, incomplete_cycles, corrupt_cycles,
             last_error}),
@@ -64,6 +66,7 @@ import numpy as np
 from drivers.can.adapter import HostRequest
 from drivers.can.cia402 import (
     HEARTBEAT_LATE_FACTOR,
+    HOST_DISABLE_CYCLES,
     NMT_OPERATIONAL,
     SYNC_COB_ID,
     Cia402Adapter,
@@ -174,6 +177,8 @@ def cia402_tables(adapter: Cia402Adapter) -> dict[str, Any]:
         "heartbeat_late_factor": _float(HEARTBEAT_LATE_FACTOR),
         "request": adapter._request.name,
         "dropped": adapter._dropped,
+        "disabled_at_cycle": adapter._disabled_at_cycle,
+        "host_disable_cycles": HOST_DISABLE_CYCLES,
         "sync_count": adapter._sync_count,
         "corrupt": adapter._corrupt,
         "stats": adapter.stats.as_dict(),
@@ -575,11 +580,35 @@ def _scenario_sixteen() -> dict[str, Any]:
     return rec.scenario("sixteen drives in fault")
 
 
+def _scenario_stop_start() -> dict[str, Any]:
+    """A stop and a start within a cycle (cia402.HOST_DISABLE_CYCLES): the drives' answer to
+    the BRAKE arrives after the SERVO_ON and is no drop-out; one three cycles later is."""
+    rec, _ = _recorder(2)
+    rec.begin()
+    S = DriveState
+    pos, vel, cur = [10, -10], [0, 0], [0, 0]
+    oe = _states(2, S.OPERATION_ENABLED)
+    rec.request(HostRequest.SERVO_ON)
+    for state in (S.READY_TO_SWITCH_ON, S.SWITCHED_ON, S.OPERATION_ENABLED, S.OPERATION_ENABLED):
+        rec.cycle(_states(2, state), pos, vel, cur, 0.01)
+    rec.request(HostRequest.BRAKE)
+    rec.request(HostRequest.SERVO_ON)
+    rec.cycle(oe, pos, vel, cur, 0.02)  # the BRAKE not acted on yet
+    rec.cycle(_states(2, S.SWITCHED_ON), pos, vel, cur, 0.03)  # ... now: obeying, no latch
+    rec.request(HostRequest.SERVO_ON)
+    for _ in range(3):
+        rec.cycle(oe, pos, vel, cur, 0.04)
+    rec.cycle([SW[S.OPERATION_ENABLED], SW[S.SWITCH_ON_DISABLED]], pos, vel, cur, 0.05)  # latched
+    rec.request(HostRequest.SERVO_ON)
+    return rec.scenario("stop and start within a cycle: the BRAKE's answer is no drop-out")
+
+
 SCENARIOS: tuple[Callable[[], dict[str, Any]], ...] = (
     _scenario_walk,
     _scenario_frames,
     _scenario_csv_handover,
     _scenario_sixteen,
+    _scenario_stop_start,
 )
 
 

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from drivers.can.adapter import HostRequest
-from drivers.can.cia402 import Cia402Adapter, _Joint, _Pdo
+from drivers.can.cia402 import HOST_DISABLE_CYCLES, Cia402Adapter, _Joint, _Pdo
 from drivers.can.config import Cia402Config
 from gateway.errors import FrameError
 from gateway.messages import ControllerState
@@ -24,6 +24,7 @@ GEAR = (100.0, 50.0)
 RATED_A = (10.0, 2.0)
 INC = 1 << 20
 SW_OPERATION_ENABLED, SW_SWITCH_ON_DISABLED, SW_FAULT = 0x0237, 0x0250, 0x0218
+SW_SWITCHED_ON = 0x0233
 
 
 class Clock:
@@ -131,6 +132,25 @@ def test_a_drive_that_stops_on_its_own_is_latched_until_a_fault_reset(rig):
     fb = _cycle(adapter, statuswords=(SW_SWITCH_ON_DISABLED, SW_SWITCH_ON_DISABLED))
     assert fb.controller_state == ControllerState.BRAKED and fb.fault == "NONE"
     assert controlwords(adapter.request_frames(HostRequest.SERVO_ON)) == [0x06, 0x06]  # 2
+
+
+def test_a_stop_and_a_start_within_a_cycle_are_no_drop_out(rig):
+    """The drives' answer to a BRAKE that arrives after the next SERVO_ON (an operator's stop
+    and start within a cycle) is obeying the host, not dropping out (HOST_DISABLE_CYCLES); a
+    drop-out once those cycles have passed still latches."""
+    adapter, _ = rig
+    adapter.request_frames(HostRequest.SERVO_ON)
+    assert _cycle(adapter).controller_state == ControllerState.EXTERNAL
+    adapter.request_frames(HostRequest.BRAKE)
+    adapter.request_frames(HostRequest.SERVO_ON)
+    assert _cycle(adapter).controller_state == ControllerState.EXTERNAL  # BRAKE not acted on yet
+    fb = _cycle(adapter, statuswords=(SW_SWITCHED_ON,) * N)  # ... now
+    assert (fb.controller_state, fb.fault) == (ControllerState.BRAKED, "NONE")
+    for _ in range(HOST_DISABLE_CYCLES):
+        assert _cycle(adapter).controller_state == ControllerState.EXTERNAL
+    fb = _cycle(adapter, statuswords=(SW_OPERATION_ENABLED, SW_SWITCH_ON_DISABLED))
+    assert fb.controller_state == ControllerState.FAULT
+    assert "J2 left operation enabled on its own (switch on disabled)" in fb.fault
 
 
 def test_a_drive_fault_is_reported_and_reset_by_a_rising_fault_reset(rig):

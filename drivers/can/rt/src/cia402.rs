@@ -459,6 +459,11 @@ pub struct Cia402Adapter {
     /// why a drive left operation enabled on its own: latched (a controller FAULT) until an
     /// explicit RESET_FAULT; "" when none
     dropped: String,
+    /// `stats.cycles` at the last request other than SERVO_ON (None before any)
+    disabled_at_cycle: Option<u64>,
+    /// completed cycles after such a request in which a drive leaving operation enabled is
+    /// obeying it, not dropping out (cia402.py's HOST_DISABLE_CYCLES, which says why)
+    host_disable_cycles: u64,
     /// the counter of the last SYNC (wraps at `counter_modulus`)
     sync_count: u32,
     /// the open cycle had a bad frame
@@ -716,6 +721,11 @@ impl Cia402Adapter {
             heartbeat_limit_s: late_factor * producer_heartbeat_s,
             request,
             dropped: reserved(text(tables, "dropped", w)?, DROPPED_CAPACITY),
+            disabled_at_cycle: match field(tables, "disabled_at_cycle", w)? {
+                Value::Null => None,
+                _ => Some(uint(tables, "disabled_at_cycle", w)?),
+            },
+            host_disable_cycles: uint(tables, "host_disable_cycles", w)?,
             sync_count: sync_count as u32,
             corrupt: boolean(tables, "corrupt", w)?,
             stats,
@@ -811,6 +821,9 @@ impl Cia402Adapter {
                 && j.state != DriveState::OperationEnabled
                 && self.request == HostRequest::ServoOn
                 && self.dropped.is_empty()
+                && self.disabled_at_cycle.is_none_or(|at| {
+                    self.stats.cycles.saturating_sub(at) >= self.host_disable_cycles
+                })
             {
                 let _ = write!(
                     self.dropped,
@@ -1065,6 +1078,9 @@ impl Adapter for Cia402Adapter {
         if request == HostRequest::ResetFault {
             self.dropped.clear();
         }
+        if request != HostRequest::ServoOn {
+            self.disabled_at_cycle = Some(self.stats.cycles);
+        }
         self.request = request;
         for k in 0..self.joints.len() {
             let j = self.joints[k];
@@ -1168,6 +1184,8 @@ mod tests {
             "heartbeat_late_factor": "3.0",
             "request": "BRAKE",
             "dropped": "",
+            "disabled_at_cycle": null,
+            "host_disable_cycles": 3,
             "sync_count": 0,
             "corrupt": false,
             "joints": joints,
