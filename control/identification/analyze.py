@@ -52,6 +52,7 @@ from control.identification.fit import (
     FrictionFit,
     IdentifiedModel,
     PlainJoint,
+    cylinder_columns,
     fit_rigid_friction,
     make_context,
     model_from_solution,
@@ -772,7 +773,7 @@ def _load(
     }
     run = _Run(
         reg, urdf, meta, train, test, ctx_train, ctx_test, envelope, clock,
-        cyl.columns(train, reg, desc), cyl.columns(test, reg, desc), desc,
+        cylinder_columns(train, reg, desc), cylinder_columns(test, reg, desc), desc,
     )  # fmt: skip
     return run, ratios, options
 

@@ -37,34 +37,13 @@ from typing import Any
 
 import numpy as np
 
-from control.identification.fit import cylinder_joint_map
-from control.identification.preprocess import Prepared
-from control.identification.rigid import RobotRegressor
-from control.model.cylinders import torque_per_pa
-from control.robot.description import BAR_TO_PA, RobotDescription
+from control.robot.description import RobotDescription
 
-#: The fit's group of cylinder columns (:class:`.lsq.BlockLS`).
+#: The fit's group of cylinder columns (:class:`.lsq.BlockLS`), those of
+#: :func:`.fit.cylinder_columns`.
 GROUP = "cylinders"
 #: Plausible force scales of a described cylinder (module docstring).
 SCALE_RANGE = (0.5, 2.0)
-
-
-def columns(
-    data: Prepared, reg: RobotRegressor, desc: RobotDescription | None
-) -> dict[int, np.ndarray] | None:
-    """Each described cylinder's torque [N·m] on ``data`` as fit columns: joint → (T, c),
-    cylinder k (the description's order) in column k on its own joint, zero on the others'
-    (and for a cylinder without a pressure column); None without pressure columns. Exactly
-    what :func:`.fit.remove_cylinders` added to the target."""
-    if data.p is None or desc is None:
-        return None
-    c = len(desc.cylinders)
-    out: dict[int, np.ndarray] = {}
-    for col, spec in cylinder_joint_map(reg, desc, data.p_joints, data.sources[0]):
-        j, k = spec.joint_index, desc.cylinders.index(spec)
-        cols = out.setdefault(j, np.zeros((data.n_samples, c)))
-        cols[:, k] = torque_per_pa(spec, data.q[:, j]) * data.p[:, col] * BAR_TO_PA
-    return out
 
 
 def contribution(cols: dict[int, np.ndarray], coef: np.ndarray, n: int) -> np.ndarray:

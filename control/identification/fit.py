@@ -148,19 +148,38 @@ def cylinder_joint_map(
     return out
 
 
+def cylinder_columns(
+    data: Prepared, reg: RobotRegressor, desc: RobotDescription | None
+) -> dict[int, np.ndarray] | None:
+    """Each described cylinder's torque [N·m] on ``data``, eqs. (10)/(12) from its pressure
+    column: joint → (T, c), cylinder k (the description's order) in column k on its own
+    joint, zero on the others' (and for a cylinder without a pressure column); None without
+    pressure columns. The fit's cylinder columns (:mod:`.cylinders`) and, summed per joint,
+    what :func:`remove_cylinders` adds."""
+    if data.p is None:
+        return None
+    if desc is None:
+        raise ConfigError(f"{data.sources[0]}: has pressure columns but no robot description")
+    c = len(desc.cylinders)
+    out: dict[int, np.ndarray] = {}
+    for col, spec in cylinder_joint_map(reg, desc, data.p_joints, data.sources[0]):
+        j, k = spec.joint_index, desc.cylinders.index(spec)
+        cols = out.setdefault(j, np.zeros((data.n_samples, c)))
+        cols[:, k] = torque_per_pa(spec, data.q[:, j]) * data.p[:, col] * BAR_TO_PA
+    return out
+
+
 def remove_cylinders(
     data: Prepared, reg: RobotRegressor, desc: RobotDescription | None
 ) -> Prepared:
     """``data`` with the cylinder torque added to the motor torque (``τ + T_cyl``), see the
     module docstring; unchanged without pressure columns."""
-    if data.p is None:
+    cols = cylinder_columns(data, reg, desc)
+    if cols is None:
         return data
-    if desc is None:
-        raise ConfigError(f"{data.sources[0]}: has pressure columns but no robot description")
     tau = data.tau.copy()
-    for col, spec in cylinder_joint_map(reg, desc, data.p_joints, data.sources[0]):
-        j = spec.joint_index
-        tau[:, j] += torque_per_pa(spec, data.q[:, j]) * data.p[:, col] * BAR_TO_PA
+    for j, c in cols.items():
+        tau[:, j] += c.sum(axis=1)
     return data.with_tau(tau)
 
 

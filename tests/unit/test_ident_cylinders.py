@@ -9,25 +9,16 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from cylinder_recordings import RATE_HZ, write_recordings
 
 from control.declared_model import IdentifiedControlModel
 from control.identification import cylinders as cyl
 from control.identification.cli import cli_main, configure_parser
-from control.identification.datafile import write_measurements
-from control.identification.rigid import RobotRegressor
-from control.identification.synthetic import (
-    GR630ST_MAX_SPEED_RAD_S,
-    GR630ST_NOISE_NM,
-    MultiSine,
-    default_friction,
-    synthesize,
-)
+from control.identification.synthetic import GR630ST_NOISE_NM
 from control.model.cylinders import cylinder_torque_nm, with_measured_cylinders
 from control.robot.description import RobotDescription, load_description
-from control.robot.urdf import to_urdf
 from gateway.errors import ConfigError
 
-RATE_HZ = 1000.0
 #: The recorded arm's cylinders against the description: J2's bore 6 % and J3's 8 % wider
 #: (forces × 1.124 and × 1.166), within a datasheet's and a linkage's tolerances together.
 BORE_FACTORS = (1.06, 1.08)
@@ -47,28 +38,7 @@ def stronger_run(tmp_path_factory) -> dict:
     wander ±15 %), analysed by the CLI with the packaged (described) cylinders."""
     root = tmp_path_factory.mktemp("ident_cyl")
     desc = load_description()
-    truth = _stronger(desc)
-    urdf = root / "gr630st.urdf"
-    urdf.write_text(to_urdf(desc))
-    reg = RobotRegressor(urdf.read_text())
-    friction = default_friction(
-        desc.gear_ratios, (300, 1500, 600, 30, 10, 5), np.random.default_rng(1)
-    )
-    nominal = desc.nominal_pressures_bar
-    paths = {}
-    for name, seed, seconds, base_hz in (("train", 1, 40.0, 0.05), ("test", 2, 25.0, 0.07)):
-        rng = np.random.default_rng(seed)
-        traj = MultiSine.random(
-            desc.lower_rad, desc.upper_rad, rng, GR630ST_MAX_SPEED_RAD_S, base_hz=base_hz
-        )
-        t = np.arange(round(seconds * RATE_HZ)) / RATE_HZ
-        p = nominal * (1 + 0.15 * np.sin(2 * np.pi * 0.03 * t[:, None] + np.array([0.0, 1.0])))
-        m = synthesize(
-            reg, traj, t, friction, GR630ST_NOISE_NM, rng, desc=truth, pressures_bar=p,
-            with_dq=(name == "test"),
-        )  # fmt: skip
-        paths[name] = root / f"{name}.csv"
-        write_measurements(paths[name], m)
+    urdf, paths = write_recordings(root, desc, _stronger(desc))
     out = root / "out"
     p = argparse.ArgumentParser()
     configure_parser(p)

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from cylinder_recordings import RATE_HZ, write_recordings
 
 from control.identification.analyze import AnalyzeOptions, analyze
 from control.identification.cli import cli_main, configure_parser
@@ -20,18 +21,9 @@ from control.identification.preprocess import (
     sliding_mask,
 )
 from control.identification.rigid import RobotRegressor
-from control.identification.synthetic import (
-    GR630ST_MAX_SPEED_RAD_S,
-    GR630ST_NOISE_NM,
-    MultiSine,
-    default_friction,
-    synthesize,
-)
+from control.identification.synthetic import GR630ST_NOISE_NM
 from control.robot.description import load_description
-from control.robot.urdf import to_urdf
 from gateway.errors import ConfigError, DataFileError
-
-RATE_HZ = 1000.0
 
 
 def _parse(argv: list[str]) -> argparse.Namespace:
@@ -45,34 +37,8 @@ def cylinder_run(tmp_path_factory) -> dict:
     """GR630ST recordings with assist cylinders (pressures wander ±15 %) analysed by the CLI."""
     root = tmp_path_factory.mktemp("ident_fit")
     desc = load_description()
-    urdf = root / "gr630st.urdf"
-    urdf.write_text(to_urdf(desc))
+    urdf, paths = write_recordings(root, desc, desc)
     reg = RobotRegressor(urdf.read_text())
-    friction = default_friction(
-        desc.gear_ratios, (300, 1500, 600, 30, 10, 5), np.random.default_rng(1)
-    )
-    nominal = np.array([c.nominal_pressure_bar for c in desc.cylinders])
-    paths = {}
-    for name, seed, seconds, base_hz in (("train", 1, 40.0, 0.05), ("test", 2, 25.0, 0.07)):
-        rng = np.random.default_rng(seed)
-        traj = MultiSine.random(
-            desc.lower_rad, desc.upper_rad, rng, GR630ST_MAX_SPEED_RAD_S, base_hz=base_hz
-        )
-        t = np.arange(round(seconds * RATE_HZ)) / RATE_HZ
-        p = nominal * (1 + 0.15 * np.sin(2 * np.pi * 0.03 * t[:, None] + np.array([0.0, 1.0])))
-        m = synthesize(
-            reg,
-            traj,
-            t,
-            friction,
-            GR630ST_NOISE_NM,
-            rng,
-            desc=desc,
-            pressures_bar=p,
-            with_dq=(name == "test"),
-        )
-        paths[name] = root / f"{name}.csv"
-        write_measurements(paths[name], m)
     out = root / "out"
     code = cli_main(
         _parse(
