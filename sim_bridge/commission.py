@@ -149,14 +149,11 @@ def commission(
     effects); returns ``work/ident`` (raises RuntimeError on failure)."""
     sim = {"operator": {"enabling_after_s": 0.0}, "controller": {"cycle_period_s": CYCLE_S}}
     sim = deep_merge(sim, sim_overrides or {})
-    # Lock-step, the virtual controller waits for each answer: the driver may use the whole
-    # cycle before it coasts or holds.
-    can = {"can": {"answer_by_period_fraction": 1.0, "deadline_s": 0.1}}
     plan_path = work / "plan.json"
     work.mkdir(parents=True, exist_ok=True)
     plan_path.write_text(json.dumps(plan))
     with Stack(
-        work / "cell", sim_overrides=sim, cell_overrides=can, lockstep=True,
+        work / "cell", sim_overrides=sim, lockstep=True,
         plant_seed=plant_seed, model=None,
     ) as stack:  # fmt: skip
         stack.start()

@@ -255,6 +255,9 @@ def cli_main(args: argparse.Namespace) -> int:
     m["recording"] = str(out / "recording.mcap")
     m["recording_messages"] = recorder.count
     (out / "summary.json").write_text(json.dumps(m, indent=2))
+    replay_line = f"{m['replay_result']}, {m['replay_duration_s']:.1f} s"
+    if m["replay_result"] != "done":
+        replay_line += f" ({m['replay_reason'] or 'no reason given'})"
     rows = [
         ("mean operator force", f"{m['mean_force_n']:.1f} N"),
         ("peak operator force", f"{m['peak_force_n']:.1f} N"),
@@ -267,7 +270,7 @@ def cli_main(args: argparse.Namespace) -> int:
         ),
         ("controller faults", ", ".join(m["controller_faults"]) or "none"),
         ("taught program", f"{m['program']} ({m['marks']} marks)"),
-        ("replay at 100 mm/s", f"{m['replay_result']}, {m['replay_duration_s']:.1f} s"),
+        ("replay at 100 mm/s", replay_line),
         ("taught path from the replayed, p95", f"{m['replay_path_error_mm']:.2f} mm"),
         *_adaptation_rows(m.get("model_adaptation") or {}),
     ]
@@ -328,6 +331,8 @@ def replay_program(stack: Stack, program: Path) -> dict[str, Any]:
         "program": str(program),
         "marks": len(taught.marks),
         "replay_result": status["plan"]["state"],
+        # why a replay that did not finish stopped (the fault, the released device, ...)
+        "replay_reason": status["plan"].get("reason", ""),
         "replay_duration_s": duration,
         "replay_path_error_mm": error * 1e3,
         "first_row": first_row,

@@ -212,6 +212,9 @@ def _wait_port(host: str, port: int, timeout_s: float, proc: subprocess.Popen) -
 
 #: the gateway's joint-state watchdog in lock-step runs [s]: twice the controller's wait
 LOCKSTEP_STATE_TIMEOUT_S = 0.5
+#: the CAN driver's wait for a command in lock-step runs ([can].lockstep_answer_wait_s) [s]:
+#: the most it allows, under the virtual controller's own 0.25 s wait for an answer
+LOCKSTEP_ANSWER_WAIT_S = 0.2
 #: how long the gateway's children may take to stop after it did [s]
 STOP_GRACE_S = 5.0
 
@@ -287,12 +290,17 @@ class Stack:
             # runs the simulator flat out, and the loaded machine answers Modbus polls late
             # too: the I/O watchdogs get the same allowance (commissioning in `make test`
             # faulted once on a Modbus reply 0.2 s late).
+            # The CAN driver waits for each command as the virtual controller does: a command
+            # late by the machine's load then slows the virtual plant instead of cutting holds
+            # and coasts into the motion commissioning records (under CPU steal, 14-245 per
+            # segment, and a model 4x its noise floor, 2026-11-29).
             wait = LOCKSTEP_STATE_TIMEOUT_S
             cell = deep_merge(
                 cell,
                 {
                     "gateway": {"joint_state_timeout_s": wait, "io_timeout_s": wait},
                     "control": {"io_timeout_s": wait},
+                    "can": {"lockstep_answer_wait_s": LOCKSTEP_ANSWER_WAIT_S},
                 },
             )
         self.placement = placement() if place else None

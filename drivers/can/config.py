@@ -37,6 +37,12 @@ COAST_ANSWER, HOLD_ANSWER = "coast", "hold"
 _TRANSPORT_SCALARS = (str, int, float, bool)
 #: The interfaces the compiled CAN driver speaks (drivers/can/rt/src/can_socket.rs).
 TRANSPORT_INTERFACES = ("socketcan", "seqpacket")
+#: the transport of the virtual controller (sim_bridge), the only one that may run lock-step
+VIRTUAL_INTERFACE = "seqpacket"
+#: ``[can].lockstep_answer_wait_s`` at most [s]: below the lock-step virtual controller's own
+#: wait for an answer (sim_bridge's ``lockstep_timeout_s``, 0.25 s), so the driver's hold
+#: reaches it first
+LOCKSTEP_ANSWER_WAIT_MAX_S = 0.2
 #: Keyword arguments SeqpacketBus takes; anything else would be silently ignored, so refuse it.
 _SEQPACKET_KEYS = ("interface", "channel", "fd", "connect_timeout_s")
 
@@ -140,6 +146,14 @@ class CanDriverConfig:
     #: next cycle. A lock-step virtual controller waits for the answer, so there the whole
     #: period may be used.
     answer_by_period_fraction: float = 0.5
+    #: 0 (a real controller, always): as above. > 0: the controller is the lock-step virtual
+    #: one (transport "seqpacket", sim_bridge --lockstep), which starts its next cycle only
+    #: once this one is answered; the driver then waits this long for a command before it
+    #: coasts or holds, and forwards a command up to this old [s]. A product process slowed
+    #: by a loaded machine then slows the virtual plant instead of cutting holds into the
+    #: motion it records (commissioning). At most 0.2 s: below the virtual controller's own
+    #: wait for an answer (its lockstep_timeout_s, 0.25 s).
+    lockstep_answer_wait_s: float = 0.0
     #: The gateway's lifecycle message counts as fresh for this long [s].
     lifecycle_timeout_s: float = 0.25
     #: The Modbus driver's IoState counts as fresh for this long [s].
@@ -297,6 +311,25 @@ class CanDriverConfig:
             and 0.0 < self.answer_by_period_fraction <= 1.0,
             f"{where}.answer_by_period_fraction",
             f"{self.answer_by_period_fraction!r} outside (0, 1]",
+        )
+        require(
+            math.isfinite(self.lockstep_answer_wait_s)
+            and 0.0 <= self.lockstep_answer_wait_s <= LOCKSTEP_ANSWER_WAIT_MAX_S,
+            f"{where}.lockstep_answer_wait_s",
+            f"{self.lockstep_answer_wait_s!r} s outside 0..{LOCKSTEP_ANSWER_WAIT_MAX_S}",
+        )
+        require(
+            self.lockstep_answer_wait_s == 0.0
+            or self.transport.get("interface") == VIRTUAL_INTERFACE,
+            f"{where}.lockstep_answer_wait_s",
+            f"{self.lockstep_answer_wait_s} s needs the lock-step virtual controller (transport "
+            f"{VIRTUAL_INTERFACE!r}); a real controller does not wait for an answer: set it to 0",
+        )
+        require(
+            self.lockstep_answer_wait_s == 0.0 or self.adapter != "cia402",
+            f"{where}.lockstep_answer_wait_s",
+            "CiA 402 drives are clocked by the host's SYNC and never wait for an answer: "
+            "set it to 0",
         )
         for name in ("max_following_error_rad", "max_velocity_rad_s", "stop_deceleration_rad_s2"):
             object.__setattr__(self, name, self._per_joint(name, getattr(self, name)))

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import tomllib
 from pathlib import Path
 
 import pytest
@@ -19,6 +20,12 @@ SOCKETCAN = {"interface": "socketcan", "channel": "can1", "fd": True}
 #: only socketcan and seqpacket (drivers/can/rt/src/can_socket.rs)
 SOCKETCAND = {"interface": "socketcand", "channel": "vcan0", "host": "127.0.0.1", "port": 29536}
 ONLY_TWO = r"transport.interface: '{}': .*'socketcan'.*'seqpacket'"
+SEQPACKET = {"interface": "seqpacket", "channel": "@leadthrough-test"}
+#: the virtual CiA 402 cell's drives, as its config describes them
+CIA402_TABLE = {
+    **tomllib.loads((REPO / "deploy/config/sim_cell_cia402.toml").read_text())["can"]["cia402"],
+    "eds": str(REPO / "deploy" / "cia402" / "leadthrough_drive.eds"),
+}
 
 
 def test_defaults_are_production_socketcan():
@@ -69,11 +76,35 @@ def test_from_toml_table_with_per_joint_lists():
         ({"lost_cycle_answer": "brake"}, r"lost_cycle_answer: 'brake' is neither"),
         ({"lost_cycles_max_consecutive": -1}, "lost_cycles_max_consecutive"),
         ({"hand_guiding_max_speed_m_s": 2.0}, "hand_guiding_max_speed_m_s"),
+        # a real controller (socketcan, the default) never waits for an answer
+        ({"lockstep_answer_wait_s": 0.1}, r"lockstep_answer_wait_s: 0.1 s needs the lock-step"),
+        (
+            {"lockstep_answer_wait_s": 0.3, "transport": SEQPACKET},
+            r"lockstep_answer_wait_s: 0.3 s outside 0..0.2",
+        ),
+        ({"lockstep_answer_wait_s": -0.1, "transport": SEQPACKET}, "lockstep_answer_wait_s"),
+        (
+            {
+                "lockstep_answer_wait_s": 0.1,
+                "transport": SEQPACKET,
+                "adapter": "cia402",
+                "cia402": CIA402_TABLE,
+            },
+            r"lockstep_answer_wait_s: CiA 402 drives are clocked by the host's SYNC",
+        ),
     ],
 )
 def test_bad_values_are_refused_with_field_and_reason(table, message):
     with pytest.raises(ConfigError, match=message):
         from_mapping(CanDriverConfig, table, "cell.toml [can]")
+
+
+def test_a_lock_step_answer_wait_is_taken_for_the_virtual_controller():
+    cfg = from_mapping(
+        CanDriverConfig, {"lockstep_answer_wait_s": 0.2, "transport": SEQPACKET}, "cell.toml [can]"
+    )
+    assert cfg.lockstep_answer_wait_s == 0.2
+    assert CanDriverConfig().lockstep_answer_wait_s == 0.0  # the default: a real controller
 
 
 def test_the_virtual_cell_config_loads():

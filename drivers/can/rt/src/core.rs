@@ -35,7 +35,10 @@
 //! The answer deadline of a cycle is `min(deadline_s, answer_by_period_fraction × period)`
 //! after its JointState stamp: a command set must reach the controller before the next cycle
 //! begins or it is a missed cycle (§3). A command arriving after its cycle was answered is
-//! rejected as `late_cycle`.
+//! rejected as `late_cycle`. Against a lock-step virtual controller (`lockstep_answer_wait_s`
+//! > 0), which starts its next cycle only when answered, the deadline and a command's age
+//! limit are that wait instead: a product process slowed by a loaded machine then slows the
+//! virtual plant rather than cutting holds into its motion.
 //!
 //! Servo power is requested from the gateway's lifecycle (READY, TEACHING, IDENTIFYING or
 //! REPLAYING, and fresh: SERVO_ON; anything else, including silence: BRAKE), repeated with
@@ -1009,7 +1012,9 @@ impl HostCore {
             self.ramp = None;
         }
         let mut budget_s = self.config.deadline_s;
-        if fb.period_s > 0.0 {
+        if self.config.lockstep_answer_wait_s > 0.0 {
+            budget_s = self.config.lockstep_answer_wait_s;
+        } else if fb.period_s > 0.0 {
             budget_s = budget_s.min(self.config.answer_by_period_fraction * fb.period_s);
         }
         self.pending = Some(Cycle {
@@ -1295,9 +1300,12 @@ impl HostCore {
         (HostRequest::Brake, false)
     }
 
-    /// The controller link is up: a complete cycle arrived within `controller_timeout_s`.
+    /// The controller link is up: a complete cycle arrived within `controller_timeout_s`
+    /// (plus `lockstep_answer_wait_s`: a lock-step controller's next cycle waits for our
+    /// answer to the last one).
     pub fn link_ok(&self, now: f64) -> bool {
-        (now - self.last_cycle_rx_s) < self.config.controller_timeout_s
+        let allowed_s = self.config.controller_timeout_s + self.config.lockstep_answer_wait_s;
+        (now - self.last_cycle_rx_s) < allowed_s
     }
 
     /// The reason forwarding is not allowed right now (one of [`REJECT_REASONS`]), or None
@@ -1371,7 +1379,7 @@ impl HostCore {
             return Some(Problem::Answered { cycle });
         }
         let age_s = now - state_stamp_s.min(pending.stamp_s);
-        if age_s > self.config.deadline_s {
+        if age_s > self.command_age_limit_s() {
             return Some(Problem::Stale { cycle, age_s });
         }
         // the worst joint, as numpy's argmax (the first of equals) picks it
@@ -1595,6 +1603,16 @@ impl HostCore {
         }
     }
 
+    /// How old a command may be when it is forwarded [s]: `deadline_s`, or against a lock-step
+    /// virtual controller (which waits for the answer) `lockstep_answer_wait_s`.
+    fn command_age_limit_s(&self) -> f64 {
+        if self.config.lockstep_answer_wait_s > 0.0 {
+            self.config.lockstep_answer_wait_s
+        } else {
+            self.config.deadline_s
+        }
+    }
+
     /// Answer a cycle whose command is late with the last forwarded command, moved on by its
     /// own velocity, as long as that command answered one of the `coast_max_cycles` cycles
     /// before this one (and, against a controller whose cycles stalled, is at most
@@ -1617,7 +1635,8 @@ impl HostCore {
         if self.config.lost_cycle_answer == LostCycleAnswer::Hold
             || self.holding
             || pending.cycle - last.cycle > max_cycles
-            || now - last.stamp_s > self.config.deadline_s + (max_cycles + 1) as f64 * last.period_s
+            || now - last.stamp_s
+                > self.command_age_limit_s() + (max_cycles + 1) as f64 * last.period_s
         {
             return false;
         }

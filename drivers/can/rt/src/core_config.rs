@@ -41,6 +41,9 @@ pub struct CoreConfig {
     pub deadline_s: f64,
     /// An unanswered cycle is answered this far into the controller's period at the latest [1].
     pub answer_by_period_fraction: f64,
+    /// 0: a real controller. > 0: a lock-step virtual controller, which advances only when
+    /// answered: the answer deadline and a command's age limit are this long instead [s].
+    pub lockstep_answer_wait_s: f64,
     /// The gateway's lifecycle message counts as fresh for this long [s].
     pub lifecycle_timeout_s: f64,
     /// The Modbus driver's IoState counts as fresh for this long [s].
@@ -92,6 +95,7 @@ impl Default for CoreConfig {
             joints: n,
             deadline_s: 0.010,
             answer_by_period_fraction: 0.5,
+            lockstep_answer_wait_s: 0.0,
             lifecycle_timeout_s: 0.25,
             io_timeout_s: 0.25,
             controller_timeout_s: 0.1,
@@ -241,6 +245,7 @@ impl CoreConfig {
             joints,
             deadline_s: number_in(o, "deadline_s", 0.0, 0.1)?,
             answer_by_period_fraction: number_in(o, "answer_by_period_fraction", 0.0, 1.0)?,
+            lockstep_answer_wait_s: number_within(o, "lockstep_answer_wait_s", 0.0, 0.2)?,
             lifecycle_timeout_s: number_in(o, "lifecycle_timeout_s", 0.0, 5.0)?,
             io_timeout_s: number_in(o, "io_timeout_s", 0.0, 5.0)?,
             controller_timeout_s: number_in(o, "controller_timeout_s", 0.0, 5.0)?,
@@ -284,7 +289,7 @@ mod tests {
     /// `dataclasses.asdict(CanDriverConfig(transport=...))` as Python writes it.
     fn asdict() -> Value {
         json!({"adapter": "ltc_dbc", "joints": 6, "transport": {"interface": "virtual", "channel": "x"},
-            "deadline_s": 0.01, "answer_by_period_fraction": 0.5, "lifecycle_timeout_s": 0.25,
+            "deadline_s": 0.01, "answer_by_period_fraction": 0.5, "lockstep_answer_wait_s": 0.0, "lifecycle_timeout_s": 0.25,
             "io_timeout_s": 0.25, "controller_timeout_s": 0.1, "heartbeat_period_s": 0.1,
             "state_window_s": 0.02, "max_following_error_rad": [0.05, 0.05, 0.05, 0.05, 0.05, 0.05],
             "max_velocity_rad_s": [1.0, 1.0, 1.0, 1.0, 1.0, 1.0], "current_zero_cycles": 0,

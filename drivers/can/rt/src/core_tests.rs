@@ -854,6 +854,34 @@ fn core_at_ltc1s_8_ms_one_late_command_coasts_and_a_second_in_a_row_holds() {
 }
 
 #[test]
+fn core_against_a_lock_step_controller_waits_for_a_late_command_then_holds() {
+    // A lock-step virtual controller starts its next cycle only once this one is answered:
+    // a command 150 ms late at an 8 ms period is forwarded, not held, and the link stays up;
+    // past the wait the cycle is held as at any controller.
+    let mut cell = Cell::new(|c| c.lockstep_answer_wait_s = 0.2);
+    let slow = Spec {
+        period_us: 8000,
+        ..Spec::default()
+    };
+    cell.gateway("teaching");
+    cell.tick();
+    let (js, _) = cell.cycle(slow);
+    cell.t += 0.15;
+    cell.gateway("teaching");
+    assert!(commands(&cell.tick()).is_empty());
+    assert!(cell.core.link_ok(cell.t));
+    assert_eq!(cell.command(&js, &plus(Q0, 0.001), 0.2).0, Answer::Command);
+    cell.gateway("teaching");
+    cell.cycle(slow);
+    cell.t += 0.19;
+    assert!(commands(&cell.tick()).is_empty());
+    cell.t += 0.011;
+    let late = commands(&cell.tick());
+    assert!(late.len() == 1 && cell.answer() != Answer::Command);
+    assert!(!cell.core.link_ok(cell.t + 0.1)); // 0.1 s controller timeout + the 0.2 s wait
+}
+
+#[test]
 fn core_a_late_command_coasts_then_the_next_late_one_holds_where_the_coast_went() {
     let mut cell = Cell::new(|c| c.deadline_s = 0.010);
     cell.gateway("teaching");
