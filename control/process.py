@@ -90,6 +90,12 @@ MAX_REPLAY_SPEED_M_S = MAX_SPEED_MM_S / 1000.0
 #: measured at 263 mm/s and tripped the monitor (probably the vendor loop catching up after a
 #: held cycle; not traced)
 MAX_REPLAY_POINT_SPEED_M_S = 0.2
+#: a plan resumes after a hold with no joint's commanded velocity rising faster than this
+#: [rad/s²]: the CAN driver's controlled stop brakes at 2 rad/s² ([can]
+#: stop_deceleration_rad_s2), and a resumption is no harder than an ordinary stop
+RESUME_ACCEL_RAD_S2 = 2.0
+#: a fractional plan index this close to a sample is that sample
+_INDEX_TOLERANCE = 1e-9
 PRESSURE_PUBLISH_PERIOD_S = 0.1
 #: the pressure schedule follows the pose in teaching and replay only while a joint moves
 #: faster than this [rad/s] (:meth:`ControlProcess.pressure_setpoints`)
@@ -714,6 +720,15 @@ class PlanPlayer:
     later command out of range. A plan held for longer than :attr:`MAX_PAUSE_S` fails, with
     the reason. A coast moves the arm on as the plan does, so the plan moves on too. Each
     segment's cycle range is recorded as played, for the export.
+
+    A hold stops the arm; the plan then resumes from rest: its speed along the samples is
+    scaled by σ, 0 after a hold, rising each cycle so that no joint's commanded velocity
+    rises faster than :data:`RESUME_ACCEL_RAD_S2`, up to 1 (the plan's own timing). Sent at
+    full speed after a hold, the plan stepped each joint's velocity from 0 to the path's in
+    one cycle and the drive, catching up with a reference that ran on, overshot it: a
+    100 mm/s replay on a loaded machine reached 249 mm/s at the tool and the CAN driver's
+    speed monitor stopped it (2026-11-29). Between samples, positions and velocities are
+    interpolated.
     """
 
     #: keep plans this far inside the joint range [rad]
@@ -743,6 +758,8 @@ class PlanPlayer:
         self.segments: list[dict] = []
         self._bounds: list[tuple[int, int]] = []  #: first and last sample of each segment
         self.k = 0  #: the plan sample to play next
+        self._s = 0.0  #: where along the samples the last command was (a fractional index)
+        self._sigma = 1.0  #: speed along the plan (1: its own timing; 0 after a hold)
         self._sent_cycle: int | None = None  #: cycle the last sample was sent for
         self.held_s = 0.0  #: how long the plan's commands have been held in a row [s]
         self.repeats = 0  #: samples sent again after a hold
@@ -753,6 +770,7 @@ class PlanPlayer:
 
     def start(self, plan: dict, st: JointState, period_s: float) -> None:
         self.plan_id, self.k, self._sent_cycle, self.held_s = str(plan.get("plan_id")), 0, None, 0.0
+        self._s, self._sigma = 0.0, 1.0
         self.start_cycle, self.period_s, self.repeats = st.cycle, period_s, 0
         self.segments, self._bounds, self.planning_s = [], [], 0.0
         self._q0 = st.q_cmd_rad.copy()
@@ -839,15 +857,45 @@ class PlanPlayer:
                     )
                     log.error("excitation plan %s failed: %s", self.plan_id, self.reason)
                     return None
+                self._sigma = 0.0  # the arm was stopped: the plan resumes from rest
             else:
                 self.held_s = 0.0
-                self._played(self._sent_cycle)
+                self._advance(self._sent_cycle)
         if self.state == "done":
             return self.q[-1], np.zeros_like(self.dq[-1])
         if self.state != "running":
             return None
         self._sent_cycle = st.cycle
-        return self.q[self.k], self.dq[self.k]
+        return self._sample()
+
+    def _advance(self, cycle: int) -> None:
+        """The command sent for ``cycle`` was carried out: every sample up to where it was is
+        played; the next command is further along by σ, which recovers towards 1."""
+        while self.state == "running" and self.k <= self._s + _INDEX_TOLERANCE:
+            self._played(cycle)
+        if self.state != "running":
+            return
+        self._sigma = min(1.0, self._sigma + self._sigma_step())
+        self._s = min(self._s + self._sigma, len(self.q) - 1.0)
+
+    def _sigma_step(self) -> float:
+        """How much σ may rise in one cycle: a joint's commanded velocity σ·dq rises by at
+        most RESUME_ACCEL_RAD_S2 per second."""
+        fastest = float(np.max(np.abs(self._interpolate(self.dq, self._s)))) if len(self.q) else 0
+        if fastest <= 0.0:
+            return 1.0
+        return self.period_s * RESUME_ACCEL_RAD_S2 / fastest
+
+    def _interpolate(self, samples: np.ndarray, s: float) -> np.ndarray:
+        i = min(int(np.floor(s + _INDEX_TOLERANCE)), len(samples) - 1)
+        frac = s - i
+        if i + 1 >= len(samples) or frac <= _INDEX_TOLERANCE:
+            return samples[i]
+        return samples[i] + frac * (samples[i + 1] - samples[i])
+
+    def _sample(self) -> tuple[np.ndarray, np.ndarray]:
+        """The command at the plan's current place: its position, its velocity times σ."""
+        return self._interpolate(self.q, self._s), self._sigma * self._interpolate(self.dq, self._s)
 
     def report(self) -> dict:
         return {

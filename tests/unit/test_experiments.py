@@ -5,7 +5,7 @@ import pytest
 from example_program import write_program
 
 from control.experiments import build_plan, friction_runs, multisine, reciprocating
-from control.process import MAX_REPLAY_JOINT_SPEED_RAD_S, PlanPlayer
+from control.process import MAX_REPLAY_JOINT_SPEED_RAD_S, RESUME_ACCEL_RAD_S2, PlanPlayer
 from control.robot.description import load_description
 from gateway.messages import (
     FLAG_PREV_HOLD,
@@ -160,7 +160,42 @@ def test_a_held_sample_is_sent_again_and_the_plan_waits():
     np.testing.assert_array_equal(sent[10], sent[11])  # cycle 110's sample again in 111, 112
     np.testing.assert_array_equal(sent[11], sent[12])
     assert not np.array_equal(sent[12], sent[13])
-    assert player.segments[1]["end_cycle"] == 100 + n + 1  # two cycles later than unheld
+    # two cycles later than unheld (this plan is slow enough to resume at full speed at once)
+    assert player.segments[1]["end_cycle"] == 100 + n + 1
+
+
+def test_after_a_hold_the_plan_resumes_from_rest_within_the_resume_acceleration():
+    """A hold stopped the arm: the re-sent sample asks for no velocity, and each joint's
+    commanded velocity then rises by at most RESUME_ACCEL_RAD_S2 per second until the plan
+    runs at its own timing again, along the same path (positions between its samples)."""
+    desc = load_description()
+    player = PlanPlayer(desc.lower_rad, desc.upper_rad)
+    swing = {"seed": 3, "duration_s": 1.6, "amplitude_rad": 0.15, "base_hz": 1.0, "harmonics": 2}
+    player.start({"plan_id": "fast", "multisine": [swing]}, _state(100), PERIOD_S)
+    fast = int(np.argmax(np.max(np.abs(player.dq), axis=1)))  # hold where the plan is fastest
+    held = 100 + fast
+    out = []
+    for cycle in range(100, 100 + 3 * len(player.q)):
+        cmd = player.command(_state(cycle, FLAG_PREV_HOLD if cycle - 1 == held else 0))
+        if player.state != "running":
+            break
+        out.append(cmd)
+    q = np.array([c[0] for c in out])
+    dq = np.array([c[1] for c in out])
+    k = fast + 1  # the command answering the state that reported the hold
+    np.testing.assert_array_equal(q[k], q[fast])
+    assert np.max(np.abs(dq[k])) == 0.0
+    rise = np.max(np.abs(np.diff(dq[k:], axis=0)), axis=1) / PERIOD_S
+    plan_own = np.max(np.abs(np.diff(player.dq, axis=0))) / PERIOD_S
+    assert rise.max() <= max(RESUME_ACCEL_RAD_S2, plan_own) * (1 + 1e-9)
+    assert np.max(np.abs(player.dq[fast])) > 4 * RESUME_ACCEL_RAD_S2 * PERIOD_S, "no ramp tested"
+    # the same path: every resumed position lies on the segment between two plan samples
+    a, b = player.q[:-1], player.q[1:]
+    for qk in q[k:]:
+        d = b - a
+        t = np.clip(np.sum((qk - a) * d, axis=1) / np.maximum(np.sum(d * d, axis=1), 1e-30), 0, 1)
+        assert np.min(np.linalg.norm(a + t[:, None] * d - qk, axis=1)) < 1e-12
+    assert player.state == "done"
 
 
 def test_a_plan_held_at_its_first_sample_fails_like_at_any_other():
