@@ -87,8 +87,8 @@ log = logging.getLogger("leadthrough.control")
 MAX_REPLAY_SPEED_M_S = MAX_SPEED_MM_S / 1000.0
 #: no point of the tool or the flange moves faster in a replay [m/s]: 20 % under the CAN
 #: driver's speed monitor (250 mm/s). Planned at 0.24 m/s, one replay on a loaded machine was
-#: measured at 263 mm/s and tripped the monitor (probably the vendor loop catching up after a
-#: held cycle; not traced)
+#: measured at 263 mm/s and tripped the monitor: the vendor loop catching up after a held
+#: cycle (traced 2026-11-29; the plan now resumes from rest, :class:`PlanPlayer`)
 MAX_REPLAY_POINT_SPEED_M_S = 0.2
 #: a plan resumes after a hold with no joint's commanded velocity rising faster than this
 #: [rad/s²]: the CAN driver's controlled stop brakes at 2 rad/s² ([can]
@@ -881,7 +881,7 @@ class PlanPlayer:
     def _sigma_step(self) -> float:
         """How much σ may rise in one cycle: a joint's commanded velocity σ·dq rises by at
         most RESUME_ACCEL_RAD_S2 per second."""
-        fastest = float(np.max(np.abs(self._interpolate(self.dq, self._s)))) if len(self.q) else 0
+        fastest = float(np.max(np.abs(self._interpolate(self.dq, self._s))))
         if fastest <= 0.0:
             return 1.0
         return self.period_s * RESUME_ACCEL_RAD_S2 / fastest

@@ -1011,10 +1011,9 @@ impl HostCore {
             self.last_forward = None;
             self.ramp = None;
         }
-        let mut budget_s = self.config.deadline_s;
-        if self.config.lockstep_answer_wait_s > 0.0 {
-            budget_s = self.config.lockstep_answer_wait_s;
-        } else if fb.period_s > 0.0 {
+        // a lock-step controller waits for the answer; a real one starts its next cycle
+        let mut budget_s = self.command_age_limit_s();
+        if self.config.lockstep_answer_wait_s == 0.0 && fb.period_s > 0.0 {
             budget_s = budget_s.min(self.config.answer_by_period_fraction * fb.period_s);
         }
         self.pending = Some(Cycle {
