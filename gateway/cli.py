@@ -55,6 +55,10 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
         "control.identification.cli",
         "identify the dynamic model from recorded files, validate, find missing effects",
     ),
+    "predict": (
+        "control.identification.predict_cli",
+        "an identified model's joint torque on every row of a measured file",
+    ),
 }
 OPERATOR_COMMANDS = ("start", "stop", "status", "reset", "mark")
 #: the product's processes: each places itself by the cell config's [realtime] when it starts

@@ -149,7 +149,7 @@ class Prepared:
             # (hundreds of columns) cost more memory than the analysis keeps
             for c in range(0, flat_in.shape[1], LOWPASS_COLUMNS):
                 cols = slice(c, c + LOWPASS_COLUMNS)
-                flat_out[a:b, cols] = _lowpass_padded(flat_in[a:b, cols], cut, fs)
+                flat_out[a:b, cols] = lowpass_padded(flat_in[a:b, cols], cut, fs)
         return out
 
 
@@ -163,7 +163,7 @@ def _check_cutoffs(rate_hz: float, position_cutoff_hz: float, torque_cutoff_hz: 
             raise ConfigError(f"{name}: {value!r} must be a finite number > 0")
 
 
-def _segments(t: np.ndarray) -> list[tuple[int, int]]:
+def gap_free_segments(t: np.ndarray) -> list[tuple[int, int]]:
     dt = np.diff(t)
     step = float(np.median(dt))
     cuts = np.flatnonzero(dt > GAP_FACTOR * step) + 1
@@ -180,7 +180,7 @@ def keeps_a_stretch(m: Measurements, cutoff_hz: float) -> bool:
     """Whether :func:`prepare` at position cutoff ``cutoff_hz`` keeps some stretch of ``m``:
     a lower cutoff trims more at each end of every gap-free stretch (from the time stamps
     only, not the values)."""
-    for a, b in _segments(m.t):
+    for a, b in gap_free_segments(m.t):
         t = m.t[a:b]
         if t.size < 2:
             continue
@@ -204,11 +204,69 @@ def _lowpass(x: np.ndarray, cutoff_hz: float, fs_hz: float) -> np.ndarray:
     return signal.sosfiltfilt(sos, x, axis=0)
 
 
-def _lowpass_padded(x: np.ndarray, cutoff_hz: float, fs_hz: float) -> np.ndarray:
+def lowpass_padded(x: np.ndarray, cutoff_hz: float, fs_hz: float) -> np.ndarray:
     """:func:`_lowpass` that leaves a stretch too short for the filter's padding unchanged."""
     if x.shape[0] <= 3 * (2 * FILTER_ORDER + 1) or cutoff_hz >= 0.5 * fs_hz:
         return x.copy()
     return _lowpass(x, cutoff_hz, fs_hz)
+
+
+#: Degree of the polynomial :func:`lowpass_to_the_edges` runs a stretch's ends on with. Measured
+#: on a 0.7 Hz sine at 500 Hz (q noise 1e-5 rad, dq noise 1e-3 rad/s, 20 Hz cutoff, 20 draws):
+#: ddq's RMS error on the 10 rows at each end against the interior's, from positions alone /
+#: from a measured dq, degree 3: 55× / 1.9×, 4: 3.2× / 1.2×, 5: 0.9× / 1.6×, 6: 1.6× / 2.6×.
+EDGE_POLY_DEGREE = 5
+
+
+def lowpass_to_the_edges(x: np.ndarray, cutoff_hz: float, fs_hz: float) -> np.ndarray:
+    """:func:`_lowpass` whose ends are usable for derivatives up to the second.
+
+    Each end of the stretch is run on, over the filter's settling time (:data:`EDGE_PERIODS`
+    periods of the cutoff), by the least-squares polynomial (:data:`EDGE_POLY_DEGREE`) of the
+    samples within that time of the end; the whole is filtered and the run-ons dropped. scipy's padding (a few samples,
+    odd reflection) flips the curvature at the end, so the filtered acceleration there tends
+    to zero: :func:`prepare` cuts those edges off, a prediction for every row cannot."""
+    y, pad = _lowpass_run_on(x, cutoff_hz, fs_hz)
+    return y[pad : pad + x.shape[0]]
+
+
+def states_to_the_edges(
+    q: np.ndarray, dq: np.ndarray | None, cutoff_hz: float, fs_hz: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """q, dq, ddq of one uniformly sampled stretch, usable on every row: q (and a measured dq)
+    through :func:`lowpass_to_the_edges`, dq otherwise and ddq the central difference taken
+    on the run-on stretch (so central at the ends as well)."""
+    step = 1.0 / fs_hz
+    q_f, pad = _lowpass_run_on(q, cutoff_hz, fs_hz)
+    dq_f = (
+        np.gradient(q_f, step, axis=0) if dq is None else _lowpass_run_on(dq, cutoff_hz, fs_hz)[0]
+    )
+    ddq_f = np.gradient(dq_f, step, axis=0)
+    rows = slice(pad, pad + q.shape[0])
+    return q_f[rows], dq_f[rows], ddq_f[rows]
+
+
+def _lowpass_run_on(x: np.ndarray, cutoff_hz: float, fs_hz: float) -> tuple[np.ndarray, int]:
+    """``x`` run on at both ends and filtered, and the run-on's length (rows at each end)."""
+    if x.shape[0] <= 3 * (2 * FILTER_ORDER + 1) or cutoff_hz >= 0.5 * fs_hz:
+        return x.copy(), 0
+    sos = _butter_sos(float(cutoff_hz), float(fs_hz)).copy()
+    pad = _edge_samples(cutoff_hz, fs_hz)
+    fit = min(pad, x.shape[0])
+    k = np.arange(-pad, 0, dtype=float)
+    head = _run_on(x[:fit], k, EDGE_POLY_DEGREE)
+    tail = _run_on(x[::-1][:fit], k, EDGE_POLY_DEGREE)[::-1]
+    return signal.sosfiltfilt(sos, np.concatenate([head, x, tail]), axis=0, padtype=None), pad
+
+
+def _run_on(x: np.ndarray, k: np.ndarray, degree: int) -> np.ndarray:
+    """The polynomial fit of ``x`` (rows 0, 1, ..) evaluated at sample indices ``k`` (< 0)."""
+    s = np.arange(x.shape[0], dtype=float)
+    scale = max(float(x.shape[0]), 1.0)
+    deg = min(degree, x.shape[0] - 1)
+    basis = np.vander(s / scale, deg + 1)
+    coef, *_ = np.linalg.lstsq(basis, x.reshape(x.shape[0], -1), rcond=None)
+    return (np.vander(k / scale, deg + 1) @ coef).reshape(k.size, *x.shape[1:])
 
 
 def white_noise_std(x: np.ndarray) -> np.ndarray:
@@ -261,7 +319,7 @@ def prepare(
     parts: list[dict[str, np.ndarray]] = []
     rates = []
     noise: list[tuple[int, np.ndarray, np.ndarray, np.ndarray]] = []
-    for seg_id, (a, b) in enumerate(_segments(m.t)):
+    for seg_id, (a, b) in enumerate(gap_free_segments(m.t)):
         seg_jumps = np.flatnonzero(jumps[a : b - 1].any(axis=1))
         if seg_jumps.size:
             row = a + int(seg_jumps[0]) + 1
