@@ -21,11 +21,14 @@ Stages (each timed in ``summary.json``'s ``timing_s``):
 7. validate on the test files and plot (:mod:`.validate`);
 8. write ``model.json``, ``summary.json`` and ``report.md`` (:mod:`.report`).
 
-Every figure is held out. The measured torque is low-passed and every model's torque is
-passed through the same filter, so all figures (model, plain least squares, noise floor) are
-on one target. With no effect accepted in case (B), ``rms_before``/``rms_after`` are on the
-whole test run; with one, both are on the rest of the test run after the part case (B) used
-(:data:`TEST_FIT_FRACTION`), and ``summary["figures"]`` says so.
+Every figure is held out. The fit, the guard and the effect search work on an analysis
+target: the measured torque low-passed and decimated, every model's torque passed through the
+same filter; ``rms_before``/``rms_after``/``rms_plain_ls`` are on it, per joint over the rows
+where it slides. ``summary["raw"]`` has the same three figures on the raw measured torque of the
+test files minus each model's prediction for every row (:mod:`.heldout`, the arithmetic of
+``leadthrough predict``), against the raw noise: stuck rows and reversals included. With no
+effect accepted in case (B) both cover the whole test run; with one, the rest of the test run
+after the part case (B) used (:data:`TEST_FIT_FRACTION`), and ``summary["figures"]`` says so.
 """
 
 from __future__ import annotations
@@ -62,6 +65,7 @@ from control.identification.fit import (
     remove_cylinders,
 )
 from control.identification.folds import CONTIGUOUS, Scheme, gcv_factor, plan_folds
+from control.identification.heldout import TestFile, residuals, rms_answered, scored_rows
 from control.identification.lsq import BlockLS, Evaluation, contiguous_folds
 from control.identification.parallel import map_forked
 from control.identification.preprocess import (
@@ -256,7 +260,10 @@ def _prepare(
     clock: _Clock,
     skipped: list[str],
     edge_cutoff_hz: float | None = None,
+    kept: list[TestFile] | None = None,
 ) -> Prepared:
+    """The files prepared and concatenated; ``kept`` (when given) gets each file used and the
+    analysis rows it gave, in order."""
     assert options.position_cutoff_hz is not None and options.torque_cutoff_hz is not None
     parts = []
     for m in ms:
@@ -270,6 +277,8 @@ def _prepare(
                     edge_cutoff_hz,
                 )
             )
+            if kept is not None:
+                kept.append(TestFile(m, parts[-1].n_samples))
         except TooShortError as exc:
             if not options.skip_short_files:
                 raise
@@ -712,6 +721,8 @@ class _Run:
     cyl_train: dict[int, np.ndarray] | None = None
     cyl_test: dict[int, np.ndarray] | None = None
     desc: RobotDescription | None = None
+    #: the raw test files the figures are scored on (:mod:`.heldout`)
+    test_files: list[TestFile] = field(default_factory=list)
 
 
 def _load(
@@ -742,7 +753,8 @@ def _load(
     ratios = _gear_ratios(options, reg, desc, clock)
     options, cutoff = _resolve_cutoffs(options, reg, train_m, test_m, desc, clock)
     train = remove_cylinders(_prepare(train_m, options, clock, skipped), reg, desc)
-    test = remove_cylinders(_prepare(test_m, options, clock, skipped), reg, desc)
+    test_files: list[TestFile] = []
+    test = remove_cylinders(_prepare(test_m, options, clock, skipped, None, test_files), reg, desc)
     if test.p_joints != train.p_joints:
         raise DataFileError(
             f"{test.sources[0]}: pressure columns {list(test.p_joints)} differ from the training "
@@ -773,7 +785,7 @@ def _load(
     }
     run = _Run(
         reg, urdf, meta, train, test, ctx_train, ctx_test, envelope, clock,
-        cylinder_columns(train, reg, desc), cylinder_columns(test, reg, desc), desc,
+        cylinder_columns(train, reg, desc), cylinder_columns(test, reg, desc), desc, test_files,
     )  # fmt: skip
     return run, ratios, options
 
@@ -891,7 +903,8 @@ def _analyze(
         base_fit, calibration = _settle_cylinders(ls, run, base_fit)
         fits[kind] = base_fit
         train, test = run.train, run.test
-    _, pred_before = _predict(reg, ctx_test, base_fit, urdf, meta)
+    model_before, pred_before = _predict(reg, ctx_test, base_fit, urdf, meta)
+    model_before = replace(model_before, envelope=run.envelope)
     clock.lap("fit")
 
     accepted_a: list[fx.Accepted] = []
@@ -1003,11 +1016,31 @@ def _analyze(
     rms_after = masked_rms((test.tau - pred_after)[scored], on)
     rms_plain = masked_rms((test.tau - pred_plain)[scored], on)
     rms_after_all = rms((test.tau - pred_after)[scored])
+    # the same on the raw measured torque: each model's prediction for every row (.heldout)
+    plain_model = replace(
+        model_before,
+        plain_joints={
+            j: PlainJoint.from_coef(j, plain_ref.solution.coef[plain_key(j)], PLAIN_LS)
+            for j in range(reg.n)
+        },
+    )
+    rows = scored_rows(run.test_files, test.t, scored.start)
+    errors = [
+        residuals(m, run.test_files, rows, run.desc) for m in (model_before, model, plain_model)
+    ]
+    raw_before, raw_after, raw_plain = rms_answered(errors)
+    answered = np.logical_and.reduce([np.isfinite(e).all(axis=1) for e in errors])
     if options.find_effects and not accepted:
         clock.say("no further effect found")
     clock.say(f"held-out RMS before effects: {np.array2string(rms_before, precision=3)} N·m")
     clock.say(f"held-out RMS after effects:  {np.array2string(rms_after, precision=3)} N·m")
     clock.say(f"held-out RMS plain LS:       {np.array2string(rms_plain, precision=3)} N·m")
+    clock.say(
+        f"on the raw torque, every row: before {np.array2string(raw_before, precision=3)}, "
+        f"after {np.array2string(raw_after, precision=3)}, plain LS "
+        f"{np.array2string(raw_plain, precision=3)} N·m (raw noise "
+        f"{np.array2string(np.asarray(test.raw_noise_nm), precision=3)})"
+    )
     clock.lap("effects")
 
     out.mkdir(parents=True, exist_ok=True)
@@ -1026,6 +1059,12 @@ def _analyze(
         if scored.start
         else f"all {test.n_samples} test rows"
     )
+    raw_where = (
+        f"raw rows of the test files from t = {test.t[scored.start]:.6g} s of the file case (B) "
+        "used the start of"
+        if scored.start
+        else "every raw row of the test files"
+    ) + f" that the models answer ({int(answered.sum())} of {answered.size})"
     if options.stick_velocity_rad_s > 0:
         where += (
             f", per joint those where it slides (faster than {options.stick_velocity_rad_s} "
@@ -1046,6 +1085,17 @@ def _analyze(
             "choice": meta["cutoff_choice"],
         },
         "rms_after_all_samples": rms_after_all.tolist(),
+        "raw": {
+            "rms_before": raw_before.tolist(),
+            "rms_after": raw_after.tolist(),
+            "rms_plain_ls": raw_plain.tolist(),
+            "noise_std_nm": _floats(test.raw_noise_nm),
+            "rows_scored": int(answered.sum()),
+            "rows_declined": int(answered.size - answered.sum()),
+            "scored": f"{raw_where}: raw measured torque minus each model's prediction "
+            "(heldout.py, the arithmetic of `leadthrough predict`), no filter, stuck rows and "
+            "reversals included",
+        },
         "sliding_share_scored": on.mean(axis=0).tolist(),
         "stick_velocity_rad_s": options.stick_velocity_rad_s,
         "rms_plain_ls": rms_plain.tolist(),
@@ -1086,6 +1136,7 @@ def _analyze(
             "rms_after": f"{where}; the final model (effects, plain joints)",
             "rms_plain_ls": f"{where}; plain least squares per joint fitted on the training "
             "files (fit.plain_columns)",
+            "raw": "the same three on the raw measured torque, every row (raw.scored)",
             "rms_train_cv": "training files, held out by contiguous K-fold cross-validation",
             "rms_train": "training files, in-sample (for reference only)",
             "noise_floor_nm": "std of the measured noise left in the filtered torque",

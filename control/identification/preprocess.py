@@ -223,9 +223,10 @@ def lowpass_to_the_edges(x: np.ndarray, cutoff_hz: float, fs_hz: float) -> np.nd
 
     Each end of the stretch is run on, over the filter's settling time (:data:`EDGE_PERIODS`
     periods of the cutoff), by the least-squares polynomial (:data:`EDGE_POLY_DEGREE`) of the
-    samples within that time of the end; the whole is filtered and the run-ons dropped. scipy's padding (a few samples,
-    odd reflection) flips the curvature at the end, so the filtered acceleration there tends
-    to zero: :func:`prepare` cuts those edges off, a prediction for every row cannot."""
+    samples within that time of the end; the whole is filtered and the run-ons dropped.
+    scipy's padding (a few samples, odd reflection) flips the curvature at the end, so the
+    filtered acceleration there tends to zero: :func:`prepare` cuts those edges off, a
+    prediction for every row cannot."""
     y, pad = _lowpass_run_on(x, cutoff_hz, fs_hz)
     return y[pad : pad + x.shape[0]]
 

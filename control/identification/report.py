@@ -122,6 +122,23 @@ def render_markdown(summary: dict[str, Any]) -> str:
     if unjudged:
         lines += ["", f"{NO_SAMPLES}: {', '.join(unjudged)} did not slide in the test files (no "
                   "sample above the stick velocity to judge the model on)."]  # fmt: skip
+    raw = summary.get("raw")
+    if raw:
+        lines += [
+            "",
+            "### On the raw torque, every row",
+            "",
+            f"The same models scored as `leadthrough predict` scores them: {raw['scored']}.",
+            "",
+            "| joint | raw noise [N·m] | RMS before [N·m] | RMS after [N·m] | plain LS [N·m] |",
+            "|---|---|---|---|---|",
+        ]
+        noise = raw.get("noise_std_nm") or [None] * len(joints)
+        for j, name in enumerate(joints):
+            lines.append(
+                f"| {name} | {_fmt(noise[j])} | {_fmt(raw['rms_before'][j])} | "
+                f"{_fmt(raw['rms_after'][j])} | {_fmt(raw['rms_plain_ls'][j])} |"
+            )
     lines += ["", "## Effects found in the residual", ""]
     if not summary.get("effects_searched", True):
         lines.append("The effect search was switched off (`--no-effects`).")

@@ -7,17 +7,18 @@ Usage::
 
 Each seed is one *draw* (:func:`draw`, deterministic from ``numpy.random.SeedSequence``): an
 arm, a sample rate, a training and a test run, a measurement chain and at most one undeclared
-effect. For seeds S..S+N-1 the command writes ``DIR/seed_K/{train.csv, test.csv, robot.urdf,
-truth.json}`` (:func:`write_draw`), runs the product's CLI as a user would (a child process,
-log in ``DIR/seed_K/analyze.log``)::
+effect. For seeds S..S+N-1 the command writes ``DIR/seed_K/{train.csv, test.csv, holdout.csv,
+robot.urdf, truth.json}`` (:func:`write_draw`), runs the product's CLI as a user would (a child
+process, log in ``DIR/seed_K/analyze.log``)::
 
     python -m gateway.cli analyze --urdf robot.urdf --train train.csv --test test.csv \\
         --out analyze --no-plots
 
-reads ``analyze/summary.json`` and scores the draw (:func:`criteria`); one line per draw, then
-the four acceptance shares of issue 21 with PASS/FAIL, and ``DIR/family.json``. Whatever
-analyze does (crash, timeout, unreadable or incomplete summary) is a failing draw, never an
-exception. Exit code 0 when every criterion that applies passes, else 1.
+then ``leadthrough predict`` on ``holdout.csv``, and scores the draw (:func:`criteria`); one
+line per draw, then the four acceptance shares of issue 21 with PASS/FAIL, and
+``DIR/family.json``. Whatever analyze or predict does (crash, timeout, unreadable or
+incomplete output) is a failing draw, never an exception. Exit code 0 when every criterion
+that applies passes, else 1.
 
 The arm
     5, 6 or 7 revolute joints from a layout template (``industrial5``, ``industrial6``,
@@ -72,22 +73,29 @@ the product's vocabulary): ``null`` (1 draw in 4 by default); ``payload`` (1-20 
 adds +k (q - q0), k sized to 3-20 × the joint's torque noise over the training motion);
 ``position_ripple`` (A sin(c q_j + φ), c 10-60 per joint revolution, A 3-10 × noise);
 ``time_delay`` (torque lags the kinematics by 2-15 ms, all joints); ``thermal_drift`` (test run
-only: the Coulomb level of 1-2 joints falls linearly by 10-40 % over the run); ``wrist_coupling``
+only: the Coulomb level of 1-2 joints falls linearly by 10-40 % over the test and holdout
+runs); ``wrist_coupling``
 (the last joint measures 0.05-0.2 of its neighbour's torque). Only with ``--cases
 counterbalance`` (never drawn by default): a ``spring`` 100-1000 × the noise per half range on
 the joint carrying most gravity, with the test run pushed out of the training range on that
 joint first (:data:`EXPLICIT_CASES`).
 
-Scoring per draw (:func:`criteria`; the noise floor, the plain least-squares figures and the
-RMS all on analyze's target: :func:`.table.filtered_rms` with ``summary["target_filter"]`` over
-``summary["test_time_scored_s"]``)
+Scoring per draw (:func:`criteria`), from the model's predictions on raw torque
+(:mod:`.referee`): analyze gets ``train.csv`` and ``test.csv``; the end of the generated test run
+(:data:`HOLDOUT_SHARE`), ``holdout.csv``, it never sees. ``leadthrough predict`` is run on it
+with analyze's ``model.json``; the referee reads its CSV and scores measured minus predicted
+torque, unfiltered, over the rows the model answers (more than 5 % declined fails the draw).
+The floor is the RMS of the holdout's own torque noise over those rows; plain least squares
+(:mod:`.baseline`) is fitted on the training file and scored on the same rows. From analyze's
+``summary.json`` only its claims are read (the effects it names, the joints it kept on plain
+least squares), never a figure.
     - ``null_accepts_nothing`` (null draws): analyze accepted no effect;
     - ``effect_named_or_absorbed`` (effect draws): the right effect on the right joints with its
       main parameter within 20 % (:func:`.table.compare`, :func:`.table.main_parameter_check`;
       an all-joint effect may leave out the joints analyze kept on plain least squares), or no
       effect accepted and the after-RMS on the affected joints within 2 × floor;
-    - ``after_within_2x_floor``: analyze's held-out after-RMS on the affected joints (all joints
-      for null) within 2 × the floor, the generator's own torque noise through the same filter;
+    - ``after_within_2x_floor``: the held-out after-RMS on the affected joints (all joints for
+      null) within 2 × the floor;
     - ``never_worse_than_plain_ls``: after-RMS ≤ plain LS (per joint: base regressor columns,
       Coulomb ``sgn dq``, viscous ``dq`` and an offset, fitted on the training file as
       :mod:`.baseline` does) × (1 + 1e-3) on every joint, or within :data:`AT_FLOOR` (1 %) of
@@ -105,7 +113,7 @@ import tempfile
 import time
 from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -114,13 +122,19 @@ import pinocchio as pin
 
 from .baseline import plain_ls, run_arrays
 from .generator import rnea_rows, write_csv
+from .referee import (
+    HOLDOUT_SHARE,
+    MAX_DECLINED_SHARE,
+    heldout_figures,
+    read_predictions,
+    run_predict,
+)
 from .table import (
     DEFAULT_TIMEOUT_S,
     FLOOR_FACTOR,
     MAIN_PARAMETER,
     RMS_TOLERANCE,
     compare,
-    filtered_rms,
     main_parameter_check,
 )
 from .table import run_analyze as table_run_analyze
@@ -901,6 +915,8 @@ class Draw:
     truth: dict[str, Any]
     excitations: tuple[Excitation, Excitation]
     friction: Friction
+    #: the end of the generated test run, kept from analyze (:data:`HOLDOUT_SHARE`)
+    holdout: Run | None = None
 
     @property
     def n(self) -> int:
@@ -1106,7 +1122,7 @@ def draw(seed: int, case: str | None = None, duration_scale: float = 1.0) -> Dra
     settings = draw_settings(seed)
     rate = settings["rate_hz"]
     t_tr = _times(settings["train_s"] * duration_scale, rate)
-    t_te = _times(settings["test_s"] * duration_scale, rate)
+    t_te = _times(settings["test_s"] * duration_scale / (1.0 - HOLDOUT_SHARE), rate)
     # a shortened training run still spans 1.5 base periods (so it sees the whole motion)
     f0 = max(settings["f0_hz"], min(1.5 * rate / t_tr.size, F_MAX_HZ / 3.0))
     exc_tr = train_excitation(arm, f0, t_tr, _rng(seed, _TRAIN_EXC))
@@ -1116,8 +1132,10 @@ def draw(seed: int, case: str | None = None, duration_scale: float = 1.0) -> Dra
     rig_tr = rigid_torque(model, q_tr, dq_tr, ddq_tr)
     # counterbalance: the test leaves the training range on the joint the spring is on
     first = gravity_joint(rig_tr) if case == "counterbalance" else None
+    # the share outside the training envelope is aimed at on the test file analyze gets
+    cut = round((1.0 - HOLDOUT_SHARE) * t_te.size)
     exc_te, outside_rec = held_out_excitation(
-        arm, exc_tr, env_true, t_te, _rng(seed, _TEST_EXC), first
+        arm, exc_tr, env_true, t_te[:cut], _rng(seed, _TEST_EXC), first
     )
     q_te, dq_te, ddq_te = exc_te.evaluate(t_te)
     rig_te = rigid_torque(model, q_te, dq_te, ddq_te)
@@ -1155,11 +1173,16 @@ def draw(seed: int, case: str | None = None, duration_scale: float = 1.0) -> Dra
     ):
         qm, dqm, taum = _measure(arm, t, q, dq, clean, levels, _rng(seed, _NOISE[name]))
         runs[name] = Run(t, qm, dqm, taum, q, dq, ddq, clean, nom, rig, fric)
+    runs["test"], runs["holdout"] = (
+        _rows(runs["test"], slice(0, cut)),
+        _rows(runs["test"], slice(cut, None)),
+    )
     env_meas = envelope(runs["train"].q, runs["train"].dq)
     outside_rec["share_measured"] = float(
         outside(env_meas, runs["test"].q, runs["test"].dq).any(axis=1).mean()
     )
     peak_all = np.max(np.abs(np.vstack([clean_tr, clean_te])), axis=0)
+    t_te = runs["test"].t
     effort = np.array([float(f"{3.0 * p:.3g}") for p in np.maximum(peak_all, 1.0)])
     text = urdf(arm, effort, name=f"family_seed{seed}")
     truth = {
@@ -1169,8 +1192,16 @@ def draw(seed: int, case: str | None = None, duration_scale: float = 1.0) -> Dra
         "arm": arm.to_json(),
         "effort_limit_nm": effort.tolist(),
         "rate_hz": rate,
-        "duration_s": {"train": t_tr.size / rate, "test": t_te.size / rate},
-        "n_samples": {"train": int(t_tr.size), "test": int(t_te.size)},
+        "duration_s": {
+            "train": t_tr.size / rate,
+            "test": t_te.size / rate,
+            "holdout": runs["holdout"].t.size / rate,
+        },
+        "n_samples": {
+            "train": int(t_tr.size),
+            "test": int(t_te.size),
+            "holdout": int(runs["holdout"].t.size),
+        },
         "excitation": {"train": exc_tr.to_json(), "test": exc_te.to_json()},
         "outside_envelope": outside_rec,
         "peak_rigid_torque_nm": peak.tolist(),
@@ -1178,7 +1209,15 @@ def draw(seed: int, case: str | None = None, duration_scale: float = 1.0) -> Dra
         "noise": levels,
         "gravity_m_s2": [0.0, 0.0, -9.81],
     }
-    return Draw(seed, case, arm, text, runs["train"], runs["test"], truth, (exc_tr, exc_te), fr)
+    return Draw(
+        seed, case, arm, text, runs["train"], runs["test"], truth, (exc_tr, exc_te), fr,
+        runs["holdout"],
+    )  # fmt: skip
+
+
+def _rows(run: Run, rows: slice) -> Run:
+    """``run``'s samples ``rows`` (every field is per sample)."""
+    return Run(*(getattr(run, f.name)[rows] for f in fields(Run)))
 
 
 def _compact(a: np.ndarray, digits: int = 10) -> str:
@@ -1192,16 +1231,21 @@ def write_draw(directory: Path | str, d: Draw) -> dict[str, Path]:
     each) into ``directory`` (created); returns their paths."""
     out = Path(directory)
     out.mkdir(parents=True, exist_ok=True)
-    paths = {k: out / f"{k}.csv" for k in ("train", "test")}
+    paths = {k: out / f"{k}.csv" for k in ("train", "test", "holdout")}
     paths["urdf"], paths["truth"] = out / "robot.urdf", out / "truth.json"
     write_csv(paths["train"], d.train)
     write_csv(paths["test"], d.test)
+    if d.holdout is not None:
+        write_csv(paths["holdout"], d.holdout)
+    else:
+        del paths["holdout"]
     paths["urdf"].write_text(d.urdf, encoding="ascii")
     marker = "@@NOISE_FREE_TORQUE@@"
     text = json.dumps({**d.truth, "noise_free_torque_nm": marker}, indent=2)
-    arrays = (
-        f'{{"train": {_compact(d.train.tau_clean)},\n    "test": {_compact(d.test.tau_clean)}}}'
-    )
+    runs = {"train": d.train, "test": d.test}
+    if d.holdout is not None:
+        runs["holdout"] = d.holdout
+    arrays = "{" + ",\n    ".join(f'"{k}": {_compact(r.tau_clean)}' for k, r in runs.items()) + "}"
     paths["truth"].write_text(text.replace(f'"{marker}"', arrays) + "\n", encoding="ascii")
     return paths
 
@@ -1280,8 +1324,9 @@ def criteria(
     error: str | None = None,
 ) -> dict[str, Any]:
     """The four verdicts of one draw (module docstring). ``found`` analyze's effects, ``after``
-    its held-out RMS per joint, ``floor`` and ``plain`` the filtered noise floor and plain-LS
-    RMS [N·m]; ``error`` (analyze failed, summary unusable) fails every verdict that applies.
+    its model's held-out RMS per joint, ``floor`` and ``plain`` the noise floor and plain-LS
+    RMS [N·m], all on the raw holdout torque; ``error`` (analyze or predict failed, summary or
+    predictions unusable) fails every verdict that applies.
     Keys: ``null_accepts_nothing`` (null) or ``effect_named_or_absorbed`` (effect draws),
     ``after_within_2x_floor``, ``never_worse_than_plain_ls``, all bool, with details."""
     found = found if isinstance(found, list) else []
@@ -1347,65 +1392,72 @@ def _numbers(summary: dict[str, Any], key: str, n: int) -> list[float]:
     return vals
 
 
-def read_summary(summary: Any, n: int) -> dict[str, Any]:
-    """The figures scoring needs from analyze's summary: ``after``, ``before``, ``effects``,
-    ``window``, ``plain_joints``; raises ValueError/KeyError/TypeError when unusable."""
+def read_summary(summary: Any) -> dict[str, Any]:
+    """What the referee takes from analyze's summary: its claims, never a figure (those come
+    from :mod:`.referee`): the ``effects`` it accepted and the ``plain_joints`` it kept on
+    plain least squares; raises ValueError/KeyError/TypeError when unusable."""
     if not isinstance(summary, dict):
         raise TypeError(f"summary is not a JSON object: {summary!r:.80}")
     effects = summary.get("effects")
     if not isinstance(effects, list):
         raise TypeError(f"summary 'effects' is not a list: {effects!r:.80}")
-    spec = summary["target_filter"]
-    int(spec["order"])
-    float(min(spec["cutoff_hz"]))
-    a, b = summary["test_time_scored_s"]
     return {
-        "after": _numbers(summary, "rms_after", n),
-        "before": _numbers(summary, "rms_before", n),
         "effects": effects,
-        "window": (float(a), float(b)),
         "plain_joints": [int(j) for j in summary.get("plain_ls_joints") or []],
     }
 
 
 def score(
-    d: Draw, summary: Any, plain_residual: np.ndarray, error: str | None = None
+    d: Draw,
+    summary: Any,
+    pred: np.ndarray | None,
+    plain_residual: np.ndarray,
+    error: str | None = None,
 ) -> dict[str, Any]:
-    """Score analyze's ``summary`` (the parsed summary.json, or None) on draw ``d``:
-    floor and plain-LS RMS on analyze's target (``plain_residual`` (T, n) [N·m] the plain-LS
-    held-out residual on the test file), analyze's figures, :func:`criteria` and ``problems``.
-    ``error`` (analyze failed) or an unusable summary makes a failing draw; never raises on
-    a bad summary."""
+    """Score draw ``d`` from the model's predictions ``pred`` (T, n) [N·m] on the holdout run
+    (``leadthrough predict``'s CSV as :func:`.referee.read_predictions` read it; None when
+    analyze or predict failed) and the raw holdout torque: after-RMS, the floor (the holdout's
+    own noise) and plain least squares' RMS (``plain_residual`` its holdout residual), all
+    over the rows the model answers (:func:`.referee.heldout_figures`); analyze's ``summary``
+    only for the effects it names. ``error`` or an unusable summary or prediction makes a
+    failing draw; never raises."""
+    assert d.holdout is not None
     n = d.n
     problems: list[str] = []
-    figures: dict[str, Any] = {}
+    claims: dict[str, Any] = {}
     if error is None:
         try:
-            figures = read_summary(summary, n)
+            claims = read_summary(summary)
         except (KeyError, TypeError, ValueError) as exc:
             error = f"summary unusable: {type(exc).__name__}: {exc}"
-    floor = plain = None
-    if error is None:
-        t, dq = d.test.t, d.test.dq
-        try:
-            floor = filtered_rms(t, d.test.noise, summary, figures["window"], dq).tolist()
-            plain = filtered_rms(t, plain_residual, summary, figures["window"], dq).tolist()
-        except Exception as exc:
-            error = f"target filter unusable: {type(exc).__name__}: {exc}"
+    after = floor = plain = None
+    declined = None
+    if error is None and pred is not None:
+        fig = heldout_figures(d.holdout.tau, d.holdout.noise, pred)
+        declined = fig["declined_share"]
+        if declined > MAX_DECLINED_SHARE:
+            error = f"predict declined {100 * declined:.1f} % of the holdout rows"
+        else:
+            after, floor = fig["after"], fig["floor"]
+            plain = np.sqrt(np.mean(plain_residual[fig["answered"]] ** 2, axis=0)).tolist()
+    elif error is None:
+        error = "no predictions"
     if error is not None:
         problems.append(error)
-    found = figures.get("effects", [])
+    found = claims.get("effects", [])
     for e in found:
         if isinstance(e, dict) and e.get("name") not in MAIN_PARAMETER:
             problems.append(f"unknown effect name {e.get('name')!r}")
     s = summary if isinstance(summary, dict) else {}
     return {
         "analyze_effects": found,
-        "analyze_rms_before": figures.get("before"),
-        "analyze_rms_after": figures.get("after"),
+        "analyze_own_rms_before": s.get("rms_before"),
+        "analyze_own_rms_after": s.get("rms_after"),
+        "analyze_rms_after": after,
         "floor_nm": floor,
         "plain_ls_nm": plain,
-        "analyze_plain_ls_joints": figures.get("plain_joints"),
+        "declined_share": declined,
+        "analyze_plain_ls_joints": claims.get("plain_joints"),
         "analyze_test_outside_envelope": s.get("test_outside_envelope"),
         "analyze_friction_model": s.get("friction_model"),
         "problems": problems,
@@ -1413,10 +1465,10 @@ def score(
             d.truth["effects"],
             n,
             found,
-            figures.get("after"),
+            after,
             floor,
             plain,
-            figures.get("plain_joints", ()),
+            claims.get("plain_joints", ()),
             error,
         ),
     }
@@ -1461,12 +1513,24 @@ def _evaluate(seed, out, timeout_s, cases, duration_scale, rec) -> dict[str, Any
         seconds_generate=round(time.perf_counter() - t0, 1),
     )
     t1 = time.perf_counter()
-    plain_raw, plain_res = plain_ls_offset(d.urdf, d.train, d.test)
+    assert d.holdout is not None
+    plain_raw, plain_res = plain_ls_offset(d.urdf, d.train, d.holdout)
     rec["seconds_plain_ls"] = round(time.perf_counter() - t1, 1)
     ana = run_analyze(draw_dir, paths, timeout_s)
     summary = ana.pop("summary")
     rec["analyze"] = ana
-    scored = score(d, summary, plain_res, ana["error"])
+    error, pred = ana["error"], None
+    if error is None:
+        out = draw_dir / "holdout_pred.csv"
+        model = draw_dir / "analyze" / "model.json"
+        rec["predict"] = run_predict(model, paths["holdout"], out, timeout_s, ROOT)
+        error = rec["predict"]["error"]
+        if error is None:
+            try:
+                pred = read_predictions(out, d.holdout.t, n)
+            except (OSError, ValueError) as exc:
+                error = f"predictions unusable: {exc}"
+    scored = score(d, summary, pred, plain_res, error)
     rec["problems"] += scored.pop("problems")
     rec.update(scored, plain_ls_raw_nm=plain_raw.tolist())
     rec["seconds_total"] = round(time.perf_counter() - t0, 1)

@@ -10,23 +10,23 @@ For each generator case: write ``DIR/CASE/{train.csv, test.csv, robot.urdf, trut
 
     python -m gateway.cli analyze --urdf robot.urdf --train train.csv --test test.csv --out analyze
 
-(log in ``DIR/CASE/analyze.log``), read ``DIR/CASE/analyze/summary.json``, fit the plain
-least-squares baseline (:mod:`.baseline`) on the same files, and print per joint the noise
-floor, plain-LS and analyze's held-out RMS [N·m], then the effects analyze reports against the
-truth. The Panda recording (:mod:`.panda`) gets the same rows, with the dataset README's plain
-fit beside them. The whole table goes to ``DIR/table.json`` (rewritten after every case), and
-the last lines give PASS/FAIL per acceptance criterion of issue 8. Whatever analyze does
-(crash, timeout, missing keys, unknown effects) is reported, never raised.
+(log in ``DIR/CASE/analyze.log``), read the effects ``DIR/CASE/analyze/summary.json`` names,
+fit the plain least-squares baseline (:mod:`.baseline`) on the same files, and print per joint
+the noise floor, plain-LS and the model's held-out RMS [N·m], then the effects analyze reports
+against the truth. The Panda recording (:mod:`.panda`) gets the same rows, with the dataset
+README's plain fit beside them. The whole table goes to ``DIR/table.json`` (rewritten after
+every case), and the last lines give PASS/FAIL per acceptance criterion of issue 8. Whatever
+analyze does (crash, timeout, missing keys, unknown effects) is reported, never raised.
 
-One target for every figure: analyze low-passes the measured torque and compares every model
-on it (``summary["target_filter"]``), so its figures fall below the white noise of the files.
-The table therefore passes the plain-LS residual (computed on the raw files) through the same
-filter — a zero-phase Butterworth of that order and cutoff, implemented here with scipy — and
-takes its RMS over the test samples analyze scored (``summary["test_time_scored_s"]``). The
-noise floor of a generator case is the generator's own noise (measured torque minus its
-noise-free truth) through the same filter over the same samples: what the true model would
-score. Columns: ``floor`` that floor, ``plainLS`` the filtered plain-LS RMS, ``plainLS_raw``
-the plain-LS RMS on the raw files, ``ana_before`` / ``ana_after`` analyze's figures.
+Every figure on raw torque, from predictions (:mod:`.referee`): analyze gets the training run
+and the first part of the generated test run; the rest, ``holdout.csv``, it never sees.
+``leadthrough predict`` is run on it with analyze's ``model.json`` and the table scores
+measured minus predicted torque, unfiltered, over the rows the model answers. The noise floor
+of a generator case is the generator's own noise over the same rows (what the true model would
+score); plain LS is scored on the same rows. The Panda run is scored on its whole test file
+(the dataset README's plain fit is on it). Columns: ``floor`` that floor, ``plainLS`` the
+plain-LS RMS, ``ana_after`` the model's RMS; analyze's own figures are kept in the record
+(``analyze_own_rms_*``), never scored.
 """
 
 from __future__ import annotations
@@ -34,21 +34,28 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import subprocess
 import sys
 import tempfile
 import time
 from collections.abc import Sequence
+from dataclasses import fields
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy import signal
 
 from . import panda
 from .arm import ARM
 from .baseline import plain_ls
-from .generator import CASES, make_case, read_csv, write_case
+from .generator import CASES, Run, make_case, read_csv, write_case, write_csv
+from .referee import (
+    HOLDOUT_SHARE,
+    MAX_DECLINED_SHARE,
+    heldout_figures,
+    read_predictions,
+    run_cli,
+    run_predict,
+)
 
 #: The parameter shown for each effect name of the product's vocabulary.
 MAIN_PARAMETER = {
@@ -169,40 +176,11 @@ def run_analyze(
     """Run the CLI on one case (``extra`` options appended, from ``cwd``); returns exit code,
     seconds, the summary (or None) and errors."""
     out = case_dir / "analyze"
-    cmd = [
-        sys.executable,
-        "-m",
-        "gateway.cli",
-        "analyze",
-        "--urdf",
-        str(paths["urdf"]),
-        "--train",
-        str(paths["train"]),
-        "--test",
-        str(paths["test"]),
-        "--out",
-        str(out),
-        *extra,
-    ]
+    args = ["analyze", "--urdf", str(paths["urdf"]), "--train", str(paths["train"]), "--test",
+            str(paths["test"]), "--out", str(out), *extra]  # fmt: skip
     log = case_dir / "analyze.log"
-    start = time.perf_counter()
-    result: dict[str, Any] = {"command": cmd, "log": str(log), "summary": None, "error": None}
-    try:
-        proc = subprocess.run(
-            cmd, capture_output=True, text=True, timeout=timeout_s, check=False, cwd=cwd
-        )
-        result["exit_code"] = proc.returncode
-        log.write_text(f"$ {' '.join(cmd)}\n--- stdout\n{proc.stdout}\n--- stderr\n{proc.stderr}")
-        if proc.returncode != 0:
-            tail = (proc.stderr or proc.stdout).strip().splitlines()[-3:]
-            result["error"] = f"exit {proc.returncode}: " + " | ".join(tail)
-    except subprocess.TimeoutExpired:
-        result["exit_code"] = None
-        result["error"] = f"timeout after {timeout_s:.0f} s"
-    except OSError as exc:
-        result["exit_code"] = None
-        result["error"] = f"could not start: {exc}"
-    result["seconds"] = round(time.perf_counter() - start, 1)
+    result = run_cli(args, timeout_s, cwd, log)
+    result.update(log=str(log), summary=None)
     summary_path = out / "summary.json"
     if summary_path.exists():
         try:
@@ -212,67 +190,6 @@ def run_analyze(
     elif result["error"] is None:
         result["error"] = "no summary.json written"
     return result
-
-
-def _per_joint(summary: Any, key: str, n: int) -> tuple[list[float | None], str | None]:
-    if not isinstance(summary, dict):
-        return [None] * n, None
-    v = summary.get(key)
-    try:
-        vals = [float(x) for x in v]
-    except (TypeError, ValueError):
-        return [None] * n, f"summary key {key!r} missing or not numbers: {v!r:.80}"
-    if len(vals) != n:
-        return (vals + [None] * n)[:n], f"summary {key!r} has {len(vals)} values, expected {n}"
-    return vals, None
-
-
-def filtered_rms(
-    t: np.ndarray,
-    x: np.ndarray,
-    summary: dict[str, Any],
-    window: tuple[float, float] | None,
-    dq: np.ndarray | None = None,
-) -> np.ndarray:
-    """RMS per joint of ``x`` (T, n) on times ``t`` [s] after the zero-phase Butterworth the
-    summary declares (``target_filter``: order, cutoff), over the samples within ``window``
-    [s] (analyze's scored test samples) and, given the velocities ``dq`` (T, n), where each
-    joint slides as analyze's summary defines it (``stick_velocity_rad_s``, one cutoff period
-    around a stuck sample; written here from that definition, not taken from the product).
-    Jittered time is first put on a uniform grid at the median step (linear interpolation), as
-    a filter needs."""
-    spec = summary["target_filter"]
-    step = float(np.median(np.diff(t)))
-    grid = t[0] + step * np.arange(int(np.floor((t[-1] - t[0]) / step + 1e-9)) + 1)
-    if np.max(np.abs(np.diff(t) - step)) > 0.01 * step:
-        x = np.column_stack([np.interp(grid, t, x[:, j]) for j in range(x.shape[1])])
-        if dq is not None:
-            dq = np.column_stack([np.interp(grid, t, dq[:, j]) for j in range(dq.shape[1])])
-        t = grid
-    cutoff = float(min(spec["cutoff_hz"]))
-    sos = signal.butter(int(spec["order"]), cutoff, fs=1.0 / step, output="sos")
-    y = signal.sosfiltfilt(sos, x, axis=0)
-    keep = np.ones(t.size, dtype=bool) if window is None else (t >= window[0]) & (t <= window[1])
-    on = np.ones(y.shape, dtype=bool)
-    stick = float(summary.get("stick_velocity_rad_s") or 0.0)
-    if dq is not None and stick > 0:
-        stuck = np.abs(signal.sosfiltfilt(sos, dq, axis=0)) < stick
-        half = int(np.ceil(1.0 / (cutoff * step)))
-        kernel = np.ones(2 * half + 1)
-        near = [
-            np.convolve(stuck[:, j].astype(float), kernel, mode="same") for j in range(y.shape[1])
-        ]
-        on = np.stack(near, axis=1) <= 0.0
-    w = (keep[:, None] & on).astype(float)
-    return np.sqrt((y**2 * w).sum(axis=0) / np.maximum(w.sum(axis=0), 1.0))
-
-
-def _window(summary: Any) -> tuple[float, float] | None:
-    try:
-        a, b = summary["test_time_scored_s"]
-        return float(a), float(b)
-    except (KeyError, TypeError, ValueError):
-        return None
 
 
 def main_parameter_check(te: dict[str, Any], found: list[Any], indices: list[int]) -> list:
@@ -310,10 +227,30 @@ def main_parameter_check(te: dict[str, Any], found: list[Any], indices: list[int
     return out
 
 
+def _rows(run: Run, rows: slice) -> Run:
+    """``run``'s samples ``rows`` (its per-sample arrays; the rest as is)."""
+    size = run.t.size
+    return Run(
+        **{
+            f.name: v[rows] if isinstance(v, np.ndarray) and v.shape[:1] == (size,) else v
+            for f in fields(Run)
+            for v in [getattr(run, f.name)]
+        }
+    )
+
+
 def table_case(name: str, root: Path, seed: int, timeout_s: float) -> dict[str, Any]:
-    """Generate, analyze and baseline one case; the JSON-able record of its table."""
+    """Generate, analyze and baseline one case; the JSON-able record of its table. Analyze gets
+    the training run and the first part of the test run; the rest (:data:`.referee.HOLDOUT_SHARE`)
+    is kept and scored through ``leadthrough predict``."""
     case_dir = root / name
     paths = write_case(case_dir, name, seed)
+    _, test_run, _ = make_case(name, seed)
+    cut = round((1.0 - HOLDOUT_SHARE) * test_run.t.size)
+    held = _rows(test_run, slice(cut, None))
+    write_csv(paths["test"], _rows(test_run, slice(0, cut)))
+    paths["holdout"] = case_dir / "holdout.csv"
+    write_csv(paths["holdout"], held)
     truth = json.loads(paths["truth"].read_text())
     n = ARM.n
     record: dict[str, Any] = {
@@ -324,13 +261,12 @@ def table_case(name: str, root: Path, seed: int, timeout_s: float) -> dict[str, 
         "problems": [],
     }
     t0 = time.perf_counter()
-    test = read_csv(paths["test"])
-    base = plain_ls(paths["urdf"].read_text(), read_csv(paths["train"]), test)
+    scored = read_csv(paths["holdout"])
+    base = plain_ls(paths["urdf"].read_text(), read_csv(paths["train"]), scored)
     ana = run_analyze(case_dir, paths, timeout_s)
     summary = ana.pop("summary")
-    _, test_run, _ = make_case(name, seed)
-    noise = test_run.tau - test_run.tau_clean
-    _fill(record, summary, ana, base, test["t"], test["dq"], noise, n, t0)
+    noise = held.tau - held.tau_clean
+    _fill(record, summary, ana, base, case_dir, paths["holdout"], scored, noise, n, t0, timeout_s)
     found = record["analyze_effects"]
     record["comparison"] = compare(truth["effects"], found)
     record["parameters"] = [
@@ -347,39 +283,53 @@ def _fill(
     summary: Any,
     ana: dict[str, Any],
     base: Any,
-    t_test: np.ndarray,
-    dq_test: np.ndarray,
+    case_dir: Path,
+    scored_path: Path,
+    scored: dict[str, np.ndarray],
     noise: np.ndarray | None,
     n: int,
     t0: float,
+    timeout_s: float,
 ) -> None:
-    """The analyze and plain-LS figures of ``record`` on one target (module docstring)."""
-    window = _window(summary)
-    have_filter = isinstance(summary, dict) and "target_filter" in summary
-    if not have_filter and summary is not None:
-        record["problems"].append("summary has no target_filter: plain LS left on raw files")
+    """The figures of ``record`` (module docstring): analyze's model's predictions on the
+    scored file (``leadthrough predict``), measured minus predicted on raw torque over the rows
+    it answers; plain LS and the floor over the same rows."""
+    record["analyze"] = ana
+    after: list[float | None] = [None] * n
+    floor = None
+    plain = base.rms_test
+    if ana["error"]:
+        record["problems"].append(ana["error"])
+    else:
+        out = case_dir / "scored_pred.csv"
+        pr = run_predict(case_dir / "analyze" / "model.json", scored_path, out, timeout_s)
+        record["predict"] = pr
+        try:
+            if pr["error"]:
+                raise ValueError(pr["error"])
+            pred = read_predictions(out, scored["t"], n)
+        except (OSError, ValueError) as exc:
+            record["problems"].append(f"predictions unusable: {exc}")
+        else:
+            fig = heldout_figures(scored["tau"], np.zeros_like(pred) if noise is None else noise,
+                                  pred)  # fmt: skip
+            record["declined_share"] = fig["declined_share"]
+            if fig["declined_share"] > MAX_DECLINED_SHARE:
+                record["problems"].append(
+                    f"predict declined {100 * fig['declined_share']:.1f} % of the rows"
+                )
+            else:
+                after = fig["after"]
+                floor = fig["floor"] if noise is not None else None
+                plain = np.sqrt(np.mean(base.residual_test[fig["answered"]] ** 2, axis=0))
     record["plain_ls"] = {
-        "rms_test_raw": base.rms_test.tolist(),
-        "rms_test": (
-            filtered_rms(t_test, base.residual_test, summary, window, dq_test).tolist()
-            if have_filter
-            else base.rms_test.tolist()
-        ),
+        "rms_test": np.asarray(plain).tolist(),
+        "rms_test_all_rows": base.rms_test.tolist(),
         "rms_train": base.rms_train.tolist(),
         "n_base": base.n_base.tolist(),
         "seconds": round(time.perf_counter() - t0 - ana.get("seconds", 0.0), 1),
     }
-    record["floor_nm"] = (
-        filtered_rms(t_test, noise, summary, window, dq_test).tolist()
-        if noise is not None and have_filter
-        else None
-    )
-    record["analyze"] = ana
-    if ana["error"]:
-        record["problems"].append(ana["error"])
-    before, p1 = _per_joint(summary, "rms_before", n)
-    after, p2 = _per_joint(summary, "rms_after", n)
-    record["problems"] += [p for p in (p1, p2) if p and summary is not None]
+    record["floor_nm"] = floor
     found = summary.get("effects") if isinstance(summary, dict) else None
     if summary is not None and not isinstance(found, list):
         record["problems"].append(f"summary 'effects' is not a list: {found!r:.80}")
@@ -387,11 +337,11 @@ def _fill(
     for e in found:
         if isinstance(e, dict) and e.get("name") not in MAIN_PARAMETER:
             record["problems"].append(f"unknown effect name {e.get('name')!r}")
-    record["analyze_rms_before"] = before
-    record["analyze_rms_after"] = after
-    record["analyze_effects"] = found
     s = summary if isinstance(summary, dict) else {}
-    record["analyze_floor_nm"] = (s.get("noise_floor_nm") or {}).get("test")
+    record["analyze_rms_after"] = after
+    record["analyze_own_rms_before"] = s.get("rms_before")
+    record["analyze_own_rms_after"] = s.get("rms_after")
+    record["analyze_effects"] = found
     record["plain_ls_joints"] = s.get("plain_ls_joints")
     record["friction_model"] = s.get("friction_model")
     record["test_outside_envelope"] = s.get("test_outside_envelope")
@@ -452,7 +402,8 @@ def table_panda(root: Path, timeout_s: float) -> dict[str, Any]:
     base = plain_ls(paths["urdf"].read_text(), train, test)
     ana = run_analyze(case_dir, paths, timeout_s)
     summary = ana.pop("summary")
-    _fill(record, summary, ana, base, test["t"], test["dq"], None, n, t0)
+    # the whole test file is scored: the dataset README's plain fit is on it
+    _fill(record, summary, ana, base, case_dir, paths["test"], test, None, n, t0, timeout_s)
     after = record["analyze_rms_after"]
     record["criteria"] = {
         "beats_plain_ls": [
@@ -484,19 +435,19 @@ def format_case(rec: dict[str, Any]) -> str:
     last = rec.get("readme_plain_fit_nm")
     lines = [
         f"=== case {rec['case']}  (truth: {head})",
-        f"{'joint':<6}{'floor':>11}{'ana_floor':>11}{'plainLS_raw':>12}{'plainLS':>11}"
-        f"{'ana_before':>11}{'ana_after':>11}{' ≤plain':>8}"
+        f"{'joint':<6}{'floor':>11}{'plainLS_all':>11}{'plainLS':>11}"
+        f"{'ana_own':>11}{'ana_after':>11}{' ≤plain':>8}"
         + (f"{'README':>9}{' ≤README':>9}" if last else "")
-        + "   [N·m, held-out, filtered target]",
+        + "   [N·m, held-out, raw torque; ana_own: analyze's own figure, not scored]",
     ]
     crit = rec.get("criteria", {})
-    ana_floor = rec.get("analyze_floor_nm") or [None] * n
+    own = rec.get("analyze_own_rms_after") or [None] * n
     beats = crit.get("beats_plain_ls", [None] * n)
     for j in range(n):
         row = (
             f"{'a' + str(j + 1) if rec['case'] != 'panda' else 'j' + str(j + 1):<6}"
-            f"{_cell(floor[j])}{_cell(ana_floor[j])} {_cell(rec['plain_ls']['rms_test_raw'][j])}"
-            f"{_cell(rec['plain_ls']['rms_test'][j])}{_cell(rec['analyze_rms_before'][j])}"
+            f"{_cell(floor[j])}{_cell(rec['plain_ls']['rms_test_all_rows'][j])}"
+            f"{_cell(rec['plain_ls']['rms_test'][j])}{_cell(own[j])}"
             f"{_cell(rec['analyze_rms_after'][j])}{_mark(beats[j]):>8}"
         )
         if last:

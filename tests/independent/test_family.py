@@ -13,7 +13,7 @@ import pytest
 
 from . import family as fam
 from .generator import csv_header, read_csv
-from .table import filtered_rms
+from .referee import read_predictions
 
 SEEDS = range(20)
 SHORT = 0.1  # duration_scale of the draws below: 4-6 s of training data
@@ -142,16 +142,16 @@ def test_noise_free_torque_is_rnea_plus_friction_plus_the_effect(case: str) -> N
     d = fam.draw(1, case=case, duration_scale=SHORT)
     truth, n = d.truth, d.n
     model = pin.buildModelFromXML(d.urdf)
-    for run in (d.train, d.test):
+    for run in (d.train, d.test, d.holdout):
         rigid = _rnea(model, run.q_true, run.dq_true, run.ddq_true)
         friction = _friction_from_truth(truth["friction"], run.q_true, run.dq_true)
         np.testing.assert_allclose(run.tau_nominal, rigid + friction, rtol=1e-9, atol=1e-9)
     (effect,) = truth["effects"] or [None]
     name = effect["name"] if effect else "null"
     p = effect["parameters"] if effect else {}
-    for role, run in (("train", d.train), ("test", d.test)):
+    for role, run in (("train", d.train), ("test", d.test), ("holdout", d.holdout)):
         expected = run.tau_nominal.copy()
-        if name == "payload" and (role == "test" or effect["appeared"] == fam.ALL_ALONG):
+        if name == "payload" and (role != "train" or effect["appeared"] == fam.ALL_ALONG):
             loaded = pin.buildModelFromXML(d.urdf)
             rot = d.arm.flange()[:3, :3]
             extra = pin.Inertia(
@@ -174,7 +174,7 @@ def test_noise_free_torque_is_rnea_plus_friction_plus_the_effect(case: str) -> N
             exc = d.excitations[0 if role == "train" else 1]
             q, dq, ddq = exc.evaluate(run.t - p["delay_s"])
             expected = _rnea(model, q, dq, ddq) + _friction_from_truth(truth["friction"], q, dq)
-        elif name == "thermal_drift" and role == "test":
+        elif name == "thermal_drift" and role != "train":
             for j, r in zip(effect["joints"], p["rate_nm_per_s"], strict=True):
                 expected[:, j - 1] += r * run.t * np.tanh(run.dq_true[:, j - 1] / 1e-4)
         elif name == "wrist_coupling":
@@ -184,7 +184,9 @@ def test_noise_free_torque_is_rnea_plus_friction_plus_the_effect(case: str) -> N
         assert effect["main_parameter"] == fam.MAIN_PARAMETER[name]
         assert effect["appeared"] in (fam.ALL_ALONG, fam.BETWEEN)
     if name == "thermal_drift":
-        drop = -np.array(p["rate_nm_per_s"]) * truth["duration_s"]["test"]
+        # the drift runs on through the holdout the referee keeps
+        span = truth["duration_s"]["test"] + truth["duration_s"]["holdout"]
+        drop = -np.array(p["rate_nm_per_s"]) * span
         np.testing.assert_allclose(
             drop / np.array(p["coulomb_nm_before"]), p["drop_fraction_at_end"]
         )
@@ -245,7 +247,8 @@ def test_friction_is_dissipative(short_draws) -> None:
 def test_write_draw_writes_what_analyze_reads(tmp_path, short_draws) -> None:
     d = short_draws[2]
     paths = fam.write_draw(tmp_path / "draw", d)
-    assert {p.name for p in paths.values()} == {"train.csv", "test.csv", "robot.urdf", "truth.json"}
+    names = {p.name for p in paths.values()}
+    assert names == {"train.csv", "test.csv", "holdout.csv", "robot.urdf", "truth.json"}
     header = paths["train"].read_text().splitlines()[0].split(",")
     assert header == csv_header(d.n)
     back = read_csv(paths["test"])
@@ -255,6 +258,12 @@ def test_write_draw_writes_what_analyze_reads(tmp_path, short_draws) -> None:
     assert truth["effects"] == d.truth["effects"]
     clean = np.array(truth["noise_free_torque_nm"]["test"])
     np.testing.assert_allclose(clean, d.test.tau_clean, rtol=1e-9, atol=1e-12)
+    # the holdout continues the test run where analyze's file ends
+    held = read_csv(paths["holdout"])
+    np.testing.assert_allclose(held["tau"], d.holdout.tau, rtol=1e-11, atol=1e-12)
+    step = d.test.t[1] - d.test.t[0]
+    assert held["t"][0] == pytest.approx(d.test.t[-1] + step)
+    assert d.holdout.t.size == pytest.approx(d.test.t.size / 2, abs=2)
     model = pin.buildModelFromXML(paths["urdf"].read_text())
     assert model.nq == d.n and "payload" not in paths["urdf"].read_text()
 
@@ -262,33 +271,33 @@ def test_write_draw_writes_what_analyze_reads(tmp_path, short_draws) -> None:
 # --------------------------------------------------------------------------- scoring
 
 
-def _summary(d: fam.Draw, after, effects, **extra) -> dict:
-    return {
-        "rms_after": list(after),
-        "rms_before": list(after),
-        "effects": effects,
-        "target_filter": {"kind": "Butterworth", "order": 4, "cutoff_hz": [20.0]},
-        "test_time_scored_s": [float(d.test.t[0]), float(d.test.t[-1])],
-        "stick_velocity_rad_s": 0.002,
-        "plain_ls_joints": [],
-        **extra,
-    }
+def _summary(effects, **extra) -> dict:
+    return {"effects": effects, "plain_ls_joints": [], **extra}
 
 
-def test_score_marks_a_fabricated_summary() -> None:
+def _pred(d: fam.Draw, factor) -> np.ndarray:
+    """Predictions on the holdout run whose error is ``factor`` (per joint) × its own noise:
+    the after-RMS is then ``factor`` × the floor, exactly."""
+    f = np.broadcast_to(np.asarray(factor, dtype=float), (d.n,))
+    return d.holdout.tau - f * d.holdout.noise
+
+
+def test_score_is_computed_from_the_predictions_on_the_raw_holdout() -> None:
     d = fam.draw(1, case="spring", duration_scale=SHORT)
     (spring,) = d.truth["effects"]
     j = spring["joints"][0]
     k = spring["parameters"]["k_nm_per_rad"]
-    summary = _summary(d, np.zeros(d.n), [])
-    floor = filtered_rms(d.test.t, d.test.noise, summary, None, d.test.dq)
-    plain_res = 3.0 * d.test.noise  # a plain fit three times the noise
-    good = 1.5 * floor
+    floor = np.sqrt(np.mean(d.holdout.noise**2, axis=0))
+    plain_res = 3.0 * d.holdout.noise  # a plain fit three times the noise
+    good = np.full(d.n, 1.5)
 
     def found(k_value: float, joint: int = j) -> list[dict]:
         return [{"name": "spring", "joints": [joint], "parameters": {"k_nm_per_rad": k_value}}]
 
-    rec = fam.score(d, _summary(d, good, found(1.1 * k)), plain_res)
+    # the summary's own figures are not read: a fabricated rms_after changes nothing
+    lie = _summary(found(1.1 * k), rms_after=[0.0] * d.n)
+    rec = fam.score(d, lie, _pred(d, good), plain_res)
+    assert rec["analyze_rms_after"] == pytest.approx((1.5 * floor).tolist())
     assert rec["floor_nm"] == pytest.approx(floor.tolist())
     assert rec["plain_ls_nm"] == pytest.approx((3.0 * floor).tolist())
     c = rec["criteria"]
@@ -296,37 +305,57 @@ def test_score_marks_a_fabricated_summary() -> None:
     assert c["after_within_2x_floor"] and c["never_worse_than_plain_ls"]
     assert c["affected_joints"] == [j]
     # absorbed: nothing accepted, the joint at the floor
-    c = fam.score(d, _summary(d, good, []), plain_res)["criteria"]
+    c = fam.score(d, _summary([]), _pred(d, good), plain_res)["criteria"]
     assert c["effect_named_or_absorbed"] and c["absorbed"]
     # main parameter 30 % off, wrong joint, or above 2x the floor
-    assert not fam.score(d, _summary(d, good, found(1.3 * k)), plain_res)["criteria"][
-        "effect_named_or_absorbed"
-    ]
+    c = fam.score(d, _summary(found(1.3 * k)), _pred(d, good), plain_res)["criteria"]
+    assert not c["effect_named_or_absorbed"]
     other = j % d.n + 1
-    assert not fam.score(d, _summary(d, good, found(k, other)), plain_res)["criteria"][
-        "effect_named_or_absorbed"
-    ]
+    c = fam.score(d, _summary(found(k, other)), _pred(d, good), plain_res)["criteria"]
+    assert not c["effect_named_or_absorbed"]
     high = good.copy()
-    high[j - 1] = 2.5 * floor[j - 1]
-    c = fam.score(d, _summary(d, high, []), plain_res)["criteria"]
+    high[j - 1] = 2.5
+    c = fam.score(d, _summary([]), _pred(d, high), plain_res)["criteria"]
     assert not c["after_within_2x_floor"] and not c["effect_named_or_absorbed"]
     # worse than plain LS on one joint (not an affected one): only that verdict fails
     worse = good.copy()
-    worse[other - 1] = 3.1 * floor[other - 1]
-    c = fam.score(d, _summary(d, worse, found(k)), plain_res)["criteria"]
+    worse[other - 1] = 3.1
+    c = fam.score(d, _summary(found(k)), _pred(d, worse), plain_res)["criteria"]
     assert not c["never_worse_than_plain_ls"] and c["effect_named_or_absorbed"]
-    # analyze failed, or its summary is unusable: every verdict fails, nothing raises
-    for summary, error in (
-        (None, "exit 1: Traceback"),
-        ({"rms_after": [1.0]}, None),
-        (_summary(d, good[:-1], []), None),
-        (_summary(d, good, "none"), None),
-        ({**_summary(d, good, []), "target_filter": {"order": 4}}, None),
+    # a few declined rows are left out of every figure alike; more than 5 % fail the draw
+    few = _pred(d, good)
+    few[: int(0.04 * few.shape[0])] = np.nan
+    rec = fam.score(d, _summary(found(k)), few, plain_res)
+    assert rec["criteria"]["after_within_2x_floor"] and rec["declined_share"] < 0.05
+    many = _pred(d, good)
+    many[: int(0.06 * many.shape[0]) + 1] = np.nan
+    rec = fam.score(d, _summary(found(k)), many, plain_res)
+    assert any("declined" in p for p in rec["problems"])
+    # analyze or predict failed, or what they wrote is unusable: every verdict fails
+    for summary, pred, error in (
+        (None, None, "exit 1: Traceback"),
+        (_summary("none"), _pred(d, good), None),
+        (_summary([]), None, None),
+        (_summary([]), _pred(d, good), "predictions unusable: header"),
     ):
-        rec = fam.score(d, summary, plain_res, error)
+        rec = fam.score(d, summary, pred, plain_res, error)
         assert rec["problems"]
         verdicts = [rec["criteria"].get(key) for key, _, _ in fam.ACCEPTANCE]
         assert verdicts.count(False) == 3 and verdicts.count(None) == 1  # effect draw
+
+
+def test_the_referee_reads_predictions_only_for_the_rows_and_times_predicted(tmp_path) -> None:
+    t = np.arange(5) * 0.01
+    path = tmp_path / "pred.csv"
+    path.write_text("t,tau1,tau2\n" + "".join(f"{v:g},1.5,nan\n" for v in t))
+    pred = read_predictions(path, t, 2)
+    assert pred.shape == (5, 2) and np.all(pred[:, 0] == 1.5) and np.isnan(pred[:, 1]).all()
+    with pytest.raises(ValueError, match="header"):
+        read_predictions(path, t, 3)
+    with pytest.raises(ValueError, match="values"):
+        read_predictions(path, t[:4], 2)
+    with pytest.raises(ValueError, match="times"):
+        read_predictions(path, t + 0.5, 2)
 
 
 def test_criteria_null_and_multi_joint_effects() -> None:

@@ -185,3 +185,25 @@ def test_a_model_fitted_without_its_cylinders_needs_the_pressures(tmp_path):
     t, q, dq, _, _ = _file()
     with pytest.raises(DataFileError, match="no pressure columns"):
         predict_rows(model, Measurements(t, q, dq, 0 * q, None, "nop.csv"))
+
+
+def test_the_scored_raw_rows_start_at_the_analysis_sample_the_figures_start_at():
+    """analyze scores the rest of the test run after the rows case (B) used: in raw rows, the
+    files after the one holding that analysis sample, and that file from its time on."""
+    from control.identification.heldout import TestFile, scored_rows
+
+    def file(t0: float, rows: int) -> Measurements:
+        t = t0 + np.arange(rows) / RATE_HZ
+        z = np.zeros((rows, 2))
+        return Measurements(t, z, None, z, None, f"f{t0}")
+
+    files = [TestFile(file(0.0, 100), 20), TestFile(file(0.0, 150), 30)]
+    analysis_t = np.r_[np.arange(20) * 0.01 + 0.05, np.arange(30) * 0.01 + 0.05]
+    every = scored_rows(files, analysis_t, 0)
+    assert [r.all() for r in every] == [True, True]
+    in_second = scored_rows(files, analysis_t, 25)  # analysis sample 5 of the second file
+    assert not in_second[0].any()
+    np.testing.assert_array_equal(in_second[1], files[1].measurements.t >= 0.1)
+    in_first = scored_rows(files, analysis_t, 10)
+    np.testing.assert_array_equal(in_first[0], files[0].measurements.t >= 0.15)
+    assert in_first[1].all()
