@@ -211,11 +211,20 @@ def lowpass_padded(x: np.ndarray, cutoff_hz: float, fs_hz: float) -> np.ndarray:
     return _lowpass(x, cutoff_hz, fs_hz)
 
 
-#: Degree of the polynomial :func:`lowpass_to_the_edges` runs a stretch's ends on with. Measured
-#: on a 0.7 Hz sine at 500 Hz (q noise 1e-5 rad, dq noise 1e-3 rad/s, 20 Hz cutoff, 20 draws):
-#: ddq's RMS error on the 10 rows at each end against the interior's, from positions alone /
-#: from a measured dq, degree 3: 55× / 1.9×, 4: 3.2× / 1.2×, 5: 0.9× / 1.6×, 6: 1.6× / 2.6×.
+#: Degree of the polynomial :func:`lowpass_to_the_edges` runs a stretch's ends on with, and the
+#: span it is fitted over: at least one period of the cutoff (the noise the filter would
+#: average) and at least :data:`EDGE_FIT_S`, within the settling time. The fit must follow the
+#: motion over its span: half a second is half a period of the fastest content an arm's
+#: recorded motion carries (excitation plans reach 1 Hz; teaching is slower). Measured, ddq's
+#: RMS error on the rows within half a cutoff period of either end over the interior's (a sine
+#: with q noise 1e-5 rad and dq noise 1e-3 rad/s, 10 draws, from positions / from a measured
+#: dq): 500 Hz, 20 Hz cut, 0.7 Hz: 0.9 / 1.9; 1 kHz, 20 Hz, 1 Hz: 3.4 / 1.5; 250 Hz, 2 Hz,
+#: 1 Hz: 7.9 / 2.5; 100 Hz, 5 Hz, 0.5 Hz: 6.8 / 2.5; 200 Hz, 8 Hz, 0.3 Hz: 1.3 / 2.0; 1 kHz,
+#: 40 Hz, 1 Hz: 1.1 / 1.6. Fitted over the whole settling time instead (5 cutoff periods, 2.5 s
+#: at 2 Hz) the quintic could not follow a 1 Hz motion: 770 / 350 at 2 Hz; a cubic over 0.5 s
+#: is too stiff where it extrapolates: 250 / 33 at 2 Hz, 62 / 1.0 at 20 Hz.
 EDGE_POLY_DEGREE = 5
+EDGE_FIT_S = 0.5
 
 
 def lowpass_to_the_edges(x: np.ndarray, cutoff_hz: float, fs_hz: float) -> np.ndarray:
@@ -223,7 +232,7 @@ def lowpass_to_the_edges(x: np.ndarray, cutoff_hz: float, fs_hz: float) -> np.nd
 
     Each end of the stretch is run on, over the filter's settling time (:data:`EDGE_PERIODS`
     periods of the cutoff), by the least-squares polynomial (:data:`EDGE_POLY_DEGREE`) of the
-    samples within that time of the end; the whole is filtered and the run-ons dropped.
+    samples near that end (:data:`EDGE_FIT_S`); the whole is filtered and the run-ons dropped.
     scipy's padding (a few samples, odd reflection) flips the curvature at the end, so the
     filtered acceleration there tends to zero: :func:`prepare` cuts those edges off, a
     prediction for every row cannot."""
@@ -253,7 +262,8 @@ def _lowpass_run_on(x: np.ndarray, cutoff_hz: float, fs_hz: float) -> tuple[np.n
         return x.copy(), 0
     sos = _butter_sos(float(cutoff_hz), float(fs_hz)).copy()
     pad = _edge_samples(cutoff_hz, fs_hz)
-    fit = min(pad, x.shape[0])
+    span = max(1.0 / cutoff_hz, EDGE_FIT_S)
+    fit = min(pad, x.shape[0], max(EDGE_POLY_DEGREE + 2, int(np.ceil(span * fs_hz))))
     k = np.arange(-pad, 0, dtype=float)
     head = _run_on(x[:fit], k, EDGE_POLY_DEGREE)
     tail = _run_on(x[::-1][:fit], k, EDGE_POLY_DEGREE)[::-1]
