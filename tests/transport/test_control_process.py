@@ -2,7 +2,10 @@
 command is published unless the gateway says TEACHING with fresh pressures."""
 
 import math
+import subprocess
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -20,6 +23,12 @@ from gateway.messages import (
 )
 
 Q0 = np.array([0.0, 0.15, 0.25, 0.0, -0.4, 0.0])
+ROOT = Path(__file__).resolve().parents[2]
+PUBLISHER = Path(__file__).with_name("delayed_state_publisher.py")
+#: The GIL held by the test [us], and the other process's delay before it publishes [s]:
+#: a state arriving 0.1 s into a 0.5 s hold leaves 0.4 s for a slow machine to answer it.
+HOLD_US = 500_000
+DELAY_S = 0.1
 
 
 @pytest.fixture
@@ -125,16 +134,34 @@ def test_teaching_is_answered_while_python_holds_the_gil(rig):
     client.put(keys.joint_state, state(1))  # engages (the example cell engages at once)
     settle()
     assert [c.cycle for c in commands] == [1]
-    client.put(keys.io_state, IoState(time.monotonic(), 6.0, 4.0, 6.0, 4.0, True, True).to_bytes())
-    client.put(keys.lifecycle, LifecycleMsg(Lifecycle.TEACHING, 2, time.monotonic()).to_bytes())
-    time.sleep(0.05)
-    client.put(keys.joint_state, state(2))
-    held_from = time.monotonic()
-    ctypes.PyDLL(None).usleep(300_000)  # PyDLL: the GIL stays held through the call
-    held_until = time.monotonic()
+    # The state comes from another process, DELAY_S after this one holds its GIL: put from
+    # here, it could be answered before the hold began (a fast machine did, 52 us after the
+    # put, before the next line ran), and the test would prove nothing.
+    publisher = subprocess.Popen(
+        [sys.executable, str(PUBLISHER), bus.endpoint, "2", str(DELAY_S)],
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, cwd=ROOT,
+    )  # fmt: skip
+    try:
+        assert publisher.stdout is not None and publisher.stdin is not None
+        assert publisher.stdout.readline().strip() == "ready"
+        client.put(
+            keys.io_state, IoState(time.monotonic(), 6.0, 4.0, 6.0, 4.0, True, True).to_bytes()
+        )
+        client.put(keys.lifecycle, LifecycleMsg(Lifecycle.TEACHING, 2, time.monotonic()).to_bytes())
+        time.sleep(0.05)
+        publisher.stdin.write("go\n")
+        publisher.stdin.flush()
+        held_from = time.monotonic()
+        ctypes.PyDLL(None).usleep(HOLD_US)  # PyDLL: the GIL stays held through the call
+        held_until = time.monotonic()
+        assert publisher.wait(timeout=10) == 0
+    finally:
+        publisher.kill()
+        publisher.wait()
     settle()
     assert [c.cycle for c in commands] == [1, 2]
-    assert held_from < commands[1].sent_stamp_s < held_until - 0.2, (
+    # sent while held, with the state's delay before it and room after it
+    assert held_from + DELAY_S < commands[1].sent_stamp_s < held_until - 0.1, (
         held_from,
         commands[1].sent_stamp_s,
         held_until,
