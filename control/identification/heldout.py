@@ -1,13 +1,13 @@
 """Held-out figures on the raw test files: measured torque minus :func:`.predict.predict_rows`.
 
-What ``leadthrough analyze`` reports as ``rms_before`` / ``rms_after`` / ``rms_plain_ls``: the
-same arithmetic anyone can do with ``leadthrough predict`` and the test file, with no filter
-on the scored torque, over every row the model answers (NaN rows of the prediction are left
-out, for every model alike: the rows none of them answers). With effects fitted on the first
-part of the test run (case B of :mod:`.effects`), only the rows after that part are scored.
+What ``leadthrough analyze`` reports in ``summary["raw"]`` (``rms_before``, ``rms_after``,
+``rms_plain_ls``): the same arithmetic anyone can do with ``leadthrough predict`` and the test
+file, with no filter on the scored torque, over every row the models answer (a row one of them
+declines is left out for all). With effects fitted on the first part of the test run (case B
+of :mod:`.effects`), only the rows after that part are scored.
 
-The fit itself works on low-passed, decimated samples (:mod:`.preprocess`); those internal
-figures choose between models, these report them.
+The fit itself works on low-passed, decimated samples (:mod:`.preprocess`), and the summary's
+top-level figures are on that analysis target, where each joint slides.
 """
 
 from __future__ import annotations

@@ -20,7 +20,8 @@ Per gap-free stretch of the file (:func:`.preprocess.gap_free_segments`):
    reads.
 
 Declined rows are NaN: those of a stretch too short to filter (:data:`MIN_STRETCH_ROWS`) and the
-first δ of each stretch. Nothing else is: edges are answered with the filter's padding.
+first δ of each stretch. Nothing else is: a stretch's ends are answered through the run-on of
+:func:`.preprocess.states_to_the_edges`.
 """
 
 from __future__ import annotations
