@@ -78,3 +78,30 @@ def test_other_exits_are_restarted(code):
         assert not child.config_refused and child.restart_at_s is not None
     finally:
         _reap(child)
+
+
+def test_a_child_without_a_heartbeat_is_booting_for_the_grace_then_silent():
+    """[gateway].boot_grace_s: no heartbeat yet within it is a child still starting (a slow
+    machine took 12 s); past it, or once a heartbeat came and went stale, it is silent."""
+    cfg = GatewayConfig(processes=(), boot_grace_s=20.0)
+    gw = Gateway(Path("cell.toml"), BusConfig(), cfg, spawn=False)
+    child = Child("control", [sys.executable, "-c", "import time; time.sleep(30)"])
+    gw.children[child.name] = child
+    gw._start_child(child)
+    try:
+        t0 = child.started_s
+        assert gw.observations(t0 + 12.0).stale_processes == ()
+        assert gw.observations(t0 + 20.5).stale_processes == ("control",)
+        gw.health_rx_s["control"] = t0 + 1.0  # a heartbeat, then none for longer than 0.5 s
+        assert gw.observations(t0 + 2.0).stale_processes == ("control",)
+    finally:
+        child.proc.kill()
+        _reap(child)
+
+
+def test_a_boot_grace_outside_its_range_is_refused():
+    from gateway.errors import ConfigError
+
+    for bad in (0.0, -1.0, 600.0):
+        with pytest.raises(ConfigError, match=r"\[gateway\].boot_grace_s"):
+            GatewayConfig(boot_grace_s=bad)
