@@ -1028,8 +1028,7 @@ def _analyze(
     errors = [
         residuals(m, run.test_files, rows, run.desc) for m in (model_before, model, plain_model)
     ]
-    raw_before, raw_after, raw_plain = rms_answered(errors)
-    answered = np.logical_and.reduce([np.isfinite(e).all(axis=1) for e in errors])
+    (raw_before, raw_after, raw_plain), answered = rms_answered(errors)
     if options.find_effects and not accepted:
         clock.say("no further effect found")
     clock.say(f"held-out RMS before effects: {np.array2string(rms_before, precision=3)} N·m")

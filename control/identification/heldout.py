@@ -70,9 +70,10 @@ def residuals(
     return np.concatenate(parts)
 
 
-def rms_answered(errors: Sequence[np.ndarray]) -> tuple[np.ndarray, ...]:
-    """Per-joint RMS of each residual array over the rows every one of them answers."""
+def rms_answered(errors: Sequence[np.ndarray]) -> tuple[list[np.ndarray], np.ndarray]:
+    """Per-joint RMS of each residual array over the rows every one of them answers, and
+    those rows (bool, R)."""
     answered = np.logical_and.reduce([np.isfinite(e).all(axis=1) for e in errors])
     if not answered.any():
-        return tuple(np.full(e.shape[1], np.nan) for e in errors)
-    return tuple(np.sqrt(np.mean(e[answered] ** 2, axis=0)) for e in errors)
+        return [np.full(e.shape[1], np.nan) for e in errors], answered
+    return [np.sqrt(np.mean(e[answered] ** 2, axis=0)) for e in errors], answered

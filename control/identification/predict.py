@@ -143,7 +143,7 @@ def predict_rows(
             # the cylinders push at the time of the row itself: only the drive's torque lags
             q_now = q_f if not delay else _states(t, m.q[a:b], dq, cutoff, t)[0]
             cyl = _cylinder_torque(model, m, q_now, slice(a, b), desc_measured)
-            out[rows] -= cyl if not delay else cyl[ok]
+            out[rows] -= cyl[ok]
     return out
 
 

@@ -22,7 +22,7 @@ import numpy as np
 from control.identification.datafile import read_measurements
 from control.identification.fit import IdentifiedModel
 from control.identification.predict import predict_rows, write_predictions
-from gateway.errors import ConfigError, DataFileError, LeadthroughError
+from gateway.errors import ConfigError
 
 #: Declined rows above this share are reported as a warning: the model answers nearly all.
 DECLINED_WARN_SHARE = 0.05
@@ -88,18 +88,3 @@ def cli_main(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
     return 0
-
-
-def main(argv: list[str] | None = None) -> int:
-    """Stand-alone entry, ``python -m control.identification.predict_cli``."""
-    parser = argparse.ArgumentParser(prog="leadthrough predict")
-    configure_parser(parser)
-    try:
-        return cli_main(parser.parse_args(argv))
-    except (LeadthroughError, DataFileError) as exc:
-        print(f"leadthrough predict: error: {exc}", file=sys.stderr)
-        return 2
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())
