@@ -45,6 +45,7 @@ from threadpoolctl import threadpool_limits
 
 from control.identification import cylinders as cyl
 from control.identification import effects as fx
+from control.identification.chain import settle as settle_chain
 from control.identification.cutoff import CutoffChoice, candidates, choose_cutoff
 from control.identification.datafile import Measurements, read_measurements
 from control.identification.fit import (
@@ -345,9 +346,11 @@ def _fit_families(
     kinds: Sequence[str],
     ratios: np.ndarray,
     while_waiting: Callable[[], None] | None = None,
+    offset: bool = False,
 ) -> tuple[dict[str, FrictionFit], dict[str, Any]]:
     """Each friction family fitted on ``ls`` (groups left there) and its figures;
-    ``while_waiting()`` runs in this process while workers fit them."""
+    ``while_waiting()`` runs in this process while workers fit them; ``offset``: with the
+    measurement chain's constant column (:mod:`.chain`)."""
     fits: dict[str, FrictionFit] = {}
     comparison: dict[str, Any] = {}
 
@@ -359,7 +362,7 @@ def _fit_families(
         lines: list[str] = []
         own = ls.fork()
         fit = fit_rigid_friction(
-            own, run.ctx_train, kind, ratios, progress=lines.append, extra=extra
+            own, run.ctx_train, kind, ratios, progress=lines.append, extra=extra, offset=offset
         )
         return fit, own.export([t.key for t in fit.terms]), lines
 
@@ -895,16 +898,21 @@ def _analyze(
     prefetch = import_plotting if options.plots else None
     if run.cyl_train is not None:
         ls.add(cyl.GROUP, run.cyl_train)
-    fits, comparison = _fit_families(ls, run, kinds, ratios, while_waiting=prefetch)
+    fits, comparison = _fit_families(ls, run, kinds, ratios, while_waiting=prefetch, offset=True)
     kind = _keep_family(ls, fits, options.friction, clock)
     base_fit = fits[kind]
     calibration = None
     if run.cyl_train is not None:
         base_fit, calibration = _settle_cylinders(ls, run, base_fit)
-        fits[kind] = base_fit
-        train, test = run.train, run.test
+    # from here on the analysis is on the physical torque, every model with the chain
+    base_fit, chain = settle_chain(ls, run, base_fit, options.search.alpha, clock.say)
+    fits[kind] = base_fit
+    train, test = run.train, run.test
     model_before, pred_before = _predict(reg, ctx_test, base_fit, urdf, meta)
-    model_before = replace(model_before, envelope=run.envelope)
+    model_before = replace(
+        model_before, envelope=run.envelope, torque_gain=chain.gain,
+        torque_offset_nm=chain.offset_nm,
+    )  # fmt: skip
     clock.lap("fit")
 
     accepted_a: list[fx.Accepted] = []
@@ -961,7 +969,7 @@ def _analyze(
             clock.say(f"joint {j + 1}: {g.reason}")
     effects_a = _restricted(accepted_a, set(plain))
     model_a = model_from_solution(
-        reg, base_fit, train_eval.solution, effects_a, urdf, meta, run.envelope, plain
+        reg, base_fit, train_eval.solution, effects_a, urdf, meta, run.envelope, plain, chain
     )
     pred_a = model_a.torque_from_context(ctx_test)
     if delay_a:
@@ -1008,7 +1016,7 @@ def _analyze(
     effects_b = _restricted(accepted_b, set(plain))
     model = model_from_solution(
         reg, base_fit, train_eval.solution, [*effects_a, *effects_b], urdf, meta,
-        run.envelope, plain,
+        run.envelope, plain, chain,
     )  # fmt: skip
     scored = slice(split, test.n_samples) if accepted_b or switched else slice(0, test.n_samples)
     on = sliding_test[scored]
@@ -1139,8 +1147,9 @@ def _analyze(
             "rms_train_cv": "training files, held out by contiguous K-fold cross-validation",
             "rms_train": "training files, in-sample (for reference only)",
             "noise_floor_nm": "std of the measured noise left in the filtered torque",
-            "target": "measured torque low-passed at the torque cutoff; every model's torque "
-            "through the same filter",
+            "target": "measured torque low-passed at the torque cutoff, taken back through the "
+            "measurement chain ((tau - offset) / gain, measurement_chain); every model's "
+            "torque through the same filter",
             "effects": "case (A) fitted on the training files; case (B) chosen and fitted on "
             f"the first {split} test rows",
         },
@@ -1173,6 +1182,7 @@ def _analyze(
         "n_samples": {"train": train.n_samples, "test": test.n_samples},
         "rate_hz": train.rate_hz,
         "cylinders_removed": meta["cylinders_removed"],
+        "measurement_chain": chain.to_json(),
         "cylinders": None if calibration is None else calibration.to_json(),
         "files": {
             "urdf": urdf,
