@@ -346,11 +346,9 @@ def _fit_families(
     kinds: Sequence[str],
     ratios: np.ndarray,
     while_waiting: Callable[[], None] | None = None,
-    offset: bool = False,
 ) -> tuple[dict[str, FrictionFit], dict[str, Any]]:
     """Each friction family fitted on ``ls`` (groups left there) and its figures;
-    ``while_waiting()`` runs in this process while workers fit them; ``offset``: with the
-    measurement chain's constant column (:mod:`.chain`)."""
+    ``while_waiting()`` runs in this process while workers fit them."""
     fits: dict[str, FrictionFit] = {}
     comparison: dict[str, Any] = {}
 
@@ -362,7 +360,7 @@ def _fit_families(
         lines: list[str] = []
         own = ls.fork()
         fit = fit_rigid_friction(
-            own, run.ctx_train, kind, ratios, progress=lines.append, extra=extra, offset=offset
+            own, run.ctx_train, kind, ratios, progress=lines.append, extra=extra
         )
         return fit, own.export([t.key for t in fit.terms]), lines
 
@@ -898,21 +896,14 @@ def _analyze(
     prefetch = import_plotting if options.plots else None
     if run.cyl_train is not None:
         ls.add(cyl.GROUP, run.cyl_train)
-    fits, comparison = _fit_families(ls, run, kinds, ratios, while_waiting=prefetch, offset=True)
+    fits, comparison = _fit_families(ls, run, kinds, ratios, while_waiting=prefetch)
     kind = _keep_family(ls, fits, options.friction, clock)
     base_fit = fits[kind]
     calibration = None
     if run.cyl_train is not None:
         base_fit, calibration = _settle_cylinders(ls, run, base_fit)
-    # from here on the analysis is on the physical torque, every model with the chain
-    base_fit, chain = settle_chain(ls, run, base_fit, options.search.alpha, clock.say)
-    fits[kind] = base_fit
-    train, test = run.train, run.test
-    model_before, pred_before = _predict(reg, ctx_test, base_fit, urdf, meta)
-    model_before = replace(
-        model_before, envelope=run.envelope, torque_gain=chain.gain,
-        torque_offset_nm=chain.offset_nm,
-    )  # fmt: skip
+        fits[kind] = base_fit
+        train, test = run.train, run.test
     clock.lap("fit")
 
     accepted_a: list[fx.Accepted] = []
@@ -945,6 +936,24 @@ def _analyze(
         train_eval, accepted_a, delay_a, names = (
             state.evaluation, state.accepted, state.delay_s, state.names
         )  # fmt: skip
+    # the measurement chain, with the effects found all along (estimated before them, it took
+    # part of a spring or a delay); from here on the analysis is on the physical torque
+    base_fit, chain, train_eval = settle_chain(
+        ls, run, base_fit, names, options.search.alpha, clock.say
+    )
+    fits[kind] = base_fit
+    train, test = run.train, run.test
+    accepted_a = [
+        replace(a, coef=train_eval.solution.coef[a.term.key])
+        if a.term.key in train_eval.solution.coef
+        else a
+        for a in accepted_a
+    ]
+    model_before, pred_before = _predict(reg, ctx_test, base_fit, urdf, meta)
+    model_before = replace(
+        model_before, envelope=run.envelope, torque_gain=chain.gain,
+        torque_offset_nm=chain.offset_nm,
+    )  # fmt: skip
     clock.lap("effects")
 
     # The guard: never worse than plain least squares, the URDF's nominal rigid body with
@@ -1020,10 +1029,12 @@ def _analyze(
     )  # fmt: skip
     scored = slice(split, test.n_samples) if accepted_b or switched else slice(0, test.n_samples)
     on = sliding_test[scored]
-    rms_before = masked_rms((test.tau - pred_before)[scored], on)
-    rms_after = masked_rms((test.tau - pred_after)[scored], on)
-    rms_plain = masked_rms((test.tau - pred_plain)[scored], on)
-    rms_after_all = rms((test.tau - pred_after)[scored])
+    # figures in the torque channel's units: a physical residual r reads k r (.chain)
+    k = chain.gain
+    rms_before = masked_rms(k * (test.tau - pred_before)[scored], on)
+    rms_after = masked_rms(k * (test.tau - pred_after)[scored], on)
+    rms_plain = masked_rms(k * (test.tau - pred_plain)[scored], on)
+    rms_after_all = rms(k * (test.tau - pred_after)[scored])
     # the same on the raw measured torque: each model's prediction for every row (.heldout)
     plain_model = replace(
         model_before,
@@ -1128,11 +1139,11 @@ def _analyze(
         },
         "relative_before": relative_error(test.tau[scored], pred_before[scored]).tolist(),
         "relative_after": relative_error(test.tau[scored], pred_after[scored]).tolist(),
-        "rms_train": train_eval.fit_rms.tolist(),
-        "rms_train_cv": train_eval.cv_rms.tolist(),
+        "rms_train": (k * train_eval.fit_rms).tolist(),
+        "rms_train_cv": (k * train_eval.cv_rms).tolist(),
         "rms_train_cv_plain_ls": [guard[j].cv_rms[PLAIN_LS] for j in range(reg.n)],
-        "rms_train_before": base_fit.evaluation.fit_rms.tolist(),
-        "rms_measured_test": rms(test.tau[scored]).tolist(),
+        "rms_train_before": (k * base_fit.evaluation.fit_rms).tolist(),
+        "rms_measured_test": rms(chain.to_measured(test.tau[scored])).tolist(),
         "noise_floor_nm": {"train": _floats(train.noise_nm), "test": _floats(test.noise_nm)},
         "raw_noise_std_nm": {
             "train": _floats(train.raw_noise_nm),
@@ -1147,9 +1158,9 @@ def _analyze(
             "rms_train_cv": "training files, held out by contiguous K-fold cross-validation",
             "rms_train": "training files, in-sample (for reference only)",
             "noise_floor_nm": "std of the measured noise left in the filtered torque",
-            "target": "measured torque low-passed at the torque cutoff, taken back through the "
-            "measurement chain ((tau - offset) / gain, measurement_chain); every model's "
-            "torque through the same filter",
+            "target": "measured torque low-passed at the torque cutoff; every model's torque "
+            "through the same filter and the measurement chain (gain * tau + offset, "
+            "measurement_chain)",
             "effects": "case (A) fitted on the training files; case (B) chosen and fitted on "
             f"the first {split} test rows",
         },

@@ -218,7 +218,6 @@ def fit_rigid_friction(
     progress: Progress | None = None,
     sign_grid: Sequence[float] = SIGN_WIDTH_GRID_RAD_S,
     extra: Sequence[str] = (),
-    offset: bool = False,
 ) -> FrictionFit:
     """Rigid body + friction ``kind`` on ``ls`` (whose group "rigid" is already added).
 
@@ -227,8 +226,7 @@ def fit_rigid_friction(
     of the joint, on at most :data:`Q_E_SEARCH_MAX_ROWS` rows: they are model choices, so they
     are chosen on data the fit did not see. Then the two-step weighted LS on all rows; the
     friction groups are left in ``ls``. A group of ``extra`` already in ``ls`` (the cylinder
-    columns, :mod:`.cylinders`) is fitted along throughout. ``offset``: every joint's friction
-    carries a constant column (:attr:`.terms.FrictionTerm.offset`, for :mod:`.chain`).
+    columns, :mod:`.cylinders`) is fitted along throughout.
     """
     if kind not in FRICTION_MODELS:
         raise ConfigError(f"--friction: {kind!r} is not one of {list(FRICTION_MODELS)}")
@@ -249,7 +247,7 @@ def fit_rigid_friction(
         target = ls
     grid = sorted(float(v) for v in q_e_grid)
     q_e = [grid[len(grid) // 2]] * n
-    terms = [FrictionTerm(j, kind, q_e[j], float(gear_ratios[j]), offset=offset) for j in range(n)]
+    terms = [FrictionTerm(j, kind, q_e[j], float(gear_ratios[j])) for j in range(n)]
     for term in terms:
         target.add(term.key, _thin(term.columns(ctx), step))
     names = ["rigid", *extra, *(t.key for t in terms)]

@@ -298,25 +298,10 @@ class FrictionTerm:
     q_e_rad_s: float
     gear_ratio: float
     sign_width_rad_s: float | None = None
-    #: with a constant column after the family's own (``offset_nm``, the torque sensor's
-    #: offset: :mod:`.chain`); ``simple`` has one already and never gets a second
-    offset: bool = False
 
     @property
     def key(self) -> str:
         return f"friction-{self.kind}:{self.joint}"
-
-    @property
-    def param_names(self) -> tuple[str, ...]:
-        """Names of the coefficients of :meth:`columns`, in order."""
-        names = FRICTION_PARAM_NAMES[self.kind]
-        return (*names, "offset_nm") if self.offset and "offset_nm" not in names else names
-
-    @property
-    def offset_column(self) -> int:
-        """Index of the constant column among :meth:`columns` (-1: none)."""
-        names = self.param_names
-        return names.index("offset_nm") if "offset_nm" in names else -1
 
     def columns(self, ctx: Context) -> dict[int, np.ndarray]:
         j = self.joint
@@ -327,12 +312,12 @@ class FrictionTerm:
                 self.kind, q, dq, self.q_e_rad_s, self.gear_ratio, self.sign_width_rad_s
             ),
         )
-        if len(self.param_names) > basis.shape[1]:
-            basis = np.column_stack([basis, np.ones(basis.shape[0])])
         return {j: ctx.filtered(basis)}
 
     def parameters(self, coef: np.ndarray) -> dict[str, float]:
-        out = {name: float(v) for name, v in zip(self.param_names, coef, strict=True)}
+        out = {
+            name: float(v) for name, v in zip(FRICTION_PARAM_NAMES[self.kind], coef, strict=True)
+        }
         out["q_e_rad_s"] = float(self.q_e_rad_s)
         if self.kind == "eq15":
             out["gear_ratio"] = float(self.gear_ratio)
