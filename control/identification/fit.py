@@ -32,8 +32,9 @@ kept where it lowers its joint's held-out error); the model file carries it as a
 diameter, which :meth:`IdentifiedModel.with_measured_cylinders` puts into a description.
 
 The model file (``model.json``, :data:`MODEL_FORMAT` version :data:`MODEL_VERSION`) holds the
-URDF (path, sha256 and text), the base-parameter mapping and values, friction per joint and
-the accepted effects; :class:`IdentifiedModel` loads and evaluates it, vectorised.
+URDF (path, sha256 and text), the base-parameter mapping and values, friction per joint, the
+accepted effects and the torque channel's gain and offset per joint (:mod:`.chain`);
+:class:`IdentifiedModel` loads and evaluates it, vectorised.
 """
 
 from __future__ import annotations
@@ -388,6 +389,12 @@ class IdentifiedModel:
     whose error the gain is: a command in the drive's units is ``torque_gain · τ``);
     :meth:`measured_torque_nm` (and :meth:`predict_measured`, ``leadthrough predict``) what
     the torque channel reads, what a reading is compared with (external force, residuals).
+    In the control process (not yet switched): the feed-forward it commands (gravity and
+    friction of ``control/declared_model.py``, the point-model table of
+    ``control/rt_tables.py``, the mass matrix of ``control/process.py``) is the physical
+    torque, times the gain where the command is in the drive's units; what it compares with
+    the drive's reading (``control/model_adaptation.py``'s residual, the engagement probe's
+    residual in ``control/process.py``, ``control/load_check.py``) is the measured one.
 
     ``envelope`` bounds the friction and effect terms to the training range (see
     :mod:`.terms`); joints in ``plain_joints`` (0-based index → :class:`PlainJoint`) use their
