@@ -51,7 +51,7 @@ import os
 import signal
 import sys
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -104,6 +104,11 @@ FAST_MOVING_M_S = 0.2
 AFTER_COMMAND = (0.020, 0.002)
 #: the last command is looked for from this long before the injection on [s]
 LAST_COMMAND_BEFORE_S = 0.1
+#: SCHED_FIFO priority of an injection (:func:`_injecting`): above the product's cycle (40,
+#: deploy/config/cell.toml) and the virtual controller (60, sim_bridge/harness.py)
+INJECT_FIFO_PRIORITY = 70
+#: fires an armed fault; returns its clean-up or None
+Trigger = Callable[[], Callable[[], None] | None]
 
 
 @dataclass(frozen=True)
@@ -120,8 +125,10 @@ class Fault:
     operator: dict[str, Any] = field(default_factory=dict)
     #: overrides of the hand's drag (:data:`DRAG`) before the fault, e.g. a faster one
     drag: dict[str, Any] = field(default_factory=dict)
-    #: injects the fault into a running stack (None: scripted); returns a clean-up or None
-    inject: Callable[[Stack], Callable[[], None] | None] | None = None
+    #: arms the fault on a running stack (None: scripted): looks up what it needs (a pid over
+    #: the bus, the product's processes in /proc) and returns the trigger that injects it,
+    #: which returns a clean-up or None (:func:`_fire`)
+    inject: Callable[[Stack], Trigger] | None = None
     #: the power is cut (stop category 0): the arm moves freely until the brakes engage
     power_cut: bool = False
     #: an injected fault waits for the tool to pass this speed [m/s]
@@ -131,15 +138,17 @@ class Fault:
     after_command: tuple[float, float] | None = None
 
 
-def _signal_child(name: str, sig: signal.Signals) -> Callable[[Stack], Callable[[], None] | None]:
-    def inject(stack: Stack) -> Callable[[], None] | None:
+def _signal_child(name: str, sig: signal.Signals) -> Callable[[Stack], Trigger]:
+    def arm(stack: Stack) -> Trigger:
         pid = stack.child_pid(name)
-        os.kill(pid, sig)
-        if sig == signal.SIGSTOP:
-            return lambda: _continue(pid)
-        return None
 
-    return inject
+        def fire() -> Callable[[], None] | None:
+            os.kill(pid, sig)
+            return (lambda: _continue(pid)) if sig == signal.SIGSTOP else None
+
+        return fire
+
+    return arm
 
 
 def _continue(pid: int) -> None:
@@ -147,25 +156,54 @@ def _continue(pid: int) -> None:
         os.kill(pid, signal.SIGCONT)
 
 
-def _kill_gateway(stack: Stack) -> None:
+def _kill_gateway(stack: Stack) -> Trigger:
     assert stack.gateway is not None
-    os.kill(stack.gateway.pid, signal.SIGKILL)
+    pid = stack.gateway.pid
+    return lambda: os.kill(pid, signal.SIGKILL)
 
 
-def _kill_product(stack: Stack) -> None:
+def _kill_product(stack: Stack) -> Trigger:
     """kill -9 of the gateway and every process it started, at once (the service's control
     group killed, the cell PC's power gone): no BRAKE, no heartbeat, no answer any more.
     Every process is stopped (SIGSTOP) before any is killed: a child that outlived the
     gateway by a moment would get its SIGTERM and send the BRAKE this fault must not have."""
     pids = list(stack.product_pids())
-    for sig in (signal.SIGSTOP, signal.SIGKILL):
-        for pid in pids:
-            with contextlib.suppress(ProcessLookupError):
-                os.kill(pid, sig)
+
+    def fire() -> None:
+        for sig in (signal.SIGSTOP, signal.SIGKILL):
+            for pid in pids:
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(pid, sig)
+
+    return fire
 
 
-def _operator_stop(stack: Stack) -> None:
-    stack.request("stop")
+def _operator_stop(stack: Stack) -> Trigger:
+    def fire() -> None:
+        stack.request("stop")
+
+    return fire
+
+
+@contextlib.contextmanager
+def _injecting() -> Iterator[None]:
+    """The injection runs at SCHED_FIFO :data:`INJECT_FIFO_PRIORITY` where the OS permits, so
+    that nothing of the product or the virtual cell preempts it between its time stamp and its
+    last signal. At normal priority on one loaded core (`taskset -c 0 make test`) the harness's
+    own look-up of the product's pids in /proc, done after the time stamp, was charged to the
+    drives' reaction: the CAN driver's last heartbeat came 50 ms after the injection's time
+    stamp and kill_product's reaction read 166 ms against its 136 ms bound (2026-11-30). The
+    look-ups are now done before (:attr:`Fault.inject` arms, the trigger fires)."""
+    policy, param = os.sched_getscheduler(0), os.sched_getparam(0)
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(INJECT_FIFO_PRIORITY))
+    except OSError:  # no CAP_SYS_NICE: the injection runs at the harness's priority
+        yield
+        return
+    try:
+        yield
+    finally:
+        os.sched_setscheduler(0, policy, param)
 
 
 FAULTS: tuple[Fault, ...] = (
@@ -321,9 +359,11 @@ def run_fault(
             stack.start_teaching()
             t_inject: float | None = None
             if fault.inject is not None:
+                trigger = fault.inject(stack)
                 _moving(stack, fault.moving_m_s, 20.0)
-                t_inject = time.monotonic()
-                cleanup = fault.inject(stack)
+                with _injecting():
+                    t_inject = time.monotonic()
+                    cleanup = trigger()
                 polls = _watch(stack, WATCH_S)
             else:
                 polls = _watch(stack, SCRIPTED_AFTER_S + WATCH_S)

@@ -386,24 +386,15 @@ def test_operator_commands_from_the_command_line(tmp_path):
         bus = ["--bus", stack.bus.endpoint]
         out = subprocess.run([*cli, "status", *bus], capture_output=True, text=True, timeout=20)
         assert out.returncode == 0 and "state: stopped" in out.stdout
-        # start, then stop. On a loaded 2-core machine the virtual controller shares the CPU
-        # with the product, and a stall of the joint-state stream over the gateway's 0.1 s
-        # watchdog faults the cell between the two (CI, once: "already stopped by fault (no
-        # fresh joint state ...)"). That is the watchdog working; the CLI then clears it with
-        # `reset` and the pair is tried again, at most three times.
-        for _attempt in range(3):
-            run = subprocess.run
-            out = run([*cli, "start", *bus], capture_output=True, text=True, timeout=20)
-            assert out.returncode == 0, out.stdout + out.stderr
-            stack.wait_status(lambda s: s.get("state") in ("ready", "teaching"), 5.0, "started")
-            out = run([*cli, "stop", *bus], capture_output=True, text=True, timeout=20)
-            assert out.returncode == 0, out.stdout + out.stderr
-            if "state: stopped" in out.stdout:
-                break
-            assert "no fresh joint state" in out.stdout and "state: fault" in out.stdout, out.stdout
-            out = run([*cli, "reset", *bus], capture_output=True, text=True, timeout=20)
-            assert out.returncode == 0, out.stdout + out.stderr
-            stack.wait_status(lambda s: s.get("can_start") is True, 10.0, "ready after reset")
+        # start, then stop, once: a watchdog fault between the two (a stalled joint-state
+        # stream) is a fault of the product or of its placement, not something to retry past.
+        # The virtual controller runs at SCHED_FIFO above the product (sim_bridge/harness.py)
+        # precisely so that a loaded test machine does not starve it.
+        out = subprocess.run([*cli, "start", *bus], capture_output=True, text=True, timeout=20)
+        assert out.returncode == 0, out.stdout + out.stderr
+        stack.wait_status(lambda s: s.get("state") in ("ready", "teaching"), 5.0, "started")
+        out = subprocess.run([*cli, "stop", *bus], capture_output=True, text=True, timeout=20)
+        assert out.returncode == 0, out.stdout + out.stderr
         assert "state: stopped" in out.stdout, out.stdout
         out = subprocess.run([*cli, "fly", *bus], capture_output=True, text=True, timeout=20)
         assert out.returncode != 0
