@@ -127,7 +127,7 @@ class Fault:
     drag: dict[str, Any] = field(default_factory=dict)
     #: arms the fault on a running stack (None: scripted): looks up what it needs (a pid over
     #: the bus, the product's processes in /proc) and returns the trigger that injects it,
-    #: which returns a clean-up or None (:func:`_fire`)
+    #: which returns a clean-up or None (:data:`Trigger`, fired inside :func:`_injecting`)
     inject: Callable[[Stack], Trigger] | None = None
     #: the power is cut (stop category 0): the arm moves freely until the brakes engage
     power_cut: bool = False
