@@ -45,6 +45,7 @@ from threadpoolctl import threadpool_limits
 
 from control.identification import cylinders as cyl
 from control.identification import effects as fx
+from control.identification.chain import settle as settle_chain
 from control.identification.cutoff import CutoffChoice, candidates, choose_cutoff
 from control.identification.datafile import Measurements, read_measurements
 from control.identification.fit import (
@@ -903,8 +904,6 @@ def _analyze(
         base_fit, calibration = _settle_cylinders(ls, run, base_fit)
         fits[kind] = base_fit
         train, test = run.train, run.test
-    model_before, pred_before = _predict(reg, ctx_test, base_fit, urdf, meta)
-    model_before = replace(model_before, envelope=run.envelope)
     clock.lap("fit")
 
     accepted_a: list[fx.Accepted] = []
@@ -937,6 +936,24 @@ def _analyze(
         train_eval, accepted_a, delay_a, names = (
             state.evaluation, state.accepted, state.delay_s, state.names
         )  # fmt: skip
+    # the measurement chain, with the effects found all along (estimated before them, it took
+    # part of a spring or a delay); from here on the analysis is on the physical torque
+    base_fit, chain, train_eval = settle_chain(
+        ls, run, base_fit, names, options.search.alpha, clock.say
+    )
+    fits[kind] = base_fit
+    train, test = run.train, run.test
+    accepted_a = [
+        replace(a, coef=train_eval.solution.coef[a.term.key])
+        if a.term.key in train_eval.solution.coef
+        else a
+        for a in accepted_a
+    ]
+    model_before, pred_before = _predict(reg, ctx_test, base_fit, urdf, meta)
+    model_before = replace(
+        model_before, envelope=run.envelope, torque_gain=chain.gain,
+        torque_offset_nm=chain.offset_nm,
+    )  # fmt: skip
     clock.lap("effects")
 
     # The guard: never worse than plain least squares, the URDF's nominal rigid body with
@@ -961,7 +978,7 @@ def _analyze(
             clock.say(f"joint {j + 1}: {g.reason}")
     effects_a = _restricted(accepted_a, set(plain))
     model_a = model_from_solution(
-        reg, base_fit, train_eval.solution, effects_a, urdf, meta, run.envelope, plain
+        reg, base_fit, train_eval.solution, effects_a, urdf, meta, run.envelope, plain, chain
     )
     pred_a = model_a.torque_from_context(ctx_test)
     if delay_a:
@@ -1008,14 +1025,16 @@ def _analyze(
     effects_b = _restricted(accepted_b, set(plain))
     model = model_from_solution(
         reg, base_fit, train_eval.solution, [*effects_a, *effects_b], urdf, meta,
-        run.envelope, plain,
+        run.envelope, plain, chain,
     )  # fmt: skip
     scored = slice(split, test.n_samples) if accepted_b or switched else slice(0, test.n_samples)
     on = sliding_test[scored]
-    rms_before = masked_rms((test.tau - pred_before)[scored], on)
-    rms_after = masked_rms((test.tau - pred_after)[scored], on)
-    rms_plain = masked_rms((test.tau - pred_plain)[scored], on)
-    rms_after_all = rms((test.tau - pred_after)[scored])
+    # figures in the torque channel's units: a physical residual r reads k r (.chain)
+    k = chain.gain
+    rms_before = masked_rms(k * (test.tau - pred_before)[scored], on)
+    rms_after = masked_rms(k * (test.tau - pred_after)[scored], on)
+    rms_plain = masked_rms(k * (test.tau - pred_plain)[scored], on)
+    rms_after_all = rms(k * (test.tau - pred_after)[scored])
     # the same on the raw measured torque: each model's prediction for every row (.heldout)
     plain_model = replace(
         model_before,
@@ -1120,11 +1139,11 @@ def _analyze(
         },
         "relative_before": relative_error(test.tau[scored], pred_before[scored]).tolist(),
         "relative_after": relative_error(test.tau[scored], pred_after[scored]).tolist(),
-        "rms_train": train_eval.fit_rms.tolist(),
-        "rms_train_cv": train_eval.cv_rms.tolist(),
+        "rms_train": (k * train_eval.fit_rms).tolist(),
+        "rms_train_cv": (k * train_eval.cv_rms).tolist(),
         "rms_train_cv_plain_ls": [guard[j].cv_rms[PLAIN_LS] for j in range(reg.n)],
-        "rms_train_before": base_fit.evaluation.fit_rms.tolist(),
-        "rms_measured_test": rms(test.tau[scored]).tolist(),
+        "rms_train_before": (k * base_fit.evaluation.fit_rms).tolist(),
+        "rms_measured_test": rms(chain.to_measured(test.tau[scored])).tolist(),
         "noise_floor_nm": {"train": _floats(train.noise_nm), "test": _floats(test.noise_nm)},
         "raw_noise_std_nm": {
             "train": _floats(train.raw_noise_nm),
@@ -1140,7 +1159,8 @@ def _analyze(
             "rms_train": "training files, in-sample (for reference only)",
             "noise_floor_nm": "std of the measured noise left in the filtered torque",
             "target": "measured torque low-passed at the torque cutoff; every model's torque "
-            "through the same filter",
+            "through the same filter and the measurement chain (gain * tau + offset, "
+            "measurement_chain)",
             "effects": "case (A) fitted on the training files; case (B) chosen and fitted on "
             f"the first {split} test rows",
         },
@@ -1173,6 +1193,7 @@ def _analyze(
         "n_samples": {"train": train.n_samples, "test": test.n_samples},
         "rate_hz": train.rate_hz,
         "cylinders_removed": meta["cylinders_removed"],
+        "measurement_chain": chain.to_json(),
         "cylinders": None if calibration is None else calibration.to_json(),
         "files": {
             "urdf": urdf,

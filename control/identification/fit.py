@@ -32,8 +32,9 @@ kept where it lowers its joint's held-out error); the model file carries it as a
 diameter, which :meth:`IdentifiedModel.with_measured_cylinders` puts into a description.
 
 The model file (``model.json``, :data:`MODEL_FORMAT` version :data:`MODEL_VERSION`) holds the
-URDF (path, sha256 and text), the base-parameter mapping and values, friction per joint and
-the accepted effects; :class:`IdentifiedModel` loads and evaluates it, vectorised.
+URDF (path, sha256 and text), the base-parameter mapping and values, friction per joint, the
+accepted effects and the torque channel's gain and offset per joint (:mod:`.chain`);
+:class:`IdentifiedModel` loads and evaluates it, vectorised.
 """
 
 from __future__ import annotations
@@ -67,9 +68,10 @@ from control.robot.description import BAR_TO_PA, CylinderSpec, RobotDescription
 from gateway.errors import ConfigError, DataFileError
 
 MODEL_FORMAT = "leadthrough-model"
-MODEL_VERSION = 3
-#: Versions :meth:`IdentifiedModel.load` reads: 2 lacks the envelope and the plain joints.
-READABLE_VERSIONS = (2, 3)
+MODEL_VERSION = 4
+#: Versions :meth:`IdentifiedModel.load` reads: 2 lacks the envelope and the plain joints, 3
+#: the measurement chain (read as gain 1, offset 0).
+READABLE_VERSIONS = (2, 3, 4)
 #: Candidate transition velocities q_e [rad/s] of eqs. (16)-(17) for the grid search.
 Q_E_GRID_RAD_S = tuple(float(v) for v in np.geomspace(0.002, 0.2, 13))
 Q_E_SWEEPS = 2
@@ -381,6 +383,19 @@ class IdentifiedModel:
     effect is a property of the measurement chain: it is reported as :attr:`delay_s` and not
     applied by :meth:`torque_nm`; a ``thermal_drift`` effect needs ``t_s``.
 
+    The torque channel reads ``torque_gain · τ + torque_offset_nm`` per joint (the measurement
+    chain of :mod:`.chain`; None: gain 1, offset 0). :meth:`torque_nm` is the physical torque,
+    what a controller commands the joint to exert (through the drive's own torque constant,
+    whose error the gain is: a command in the drive's units is ``torque_gain · τ``);
+    :meth:`measured_torque_nm` (and :meth:`predict_measured`, ``leadthrough predict``) what
+    the torque channel reads, what a reading is compared with (external force, residuals).
+    In the control process (not yet switched): the feed-forward it commands (gravity and
+    friction of ``control/declared_model.py``, the point-model table of
+    ``control/rt_tables.py``, the mass matrix of ``control/process.py``) is the physical
+    torque, times the gain where the command is in the drive's units; what it compares with
+    the drive's reading (``control/model_adaptation.py``'s residual, the engagement probe's
+    residual in ``control/process.py``, ``control/load_check.py``) is the measured one.
+
     ``envelope`` bounds the friction and effect terms to the training range (see
     :mod:`.terms`); joints in ``plain_joints`` (0-based index → :class:`PlainJoint`) use their
     plain least-squares model instead of ``beta`` and the friction family, plus the effects
@@ -397,6 +412,8 @@ class IdentifiedModel:
     metadata: dict[str, Any] = field(default_factory=dict)
     envelope: Envelope | None = None
     plain_joints: dict[int, PlainJoint] = field(default_factory=dict)
+    torque_gain: np.ndarray | None = None
+    torque_offset_nm: np.ndarray | None = None
 
     @property
     def joint_names(self) -> tuple[str, ...]:
@@ -496,6 +513,24 @@ class IdentifiedModel:
         out = self.torque_from_context(self._context(q, dq, ddq, t))
         return out[0] if single else out
 
+    def measured(self, tau_nm: np.ndarray) -> np.ndarray:
+        """What the torque channel reads for physical torques ``tau_nm`` (..., n): the
+        measurement chain ``torque_gain · τ + torque_offset_nm``."""
+        out = np.asarray(tau_nm, dtype=float)
+        if self.torque_gain is not None:
+            out = out * self.torque_gain
+        return out if self.torque_offset_nm is None else out + self.torque_offset_nm
+
+    def measured_torque_nm(
+        self,
+        q_rad: np.ndarray,
+        dq_rad_s: np.ndarray,
+        ddq_rad_s2: np.ndarray,
+        t_s: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """:meth:`torque_nm` through the measurement chain (:meth:`measured`) [N·m]."""
+        return self.measured(self.torque_nm(q_rad, dq_rad_s, ddq_rad_s2, t_s))
+
     def torque_from_context(self, ctx: Context) -> np.ndarray:
         """:meth:`torque_nm` on a :class:`Context` whose regressor columns are computed (the
         analysis reuses its own); sets ``ctx.rigid`` and ``ctx.friction``. (T, n) [N·m]."""
@@ -530,10 +565,10 @@ class IdentifiedModel:
         """What the torque sensor/drive should read on ``data`` (T, n), on the same target as
         ``data.tau``: :meth:`torque_nm` at the sample times, through the torque's low-pass
         (:meth:`.preprocess.Prepared.lowpass`), delayed by :attr:`delay_s` when a time_delay
-        effect was accepted."""
+        effect was accepted; through the measurement chain (:meth:`measured`)."""
         ctx = self._context(data.q, data.dq, data.ddq, data.t)
         ctx.sample_hz, ctx.raw_hz = data.sample_hz, data.raw_hz
-        tau = data.lowpass(self.torque_from_context(ctx))
+        tau = self.measured(data.lowpass(self.torque_from_context(ctx)))
         return shift_signal(data.t, data.segment, tau, -self.delay_s) if self.delay_s else tau
 
     # -- file format -------------------------------------------------------------------------
@@ -583,9 +618,19 @@ class IdentifiedModel:
                 }
                 for j, pj in sorted(self.plain_joints.items())
             ],
+            "measurement_chain": {
+                "model": "the torque channel reads torque_gain * tau + torque_offset_nm",
+                "torque_gain": [float(v) for v in self._chain()[0]],
+                "torque_offset_nm": [float(v) for v in self._chain()[1]],
+            },
             "cylinders_removed_from_torque": bool(self.metadata.get("cylinders_removed", False)),
             "analysis": {k: v for k, v in self.metadata.items() if k not in ("urdf_xml",)},
         }
+
+    def _chain(self) -> tuple[np.ndarray, np.ndarray]:
+        gain = np.ones(self.n) if self.torque_gain is None else self.torque_gain
+        offset = np.zeros(self.n) if self.torque_offset_nm is None else self.torque_offset_nm
+        return gain, offset
 
     def save(self, path: str | Path) -> None:
         Path(path).write_text(json.dumps(self.to_json(), indent=1) + "\n")
@@ -675,9 +720,14 @@ class IdentifiedModel:
             if not 0 <= j < reg.n or pj.beta.shape != (base.n_base,) or pj.kind not in FALLBACKS:
                 raise DataFileError(f"{where}: plain joint {e['index']} malformed")
             plain[j] = pj
+        mc = doc.get("measurement_chain") or {}
+        gain = np.asarray(mc.get("torque_gain", np.ones(reg.n)), dtype=float)
+        offset = np.asarray(mc.get("torque_offset_nm", np.zeros(reg.n)), dtype=float)
+        if gain.shape != (reg.n,) or offset.shape != (reg.n,) or not np.all(gain > 0):
+            raise DataFileError(f"{where}: measurement_chain needs {reg.n} gains > 0 and offsets")
         return cls(
             reg, beta, kind, terms, coefs, effects, str(urdf.get("path", "")), meta,
-            None if env is None else Envelope.from_json(env), plain,
+            None if env is None else Envelope.from_json(env), plain, gain, offset,
         )  # fmt: skip
 
 
@@ -690,8 +740,10 @@ def model_from_solution(
     metadata: dict[str, Any],
     envelope: Envelope | None = None,
     plain_joints: dict[int, PlainJoint] | None = None,
+    chain: Any = None,
 ) -> IdentifiedModel:
-    """Assemble an :class:`IdentifiedModel` from a fit's solution and accepted effects."""
+    """Assemble an :class:`IdentifiedModel` from a fit's solution and accepted effects;
+    ``chain`` (a :class:`.chain.Chain`, or None) is its measurement chain."""
     return IdentifiedModel(
         regressor=reg,
         beta=np.asarray(solution.coef["rigid"], dtype=float),
@@ -703,4 +755,6 @@ def model_from_solution(
         metadata=dict(metadata),
         envelope=envelope,
         plain_joints=dict(plain_joints or {}),
+        torque_gain=None if chain is None else np.asarray(chain.gain, dtype=float),
+        torque_offset_nm=None if chain is None else np.asarray(chain.offset_nm, dtype=float),
     )

@@ -13,7 +13,8 @@ Per gap-free stretch of the file (:func:`.preprocess.gap_free_segments`):
 2. **Delay.** With a ``time_delay`` effect (torque lagging the kinematics by δ), row t is
    answered with the states at ``t - δ``; the rows of the first δ of a stretch, whose states
    were not recorded, are declined.
-3. **Torque.** :meth:`.fit.IdentifiedModel.torque_nm` at those states; with the cylinders'
+3. **Torque.** :meth:`.fit.IdentifiedModel.measured_torque_nm` at those states (the physical
+   torque through the torque channel's gain and offset, :mod:`.chain`); with the cylinders'
    torque taken out when the model was identified (pressure columns), the cylinders' torque
    (eqs. 10, 12, the identification's measured piston diameters, the pressure low-passed at the
    model's torque cutoff) is taken off again: the prediction is of what the torque channel
@@ -138,7 +139,7 @@ def predict_rows(
         rows = np.flatnonzero(ok) + a
         for c in range(0, rows.size, CHUNK_ROWS):
             r = slice(c, c + CHUNK_ROWS)
-            out[rows[r]] = model.torque_nm(q_f[r], dq_f[r], ddq_f[r], at[ok][r])
+            out[rows[r]] = model.measured_torque_nm(q_f[r], dq_f[r], ddq_f[r], at[ok][r])
         if desc_measured is not None:
             # the cylinders push at the time of the row itself: only the drive's torque lags
             q_now = q_f if not delay else _states(t, m.q[a:b], dq, cutoff, t)[0]

@@ -98,6 +98,19 @@ def render_markdown(summary: dict[str, Any]) -> str:
             f"{1000 * c['piston_diameter_m']:.4g} mm), {'kept' if c['kept'] else 'not kept'}: "
             f"{c['reason']}."
         )
+    mc = summary.get("measurement_chain")
+    if mc:
+        free = mc.get("gain_estimated", [])
+        lines.append(
+            "Measurement chain (the torque channel reads gain · τ + offset; gain estimated "
+            "where it lowered the joint's held-out error beyond noise, else 1): "
+            + ", ".join(
+                f"J{j + 1} gain {g:.4g}{'' if j < len(free) and free[j] else ' (held)'} "
+                f"offset {_fmt(b)} N·m"
+                for j, (g, b) in enumerate(zip(mc["gain"], mc["offset_nm"], strict=True))
+            )
+            + "."
+        )
     lines += [
         "",
         "## Held-out torque error per joint (test files)",

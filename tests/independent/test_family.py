@@ -216,6 +216,31 @@ def test_measured_channels_carry_the_drawn_noise(short_draws) -> None:
         assert np.all((dq_std >= 1e-4) & (dq_std <= 3e-3))
 
 
+def test_the_measurement_chain_is_applied_as_drawn_and_changes_nothing_else() -> None:
+    plain, chained = (
+        fam.draw(2, duration_scale=SHORT),
+        fam.draw(2, duration_scale=SHORT, chain=True),
+    )
+    mc = chained.truth["measurement_chain"]
+    assert mc["applied"] and not plain.truth["measurement_chain"]["applied"]
+    assert {k: v for k, v in mc.items() if k != "applied"} == fam.draw_chain(
+        2, np.array(plain.truth["peak_rigid_torque_nm"])
+    )
+    k, b = np.array(mc["gain"]), np.array(mc["offset_nm"])
+    peak = np.array(plain.truth["peak_rigid_torque_nm"])
+    assert np.all(np.abs(k - 1.0) <= fam.CHAIN_GAIN) and np.any(np.abs(k - 1.0) > 0.005)
+    assert np.all(np.abs(b) <= fam.CHAIN_OFFSET_FRACTION * peak) and np.any(b != 0.0)
+    assert chained.urdf == plain.urdf
+    for a, c in ((plain.train, chained.train), (plain.test, chained.test),
+                 (plain.holdout, chained.holdout)):  # fmt: skip
+        assert a is not None and c is not None
+        # the sensor reads k τ + b, then its own noise: the same noise samples as without
+        np.testing.assert_allclose(c.tau_clean, k * a.tau_clean + b, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(c.tau - c.tau_clean, a.tau - a.tau_clean, atol=1e-9)
+        for name in ("q", "dq", "tau_nominal", "tau_rigid", "friction"):
+            np.testing.assert_array_equal(getattr(c, name), getattr(a, name))
+
+
 def test_test_run_leaves_the_training_envelope_by_the_drawn_share(short_draws) -> None:
     for d in short_draws.values():
         rec = d.truth["outside_envelope"]

@@ -173,7 +173,7 @@ def test_model_evaluation_is_vectorised_and_consistent(cylinder_run):
 
 def test_model_file_is_versioned(cylinder_run, tmp_path):
     doc = json.loads((cylinder_run["out"] / "model.json").read_text())
-    assert doc["format"] == "leadthrough-model" and doc["version"] == 3
+    assert doc["format"] == "leadthrough-model" and doc["version"] == 4
     assert len(doc["base_parameters"]["columns"]) == len(doc["base_parameters"]["values"]) == 40
     assert doc["friction"]["model"] == "eq15" and len(doc["friction"]["joints"]) == 6
     doc["version"] = 1
@@ -184,6 +184,29 @@ def test_model_file_is_versioned(cylinder_run, tmp_path):
     (tmp_path / "junk.json").write_text("{")
     with pytest.raises(DataFileError, match=r"junk\.json"):
         IdentifiedModel.load(tmp_path / "junk.json")
+
+
+def test_the_model_file_carries_the_measurement_chain_and_older_files_read_as_none(
+    cylinder_run, tmp_path
+):
+    doc = json.loads((cylinder_run["out"] / "model.json").read_text())
+    mc = doc["measurement_chain"]
+    assert len(mc["torque_gain"]) == len(mc["torque_offset_nm"]) == 6
+    model = IdentifiedModel.load(cylinder_run["out"] / "model.json")
+    q, dq, ddq = np.full(6, 0.3), np.full(6, 0.1), np.zeros(6)
+    physical = model.torque_nm(q, dq, ddq)
+    want = np.asarray(mc["torque_gain"]) * physical + np.asarray(mc["torque_offset_nm"])
+    np.testing.assert_allclose(model.measured_torque_nm(q, dq, ddq), want, rtol=1e-12)
+    old = {k: v for k, v in doc.items() if k != "measurement_chain"}
+    old["version"] = 3
+    (tmp_path / "v3.json").write_text(json.dumps(old))
+    v3 = IdentifiedModel.load(tmp_path / "v3.json")
+    np.testing.assert_allclose(v3.measured_torque_nm(q, dq, ddq), physical, rtol=1e-12)
+    np.testing.assert_allclose(v3.torque_nm(q, dq, ddq), physical, rtol=1e-12)
+    doc["measurement_chain"]["torque_gain"][0] = 0.0
+    (tmp_path / "bad.json").write_text(json.dumps(doc))
+    with pytest.raises(DataFileError, match="measurement_chain"):
+        IdentifiedModel.load(tmp_path / "bad.json")
 
 
 def test_pressures_need_matching_urdf_joints(cylinder_run, tmp_path):
