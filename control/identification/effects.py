@@ -86,7 +86,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from functools import partial
 from operator import methodcaller
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from scipy.optimize import minimize_scalar
@@ -737,27 +737,40 @@ class TestSearch:
     refused: list[dict[str, Any]] = field(default_factory=list)
 
 
-def forward_gain(
+class ForwardSSE(NamedTuple):
+    """Per joint (n,) on the scored rows of the second half (:func:`forward_sse`): the sum of
+    squares ``before`` (without the candidate) and ``after`` (with it) [N²·m²], and ``rows``
+    the rows scored."""
+
+    before: np.ndarray
+    after: np.ndarray
+    rows: np.ndarray
+
+
+#: A candidate's columns, or what builds them from the prediction (T, n) of the groups fitted
+#: on the first half (a Gauss-Newton column: built from that fit, it carries nothing of the
+#: second half).
+Columns = dict[int, np.ndarray] | Callable[[np.ndarray], dict[int, np.ndarray]]
+
+
+def forward_sse(
     ls: BlockLS,
     names: Sequence[str],
     weights: np.ndarray,
     key: str,
-    cols: dict[int, np.ndarray] | None,
+    cols: Columns | None,
     y_after: np.ndarray | None = None,
     scored: np.ndarray | None = None,
-    rms_after: np.ndarray | None = None,
-) -> np.ndarray:
-    """Rules (iv)/(v) of case (B): the relative RMS gain per joint (n,) on the second half of
-    ``ls``'s rows (those of them where ``scored`` (T,) is true, when given) when the groups
-    ``names`` plus the candidate are fitted on the first half; ``rms_after`` (n,), when
-    given, receives the RMS left there with the candidate.
+) -> ForwardSSE:
+    """The hold-out of rules (iv)/(v): the groups ``names`` of ``ls`` (their priors too) fitted
+    on the first half of its rows without and with the candidate, each scored on the second
+    half (on those of its rows where ``scored`` (T,) is true, when given).
 
     The candidate is a group ``key`` with columns ``cols``, or (a delay) targets ``y_after``.
-    An effect that appeared between training and test is fitted on the start of the test run
-    and then used on what follows: it has to predict forward in time, which K-fold
-    interpolation between neighbouring blocks does not test (a slow drift there fits any
-    smooth mismatch of the training model on the test trajectory).
-    """
+    What is fitted on the start of a run and then used on what follows has to predict forward
+    in time, which K-fold interpolation between neighbouring blocks does not test (a slow
+    drift there fits any smooth mismatch of a model). Used by case (B) (:func:`forward_gain`)
+    and by the measurement chain's gains (:mod:`.chain`)."""
     halves = BlockLS(ls.y, contiguous_folds(ls.n_rows, 2), ls.mask)
     second = halves.folds[1]
     keep = np.ones((ls.n_rows, ls.n)) if ls.mask is None else ls.mask
@@ -771,17 +784,43 @@ def forward_gain(
 
     for name in names:
         halves.add(name, ls.cols[name])
-    before = second_sse(halves.solve(list(names), weights, exclude_fold=1))
+        if name in ls.priors:
+            halves.priors[name] = ls.priors[name]
+    first_fit = halves.solve(list(names), weights, exclude_fold=1)
+    before = second_sse(first_fit)
     after_names = list(names)
     if y_after is not None:
         halves.set_y(y_after)
     if cols is not None:
-        halves.add(key, cols)
+        halves.add(key, cols(halves.predict(first_fit)) if callable(cols) else cols)
         after_names.append(key)
     after = second_sse(halves.solve(after_names, weights, exclude_fold=1))
+    return ForwardSSE(before, after, keep.sum(axis=0))
+
+
+def forward_gain(
+    ls: BlockLS,
+    names: Sequence[str],
+    weights: np.ndarray,
+    key: str,
+    cols: Columns | None,
+    y_after: np.ndarray | None = None,
+    scored: np.ndarray | None = None,
+    rms_after: np.ndarray | None = None,
+) -> np.ndarray:
+    """Rules (iv)/(v) of case (B): the relative RMS gain per joint (n,) on the second half of
+    ``ls``'s rows (those of them where ``scored`` (T,) is true, when given) when the groups
+    ``names`` plus the candidate are fitted on the first half (:func:`forward_sse`);
+    ``rms_after`` (n,), when given, receives the RMS left there with the candidate.
+
+    An effect that appeared between training and test is fitted on the start of the test run
+    and then used on what follows: it has to predict forward in time (a slow drift fits any
+    smooth mismatch of the training model on the test trajectory between K-fold blocks)."""
+    sse = forward_sse(ls, names, weights, key, cols, y_after, scored)
+    after = np.maximum(sse.after, 0.0)
     if rms_after is not None:
-        rms_after[:] = np.sqrt(np.maximum(after, 0.0) / np.maximum(keep.sum(axis=0), 1.0))
-    return 1.0 - np.sqrt(np.maximum(after, 0.0) / np.maximum(before, 1e-300))
+        rms_after[:] = np.sqrt(after / np.maximum(sse.rows, 1.0))
+    return 1.0 - np.sqrt(after / np.maximum(sse.before, 1e-300))
 
 
 def _rows(cols: dict[int, np.ndarray], rows: slice) -> dict[int, np.ndarray]:
