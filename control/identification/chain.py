@@ -164,14 +164,15 @@ class _Fit:
             for j in gains:
                 self.ls.remove(_gain_key(j))
 
-    def forward_drop(self, j: int) -> float:
-        """Joint j's drop [N²·m² measured] of the sum of squares on the second half of the
-        rows when its gain is fitted too, everything fitted on the first half (rule (iv) of
-        :mod:`.effects`, :func:`.effects.forward_sse`); the gain's column is the first half's
-        own prediction, so nothing of the second half is in it."""
+    def forward_drop(self, j: int, first: np.ndarray | None) -> float:
+        """Joint j's drop [N²·m² measured] of the sum of squares on the rows not in ``first``
+        (T,) when its gain is fitted too, everything fitted on the rows in ``first`` (None:
+        the first half of the rows); rule (iv) of :mod:`.effects`, with its
+        :func:`.effects.forward_sse`. The gain's column is the prediction of that fit, so
+        nothing of the rows scored is in it."""
         sse = forward_sse(
             self.ls, self.names, self.w * self.k, _gain_key(j),
-            lambda first_half: {j: first_half[:, j : j + 1]},
+            lambda fitted: {j: fitted[:, j : j + 1]}, first=first,
         )  # fmt: skip
         return float(sse.before[j] - sse.after[j]) * float(self.k[j]) ** 2
 
@@ -219,6 +220,7 @@ def estimate(
     alpha: float,
     dropped_offset: Any = None,
     say: Callable[[str], None] = _quiet,
+    first: np.ndarray | None = None,
 ) -> Chain:
     """The measurement chain of the targets of ``ls`` (module docstring), fitting groups
     ``names`` with row ``weights``; ``offsets`` maps a joint to the group and column index of
@@ -226,7 +228,9 @@ def estimate(
     and ``alpha`` set the test that frees a joint's gain, and the one that keeps the offset of
     each joint ``j`` where ``dropped_offset(j)`` (None: none tested; a tested offset is a group
     of its own, one column, left out when refused). ``say`` hears why a gain that beat noise
-    on the held-out folds was kept at 1. ``ls`` gets its measured targets back."""
+    on the held-out folds was kept at 1. ``first`` (T,) the rows a gain is fitted on to be
+    scored on the others (:func:`leading_halves`; None: the first half of the rows). ``ls``
+    gets its measured targets back."""
     names = list(names)
     offsets = dict(offsets)
     y_meas = ls.y.copy()
@@ -245,15 +249,18 @@ def estimate(
             own = {j: (current[j] - fit.cv_sse([j])[j]) / noise.dof_nm2[j] for j in tried}
             best = None
             for j in sorted((j for j in tried if own[j] >= threshold), key=lambda j: -own[j]):
-                ahead = fit.forward_drop(j) / noise.dof_nm2[j]
-                if ahead >= threshold:
+                ahead = fit.forward_drop(j, first) / noise.dof_nm2[j]
+                held = ahead >= threshold
+                say(
+                    f"measurement chain: gain of joint {j + 1} "
+                    f"{'freed' if held else 'kept at 1'}: its held-out drop {own[j]:.1f} noise "
+                    f"dof (threshold {threshold:.1f}) {'holds' if held else 'does not hold'} "
+                    f"forward (fitted on the first half of each recording, {ahead:.3g} on the "
+                    "second)"
+                )
+                if held:
                     best = j
                     break
-                say(
-                    f"measurement chain: gain of joint {j + 1} kept at 1: its held-out drop "
-                    f"{own[j]:.1f} noise dof (threshold {threshold:.1f}) does not hold forward "
-                    f"(fitted on the first half of the rows, {ahead:.1f} on the second)"
-                )
             if best is None:
                 break
             free.append(best)
@@ -281,6 +288,19 @@ def estimate(
         ls.set_y(y_meas)
 
 
+def leading_halves(segment: np.ndarray) -> np.ndarray:
+    """(T,) true on the first half of every segment (recording) of ids ``segment`` (T,): what
+    a gain is fitted on before it is scored on the rest. Training files are different motions
+    in turn (each joint's friction sweeps, then multi-sines): fitted on the first half of the
+    rows, a model has seen no multi-sine and extrapolates by orders of magnitude."""
+    segment = np.asarray(segment)
+    first = np.zeros(segment.size, dtype=bool)
+    for s in np.unique(segment):
+        rows = np.flatnonzero(segment == s)
+        first[rows[: rows.size // 2]] = True
+    return first
+
+
 def _offset_key(j: int) -> str:
     """Group of joint j's constant column while the chain is estimated."""
     return f"chain-offset:{j}"
@@ -306,7 +326,7 @@ def settle(
     try:
         chain = estimate(
             ls, [*names, *added], fit.weights, offsets, NoiseFloor.of(run.train), alpha,
-            lambda j: offsets[j][0] in added, say,
+            lambda j: offsets[j][0] in added, say, leading_halves(run.train.segment),
         )  # fmt: skip
     finally:
         for key in added:

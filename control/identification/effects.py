@@ -761,17 +761,24 @@ def forward_sse(
     cols: Columns | None,
     y_after: np.ndarray | None = None,
     scored: np.ndarray | None = None,
+    first: np.ndarray | None = None,
 ) -> ForwardSSE:
     """The hold-out of rules (iv)/(v): the groups ``names`` of ``ls`` (their priors too) fitted
     on the first half of its rows without and with the candidate, each scored on the second
-    half (on those of its rows where ``scored`` (T,) is true, when given).
+    half (on those of its rows where ``scored`` (T,) is true, when given). ``first`` (T,),
+    when given, are the rows fitted on instead, the others the rows scored (the first half of
+    every recording, when the rows are several recordings of different motions in turn).
 
     The candidate is a group ``key`` with columns ``cols``, or (a delay) targets ``y_after``.
     What is fitted on the start of a run and then used on what follows has to predict forward
     in time, which K-fold interpolation between neighbouring blocks does not test (a slow
     drift there fits any smooth mismatch of a model). Used by case (B) (:func:`forward_gain`)
     and by the measurement chain's gains (:mod:`.chain`)."""
-    halves = BlockLS(ls.y, contiguous_folds(ls.n_rows, 2), ls.mask)
+    if first is None:
+        folds: list[Any] = contiguous_folds(ls.n_rows, 2)
+    else:
+        folds = [np.flatnonzero(first), np.flatnonzero(~np.asarray(first, dtype=bool))]
+    halves = BlockLS(ls.y, folds, ls.mask)
     second = halves.folds[1]
     keep = np.ones((ls.n_rows, ls.n)) if ls.mask is None else ls.mask
     if scored is not None:
@@ -779,7 +786,7 @@ def forward_sse(
     keep = keep[second]
 
     def second_sse(sol: Solution) -> np.ndarray:
-        r = halves.y[second] - halves.predict(sol, second)
+        r = halves.y[second] - halves.predict(sol)[second]
         return np.sum(r * r * keep, axis=0)
 
     for name in names:

@@ -103,7 +103,8 @@ def render_markdown(summary: dict[str, Any]) -> str:
         free = mc.get("gain_estimated", [])
         lines.append(
             "Measurement chain (the torque channel reads gain · τ + offset; gain estimated "
-            "where it lowered the joint's held-out error beyond noise, else 1): "
+            "where it lowered the joint's own held-out error beyond noise, also fitted on "
+            "the first half of the training rows and scored on the second, else 1): "
             + ", ".join(
                 f"J{j + 1} gain {g:.4g}{'' if j < len(free) and free[j] else ' (held)'} "
                 f"offset {_fmt(b)} N·m"

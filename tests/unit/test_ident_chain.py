@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from control.identification.chain import estimate
+from control.identification.chain import estimate, leading_halves
 from control.identification.effects import NoiseFloor
 from control.identification.lsq import BlockLS, contiguous_folds
 
@@ -120,3 +120,11 @@ def test_a_gain_that_does_not_hold_forward_in_time_stays_one() -> None:
     assert any(
         "gain of joint 2 kept at 1" in line and "does not hold forward" in line for line in said
     )
+
+
+def test_a_gain_is_scored_on_the_second_half_of_every_recording() -> None:
+    """Training files are different motions in turn: the forward test fits on the first half
+    of each (friction sweeps and multi-sines alike) and scores on the rest of each."""
+    segment = np.array([0, 0, 0, 0, 1, 1, 1, 2, 2, 2, 2, 2])
+    first = leading_halves(segment)
+    np.testing.assert_array_equal(first, [1, 1, 0, 0, 1, 0, 0, 1, 1, 0, 0, 0])
