@@ -55,17 +55,24 @@ errors left in it may still take a false one: that is the price of this order.
       falls by the same χ²_1 quantile × noise_dof_j. Otherwise the gain stays 1.
 
   Among the joints that pass (a), the largest drop is tried first; the first that passes (b)
-  is freed. Why not more: the rule before summed the drops over all joints, and on the
-  virtual cell (a plant with no gain error at all, but stiction and other structure the
-  declared model lacks) it freed J2 at 1.001 and J4 at 0.986 in one commissioning, J1 at
-  1.016 in another. J4's own held-out RMS went 0.12098 → 0.12099 N·m: its gain was freed
+  is freed. The rule before summed the drops over all joints; on the virtual cell's nominal
+  plant (plant seed 0: torque constants as the datasheet's, so no gain error, but stiction,
+  cylinders and other structure the declared model lacks) it freed J2 at 1.001 and J4 at
+  0.986 in one commissioning (0.9999, 0.9996 and 0.9911 on J2-J4 re-analysing another
+  recording of it), and J4's own held-out RMS went 0.12098 → 0.12099 N·m: its gain was freed
   only because a free gain on J4 let the shared rigid parameters follow structure on the
   other joints. A gain is a property of one joint's torque channel; a drop elsewhere is a
   model mismatch moving through β (test_ident_chain.py: a joint that alone sets a parameter
   is not freed when another joint's row wants a different value of it). And K-fold
   interpolation between neighbouring blocks lets a gain column split the difference of
   anything that scales with the joint's torque in part of the run; a datasheet constant's
-  error holds all run long, so a gain fitted on the first half must predict the second.
+  error holds all run long, so a gain fitted on the start of a recording must predict its
+  rest (of *each* recording, :func:`leading_halves`: the training files are each joint's
+  friction sweeps and then multi-sines, and a model fitted on the first half of the rows has
+  seen no multi-sine). The virtual cell's other plant seeds draw each drive's torque constant
+  within ±7 % (``sim_bridge/truth.py``), which the product reads through the datasheet's: a
+  real gain per joint, found there on the joints whose rigid row ties them (the J1 at 1.016
+  of the other commissioning matches plant seed 1's J1, 1 / 0.9839).
 - *which offsets*: within a training range of a radian or so the constant is nearly a
   combination of the joint's gravity columns (``cos q`` barely changes), so a fitted offset
   can trade with the link's mass moments there and the two then extrapolate apart outside it
