@@ -720,15 +720,42 @@ class IdentifiedModel:
             if not 0 <= j < reg.n or pj.beta.shape != (base.n_base,) or pj.kind not in FALLBACKS:
                 raise DataFileError(f"{where}: plain joint {e['index']} malformed")
             plain[j] = pj
-        mc = doc.get("measurement_chain") or {}
-        gain = np.asarray(mc.get("torque_gain", np.ones(reg.n)), dtype=float)
-        offset = np.asarray(mc.get("torque_offset_nm", np.zeros(reg.n)), dtype=float)
-        if gain.shape != (reg.n,) or offset.shape != (reg.n,) or not np.all(gain > 0):
-            raise DataFileError(f"{where}: measurement_chain needs {reg.n} gains > 0 and offsets")
+        gain, offset = _chain_from_json(doc.get("measurement_chain") or {}, reg, where)
         return cls(
             reg, beta, kind, terms, coefs, effects, str(urdf.get("path", "")), meta,
             None if env is None else Envelope.from_json(env), plain, gain, offset,
         )  # fmt: skip
+
+
+def _chain_from_json(
+    mc: dict[str, Any], reg: RobotRegressor, where: str
+) -> tuple[np.ndarray, np.ndarray]:
+    """The ``measurement_chain`` of a model file: ``torque_gain`` (n,) and ``torque_offset_nm``
+    (n,) [N·m] (absent, version 3: gain 1, offset 0). A gain must be finite and positive and an
+    offset finite: the channel's reading is divided by the gain and has the offset taken off,
+    and a NaN there would pass every later comparison silently."""
+    fields = {"torque_gain": np.ones(reg.n), "torque_offset_nm": np.zeros(reg.n)}
+    out = []
+    for name, default in fields.items():
+        try:
+            values = np.asarray(mc.get(name, default), dtype=float)
+        except (TypeError, ValueError):
+            raise DataFileError(
+                f"{where}: measurement_chain.{name} is {mc.get(name)!r}, not {reg.n} numbers"
+            ) from None
+        if values.shape != (reg.n,):
+            raise DataFileError(
+                f"{where}: measurement_chain.{name} has shape {values.shape}, not ({reg.n},)"
+            )
+        for j, v in enumerate(values):
+            if not np.isfinite(v) or (name == "torque_gain" and v <= 0.0):
+                need = "finite and > 0" if name == "torque_gain" else "finite"
+                raise DataFileError(
+                    f"{where}: measurement_chain.{name} of joint {j + 1} "
+                    f"({reg.joint_names[j]}) is {float(v)}; it must be {need}"
+                )
+        out.append(values)
+    return out[0], out[1]
 
 
 def model_from_solution(

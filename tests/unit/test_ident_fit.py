@@ -209,6 +209,34 @@ def test_the_model_file_carries_the_measurement_chain_and_older_files_read_as_no
         IdentifiedModel.load(tmp_path / "bad.json")
 
 
+@pytest.mark.parametrize(
+    ("field", "joint", "value", "why"),
+    [
+        ("torque_gain", 2, float("nan"), "finite and > 0"),
+        ("torque_gain", 3, float("inf"), "finite and > 0"),
+        ("torque_gain", 1, -1.0, "finite and > 0"),
+        ("torque_gain", 6, 0.0, "finite and > 0"),
+        ("torque_offset_nm", 4, float("nan"), "finite"),
+        ("torque_offset_nm", 5, float("-inf"), "finite"),
+    ],
+)
+def test_a_model_file_with_a_non_finite_or_non_positive_chain_is_refused_naming_it(
+    cylinder_run, tmp_path, field, joint, value, why
+):
+    """The channel's reading is divided by the gain and has the offset taken off: a NaN, an
+    infinity or a gain <= 0 would make every torque after it meaningless, silently."""
+    doc = json.loads((cylinder_run["out"] / "model.json").read_text())
+    doc["measurement_chain"][field][joint - 1] = value
+    path = tmp_path / "bad.json"
+    path.write_text(json.dumps(doc))  # NaN and Infinity as json writes (and reads) them
+    name = doc["joints"][joint - 1]
+    with pytest.raises(DataFileError) as err:
+        IdentifiedModel.load(path)
+    msg = str(err.value)
+    assert f"measurement_chain.{field} of joint {joint} ({name})" in msg
+    assert f"must be {why}" in msg and str(path) in msg
+
+
 def test_pressures_need_matching_urdf_joints(cylinder_run, tmp_path):
     """Pressure columns with a URDF that has no joint j2/j3 of the description: clear error."""
     urdf = tmp_path / "panda.urdf"
