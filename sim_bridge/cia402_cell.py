@@ -32,7 +32,7 @@ import numpy as np
 from gateway.messages import ControllerState
 from sim_bridge.cia402_drives import AxisParameters, Cia402DriveSet, DriveLimits
 from sim_bridge.config import SimConfig
-from sim_bridge.sim import LOG_FLUSH_CYCLES, VirtualCell
+from sim_bridge.sim import LOG_FLUSH_CYCLES, VirtualCell, reference_at
 
 #: the motor encoder the drives report when the plant's is exact ([sensors] encoder_bits 0)
 NOMINAL_ENCODER_BITS = 20
@@ -105,8 +105,10 @@ class Cia402Cell(VirtualCell):
         drives.estop = self.estop_open
         drives.begin_cycle(plant.t_s, plant.q_rad, time.monotonic())
         teaching = drives.following
+        reference = drives.reference(plant.t_s)
+        q_ref = reference_at(reference, plant.t_s, self.n)  # as the servo cycle begins
         p_meas, enabling, q_m, dq_m, i_m = self._advance_plant(
-            teaching, drives.servo_on, drives.reference(plant.t_s), drives.power_cut
+            teaching, drives.servo_on, reference, drives.power_cut
         )
         drives.sample(q_m, dq_m, i_m)
         latencies = drives.take_latencies()
@@ -114,7 +116,7 @@ class Cia402Cell(VirtualCell):
         self.teaching_cycles = drives.stats.following_syncs
         self.teaching_missed = drives.stats.missed_cycles
         if self._log:
-            self._log_row(teaching, enabling, q_m, dq_m, i_m, p_meas, latencies)
+            self._log_row(teaching, enabling, q_m, dq_m, i_m, p_meas, latencies, q_ref)
 
     def _log_row(
         self,
@@ -125,8 +127,10 @@ class Cia402Cell(VirtualCell):
         i_m: np.ndarray,
         p_meas: np.ndarray,
         latencies: list[float],
+        q_ref: np.ndarray,
     ) -> None:
-        """One truth-log row, the LTC cell's columns (``latency_s``: the cycle's last)."""
+        """One truth-log row, the LTC cell's columns (``latency_s``: the cycle's last,
+        ``q_ref``: the drives' reference as the servo cycle began)."""
         assert self._log is not None
         plant = self.plant
         values = np.concatenate(
@@ -140,7 +144,7 @@ class Cia402Cell(VirtualCell):
         self._log.write(
             self._row_format
             % (plant.t_s, time.monotonic(), self.ctrl.stats.syncs & 0xFFFF, state, int(teaching),
-               int(enabling), *values, latency)
+               int(enabling), *values, latency, *q_ref.tolist())
         )  # fmt: skip
         if self.ctrl.cycle % LOG_FLUSH_CYCLES == 0:
             self._log.flush()

@@ -100,7 +100,23 @@ def truth_log_columns(n: int) -> list[str]:
         cols += [f"{name}{j + 1}" for j in range(n)]
     cols += ["tool_x", "tool_y", "tool_z", "f_x", "f_y", "f_z", "p2", "p3"]
     cols += ["p2_set", "p3_set", "latency_s"]  # the valves' set-points as received [bar]
+    # the position each joint's servo is set to as the row's cycle begins [rad]: the host's
+    # command as the controller applies it (NaN with the servo off); at the first row of a
+    # command cycle, exactly the position the host sent (within a CiA 402 SYNC the drives'
+    # extrapolation of it). What the host sent, not what it says it sent.
+    cols += [f"q_ref{j + 1}" for j in range(n)]
     return cols
+
+
+def reference_at(
+    reference: tuple[np.ndarray, np.ndarray, float] | None, now_s: float, n: int
+) -> np.ndarray:
+    """The truth log's ``q_ref`` [rad]: a servo reference ``(q_r, dq_r, t_r)`` extrapolated to
+    ``now_s`` as the inner loop follows it; NaN with no reference (servo off)."""
+    if reference is None:
+        return np.full(n, np.nan)
+    q_r, dq_r, t_r = reference
+    return q_r + dq_r * (now_s - t_r)
 
 
 class VirtualCell:
@@ -286,6 +302,7 @@ class VirtualCell:
         ctrl.begin_cycle(plant.t_s, plant.q_rad, time.monotonic())
         teaching = ctrl.state == ControllerState.EXTERNAL and not ctrl.ref_is_hold
         reference = (ctrl.q_ref, ctrl.dq_ref, ctrl.t_ref) if ctrl.servo_on else None
+        q_ref = reference_at(reference, plant.t_s, self.n)  # as the cycle begins
         p_meas, enabling, q_m, dq_m, i_m = self._advance_plant(
             teaching, ctrl.servo_on, reference, ctrl.power_cut
         )
@@ -322,6 +339,7 @@ class VirtualCell:
                     int(enabling),
                     *values,
                     latency,
+                    *q_ref.tolist(),
                 )
             )
             if ctrl.cycle % LOG_FLUSH_CYCLES == 0:

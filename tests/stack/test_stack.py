@@ -125,8 +125,13 @@ def test_the_can_drivers_speed_monitor_stops_an_arm_the_law_lets_run(tmp_path):
     assert moved < 1e-3, f"the tool moved {moved * 1e3:.1f} mm in the last 0.5 s"
 
 
+#: the command cycle of both virtual controllers [s]: the LTC controller's cycle and the CiA 402
+#: host's SYNC period (deploy/config/sim_cell*.toml)
+COMMAND_PERIOD_S = 0.008
+
 STOP_REPORT = (
-    "{event} at {speed_m_s:.3f} m/s: stopped in {stop_s:.3f} s over {distance_m:.4f} m, peak "
+    "{event} at {speed_m_s:.3f} m/s, the hand at {hand_n:.1f} N: a joint's command braked at "
+    "up to {ref_decel_rad_s2:.3f} rad/s², stopped in {stop_s:.3f} s over {distance_m:.4f} m, peak "
     "deceleration {peak_decel_m_s2:.2f} m/s² (a joint's {joint_decel_rad_s2:.2f} rad/s²), went "
     "back {back_m:.4f} m, moved {tail_m:.5f} m in the last 0.5 s, {state}"
 )
@@ -140,7 +145,9 @@ def stop_while_dragging(tmp_path, event: str = "release", cell_overrides=None) -
     and distance [m], the largest deceleration on the way [m/s²] (over 5 truth rows), how far
     it went back towards where the stop began [m], how far it moved in the last 0.5 s [m],
     and the lifecycle state and reason after 1.5 s; also the largest change of a joint's speed
-    over the same windows [rad/s²] (true positions, 40 ms windows as the tool's)."""
+    over the same windows [rad/s²] (true positions, 40 ms windows as the tool's), the fastest
+    fall of a joint's commanded speed after the release [rad/s²] (the positions the virtual
+    controller received) and the hand's force just before the release [N]."""
     operator = {"mode": "path", "path": [[0.0, 0, 0, 0], [0.5, 0, 0, 0], [4.5, 0.6, 0, 0]],
                 "hand_stiffness_n_per_m": 1500.0, "hand_damping_n_s_per_m": 100.0,
                 "max_force_n": 80.0,  # enough to break J2 and J3 away from their stiction
@@ -184,8 +191,27 @@ def stop_while_dragging(tmp_path, event: str = "release", cell_overrides=None) -
     q = np.stack([truth[f"q{j + 1}"][rows] for j in range(n)], axis=1)
     dq = (q[span:] - q[:-span]) / (t[rows[span:]] - t[rows[:-span]])[:, None]
     joint_decel = np.abs(np.diff(dq, axis=0)) / np.diff(mid_t)[:, None]
+    # What the servo was told from the release on: the truth log's q_ref at the first row of
+    # each command cycle, the position the host sent for it (NaN once the servo is off, after
+    # an e-stop), on the host's time base (cycles × the period: the CiA 402 drives' rows are
+    # 2 ms servo cycles a SYNC arrives among with the host's wall-clock jitter). Speeds over
+    # five command cycles (40 ms), as the tool's.
+    released = rows[pre:]
+    cycle = truth["cycle"][released].astype(np.int64)
+    first = np.flatnonzero(np.r_[True, np.diff(cycle) != 0])
+    t_set = np.r_[0, np.cumsum(np.diff(cycle[first]) % 0x10000)] * COMMAND_PERIOD_S
+    q_set = np.stack([truth[f"q_ref{j + 1}"][released[first]] for j in range(n)], axis=1)
+    w = 5
+    dq_set = (q_set[w:] - q_set[:-w]) / (t_set[w:] - t_set[:-w])[:, None]
+    mid_set = 0.5 * (t_set[w:] + t_set[:-w])
+    # braking only: how fast a joint's commanded speed falls (at the release the law's last
+    # commands may speed a joint up, e.g. the wrist as the hand lets go, before the ramp)
+    ref_decel = -np.diff(np.abs(dq_set), axis=0) / np.diff(mid_set)[:, None]
+    hand = np.linalg.norm(np.stack([truth[f"f_{a}"] for a in "xyz"], axis=1), axis=1)
     return {
         "joint_decel_rad_s2": float(joint_decel[pre - span : pre + stop + 1].max()),
+        "ref_decel_rad_s2": float(np.nanmax(ref_decel)) if np.isfinite(ref_decel).any() else 0.0,
+        "hand_n": float(hand[k0 - 1]),
         "event": "enabling released" if event == "release" else "e-stop",
         "speed_m_s": float(speed[pre - ten : pre].mean()),
         "stop_s": float(t[rows[pre + stop]] - t[k0]),
@@ -205,25 +231,35 @@ def test_releasing_the_enabling_device_ramps_the_arm_to_a_held_standstill(tmp_pa
     per joint) along its path, then holds; the monitored standstill does not trip, the cell
     stays READY.
 
-    The ramp is per joint, so it is checked on the joints' true speeds: their largest change
-    over 40 ms windows stays under 1.5 × 2 rad/s². Above the ramp's 2, the arm springs back by
-    the deflection the hand's 80 N held against the inner loop (seven runs on this machine:
-    2.17-2.65 rad/s², both profiles); a hold at once (stop_deceleration_rad_s2 = 1000, what the
-    driver did before) braked the joints at 7.96 rad/s² (LTC) and 8.45 (CiA 402) and fails it.
-    The tool's deceleration is reported, not bounded: a joint ramp at 2 rad/s² is 1.5-3.7 m/s²
-    at the tool depending on the lever of the pose (4.29 m/s² held at once).
+    The ramp is checked where it is made: on the positions the virtual controller received,
+    one per command cycle from the release on (the truth log's q_ref), on the host's time base.
+    The fastest fall of a joint's commanded speed (over 40 ms windows) stays within 2 % of the
+    2 rad/s²: sampled at the command instants, a ramp's positions give its rate exactly (2.00
+    in a run of each profile), and 2 % covers the CiA 402 targets' increments (a fraction of a
+    µrad). A rise is not braking: under one loaded core the law's last commands before the
+    ramp once stepped the wrist from 0 to 0.10 rad/s as the hand let go (2.05 rad/s² on this
+    measure counted both ways; the law's business, issue 47). A hold at once
+    (stop_deceleration_rad_s2 = 1000) read 5.61 rad/s² (LTC) and 5.88 (CiA 402), released at
+    0.17 m/s, the speed's step spread over one 40 ms window; a command late during the ramp
+    freezes the reference for a cycle and fails it too.
+
+    The arm's own deceleration is reported, not bounded. On top of the ramp the arm springs
+    back by the deflection the hand held against the inner loop, a response of the plant to
+    the hand letting go that any stop shows: 2.17-2.65 rad/s² on a joint in seven runs with
+    the hand at about 35 N, 3.30 rad/s² once with it at its 80 N limit (one loaded core), and
+    7.96 (LTC) / 8.45 (CiA 402) rad/s² with a hold at once (stop_deceleration_rad_s2 = 1000).
 
     What comes back after the stop is that same deflection: the arm settles onto the ramped
     command once the hand lets go (0.4-1.5 mm in seven runs; 1.6-1.9 mm held at once, where all
-    of it comes back). It does not tell the ramp from a hold (the deceleration does); bounded
-    at 2.5 mm, it catches a stop that pulls the arm back past where the hand had it (a hold
-    latched on a stale position). (The 60 N hand once left the arm at 0.054 m/s at the
-    release, stuck in its stiction: 80 N breaks it away.)"""
+    of it comes back). Bounded at 2.5 mm, it catches a stop that pulls the arm back past where
+    the hand had it (a hold latched on a stale position). (The 60 N hand once left the arm at
+    0.054 m/s at the release, stuck in its stiction: 80 N breaks it away.)"""
     r = stop_while_dragging(tmp_path, cell_overrides=PROFILES[profile][1])
     print(profile, STOP_REPORT.format(**r))
     assert r["speed_m_s"] > 0.08, "the arm was not moving at the release: nothing was tested"
     assert r["state"] == "ready", "the standstill monitor or something else faulted the cell"
-    assert r["joint_decel_rad_s2"] < 1.5 * 2.0, "the joints braked harder than the ramp"
+    assert r["ref_decel_rad_s2"] > 0.5 * 2.0, "no joint's command slowed down: nothing ramped"
+    assert r["ref_decel_rad_s2"] < 1.02 * 2.0, "a joint's command braked harder than the ramp"
     assert r["distance_m"] < 0.025 and r["back_m"] < 2.5e-3
     assert r["tail_m"] < 1e-3
 
