@@ -56,6 +56,7 @@ class DeclaredModel:
         self.n = len(desc.joints)
         #: the model's held-out RMS error per joint [N·m], when it was measured (identified)
         self.heldout_rms_nm: tuple[float, ...] | None = None
+        self.torque_gain, self.torque_offset_nm = np.ones(self.n), np.zeros(self.n)
         self.rigid = RigidBodyModel.from_description(desc)
         self.friction = Eq15Friction(friction)
         #: the compiled per-cycle form (control/rt/src/point_model.rs)
@@ -85,6 +86,23 @@ class DeclaredModel:
             fe = from_mapping(FrictionEntry, e, f"{where} [[friction]][{i}]")
             params.append(FrictionParams.from_table(fe, js.gear_ratio))
         return cls(desc, params)
+
+    def torque_per_amp_nm(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(k [N·m/A], b [N·m])`` per joint: the joint torque of motor currents ``i`` is
+        ``k i - b``. The datasheet's K of eq. (1) over the torque channel's gain the
+        identification measured (:attr:`torque_gain`, ``control/identification/chain.py``),
+        and its reading at zero torque over that gain (:attr:`torque_offset_nm`): the model
+        predicts the physical torque, and every comparison of it with a drive's reading
+        (the law's hand torque, the static-load check, the adaptation's residual) goes
+        through here. A declared model measured neither: K and 0."""
+        k = self.desc.drive_gains_nm_per_a / self.torque_gain
+        return k, self.torque_offset_nm / self.torque_gain
+
+    def motor_torque_nm(self, current_a: np.ndarray) -> np.ndarray:
+        """The joint torque motor currents ``current_a`` [A] report [N·m]
+        (:meth:`torque_per_amp_nm`)."""
+        k, b = self.torque_per_amp_nm()
+        return k * np.asarray(current_a, dtype=float) - b
 
     def gravity_nm(self, q_rad: np.ndarray) -> np.ndarray:
         return self.rigid.gravity_nm(q_rad)
@@ -144,6 +162,7 @@ class IdentifiedControlModel(DeclaredModel):
             self.point = _rt.PointModel(to_json(point_model_table(self)))
         except ValueError as exc:
             raise ConfigError(f"{where}: {exc}") from None
+        self.torque_gain, self.torque_offset_nm = self.identified.chain_arrays()
         rms = self.identified.metadata.get("heldout_rms_nm")
         self.heldout_rms_nm = None if rms is None else tuple(float(v) for v in rms)
         if rms is not None and (len(rms) != self.n or not all(v >= 0 for v in rms)):

@@ -85,8 +85,7 @@ def static_load_check(
     margin_nm: Sequence[float],
 ) -> LoadCheck:
     """Compare the held arm's motor torque with the model's static load (module docstring)."""
-    gains = np.array([j.drive_gain_nm_per_a for j in model.desc.joints])
-    measured = gains * np.asarray(current_a, dtype=float)
+    measured = model.motor_torque_nm(current_a)
     try:  # g(q) - T_cyl(q, p), in the per-cycle form (friction_levels_nm)
         static, _ = model.cycle_torques_nm(q_rad, [0.0] * model.n, np.asarray(p_bar).tolist())
         expected = np.array(static)

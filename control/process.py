@@ -231,7 +231,9 @@ class ZeroMomentController:
             cfg.rest_hold_nm or [0.0] * n, cfg.rest_hold_rms_factor, model.heldout_rms_nm
         )
         self.rest_hold = _rt.RestHold(band, cfg.rest_hold_deflection_rad)
-        k_nm_per_a = [j.drive_gain_nm_per_a for j in model.desc.joints]
+        # the joint torque of the motor currents, through the measured torque channel
+        k, b = model.torque_per_amp_nm()
+        k_nm_per_a = k.tolist()
         #: online estimate of the drives' K_p, K_I from the measured current (telemetry)
         self.inner_estimate: _rt.InnerLoopEstimator | None = None
         if cfg.inner_loop_estimate and cfg.omega_rad_s_per_nm:
@@ -266,6 +268,7 @@ class ZeroMomentController:
             "flag_prev_hold": int(FLAG_PREV_HOLD),
             "flag_prev_coast": int(FLAG_PREV_COAST),
             "k_nm_per_a": k_nm_per_a,
+            "torque_offset_nm": b.tolist(),
             "friction_deadband_rad_s": cfg.friction_deadband_rad_s,
             "friction_compensation": cfg.friction_compensation,
             "wall_stiffness_nm_per_rad": cfg.wall_stiffness_nm_per_rad,
@@ -408,7 +411,9 @@ class ZeroMomentController:
         return {"phase": "following" if self.engaged else "idle"}
 
     def motor_torque_nm(self, st: JointState) -> list[float]:
-        """The motor torque ``st`` reports: datasheet K × measured current [N·m]."""
+        """The joint torque ``st``'s motor currents report [N·m]: datasheet K × current,
+        through the torque channel's gain and offset the model carries
+        (:meth:`DeclaredModel.torque_per_amp_nm`)."""
         return self._cycle.motor_torque_nm(st.current_a.tolist())
 
     def observe_hold(self, st: JointState) -> None:

@@ -389,12 +389,13 @@ class IdentifiedModel:
     whose error the gain is: a command in the drive's units is ``torque_gain · τ``);
     :meth:`measured_torque_nm` (and :meth:`predict_measured`, ``leadthrough predict``) what
     the torque channel reads, what a reading is compared with (external force, residuals).
-    In the control process (not yet switched): the feed-forward it commands (gravity and
-    friction of ``control/declared_model.py``, the point-model table of
-    ``control/rt_tables.py``, the mass matrix of ``control/process.py``) is the physical
-    torque, times the gain where the command is in the drive's units; what it compares with
-    the drive's reading (``control/model_adaptation.py``'s residual, the engagement probe's
-    residual in ``control/process.py``, ``control/load_check.py``) is the measured one.
+    In the control process the model's torque (gravity and friction of
+    ``control/declared_model.py``, the point-model table of ``control/rt_tables.py``) stays
+    physical, and every drive reading it is compared with is turned into physical torque
+    first, in one place (``DeclaredModel.torque_per_amp_nm``: the law's motor torque, hence the
+    hand torque, the engagement probe and the adaptation's residual, and
+    ``control/load_check.py``); the law commands positions and velocities, never a torque in
+    the drive's units.
 
     ``envelope`` bounds the friction and effect terms to the training range (see
     :mod:`.terms`); joints in ``plain_joints`` (0-based index → :class:`PlainJoint`) use their
@@ -626,6 +627,10 @@ class IdentifiedModel:
             "cylinders_removed_from_torque": bool(self.metadata.get("cylinders_removed", False)),
             "analysis": {k: v for k, v in self.metadata.items() if k not in ("urdf_xml",)},
         }
+
+    def chain_arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(torque_gain, torque_offset_nm)`` per joint (gain 1, offset 0 where none)."""
+        return self._chain()
 
     def _chain(self) -> tuple[np.ndarray, np.ndarray]:
         gain = np.ones(self.n) if self.torque_gain is None else self.torque_gain

@@ -53,8 +53,12 @@ pub struct Settings {
     /// The JointState flags: the previous command was held / coasted by the driver.
     pub flag_prev_hold: u32,
     pub flag_prev_coast: u32,
-    /// The drives' torque constants (datasheet) [N·m/A].
+    /// Joint torque per motor ampere [N·m/A]: the datasheet's constant over the torque
+    /// channel's gain the identification measured (1 where it measured none).
     pub k_nm_per_a: Vec<f64>,
+    /// What the torque channel reads at zero torque, over that gain [N·m] (zeros where the
+    /// identification measured none): the joint torque is `k_nm_per_a · i - torque_offset_nm`.
+    pub torque_offset_nm: Vec<f64>,
     pub friction_deadband_rad_s: f64,
     pub friction_compensation: f64,
     pub wall_stiffness_nm_per_rad: f64,
@@ -131,6 +135,10 @@ impl Settings {
             flag_prev_hold: count(v, "flag_prev_hold")? as u32,
             flag_prev_coast: count(v, "flag_prev_coast")? as u32,
             k_nm_per_a: joints(v, "k_nm_per_a", n)?,
+            torque_offset_nm: match v.get("torque_offset_nm") {
+                None => vec![0.0; n],
+                Some(_) => joints(v, "torque_offset_nm", n)?,
+            },
             friction_deadband_rad_s: finite(
                 v.get("friction_deadband_rad_s"),
                 "friction_deadband_rad_s",
@@ -378,10 +386,11 @@ impl ZeroMoment {
         self.waited = 0;
     }
 
-    /// The motor torque a state reports: datasheet K × measured current [N·m].
+    /// The joint torque a state's motor currents report [N·m]: `k_nm_per_a · i -
+    /// torque_offset_nm` (the datasheet's K and the measured torque channel, [`Settings`]).
     pub fn motor_torque(&self, current_a: &[f64], out: &mut [f64]) {
         for j in 0..self.n() {
-            out[j] = self.s.k_nm_per_a[j] * current_a[j];
+            out[j] = self.s.k_nm_per_a[j] * current_a[j] - self.s.torque_offset_nm[j];
         }
     }
 
