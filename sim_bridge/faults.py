@@ -276,7 +276,10 @@ def after_last_command(truth: dict[str, np.ndarray], k: int) -> dict[str, Any]:
     latency, from :data:`LAST_COMMAND_BEFORE_S` before row ``k`` on: a killed host's last
     command can precede the moment the harness took as the injection).
 
-    ``last_command_s``: when that was, from row ``k`` [s]; ``speed_at_last_command_m_s``;
+    ``last_command_s``: when that was, from row ``k`` [s]; ``speed_at_last_command_m_s``: the
+    tool's speed over the :data:`SPAN` rows up to it, the measure the injection waited on
+    (:func:`_moving`; one row's step ripples with the CiA 402 drives' interpolation within a
+    SYNC: an injection at 0.2 m/s read 0.198 on the step before the last command);
     ``stop_after_command_s``: from it to rest (under :data:`REST_M_S` for
     :data:`REST_HOLD_S`; None: never) [s]; ``travel_after_command_m``: the tool's path from it
     to rest, the last commanded cycle included; ``travel_after_missed_m``: from the first
@@ -302,7 +305,10 @@ def after_last_command(truth: dict[str, np.ndarray], k: int) -> dict[str, Any]:
     end = speed.size if rest is None else rest
     return {
         "last_command_s": float(t[last] - t[k]),
-        "speed_at_last_command_m_s": float(speed[max(last - 1, 0)]),
+        "speed_at_last_command_m_s": float(
+            np.linalg.norm(xyz[last] - xyz[max(last - SPAN, 0)])
+            / max(t[last] - t[max(last - SPAN, 0)], 1e-12)
+        ),
         "stop_after_command_s": None if rest is None else float(t[rest] - t[last]),
         "travel_after_command_m": float(step[last:end].sum()),
         "travel_after_missed_m": float(step[last + 1 : end].sum()),
