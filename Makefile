@@ -20,13 +20,13 @@ CAN_SO := drivers/can/_rt.abi3.so
 CONTROL_SO := control/_rt.abi3.so
 RT_SO := $(CAN_SO) $(CONTROL_SO)
 
-BUS_RS := gateway/rt/Cargo.toml $(wildcard gateway/rt/src/*.rs)
+BUS_RS := gateway/rt/Cargo.toml $(shell find gateway/rt/src -name '*.rs')
 
-$(CAN_SO): Cargo.toml Cargo.lock drivers/can/rt/Cargo.toml $(wildcard drivers/can/rt/src/*.rs) $(BUS_RS) $(STAMP)
+$(CAN_SO): Cargo.toml Cargo.lock drivers/can/rt/Cargo.toml $(shell find drivers/can/rt/src -name '*.rs') $(BUS_RS) $(STAMP)
 	$(CARGO_BUILD) -p leadthrough-can-rt --features python
 	cp target/release/libcan_rt.so $@
 
-$(CONTROL_SO): Cargo.toml Cargo.lock control/rt/Cargo.toml $(wildcard control/rt/src/*.rs) $(STAMP)
+$(CONTROL_SO): Cargo.toml Cargo.lock control/rt/Cargo.toml $(shell find control/rt/src -name '*.rs') $(STAMP)
 	$(CARGO_BUILD) -p leadthrough-control-rt --features python
 	cp target/release/libcontrol_rt.so $@
 
