@@ -129,6 +129,22 @@ def inertia_runs(
     return out
 
 
+def transfer(
+    q_from: np.ndarray, q_to: np.ndarray, peak_speed_rad_s: float, dt: float
+) -> np.ndarray:
+    """Positions (T, n) of a move from rest at ``q_from`` to rest at ``q_to``, every joint on
+    one smoothstep profile (3s² − 2s³) timed so that no joint exceeds ``peak_speed_rad_s`` (its
+    peak speed is 1.5 × distance / duration): a slow sweep, the speeds teaching uses."""
+    d = np.asarray(q_to, dtype=float) - np.asarray(q_from, dtype=float)
+    if not peak_speed_rad_s > 0:
+        raise ValueError(f"transfer speed {peak_speed_rad_s} rad/s must be > 0")
+    duration = 1.5 * float(np.abs(d).max()) / peak_speed_rad_s
+    steps = max(2, int(np.ceil(duration / dt)) + 1)
+    s = np.linspace(0.0, 1.0, steps)
+    s = s**2 * (3 - 2 * s)
+    return q_from + s[:, None] * d
+
+
 def multisine(
     q0: np.ndarray,
     amplitude_rad: np.ndarray,
@@ -137,15 +153,30 @@ def multisine(
     duration_s: float,
     dt: float,
     seed: int,
+    offset_rad: np.ndarray | None = None,
+    transfer_speed_rad_s: float = 0.1,
 ) -> Segment:
     """Every joint a sum of ``harmonics`` sines of the base frequency with random phases, faded
-    in and out so the motion starts and ends at rest at ``q0``."""
+    in and out so the motion starts and ends at rest at ``q0``.
+
+    With ``offset_rad`` the sines are centred on ``q0 + offset_rad``: the segment first moves
+    there and at the end back to ``q0`` (:func:`transfer`, at most ``transfer_speed_rad_s``),
+    so that a plan can excite the arm over the poses the operator works in, not only around
+    the one it starts from (a model is not validated where it was never moved)."""
+    if offset_rad is not None and np.any(np.asarray(offset_rad, dtype=float) != 0.0):
+        centre = np.asarray(q0, dtype=float) + np.asarray(offset_rad, dtype=float)
+        there = transfer(np.asarray(q0, dtype=float), centre, transfer_speed_rad_s, dt)
+        core = multisine(centre, amplitude_rad, base_hz, harmonics, duration_s, dt, seed)
+        q = np.vstack([there, core.q_rad[1:], there[::-1][1:]])
+        return Segment(core.label, q, _differentiate(q, dt))
     rng = np.random.default_rng(seed)
     t = np.arange(0.0, duration_s, dt)
     n = len(q0)
     q = np.tile(q0, (len(t), 1)).astype(float)
     fade = np.clip(np.minimum(t, duration_s - t) / 1.0, 0.0, 1.0)
-    fade = fade**2 * (3 - 2 * fade)  # smoothstep: zero velocity at both ends
+    # smootherstep: zero velocity and acceleration at both ends, where the sines (centred on
+    # the centre pose, not starting at it) are faded in and out
+    fade = fade**3 * (fade * (6 * fade - 15) + 10)
     for j in range(n):
         k = np.arange(1, harmonics + 1)
         phases = rng.uniform(0, 2 * np.pi, harmonics)
@@ -155,6 +186,7 @@ def multisine(
         )
         x -= x[0]
         x *= amplitude_rad[j] / max(np.abs(x).max(), 1e-12)
+        x -= 0.5 * (x.max() + x.min())  # its excursion centred on the centre pose
         q[:, j] += fade * x
     return Segment(f"multisine/seed{seed}", q, _differentiate(q, dt))
 
@@ -206,8 +238,9 @@ def build_plan(
     Plan keys: ``plan_id``; ``friction`` {joints, amplitude_rad, speeds_deg_s}; ``gravity``
     {joints, amplitude_rad, speed_deg_s}; ``inertia`` {pairs, amplitude_rad, period_s,
     slow_speed_deg_s}; ``inner_loop`` {joints, speed_rad_s, step_s} (velocity steps, role
-    "inner_loop"); ``multisine`` [{seed, duration_s, amplitude_rad, base_hz, harmonics, role}]
-    (role "train" or "test"); ``pause_s``.
+    "inner_loop"); ``multisine`` [{seed, duration_s, amplitude_rad, base_hz, harmonics, role,
+    offset_rad, transfer_speed_rad_s}] (role "train" or "test"; the optional offset centres the
+    sines away from the start pose, :func:`multisine`); ``pause_s``.
     """
     unknown = set(plan) - PLAN_KEYS
     if unknown:
@@ -250,8 +283,10 @@ def build_plan(
             roles += ["inner_loop"] * len(s)
         for spec in plan.get("multisine", []):
             amp = np.broadcast_to(np.asarray(spec["amplitude_rad"], dtype=float), (n,))
+            offset = np.broadcast_to(np.asarray(spec.get("offset_rad", 0.0), dtype=float), (n,))
             segs.append(multisine(q0, amp, float(spec["base_hz"]), int(spec["harmonics"]),
-                                  float(spec["duration_s"]), dt, int(spec["seed"])))  # fmt: skip
+                                  float(spec["duration_s"]), dt, int(spec["seed"]), offset,
+                                  float(spec.get("transfer_speed_rad_s", 0.1))))  # fmt: skip
             role = spec.get("role", "train")
             if role not in ("train", "test"):
                 raise ValueError(f"multisine role {role!r} must be train or test")

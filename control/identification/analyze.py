@@ -942,6 +942,10 @@ def _analyze(
         ls, run, base_fit, names, options.search.alpha, clock.say
     )
     fits[kind] = base_fit
+    if calibration is not None:
+        # the cylinders' torque in physical units too: the gain reads it as well
+        calibration = calibration.over_gain(chain.gain)
+        run.meta["cylinders"] = calibration.to_json()
     train, test = run.train, run.test
     accepted_a = [
         replace(a, coef=train_eval.solution.coef[a.term.key])

@@ -32,7 +32,7 @@ model adaptation use them (:func:`control.model.cylinders.with_measured_cylinder
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -78,6 +78,31 @@ class Calibration:
     @property
     def any_kept(self) -> bool:
         return any(self.kept)
+
+    def over_gain(self, gain: np.ndarray) -> Calibration:
+        """The calibration in physical units under a torque channel that reads ``gain`` ×
+        the motor torque (:mod:`.chain`, per joint).
+
+        The scale was fitted on the channel's reading (the target is reading + scale ×
+        described torque), but the channel's gain multiplies the whole motor torque, the
+        cylinders' share included: reading = gain × (rigid − cylinder). The cylinder's
+        physical torque is therefore scale / gain × the described one (1 / gain for a cylinder
+        left as described): a model whose control reads the drives through the chain
+        (``DeclaredModel.torque_per_amp_nm``) and adds the cylinder at its channel scale was
+        off by (1 − 1 / gain) × its torque (plant seed 1: gain 0.92, 10 and 21 N·m on J2, J3
+        in the replay's residual). Joints whose gain is 1 keep their entry as it is."""
+        g = np.asarray(gain, dtype=float)
+        scale, kept, reasons = [], [], []
+        for j, s, k, why in zip(self.joints, self.scale, self.kept, self.reasons, strict=True):
+            if g[j] == 1.0:
+                scale.append(s)
+                kept.append(k)
+                reasons.append(why)
+                continue
+            scale.append((s if k else 1.0) / float(g[j]))
+            kept.append(True)
+            reasons.append(f"{why}; over the torque channel's gain {g[j]:.4g} on J{j + 1}")
+        return replace(self, scale=tuple(scale), kept=tuple(kept), reasons=tuple(reasons))
 
     def diameters_m(self) -> list[float]:
         """The piston diameter [m] of each cylinder in the model."""

@@ -68,10 +68,12 @@ from control.robot.description import BAR_TO_PA, CylinderSpec, RobotDescription
 from gateway.errors import ConfigError, DataFileError
 
 MODEL_FORMAT = "leadthrough-model"
-MODEL_VERSION = 4
+MODEL_VERSION = 5
 #: Versions :meth:`IdentifiedModel.load` reads: 2 lacks the envelope and the plain joints, 3
-#: the measurement chain (read as gain 1, offset 0).
-READABLE_VERSIONS = (2, 3, 4)
+#: the measurement chain (read as gain 1, offset 0); 4 stored a cylinder's measured diameter in
+#: the torque channel's units (:meth:`.cylinders.Calibration.over_gain`): read where its joint's
+#: gain is 1, refused where it is not.
+READABLE_VERSIONS = (2, 3, 4, 5)
 #: Candidate transition velocities q_e [rad/s] of eqs. (16)-(17) for the grid search.
 Q_E_GRID_RAD_S = tuple(float(v) for v in np.geomspace(0.002, 0.2, 13))
 Q_E_SWEEPS = 2
@@ -726,6 +728,15 @@ class IdentifiedModel:
                 raise DataFileError(f"{where}: plain joint {e['index']} malformed")
             plain[j] = pj
         gain, offset = _chain_from_json(doc.get("measurement_chain") or {}, reg, where)
+        if doc.get("version") == 4:
+            for e in (meta.get("cylinders") or {}).get("cylinders", []):
+                j = int(e["joint_index"])
+                if 0 <= j < reg.n and gain[j] != 1.0:
+                    raise DataFileError(
+                        f"{where}: version 4 with a torque gain of {gain[j]:.4g} on J{j + 1}, "
+                        "which has a cylinder: its measured diameter is in the torque channel's "
+                        "units, not physical ones (fixed in version 5); identify again"
+                    )
         return cls(
             reg, beta, kind, terms, coefs, effects, str(urdf.get("path", "")), meta,
             None if env is None else Envelope.from_json(env), plain, gain, offset,

@@ -17,7 +17,8 @@ Per gap-free stretch of the file (:func:`.preprocess.gap_free_segments`):
    torque through the torque channel's gain and offset, :mod:`.chain`); with the cylinders'
    torque taken out when the model was identified (pressure columns), the cylinders' torque
    (eqs. 10, 12, the identification's measured piston diameters, the pressure low-passed at the
-   model's torque cutoff) is taken off again: the prediction is of what the torque channel
+   model's torque cutoff) is taken off again, through the same gain (the channel reads the
+   motor's torque, rigid body less cylinders): the prediction is of what the torque channel
    reads.
 
 Declined rows are NaN: those of a stretch too short to filter (:data:`MIN_STRETCH_ROWS`) and the
@@ -126,6 +127,7 @@ def predict_rows(
     if not (np.isfinite(cutoff) and cutoff > 0):
         raise DataFileError(f"model: analysis.position_cutoff_hz {cutoff!r} is not > 0")
     delay = model.delay_s
+    gain = model.chain_arrays()[0]
     out = np.full((m.n_samples, model.n), np.nan)
     for a, b in gap_free_segments(m.t):
         if b - a < MIN_STRETCH_ROWS:
@@ -144,7 +146,8 @@ def predict_rows(
             # the cylinders push at the time of the row itself: only the drive's torque lags
             q_now = q_f if not delay else _states(t, m.q[a:b], dq, cutoff, t)[0]
             cyl = _cylinder_torque(model, m, q_now, slice(a, b), desc_measured)
-            out[rows] -= cyl[ok]
+            # the channel reads the motor's torque, the cylinders' share too
+            out[rows] -= gain * cyl[ok]
     return out
 
 

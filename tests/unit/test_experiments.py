@@ -253,3 +253,23 @@ def test_a_bad_replay_plan_fails_with_the_reason(tmp_path, spec, match):
     player.start({"plan_id": "r", "replay": spec}, _state(100), PERIOD_S)
     assert player.state == "failed" and match in player.reason
     assert player.command(_state(101)) is None  # nothing moves
+
+
+def test_an_offset_multisine_moves_slowly_to_its_centre_and_back_to_q0():
+    amp = np.array([0.1, 0.2, 0.1, 0.3, 0.3, 0.3])
+    offset = np.array([0.0, -0.3, 0.35, 0.0, 0.0, 0.0])
+    seg = multisine(Q0, amp, 0.2, 5, 20.0, DT, seed=3, offset_rad=offset,
+                    transfer_speed_rad_s=0.1)  # fmt: skip
+    np.testing.assert_allclose(seg.q_rad[[0, -1]], [Q0, Q0], atol=1e-9)
+    np.testing.assert_allclose(seg.dq_rad_s[[0, -1]], 0.0, atol=5e-3)
+    centre = Q0 + offset
+    # the transfers: 1.5 × 0.35 / 0.1 = 5.25 s each way, no joint above 0.1 rad/s
+    legs = round(5.25 / DT)
+    there = seg.q_rad[:legs]
+    # between them the sines swing within the amplitude, as far each way about the centre
+    core = seg.q_rad[legs:-legs]
+    up, down = core.max(0) - centre, centre - core.min(0)
+    np.testing.assert_allclose(up, down, atol=1e-4)
+    assert np.all(up <= amp + 1e-9) and np.all(up >= 0.3 * amp)
+    assert np.abs(np.gradient(there, DT, axis=0)).max() <= 0.1 + 1e-3
+    assert seg.q_rad.shape[0] * DT == pytest.approx(20.0 + 2 * 5.25, abs=3 * DT)

@@ -44,7 +44,8 @@ def stronger_run(tmp_path_factory) -> dict:
     configure_parser(p)
     argv = ["--urdf", str(urdf), "--train", str(paths["train"]), "--test", str(paths["test"])]
     assert cli_main(p.parse_args([*argv, "--out", str(out), "--no-effects", "--no-plots"])) == 0
-    return {"out": out, "summary": json.loads((out / "summary.json").read_text()), "desc": desc}
+    summary = json.loads((out / "summary.json").read_text())
+    return {"out": out, "summary": summary, "desc": desc, "test": paths["test"]}
 
 
 def test_a_stronger_cylinder_is_measured_within_two_percent_and_kept(stronger_run):
@@ -138,3 +139,52 @@ def test_judge_keeps_each_cylinder_on_its_own_joint_and_refuses_implausible_scal
     assert wild.kept == (False, False)
     assert all("outside the plausible" in why for why in wild.reasons)
     assert not wild.any_kept and np.all(wild.coef == 0.0)
+
+
+def test_over_a_torque_gain_the_cylinders_physical_scale_is_the_channels_over_the_gain():
+    desc = load_description()
+    without = np.array([1.0, 2.0, 3.0, 0.1, 0.1, 0.1])
+    with_ = np.array([1.0, 1.0, 3.5, 0.1, 0.1, 0.1])  # J2's kept (1.2), J3's as described
+    cal = cyl.judge(desc, np.array([-0.2, -0.1]), with_, without)
+    # the channel reads gain × (rigid − cylinder): a scale fitted on it is gain × physical
+    phys = cal.over_gain(np.array([1.0, 0.9, 0.8, 1.0, 1.0, 1.0]))
+    assert phys.scale == pytest.approx((1.2 / 0.9, 1.0 / 0.8))
+    assert phys.kept == (True, True)
+    assert "gain 0.8 on J3" in phys.reasons[1]
+    d = [c.piston_diameter_m for c in desc.cylinders]
+    assert phys.diameters_m() == pytest.approx([d[0] * np.sqrt(1.2 / 0.9), d[1] / np.sqrt(0.8)])
+    assert cal.over_gain(np.ones(6)) == cal  # gain 1: as it was
+
+
+def test_predict_reads_the_cylinders_share_through_the_channels_gain(stronger_run, tmp_path):
+    from control.identification.datafile import read_measurements
+    from control.identification.fit import IdentifiedModel
+    from control.identification.predict import predict_rows
+
+    model = IdentifiedModel.load(stronger_run["out"] / "model.json")
+    gain = np.array([1.0, 0.9, 0.85, 1.0, 1.0, 1.0])
+    offset = np.array([0.0, 2.0, -1.0, 0.0, 0.0, 0.0])
+    chained = dataclasses.replace(model, torque_gain=gain, torque_offset_nm=offset)
+    m = read_measurements(stronger_run["test"])
+    plain = predict_rows(model, m, stronger_run["desc"])
+    through = predict_rows(chained, m, stronger_run["desc"])
+    ok = np.isfinite(plain).all(axis=1)
+    # the whole motor torque, cylinders' share included, goes through gain and offset
+    np.testing.assert_allclose(through[ok], gain * plain[ok] + offset, rtol=1e-9, atol=1e-9)
+
+
+def test_a_version_4_model_with_a_gain_on_a_cylinder_joint_is_refused(stronger_run, tmp_path):
+    from control.identification.fit import IdentifiedModel
+    from gateway.errors import DataFileError
+
+    doc = json.loads((stronger_run["out"] / "model.json").read_text())
+    doc["version"] = 4
+    ok = tmp_path / "ok.json"
+    ok.write_text(json.dumps(doc))
+    IdentifiedModel.load(ok)  # gain 1 everywhere: its diameters are physical
+    doc["measurement_chain"] = {"torque_gain": [1.0, 0.9, 1.0, 1.0, 1.0, 1.0],
+                                "torque_offset_nm": [0.0] * 6}  # fmt: skip
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps(doc))
+    with pytest.raises(DataFileError, match=r"version 4 with a torque gain of 0.9 on J2"):
+        IdentifiedModel.load(bad)

@@ -173,7 +173,7 @@ def test_model_evaluation_is_vectorised_and_consistent(cylinder_run):
 
 def test_model_file_is_versioned(cylinder_run, tmp_path):
     doc = json.loads((cylinder_run["out"] / "model.json").read_text())
-    assert doc["format"] == "leadthrough-model" and doc["version"] == 4
+    assert doc["format"] == "leadthrough-model" and doc["version"] == 5
     assert len(doc["base_parameters"]["columns"]) == len(doc["base_parameters"]["values"]) == 40
     assert doc["friction"]["model"] == "eq15" and len(doc["friction"]["joints"]) == 6
     doc["version"] = 1
