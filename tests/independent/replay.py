@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from tests.independent.referee import read_predictions, run_predict
+from .referee import read_predictions, run_predict
 
 #: A row counts for a joint when the joint moves one way at ≥ this speed through the
 #: :data:`SLIDE_WINDOW_S` around it [rad/s]. At rest and through a reversal the joint's torque

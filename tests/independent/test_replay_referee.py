@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from tests.independent.replay import (
+from .replay import (
     MIN_SPEED_RAD_S,
     SLIDE_WINDOW_S,
     replay_rows,
