@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import tempfile
 from pathlib import Path
@@ -43,6 +44,11 @@ MIN_SPEED_RAD_S = 0.01
 SLIDE_WINDOW_S = 0.1
 #: The acceptance (issue 46): replay RMS ≤ FACTOR × held-out RMS + ALLOWANCE_NM on these joints.
 FACTOR, ALLOWANCE_NM, JOINTS = 2.0, 0.5, (0, 1, 2)
+#: ... or within this factor of the plant's own torque on the same states (issue 46's family
+#: criterion: within 1.25 × of what the generating model reaches on the same files): where a
+#: replay's corners swing the torque faster than any model's states follow, the floor is not
+#: the held-out segment's but the plant's (:mod:`.replay_oracle`)
+ORACLE_FACTOR = 1.25
 #: A joint that slid on fewer rows than this in the replay is not scored (reported, neither
 #: pass nor fail): an RMS over less than a second of a slow motion's correlated rows says
 #: little, and a path that leaves a joint at rest cannot test its model.
@@ -149,19 +155,86 @@ def replay_rows(truth: dict[str, np.ndarray]) -> np.ndarray:
     return np.arange(first, last + 1)
 
 
-def verdict(
-    replay: list[float], heldout: list[float], rows: list[int] | None = None
+def oracle_score(
+    run: Path,
+    truth: dict[str, np.ndarray],
+    rows: np.ndarray,
+    model: Path,
+    work: Path,
+    gains: np.ndarray,
 ) -> dict[str, Any]:
-    """Per joint of :data:`JOINTS`: True / False, or None when it slid on fewer than
-    :data:`MIN_ROWS` rows of the replay; ``pass`` when none is False and one at least True."""
+    """The plant's own torque on the replay's states (:mod:`.replay_oracle`) against the
+    torque its drives made, scored as :func:`score` scores a model: the floor of a
+    state-based model on these rows [N·m, on the torque channel's scale, ``gains`` the
+    datasheet's K]; beside it, physical, the plant's and the model's (its prediction of the
+    channel, less the channel's offset, over its gain)."""
+    from .replay_oracle import PlantTorque, smooth_states
+
+    plant = PlantTorque(run / "truth.toml")
+    n = plant.n
+    t = truth["t_s"][rows]
+    col = lambda k: np.column_stack([truth[f"{k}{j + 1}"][rows] for j in range(n)])  # noqa: E731
+    q, dq_measured, current = col("q"), col("dq"), col("i")
+    p = np.column_stack([truth["p2"][rows], truth["p3"][rows]])
+    qf, dq, ddq = smooth_states(t, q)
+    pred = plant.motor_torque_nm(qf, dq, ddq, p)
+    pred = np.vstack([np.full((1, n), np.nan), 0.5 * (pred[1:] + pred[:-1])])  # cycle mean
+    true = plant.true_torque_nm(current)
+    mine = read_predictions(work / "replay_raw.pred.csv", t, n)
+    mine = np.vstack([np.full((1, n), np.nan), 0.5 * (mine[1:] + mine[:-1])])
+    doc = json.loads(model.read_text()).get("measurement_chain") or {}
+    gain = np.asarray(doc.get("torque_gain", np.ones(n)), dtype=float)
+    offset = np.asarray(doc.get("torque_offset_nm", np.zeros(n)), dtype=float)
+    model_physical = (mine - offset) / gain
+    answered = np.isfinite(pred).all(axis=1) & np.isfinite(model_physical).all(axis=1)
+    slide = sliding_rows(t, dq_measured) & answered[:, None]
+
+    def rms(err: np.ndarray) -> list[float]:
+        return [
+            float(np.sqrt(np.mean(err[slide[:, j], j] ** 2))) if slide[:, j].any() else math.nan
+            for j in range(n)
+        ]
+
+    # on the channel's scale (datasheet K over the drive's true one): what the referee scores
+    # the model on; a gain's absolute scale is not identifiable from the drives' currents
+    # (every inertial parameter scales with it), so the model's physical figure is reported
+    # only
+    scale = gains / plant.k_nm_per_a
+    return {
+        "rms_nm": rms(scale * (true - pred)),
+        "physical_rms_nm": rms(true - pred),
+        "model_physical_rms_nm": rms(true - model_physical),
+        "rows": slide.sum(axis=0).tolist(),
+    }
+
+
+def verdict(
+    replay: list[float],
+    heldout: list[float],
+    rows: list[int] | None = None,
+    replay_floor_scale: list[float] | None = None,
+    oracle: list[float] | None = None,
+) -> dict[str, Any]:
+    """Per joint of :data:`JOINTS`: True when the replay's RMS is within
+    :data:`FACTOR` × the held-out segment's + :data:`ALLOWANCE_NM`, or ``replay_floor_scale``
+    (the same figure) within :data:`ORACLE_FACTOR` × ``oracle``, what the plant's own torque
+    reaches on the same states; False
+    else; None when it slid on fewer than :data:`MIN_ROWS` rows of the replay. ``pass`` when
+    none is False and one at least True."""
     bound = [FACTOR * h + ALLOWANCE_NM for h in heldout]
     rows = rows if rows is not None else [MIN_ROWS] * len(replay)
-    ok = [None if rows[j] < MIN_ROWS else bool(replay[j] <= bound[j]) for j in JOINTS]
-    return {
-        "bound_nm": bound,
-        "pass": False not in ok and True in ok,
-        "pass_per_joint": ok,
-    }
+    ok: list[bool | None] = []
+    for j in JOINTS:
+        if rows[j] < MIN_ROWS:
+            ok.append(None)
+            continue
+        near_floor = (
+            replay_floor_scale is not None
+            and oracle is not None
+            and bool(replay_floor_scale[j] <= ORACLE_FACTOR * oracle[j])
+        )
+        ok.append(bool(replay[j] <= bound[j]) or near_floor)
+    return {"bound_nm": bound, "pass": False not in ok and True in ok, "pass_per_joint": ok}
 
 
 def referee(run: Path, commissioned: Path) -> dict[str, Any]:
@@ -189,11 +262,19 @@ def referee(run: Path, commissioned: Path) -> dict[str, Any]:
         replay = score(replay_csv, model, gains, zero, work, cycle_mean=True)
         # the test segment's currents are the driver's, already corrected by the zero
         heldout = score(test, model, gains, np.zeros(n), work)
+        oracle = oracle_score(run, truth, rows, model, work, gains)
     return {
         "replay": replay,
         "heldout": heldout,
+        "oracle": oracle,
         "replay_seconds": float(truth["t_s"][rows[-1]] - truth["t_s"][rows[0]]),
-        **verdict(replay["rms_nm"], heldout["rms_nm"], replay["rows"]),
+        **verdict(
+            replay["rms_nm"],
+            heldout["rms_nm"],
+            replay["rows"],
+            replay["rms_nm"],
+            oracle["rms_nm"],
+        ),
     }
 
 
@@ -210,7 +291,10 @@ def main(argv: list[str] | None = None) -> int:
         f"rows {r['replay']['rows']}"
     )
     print(f"held-out segment RMS  {fmt(r['heldout']['rms_nm'])} N·m, rows {r['heldout']['rows']}")
-    print(f"bound J1-J3 (2x + 0.5) {fmt(r['bound_nm'][:3])}: "
+    print(f"the plant's own torque     {fmt(r['oracle']['rms_nm'])} N·m on the replay's states "
+          f"(physical: the plant's {fmt(r['oracle']['physical_rms_nm'])}, the model's "
+          f"{fmt(r['oracle']['model_physical_rms_nm'])})")  # fmt: skip
+    print(f"bound J1-J3 (2x + 0.5 or 1.25x the plant's) {fmt(r['bound_nm'][:3])}: "
           f"{'PASS' if r['pass'] else 'FAIL'} {r['pass_per_joint']}")  # fmt: skip
     if args.json:
         args.json.write_text(json.dumps(r, indent=2))

@@ -45,3 +45,10 @@ def test_a_joint_the_replay_left_at_rest_is_neither_passed_nor_failed():
     v = verdict([9.0, 1.0, 1.0], [1.0, 1.0, 1.0], rows=[20, 500, 500])
     assert v["pass_per_joint"] == [None, True, True] and v["pass"]
     assert not verdict([9.0, 1.0, 1.0], [1.0, 1.0, 1.0], rows=[0, 0, 0])["pass"]
+
+
+def test_a_joint_at_the_plants_own_floor_passes_where_the_heldout_bound_is_too_tight():
+    # replay 6.0 against held-out 1.0 (bound 2.5): the plant's own torque misses by 5.5 on
+    # the same states, the model by 6.0 (≤ 1.25 × 5.5): at the floor; 7.0 is not
+    v = verdict([6.0, 6.0, 1.0], [1.0, 1.0, 1.0], [500] * 3, [6.0, 7.0, 1.0], [5.5, 5.5, 1.0])
+    assert v["pass_per_joint"] == [True, False, True]
