@@ -85,6 +85,21 @@ def sliding_rows(t: np.ndarray, dq: np.ndarray) -> np.ndarray:
     return out & whole[:, None]
 
 
+def over_the_cycle(pred: np.ndarray) -> np.ndarray:
+    """Per row, the mean of ``pred`` over the cycle ending at it (the trapezoid of the row and
+    the one before; NaN on the first row): what a drive that reports its current averaged over
+    the cycle is compared with."""
+    return np.vstack([np.full((1, pred.shape[1]), np.nan), 0.5 * (pred[1:] + pred[:-1])])
+
+
+def masked_rms(err: np.ndarray, rows: np.ndarray) -> list[float]:
+    """Per joint, the RMS of ``err`` (T, n) over its ``rows`` (T, n) bool; NaN with none."""
+    return [
+        float(np.sqrt(np.mean(err[rows[:, j], j] ** 2))) if rows[:, j].any() else math.nan
+        for j in range(err.shape[1])
+    ]
+
+
 def torque_from_current(
     cols: dict[str, np.ndarray], gains: np.ndarray, zero: np.ndarray
 ) -> np.ndarray:
@@ -127,14 +142,10 @@ def score(
         raise RuntimeError(run["error"])
     pred = read_predictions(out, t, n)
     if cycle_mean:
-        pred = np.vstack([np.full((1, n), np.nan), 0.5 * (pred[1:] + pred[:-1])])
+        pred = over_the_cycle(pred)
     answered = np.isfinite(pred).all(axis=1)
     rows = sliding_rows(t, dq) & answered[:, None]
-    err = tau - pred
-    rms = [
-        float(np.sqrt(np.mean(err[rows[:, j], j] ** 2))) if rows[:, j].any() else float("nan")
-        for j in range(n)
-    ]
+    rms = masked_rms(tau - pred, rows)
     return {
         "rms_nm": rms,
         "rows": rows.sum(axis=0).tolist(),
@@ -178,10 +189,10 @@ def oracle_score(
     p = np.column_stack([truth["p2"][rows], truth["p3"][rows]])
     qf, dq, ddq = smooth_states(t, q)
     pred = plant.motor_torque_nm(qf, dq, ddq, p)
-    pred = np.vstack([np.full((1, n), np.nan), 0.5 * (pred[1:] + pred[:-1])])  # cycle mean
+    pred = over_the_cycle(pred)
     true = plant.true_torque_nm(current)
     mine = read_predictions(work / "replay_raw.pred.csv", t, n)
-    mine = np.vstack([np.full((1, n), np.nan), 0.5 * (mine[1:] + mine[:-1])])
+    mine = over_the_cycle(mine)
     doc = json.loads(model.read_text()).get("measurement_chain") or {}
     gain = np.asarray(doc.get("torque_gain", np.ones(n)), dtype=float)
     offset = np.asarray(doc.get("torque_offset_nm", np.zeros(n)), dtype=float)
@@ -189,21 +200,15 @@ def oracle_score(
     answered = np.isfinite(pred).all(axis=1) & np.isfinite(model_physical).all(axis=1)
     slide = sliding_rows(t, dq_measured) & answered[:, None]
 
-    def rms(err: np.ndarray) -> list[float]:
-        return [
-            float(np.sqrt(np.mean(err[slide[:, j], j] ** 2))) if slide[:, j].any() else math.nan
-            for j in range(n)
-        ]
-
     # on the channel's scale (datasheet K over the drive's true one): what the referee scores
     # the model on; a gain's absolute scale is not identifiable from the drives' currents
     # (every inertial parameter scales with it), so the model's physical figure is reported
     # only
     scale = gains / plant.k_nm_per_a
     return {
-        "rms_nm": rms(scale * (true - pred)),
-        "physical_rms_nm": rms(true - pred),
-        "model_physical_rms_nm": rms(true - model_physical),
+        "rms_nm": masked_rms(scale * (true - pred), slide),
+        "physical_rms_nm": masked_rms(true - pred, slide),
+        "model_physical_rms_nm": masked_rms(true - model_physical, slide),
         "rows": slide.sum(axis=0).tolist(),
     }
 
