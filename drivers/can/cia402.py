@@ -142,7 +142,8 @@ def controlword_for(state: DriveState, request: HostRequest) -> tuple[int, int |
     """The controlword that moves a drive in ``state`` one step towards what ``request`` asks,
     and that step's transition number (None: none, the controlword keeps the state).
 
-    SERVO_ON walks 2 → 3 → 4 to *operation enabled*. BRAKE leaves it by *disable operation*
+    SERVO_ON walks 2 → 3 → 4 to *operation enabled* (3 and 4 by one controlword, *switch on +
+    enable operation*). BRAKE leaves it by *disable operation*
     (5: the drive holds while its brake engages) and rests in *ready to switch on* (6, 2:
     power stage off). RESET_FAULT is fault reset (15). A quick stop is never undone here
     (no 16): it runs to its end and the drive must be switched on again from the start.
@@ -157,6 +158,11 @@ def controlword_for(state: DriveState, request: HostRequest) -> tuple[int, int |
         step = SERVO_ON_STEPS.get(state)
         if step is None:
             return CW_ENABLE_OPERATION if state == S.OPERATION_ENABLED else CW_SHUTDOWN, None
+        if step == 3:
+            # "switch on + enable operation": the drive makes 3, then 4 at its next tick. Not
+            # "switch on": the host reads the state one SYNC late, and "switch on" is disable
+            # operation (5) to a drive that has already reached operation enabled.
+            return CW_ENABLE_OPERATION, step
         return TRANSITIONS[step][2], step
     # BRAKE (and RESET_FAULT of a drive that is not in fault)
     step = BRAKE_STEPS.get(state)

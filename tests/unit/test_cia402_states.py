@@ -9,7 +9,13 @@ import itertools
 import pytest
 
 from drivers.can.adapter import HostRequest
-from drivers.can.cia402 import TRANSITIONS, DriveState, controlword_for, decode_state
+from drivers.can.cia402 import (
+    CW_SHUTDOWN,
+    TRANSITIONS,
+    DriveState,
+    controlword_for,
+    decode_state,
+)
 
 S = DriveState
 #: CiA 402 statusword state coding, bits 6..0 (bit 6 switch on disabled, 5 quick stop,
@@ -80,6 +86,8 @@ def test_servo_on_walks_2_3_4_and_stays_enabled():
             assert state == S.OPERATION_ENABLED and _matches(cw, COMMANDS["enable operation"][0])
             break
         assert TRANSITIONS[step][0] == state
+        if step == 3:  # switch on + enable operation: the drive makes 3 and 4 (see below)
+            assert _matches(cw, COMMANDS["enable operation"][0])
         path.append(step)
         state = after[step]
     assert path == [2, 3, 4]
@@ -104,3 +112,79 @@ def test_fault_needs_an_explicit_reset_and_a_quick_stop_is_never_undone():
     cw, step = controlword_for(S.FAULT, HostRequest.RESET_FAULT)
     assert step == 15 and _matches(cw, COMMANDS["fault reset"][0])
     assert TRANSITIONS[15][1] == S.SWITCH_ON_DISABLED
+
+
+#: the standard's transitions by command, as a drive makes them: (state, command) → state.
+#: "enable operation" in ready to switch on is the standard's "switch on + enable operation":
+#: transition 3, then 4 at the drive's next tick.
+DRIVE = {
+    (S.SWITCH_ON_DISABLED, "shutdown"): S.READY_TO_SWITCH_ON,  # 2
+    (S.READY_TO_SWITCH_ON, "switch on"): S.SWITCHED_ON,  # 3
+    (S.READY_TO_SWITCH_ON, "enable operation"): S.SWITCHED_ON,  # 3, then 4
+    (S.SWITCHED_ON, "enable operation"): S.OPERATION_ENABLED,  # 4
+    (S.OPERATION_ENABLED, "disable operation"): S.SWITCHED_ON,  # 5
+    (S.SWITCHED_ON, "shutdown"): S.READY_TO_SWITCH_ON,  # 6
+    (S.OPERATION_ENABLED, "shutdown"): S.READY_TO_SWITCH_ON,  # 8
+}
+TICKS_PER_SYNC = 4  #: the drive's servo ticks in one SYNC period (2 ms ticks, 8 ms SYNC)
+
+
+def _command(state: DriveState, controlword: int) -> str | None:
+    """The device control command ``controlword`` is in ``state`` (bits 0-3 of 0x07 are
+    "switch on" in general and "disable operation" in operation enabled)."""
+    names = [n for n, (pattern, _) in COMMANDS.items() if _matches(controlword, pattern)]
+    if "disable operation" in names and state != S.OPERATION_ENABLED:
+        names.remove("disable operation")
+    if "switch on" in names and state == S.OPERATION_ENABLED:
+        names.remove("switch on")
+    return next((n for n in names if (state, n) in DRIVE), None)
+
+
+def _walk(requests: list[HostRequest]) -> list[tuple[HostRequest, DriveState]]:
+    """A drive on a synchronous link, one request per SYNC period: at each SYNC it reports
+    its state (TPDO1) and then takes the last controlword received before that SYNC (RPDO1);
+    it ticks TICKS_PER_SYNC times per period. The host answers each report at once with the
+    controlword ``controlword_for`` gives for what it read, and sends one more when the
+    request changes (the request's own RPDO1s), from the same reading: its view is always
+    one SYNC old. Returns (request, the drive's state) at every tick."""
+    state, latched, reading, pending = S.SWITCH_ON_DISABLED, CW_NONE, S.SWITCH_ON_DISABLED, None
+    request, seen = None, []
+    for wanted in requests:
+        reading = state  # the TPDO1 sampled at this SYNC
+        latched = pending if pending is not None else latched  # then the RPDO1 applies
+        pending = controlword_for(reading, request or wanted)[0]  # the cycle's answer
+        if wanted != request:  # the request changes between two SYNCs
+            request = wanted
+            pending = controlword_for(reading, request)[0]
+        for _ in range(TICKS_PER_SYNC):
+            command = _command(state, latched)
+            if command is not None:
+                state = DRIVE[state, command]
+            seen.append((request, state))
+    return seen
+
+
+CW_NONE = CW_SHUTDOWN  #: what the drive holds before the host's first RPDO1
+
+
+def _trace(seen: list[tuple[HostRequest, DriveState]]) -> str:
+    return " ".join(f"{r.name[0]}:{s.name[:4]}" for r, s in seen[:: TICKS_PER_SYNC // 2])
+
+
+@pytest.mark.parametrize("off_for", range(0, 6))
+@pytest.mark.parametrize("on_for", range(1, 8))
+def test_a_stop_and_start_read_one_sync_late_never_takes_an_enabled_drive_out(on_for, off_for):
+    """SERVO_ON, then BRAKE for ``off_for`` SYNCs (0: within one period), then SERVO_ON again,
+    each at a SYNC boundary: whatever state the host's one-SYNC-old reading shows, the walk
+    never moves a drive out of operation enabled while SERVO_ON is the request (the demo's
+    stop and start 74 ms apart on the CiA 402 cell: 0x0F from ready to switch on took the
+    drive through 3 and 4 within a period, the host still read *ready* and sent *switch on*,
+    which is disable operation in operation enabled: the drive left it, the host latched a
+    drop-out, 2026-11-30), and the walk ends in operation enabled."""
+    on, off = HostRequest.SERVO_ON, HostRequest.BRAKE
+    requests = [on] * on_for + [off] * off_for + [on] * 12
+    seen = _walk(requests)
+    for (req, before), (req_now, after) in itertools.pairwise(seen):
+        if req == req_now == on and before == S.OPERATION_ENABLED:
+            assert after == S.OPERATION_ENABLED, f"left operation enabled: {_trace(seen)}"
+    assert seen[-1] == (on, S.OPERATION_ENABLED)

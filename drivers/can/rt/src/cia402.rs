@@ -161,9 +161,9 @@ pub const TRANSITIONS: [(u8, DriveState, DriveState, u16); 12] = {
 /// The controlword that moves a drive in `state` one step towards what `request` asks, and
 /// that step's transition number (None: none, the controlword keeps the state).
 ///
-/// SERVO_ON walks 2 → 3 → 4 to *operation enabled*. BRAKE leaves it by *disable operation*
-/// (5: the drive holds while its brake engages) and rests in *ready to switch on* (6, 2:
-/// power stage off). RESET_FAULT is fault reset (15). A quick stop is never undone here (no
+/// SERVO_ON walks 2 → 3 → 4 to *operation enabled* (3 and 4 by one controlword, *switch on +
+/// enable operation*). BRAKE leaves it by *disable operation* (5: the drive holds while its
+/// brake engages) and rests in *ready to switch on* (6, 2: power stage off). RESET_FAULT is fault reset (15). A quick stop is never undone here (no
 /// 16): it runs to its end and the drive must be switched on again from the start.
 pub fn controlword_for(state: DriveState, request: HostRequest) -> (u16, Option<u8>) {
     use DriveState as S;
@@ -179,7 +179,10 @@ pub fn controlword_for(state: DriveState, request: HostRequest) -> (u16, Option<
     let step = if request == HostRequest::ServoOn {
         match state {
             S::SwitchOnDisabled => 2,
-            S::ReadyToSwitchOn => 3,
+            // "switch on + enable operation": the drive makes 3, then 4 at its next tick. Not
+            // "switch on": the host reads the state one SYNC late, and "switch on" is disable
+            // operation (5) to a drive that has already reached operation enabled.
+            S::ReadyToSwitchOn => return (CW_ENABLE_OPERATION, Some(3)),
             S::SwitchedOn => 4,
             S::OperationEnabled => return (CW_ENABLE_OPERATION, None),
             _ => return (CW_SHUTDOWN, None),
@@ -1279,7 +1282,13 @@ mod tests {
             let mut steps = Vec::new();
             while let (cw, Some(step)) = controlword_for(state, request) {
                 let t = TRANSITIONS.iter().find(|t| t.0 == step).unwrap();
-                assert_eq!((t.1, t.3), (state, cw), "transition {step}");
+                // 3 towards operation enabled: switch on + enable operation (3, then 4)
+                let sent = if (step, request) == (3, HostRequest::ServoOn) {
+                    CW_ENABLE_OPERATION
+                } else {
+                    t.3
+                };
+                assert_eq!((t.1, sent), (state, cw), "transition {step}");
                 steps.push(step);
                 state = t.2;
                 if steps.len() > 5 {
