@@ -33,7 +33,8 @@ def drag_released(
     """Drag the released arm along ``path`` for ``duration_s`` with a hand of settings
     ``hand`` (:class:`.config.OperatorScript` fields); every :data:`RECORD_EVERY_S`: time ``t_s``
     (T,) and (T, 3) ``tool``, ``force`` (the hand's, world), ``target`` (where the hand wants
-    the tool) and ``flange`` (the last link's origin) [m, N]; ``origin`` the tool at onset,
+    the tool) and ``flange`` (the last link's origin) [m, N], (T, n) ``q`` the joints [rad];
+    ``origin`` the tool at onset,
     ``script`` the operator's settings."""
     script = dataclasses.replace(
         cfg.operator,
@@ -62,6 +63,7 @@ def drag_released(
                     plant.hand_force_n,
                     op.target_m(plant.t_s),
                     plant.data.xpos[plant.last_body],
+                    plant.data.qpos[: plant.n],
                 ]
             )
     a = np.array(rows)
@@ -71,6 +73,7 @@ def drag_released(
         "force": a[:, 4:7],
         "target": a[:, 7:10],
         "flange": a[:, 10:13],
+        "q": a[:, 13:],
         "origin": op.origin_m,
         "script": script,
     }

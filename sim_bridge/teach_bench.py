@@ -79,6 +79,8 @@ from sim_bridge.commission import commissioned
 from sim_bridge.config import load_sim_config
 from sim_bridge.harness import Stack
 from sim_bridge.plant import Plant
+from sim_bridge.teach_phases import PHASES, classify, phase_forces
+from sim_bridge.teach_seeds import aggregate, parse_seeds, print_seed_table, seed_rows
 
 #: the raster: horizontal width, covered height [m], horizontal passes
 WIDTH_M, HEIGHT_M, PASSES = 1.0, 0.6, 4
@@ -163,10 +165,12 @@ def metrics(
     origin: np.ndarray,
     force: np.ndarray,
     flange: np.ndarray,
+    q: np.ndarray | None = None,
 ) -> dict[str, Any]:
     """Figures of one strategy's run: ``tau`` (T,) time since the hand took the tool [s],
     ``tool``, ``force`` (the hand's, world) and ``flange`` positions (T, 3), ``origin`` the
-    tool at onset (module docstring)."""
+    tool at onset, ``q`` (T, n) the arm's joints [rad] (None: no reversal phase), module
+    docstring; ``phases`` the force per phase of :mod:`.teach_phases`."""
     target = _target(path, tau)
     speed = np.linalg.norm(np.gradient(target, tau, axis=0), axis=1) if tau.size > 1 else tau
     during = tau <= path[-1][0]
@@ -191,8 +195,10 @@ def metrics(
             0.0, np.cumsum(np.linalg.norm(np.diff(np.array([w[1:] for w in path]), axis=0), axis=1))
         ],
     )
+    phase = classify(tau, speed, path[-1][0], q)
     return {
-        "_series": {"progress_m": progress[during], "force_n": f[during]},
+        "_series": {"progress_m": progress[during], "force_n": f[during], "phase": phase[during]},
+        "phases": phase_forces(tau, f, phase),
         "mean_force_n": mean_f,
         "p95_force_n": p95_f,
         "peak_force_n": peak_f,
@@ -236,7 +242,8 @@ def run_offservo(plant_seed: int, path: list[list[float]], tail_s: float = 2.0) 
     hand = {**HAND, "tremor_m": TREMOR_M, "tremor_hz": TREMOR_HZ}
     trace = drag_released(cfg, path, hand, path[-1][0] + tail_s)
     t = trace["t_s"]
-    out = metrics(path, t - t[0], trace["tool"], trace["origin"], trace["force"], trace["flange"])
+    out = metrics(path, t - t[0], trace["tool"], trace["origin"], trace["force"], trace["flange"],
+                  trace["q"])  # fmt: skip
     out["cylinders_bar"] = bar
     out["gravity_left_at_start_nm"] = unbalanced
     return out
@@ -277,7 +284,8 @@ def run_inertia(plant_seed: int, path: list[list[float]], tail_s: float = 2.0) -
         inertia_config(plant_seed), path, hand, path[-1][0] + tail_s, gravity=False
     )
     t = trace["t_s"]
-    return metrics(path, t - t[0], trace["tool"], trace["origin"], trace["force"], trace["flange"])
+    return metrics(path, t - t[0], trace["tool"], trace["origin"], trace["force"], trace["flange"],
+                   trace["q"])  # fmt: skip
 
 
 def _flange_positions(plant_seed: int, q: np.ndarray) -> np.ndarray:
@@ -439,7 +447,7 @@ def run_best(
     force = np.stack([truth[f"f_{a}"][rows] for a in "xyz"], axis=1)
     q = np.stack([truth[f"q{j + 1}"][rows] for j in range(6)], axis=1)
     tau = truth["t_s"][rows] - truth["t_s"][rows[0]]
-    out = metrics(path, tau, tool, tool[0], force, _flange_positions(plant_seed, q))
+    out = metrics(path, tau, tool, tool[0], force, _flange_positions(plant_seed, q), q)
     out["commands_missed"] = int(np.sum(np.isnan(truth["latency_s"][rows])))
     # what the motors carried (the datasheet's K × the reported current), RMS per joint: the
     # cylinders' share of the load shows here ([control] pressure_schedule)
@@ -461,20 +469,32 @@ def run_best(
     return out
 
 
-def plot(series: dict[str, dict[str, np.ndarray]], out_png: Path) -> None:
+def plot(
+    series: dict[str, dict[str, np.ndarray]], phases: dict[str, dict[str, Any]], out_png: Path
+) -> None:
     """The hand's force along the path (distance the painter's target travelled), per
-    strategy."""
+    strategy, and beside it each strategy's mean force per phase (:mod:`.teach_phases`)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(10, 4))
+    fig, (ax, bars) = plt.subplots(
+        1, 2, figsize=(14, 4), gridspec_kw={"width_ratios": [3, 1]}
+    )  # fmt: skip
     for name, s in series.items():
         ax.plot(s["progress_m"], s["force_n"], lw=0.8, label=name)
     ax.set(xlabel="along the raster path [m]", ylabel="operator force [N]")
     ax.set_title("Force the painter applies at the tool")
     ax.legend(loc="best", fontsize=8)
+    width = 0.8 / max(len(phases), 1)
+    for i, (name, by_phase) in enumerate(phases.items()):
+        means = [by_phase[p]["mean_force_n"] for p in PHASES]
+        bars.bar(np.arange(len(PHASES)) + (i - (len(phases) - 1) / 2) * width, means, width,
+                 label=name)  # fmt: skip
+    bars.set_xticks(range(len(PHASES)), PHASES)
+    bars.set(ylabel="mean force [N]", title="per phase")
+    bars.legend(loc="best", fontsize=8)
     fig.tight_layout()
     fig.savefig(out_png, dpi=110)
     plt.close(fig)
@@ -520,7 +540,16 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
         "spray path (1.0 m x 0.6 m, 0.1 m/s, hand tremor) on a commissioned virtual robot. "
         "Prints a table, writes OUT/summary.json."
     )
-    p.add_argument("--plant-seed", type=int, default=0, help="the virtual robot (0: default)")
+    which = p.add_mutually_exclusive_group()
+    which.add_argument("--plant-seed", type=int, default=0, help="the virtual robot (0: default)")
+    which.add_argument(
+        "--seeds",
+        type=parse_seeds,
+        default=None,
+        metavar="A-B",
+        help="every plant seed from A to B (or one, A): each commissioned and benched into "
+        "OUT/seedS/, then a table over the seeds and OUT/summary.json",
+    )
     p.add_argument("--out", type=Path, default=Path("teach_bench_out"), help="output folder")
     p.add_argument(
         "--online-estimate",
@@ -546,37 +575,36 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     add_progress_argument(p)
 
 
-def cli_main(args: argparse.Namespace) -> int:
-    out: Path = args.out
+def run_seed(
+    plant_seed: int, strategies: list[str], out: Path, args: argparse.Namespace, bar: Any
+) -> dict[str, Any]:
+    """Every strategy of ``strategies`` on plant ``plant_seed``: writes ``out/summary.json``
+    and ``out/teach_bench.png``, prints the table, returns the summary."""
     out.mkdir(parents=True, exist_ok=True)
     path = raster_path()
     print(f"raster spray path: {PASSES} passes of {WIDTH_M} m over {HEIGHT_M} m at "
-          f"{SPEED_M_S} m/s, {path[-1][0]:.0f} s; plant seed {args.plant_seed}")  # fmt: skip
+          f"{SPEED_M_S} m/s, {path[-1][0]:.0f} s; plant seed {plant_seed}")  # fmt: skip
     results: dict[str, dict[str, Any]] = {}
-    strategies = list(args.strategies)
-    with progress_bar(
-        len(strategies), "teach-bench", "strategy", enabled=progress_enabled(args)
-    ) as bar:
-        for name in strategies:
-            t0 = time.monotonic()
-            bar.write(f"{name} ...")
-            bar.set_label(name)
-            if name == "offservo":
-                results[name] = run_offservo(args.plant_seed, path)
-            elif name == "inertia":
-                results[name] = run_inertia(args.plant_seed, path)
-            else:
-                results[name] = run_best(
-                    args.plant_seed,
-                    path,
-                    out / name,
-                    online_estimate=args.online_estimate,
-                    control=PRODUCT_STRATEGIES[name] | args.control,
-                )
-            results[name]["wall_time_s"] = time.monotonic() - t0
-            bar.advance(label="")
+    for name in strategies:
+        t0 = time.monotonic()
+        bar.write(f"seed {plant_seed}: {name} ...")
+        bar.set_label(f"{plant_seed} {name}")
+        if name == "offservo":
+            results[name] = run_offservo(plant_seed, path)
+        elif name == "inertia":
+            results[name] = run_inertia(plant_seed, path)
+        else:
+            results[name] = run_best(
+                plant_seed,
+                path,
+                out / name,
+                online_estimate=args.online_estimate,
+                control=PRODUCT_STRATEGIES[name] | args.control,
+            )
+        results[name]["wall_time_s"] = time.monotonic() - t0
+        bar.advance(label="")
     summary = {
-        "plant_seed": args.plant_seed,
+        "plant_seed": plant_seed,
         "path": {
             "kind": "raster",
             "width_m": WIDTH_M,
@@ -597,7 +625,7 @@ def cli_main(args: argparse.Namespace) -> int:
         summary["adaptation"] = adaptation
     series = {name: r.pop("_series") for name, r in results.items()}
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
-    plot(series, out / "teach_bench.png")
+    plot(series, {name: r["phases"] for name, r in results.items()}, out / "teach_bench.png")
     cols = ("mean_force_n", "p95_force_n", "peak_force_n", "mean_moment_nm",
             "dwell_mean_force_n", "path_error_mm", "completed")  # fmt: skip
     head = ("strategy", "mean N", "p95 N", "peak N", "moment N·m", "dwell N", "path mm", "done")
@@ -605,9 +633,40 @@ def cli_main(args: argparse.Namespace) -> int:
     for name, r in results.items():
         cells = [f"{r[c]:11.1f}" if isinstance(r[c], float) else f"{r[c]!s:>11}" for c in cols]
         print(f"{name:>11} " + " ".join(cells))
+    print("\nmean force per phase [N] (seconds of the run in it)")
+    print(f"{'strategy':>11} " + " ".join(f"{p:>16}" for p in PHASES))
+    for name, r in results.items():
+        cells = [f"{r['phases'][p]['mean_force_n']:7.1f} ({r['phases'][p]['seconds']:5.1f} s)"
+                 for p in PHASES]  # fmt: skip
+        print(f"{name:>11} " + " ".join(f"{c:>16}" for c in cells))
     if adaptation is not None:
         print_adaptation(adaptation)
     print(f"\nsummary: {out / 'summary.json'}")
-    # offservo and inertia are the plant's references, not the product: only a product
-    # strategy that did not get to the end of the path fails the run
-    return 0 if all(r["completed"] for n, r in results.items() if n in PRODUCT_STRATEGIES) else 1
+    return summary
+
+
+def completed(summary: dict[str, Any]) -> bool:
+    """Every product strategy of a seed's ``summary`` got to the end of the path (offservo
+    and inertia are the plant's references, not the product)."""
+    return all(r["completed"] for n, r in summary["strategies"].items() if n in PRODUCT_STRATEGIES)
+
+
+def cli_main(args: argparse.Namespace) -> int:
+    out: Path = args.out
+    out.mkdir(parents=True, exist_ok=True)
+    seeds = args.seeds if args.seeds is not None else [args.plant_seed]
+    strategies = list(args.strategies)
+    summaries: dict[int, dict[str, Any]] = {}
+    with progress_bar(
+        len(seeds) * len(strategies), "teach-bench", "run", enabled=progress_enabled(args)
+    ) as bar:
+        for seed in seeds:
+            folder = out if args.seeds is None else out / f"seed{seed}"
+            summaries[seed] = run_seed(seed, strategies, folder, args, bar)
+    if args.seeds is not None:
+        rows = seed_rows(summaries)
+        (out / "summary.json").write_text(json.dumps(aggregate(rows), indent=2))
+        print_seed_table(rows)
+        print(f"\nsummary over seeds: {out / 'summary.json'}")
+    # only a product strategy that did not get to the end of the path fails the run
+    return 0 if all(completed(s) for s in summaries.values()) else 1
