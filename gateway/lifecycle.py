@@ -57,6 +57,20 @@ class Observations:
     load_problem: str | None = None
     #: the CAN driver's latched trips, health key → what it measured (:data:`DRIVER_TRIPS`)
     driver_trips: Mapping[str, str] = field(default_factory=dict)
+    #: the controller's fault in the CAN driver's words ("J2 fault EMCY 0x8611"), from its
+    #: health while the controller reports FAULT; None: not known (yet)
+    controller_fault_text: str | None = None
+
+
+#: how the gateway names a controller's FAULT (with its cause, when the CAN driver tells it)
+CONTROLLER_FAULT = "robot controller reports FAULT"
+
+
+def controller_fault(obs: Observations) -> str:
+    """The problem a faulted controller is: :data:`CONTROLLER_FAULT`, with the cause the CAN
+    driver gave."""
+    text = obs.controller_fault_text
+    return f"{CONTROLLER_FAULT} ({text})" if text else CONTROLLER_FAULT
 
 
 @dataclass(frozen=True)
@@ -115,7 +129,7 @@ class LifecycleMachine:
         if not obs.estop_ok:
             problems.append("e-stop chain open")
         if obs.controller_state == ControllerState.FAULT:
-            problems.append("robot controller reports FAULT")
+            problems.append(controller_fault(obs))
         for key, label in DRIVER_TRIPS.items():
             if obs.driver_trips.get(key):
                 problems.append(f"{label}: {obs.driver_trips[key]}")
@@ -147,7 +161,18 @@ class LifecycleMachine:
             if self.controller_reset_left > 0:
                 self.controller_reset_left -= 1  # the reset is on its way to the controller
             else:
-                self._go(Lifecycle.FAULT, "robot controller reports FAULT; reset to clear it")
+                self._go(Lifecycle.FAULT, f"{controller_fault(obs)}; reset to clear it")
+        elif (
+            self.state == Lifecycle.FAULT
+            and obs.controller_state == ControllerState.FAULT
+            and obs.controller_fault_text
+            and CONTROLLER_FAULT in self.reason
+            and f"{CONTROLLER_FAULT} (" not in self.reason
+        ):
+            # the cause comes with the CAN driver's health, up to a health period after the
+            # joint state that reported the FAULT: name it once it is known
+            named = self.reason.replace(CONTROLLER_FAULT, controller_fault(obs), 1)
+            self._go(Lifecycle.FAULT, named)
         if obs.controller_state != ControllerState.FAULT:
             self.controller_reset_left = 0
         return self.state

@@ -287,6 +287,8 @@ class Gateway:
         self.engagement: dict | None = None
         #: the CAN driver's latched trips, from its health (lifecycle.DRIVER_TRIPS)
         self.driver_trips: dict[str, str] = {}
+        #: the controller's fault in the CAN driver's words, from its health (None: none)
+        self.controller_fault_text: str | None = None
         self.children: dict[str, Child] = {}
         self.session = None
         self._decls: list = []
@@ -402,6 +404,8 @@ class Gateway:
                 self.driver_trips = {
                     key: str(body[key]) for key in DRIVER_TRIPS if body.get(key) is not None
                 }
+                text = body.get("controller_fault_text")
+                self.controller_fault_text = str(text) if text else None
 
     @property
     def joint_state(self) -> JointState | None:
@@ -439,6 +443,7 @@ class Gateway:
             still_for_s=0.0 if w.moving_s is None else now - w.moving_s,
             load_problem=self._load_problem(),
             driver_trips=dict(self.driver_trips),
+            controller_fault_text=self.controller_fault_text,
         )
 
     def _load_problem(self) -> str | None:

@@ -189,6 +189,27 @@ def test_a_controller_that_stays_in_fault_after_reset_faults_again():
     assert states == {Lifecycle.STOPPED, Lifecycle.FAULT} and m.state == Lifecycle.FAULT
 
 
+def test_a_controller_fault_is_named_with_its_cause_once_the_can_driver_tells_it():
+    """The FAULT comes with the joint state, its cause with the CAN driver's health up to a
+    health period later: the reason names the cause once it is known, and only once."""
+    m = LifecycleMachine()
+    assert m.command("start", healthy())[0]
+    faulted = healthy(controller_state=ControllerState.FAULT)
+    assert m.update(faulted) == Lifecycle.FAULT
+    assert m.reason == "robot controller reports FAULT"
+    seq = m.seq
+    cause = "J2 left operation enabled on its own (switched on)"
+    told = replace(faulted, controller_fault_text=cause)
+    assert m.update(told) == Lifecycle.FAULT
+    assert m.reason == f"robot controller reports FAULT ({cause})" and m.seq == seq + 1
+    m.update(replace(faulted, controller_fault_text="J2 heartbeat lost (0.16 s)"))
+    assert m.reason == f"robot controller reports FAULT ({cause})", "the first cause stays"
+    assert m.link_problems(told) == [f"robot controller reports FAULT ({cause})"]
+    stopped = LifecycleMachine()  # faulted while stopped: the cause and the way out
+    stopped.update(told)
+    assert stopped.reason == f"robot controller reports FAULT ({cause}); reset to clear it"
+
+
 @pytest.mark.parametrize(
     ("field", "trip", "named"),
     [

@@ -159,4 +159,9 @@ pub trait Adapter: Send {
     fn health(&self, _now: f64) -> serde_json::Map<String, serde_json::Value> {
         serde_json::Map::new()
     }
+    /// What the last cycle's fault is, in the adapter's words (which drive, its code), for
+    /// the operator; None where the protocol says no more than [`Feedback::fault`].
+    fn fault_detail(&self) -> Option<&str> {
+        None
+    }
 }

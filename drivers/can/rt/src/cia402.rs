@@ -905,6 +905,11 @@ impl Cia402Adapter {
 }
 
 impl Adapter for Cia402Adapter {
+    /// The drives' fault text ([`Cia402Adapter::fault_text`]) while some drive faults.
+    fn fault_detail(&self) -> Option<&str> {
+        Some(self.fault_text.as_str()).filter(|t| *t != "NONE")
+    }
+
     fn name(&self) -> &'static str {
         "cia402"
     }
@@ -1518,6 +1523,7 @@ mod tests {
             (ControllerState::Fault, "DRIVE_FAULT")
         );
         assert_eq!(a.fault_text(), "J2 fault EMCY 0x8611");
+        assert_eq!(Adapter::fault_detail(&a), Some("J2 fault EMCY 0x8611"));
         let mut out = Vec::new();
         a.request_frames(HostRequest::ResetFault, &mut out);
         assert_eq!(controlwords(&out), [CW_SWITCH_ON, CW_FAULT_RESET]);

@@ -1801,6 +1801,14 @@ impl HostCore {
             "controller_fault".into(),
             fb.map_or(Value::Null, |f| Value::from(f.fault)),
         );
+        // the operator's reason for a FAULT: the adapter's words, else the fault's kind
+        let faulted = fb.filter(|f| f.controller_state == ControllerState::Fault);
+        h.insert(
+            "controller_fault_text".into(),
+            faulted.map_or(Value::Null, |f| {
+                Value::from(self.adapter.fault_detail().unwrap_or(f.fault))
+            }),
+        );
         h.insert("link_ok".into(), Value::from(self.link_ok(now)));
         h.insert(
             "servo_request".into(),

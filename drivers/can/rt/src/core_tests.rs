@@ -1823,6 +1823,24 @@ fn core_the_operators_reset_is_sent_once_and_only_to_a_faulted_controller() {
 }
 
 #[test]
+fn core_a_faulted_controller_is_named_in_the_health_in_the_adapters_words() {
+    let mut cell = rig(|_| {});
+    cell.gateway("fault");
+    cell.cycle(Spec {
+        state: ControllerState::Fault,
+        ..slow(Q0)
+    });
+    let health = cell.health();
+    // the fake adapter has no words of its own: the fault's kind
+    assert_eq!(health["controller_fault_text"], json!("FOLLOWING_ERROR"));
+    cell.cycle(Spec {
+        state: ControllerState::Braked,
+        ..slow(Q0)
+    });
+    assert_eq!(cell.health()["controller_fault_text"], json!(null));
+}
+
+#[test]
 fn core_the_cycle_counter_is_widened_across_the_wrap_and_repeats_are_dropped() {
     let mut cell = rig(|_| {});
     for (counter, cycle) in [(65534, 65534), (65535, 65535), (0, 65536), (2, 65538)] {
@@ -1866,12 +1884,14 @@ fn core_the_health_message() {
     assert_eq!(health["link_ok"], json!(false)); // 0.2 s since the last cycle > controller_timeout_s
     assert_eq!(health["controller_state"], json!("EXTERNAL"));
     assert_eq!(health["controller_fault"], json!("NONE"));
+    assert_eq!(health["controller_fault_text"], json!(null));
     assert_eq!(health["held"], json!(1));
     assert_eq!(health["servo_request"], json!("SERVO_ON"));
     // Python's keys and value types, then the adapter's own entries
     let python = [
         "controller_state",
         "controller_fault",
+        "controller_fault_text", // added by the compiled core: the operator's reason
         "link_ok",
         "servo_request",
         "cycles",
