@@ -76,14 +76,14 @@ from gateway.messages import (
     encode_json,
     make_joint_command,
 )
+from gateway.program import MAX_JOINT_SPEED_RAD_S as MAX_REPLAY_JOINT_SPEED_RAD_S
+from gateway.program import MAX_SPEED_MM_S
 from gateway.ratelog import RateLimitedLog
-from gateway.replay import MAX_JOINT_SPEED_RAD_S as MAX_REPLAY_JOINT_SPEED_RAD_S
-from gateway.replay import MAX_SPEED_MM_S
 from gateway.runner import run_service
 
 log = logging.getLogger("leadthrough.control")
 
-#: fastest tool speed a replay may ask for [m/s] (gateway.replay's bound, ISO 10218-1)
+#: fastest tool speed a replay may ask for [m/s] (gateway.program's bound, ISO 10218-1)
 MAX_REPLAY_SPEED_M_S = MAX_SPEED_MM_S / 1000.0
 #: no point of the tool or the flange moves faster in a replay [m/s]: 20 % under the CAN
 #: driver's speed monitor (250 mm/s). Planned at 0.24 m/s, one replay on a loaded machine was

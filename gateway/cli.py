@@ -84,7 +84,7 @@ def _configure_operator(p: argparse.ArgumentParser, name: str) -> None:
 def _operator_main(args: argparse.Namespace) -> int:
     from gateway.bus import BusConfig, bus_config_from
     from gateway.config import load_toml
-    from gateway.supervisor import operator_request
+    from gateway.operator_request import operator_request
 
     bus = BusConfig()
     if args.config:

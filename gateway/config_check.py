@@ -33,7 +33,7 @@ def _bus(path: Path, raw: dict[str, Any]) -> object:
 
 
 def _gateway(path: Path, raw: dict[str, Any]) -> object:
-    from gateway.supervisor import load_gateway_config
+    from gateway.gateway_config import load_gateway_config
 
     return load_gateway_config(path)
 
@@ -124,9 +124,9 @@ def _section_classes() -> dict[str, type]:
     from drivers.can.config import CanDriverConfig
     from drivers.modbus.config import ModbusDriverConfig
     from gateway.bus import BusConfig
+    from gateway.gateway_config import GatewayConfig
     from gateway.realtime import Realtime
     from gateway.ros2 import Ros2Config
-    from gateway.supervisor import GatewayConfig
 
     return {
         "bus": BusConfig,

@@ -41,6 +41,14 @@ import numpy as np
 
 from gateway.errors import LeadthroughError
 
+#: default tool speed of a replay [mm/s] (the paper's spray path: 100 mm/s)
+DEFAULT_SPEED_MM_S = 100.0
+#: highest tool speed a replay may ask for [mm/s] (ISO 10218-1 reduced speed)
+MAX_SPEED_MM_S = 250.0
+#: no joint of a replay (its approaches included) moves faster [rad/s]: ~17 °/s, 0.3 m/s at
+#: 1 m from the axis; a taught segment that would need more is slowed down as a whole
+MAX_JOINT_SPEED_RAD_S = 0.3
+
 FORMAT = "leadthrough-program"
 VERSION = 1
 #: trace lines reach the disk at least this often [s]

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gateway.replay import DEFAULT_SPEED_MM_S, MAX_JOINT_SPEED_RAD_S, MAX_SPEED_MM_S
+from gateway.program import DEFAULT_SPEED_MM_S, MAX_JOINT_SPEED_RAD_S, MAX_SPEED_MM_S
 
 
 def configure_parser(p: argparse.ArgumentParser) -> None:

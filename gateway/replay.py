@@ -17,14 +17,7 @@ from pathlib import Path
 from gateway.bus import BusConfig, bus_config_from
 from gateway.config import load_toml
 from gateway.errors import LeadthroughError
-
-#: default tool speed of a replay [mm/s] (the paper's spray path: 100 mm/s)
-DEFAULT_SPEED_MM_S = 100.0
-#: highest tool speed a replay may ask for [mm/s] (ISO 10218-1 reduced speed)
-MAX_SPEED_MM_S = 250.0
-#: no joint of a replay (its approaches included) moves faster [rad/s]: ~17 °/s, 0.3 m/s at
-#: 1 m from the axis; a taught segment that would need more is slowed down as a whole
-MAX_JOINT_SPEED_RAD_S = 0.3
+from gateway.program import DEFAULT_SPEED_MM_S, MAX_SPEED_MM_S
 
 
 def replay_plan(program: Path, speed_mm_s: float, plan_id: str | None = None) -> dict:
@@ -61,7 +54,7 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
 
 
 def cli_main(args: argparse.Namespace) -> int:
-    from gateway.supervisor import operator_request
+    from gateway.operator_request import operator_request
 
     bus = BusConfig()
     if args.config:

@@ -13,7 +13,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import ctypes
-import json
 import logging
 import math
 import signal
@@ -28,10 +27,11 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
-from gateway.bus import BusConfig, bus_config_from, open_router, undeclare_all
+from gateway.bus import BusConfig, open_router, undeclare_all
 from gateway.bus_refusals import BusRefusals, count_bus_refusals
-from gateway.config import from_mapping, load_toml, require, resolve_path
+from gateway.config import resolve_path
 from gateway.errors import EXIT_CONFIG, ConfigError, MessageError
+from gateway.gateway_config import GatewayConfig, load_gateway_config
 from gateway.lifecycle import DRIVER_TRIPS, LifecycleMachine, Limits, Observations
 from gateway.messages import (
     LAYOUT_VERSION,
@@ -55,7 +55,6 @@ LOAD_CHECK_MAX_AGE_S = 0.5
 
 log = logging.getLogger("leadthrough.gateway")
 
-SUPERVISED = ("can-driver", "modbus-driver", "control")
 TICK_S = 0.01
 STOP_GRACE_S = 0.3  #: after announcing STOPPED on exit, before children are terminated
 TERMINATE_TIMEOUT_S = 3.0
@@ -201,45 +200,6 @@ class JointStateWatch:
             except MessageError:  # summary and decoder disagree: report no state
                 return None
         return self._state
-
-
-@dataclass(frozen=True)
-class GatewayConfig:
-    """``[gateway]`` section of the cell config."""
-
-    joint_state_timeout_s: float = 0.1
-    io_timeout_s: float = 0.25
-    standstill_rad_s: float = 2e-3  #: teaching starts only below this joint speed [rad/s]
-    standstill_s: float = 0.3  #: ... held for this long [s]
-    health_timeout_s: float = 0.5  #: a child whose heartbeat is older is "silent"
-    #: a child started this long ago [s] with no heartbeat yet is still booting, not silent.
-    #: Measured: control's first log line came 12 s after its start under `taskset -c 0`
-    #: with the CiA 402 cell (the simulator, its drives and four product processes starting on
-    #: one core); the fixed 10 s faulted the cell. Nothing moves meanwhile: teaching waits for
-    #: control's health and its static-load check, and a child that dies is caught by its exit.
-    boot_grace_s: float = 30.0
-    #: the enabling device counts as held once this many I/O states in a row read it held
-    #: (a release counts at once): one corrupt or forged Modbus reply does not start teaching
-    enabling_confirm_polls: int = 2
-    restart_backoff_s: float = 2.0
-    processes: tuple[str, ...] = SUPERVISED
-    #: where taught programs are written (relative: to the cell config's folder)
-    program_dir: str = "programs"
-
-    def __post_init__(self) -> None:
-        for p in self.processes:
-            require(p in SUPERVISED, "[gateway].processes", f"{p!r} not one of {SUPERVISED}")
-        require(
-            self.boot_grace_s > 0 and self.boot_grace_s < 600,
-            "[gateway].boot_grace_s",
-            f"{self.boot_grace_s!r} outside (0, 600) s",
-        )
-        n = self.enabling_confirm_polls
-        require(
-            isinstance(n, int) and not isinstance(n, bool) and 1 <= n <= 50,
-            "[gateway].enabling_confirm_polls",
-            f"{n!r} outside 1..50 I/O states",
-        )
 
 
 @dataclass
@@ -728,13 +688,6 @@ class Gateway:
         self.stop_event.set()
 
 
-def load_gateway_config(cell_path: Path) -> tuple[GatewayConfig, BusConfig]:
-    raw = load_toml(cell_path)
-    bus = bus_config_from(raw, str(cell_path))  # first: it refuses an unknown section
-    cfg = from_mapping(GatewayConfig, raw.get("gateway", {}), f"{cell_path} [gateway]")
-    return cfg, bus
-
-
 def configure_parser(p: argparse.ArgumentParser) -> None:
     p.description = (
         "Run the gateway: the zenoh router, the CAN driver, the Modbus driver and the control "
@@ -769,30 +722,6 @@ def cli_main(args: argparse.Namespace) -> int:
     return run_service(
         "gateway", build, notify=True, status=lambda gw: f"serving the cell on {gw.bus.endpoint}"
     )
-
-
-def operator_request(bus: BusConfig, command: str, timeout_s: float = 3.0, **fields) -> dict:
-    """Send an operator command (plus ``fields``, e.g. ``plan``) and return the JSON reply;
-    ``{"ok": False, "message": why}`` when no gateway answers within ``timeout_s`` (connecting
-    included)."""
-    from gateway.bus import open_client
-    from gateway.errors import LinkTimeoutError
-
-    try:
-        session = open_client(bus, connect_timeout_s=timeout_s)
-    except LinkTimeoutError as exc:
-        return {"ok": False, "message": str(exc)}
-    try:
-        payload = json.dumps({"command": command, **fields}).encode()
-        for reply in session.get(bus.keys.request, payload=payload, timeout=timeout_s):
-            if reply.ok is not None:
-                return decode_json(reply.ok.payload.to_bytes(), "gateway reply")
-        return {
-            "ok": False,
-            "message": f"no gateway answered on {bus.endpoint} within {timeout_s} s",
-        }
-    finally:
-        session.close()
 
 
 def _die_with_parent() -> None:

@@ -34,7 +34,7 @@ import tomli_w
 from drivers.can.seqpacket import socket_address
 from gateway.bus import BusConfig
 from gateway.config import load_toml
-from gateway.supervisor import operator_request
+from gateway.operator_request import operator_request
 from sim_bridge.sim import truth_log_columns
 
 REPO = Path(__file__).resolve().parent.parent

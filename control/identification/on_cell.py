@@ -41,9 +41,9 @@ from gateway.bus import BusConfig, bus_config_from
 from gateway.config import load_toml
 from gateway.errors import LeadthroughError
 from gateway.messages import FLAG_PREV_COAST, FLAG_PREV_HOLD, decode_json
+from gateway.operator_request import operator_request
 from gateway.progress import ProgressBar, add_progress_argument, progress_bar, progress_enabled
 from gateway.recorder import BusRecorder, RecordedStates, export_csv, iter_mcap, read_states
-from gateway.supervisor import operator_request
 
 #: The inner-loop experiment: per joint, velocity steps to ±0.05 rad/s for 0.3 s (15 mrad).
 INNER_LOOP_STEPS: dict[str, Any] = {"joints": [1, 2, 3, 4, 5, 6], "speed_rad_s": 0.05,

@@ -13,7 +13,7 @@ from drivers.modbus.config import ModbusDriverConfig
 from gateway.bus import BusConfig
 from gateway.config import load_toml
 from gateway.errors import ConfigError
-from gateway.supervisor import load_gateway_config
+from gateway.gateway_config import load_gateway_config
 from sim_bridge.config import load_sim_config
 
 REPO = Path(__file__).resolve().parents[2]

@@ -11,8 +11,9 @@ import pytest
 
 from gateway.bus import BusConfig
 from gateway.errors import ConfigError
+from gateway.gateway_config import GatewayConfig
 from gateway.messages import IoState
-from gateway.supervisor import Gateway, GatewayConfig
+from gateway.supervisor import Gateway
 
 
 class _Sample:

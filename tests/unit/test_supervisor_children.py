@@ -12,8 +12,9 @@ import pytest
 
 from gateway.bus import BusConfig
 from gateway.errors import EXIT_CONFIG
+from gateway.gateway_config import GatewayConfig
 from gateway.lifecycle import Lifecycle
-from gateway.supervisor import Child, Gateway, GatewayConfig
+from gateway.supervisor import Child, Gateway
 
 
 def _gateway_with_child(exit_code: int) -> tuple[Gateway, Child]:
