@@ -31,7 +31,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "can-driver": ("drivers.can.driver", "run the CAN driver (started by the gateway)"),
     "modbus-driver": ("drivers.modbus.driver", "run the Modbus driver (started by the gateway)"),
     "control": ("control.process", "run the control process (started by the gateway)"),
-    "sim": ("sim_bridge.sim", "run the virtual robot cell (MuJoCo + virtual controller)"),
+    "sim": ("sim_bridge.sim_cli", "run the virtual robot cell (MuJoCo + virtual controller)"),
     "demo": ("sim_bridge.demo", "run the whole product on the virtual cell and report"),
     "teach-bench": (
         "sim_bridge.teach_bench",

@@ -1,7 +1,7 @@
 """The virtual cell with CiA 402 joint drives instead of the LTC-1 vendor controller.
 
 Chosen by ``[controller].can_profile = "cia402"`` (``sim_bridge/gr630st_truth_cia402.toml``;
-:func:`sim_bridge.sim.make_virtual_cell`). The plant, the Modbus I/O, the operator, the
+:func:`sim_bridge.sim_cli.make_virtual_cell`). The plant, the Modbus I/O, the operator, the
 e-stop chain, the CAN endpoint and the truth log are :class:`~sim_bridge.sim.VirtualCell`'s;
 the drives (:mod:`sim_bridge.cia402_drives`) replace the vendor controller's protocol and
 state machine.

@@ -23,7 +23,6 @@ position, the operator's force — for the demo and the tests to judge the produ
 
 from __future__ import annotations
 
-import argparse
 import json
 import logging
 import math
@@ -41,10 +40,9 @@ from drivers.can.seqpacket import wait_readable
 from gateway.errors import ConfigError
 from gateway.messages import ControllerState
 from gateway.realtime import apply_scheduling as place
-from gateway.signals import StopSignals
 from sim_bridge.can_endpoint import SocketcandServerBus
 from sim_bridge.can_hub import SeqpacketHubBus
-from sim_bridge.config import Endpoints, Scheduling, SimConfig, load_sim_config
+from sim_bridge.config import Endpoints, Scheduling, SimConfig
 from sim_bridge.controller import VirtualController, controller_protocol
 from sim_bridge.modbus_process import VirtualIoProcess
 from sim_bridge.operator import Operator
@@ -164,12 +162,13 @@ class VirtualCell:
 
     def _make_controller(self) -> tuple[LtcProtocolBase, VirtualController]:
         """The vendor controller and the LTC-1 profile it speaks. (The CiA 402 cell,
-        sim_bridge/cia402_cell.py, builds its drives instead: see :func:`make_virtual_cell`.)"""
+        sim_bridge/cia402_cell.py, builds its drives instead: see
+        :func:`sim_bridge.sim_cli.make_virtual_cell`.)"""
         spec = self.cfg.controller
         if spec.can_profile == "cia402":
             raise ConfigError(
                 "[controller].can_profile 'cia402' has no LTC-1 controller: build the cell "
-                "with make_virtual_cell()"
+                "with sim_bridge.sim_cli.make_virtual_cell()"
             )
         proto = controller_protocol(spec, self.n)
         return proto, VirtualController(spec, proto, self.plant.lower_rad, self.plant.upper_rad)
@@ -494,57 +493,3 @@ class VirtualCell:
     def write_summary(self) -> None:
         if self.summary_path:
             self.summary_path.write_text(json.dumps(self.summary(), indent=2))
-
-
-def make_virtual_cell(
-    cfg: SimConfig, truth_log: Path | None = None, summary_path: Path | None = None
-) -> VirtualCell:
-    """The virtual cell ``[controller].can_profile`` asks for: the LTC-1 vendor controller
-    ("classic", "fd"), or one CiA 402 drive per joint ("cia402", imported only then)."""
-    if cfg.controller.can_profile == "cia402":
-        from sim_bridge.cia402_cell import Cia402Cell
-
-        return Cia402Cell(cfg, truth_log, summary_path)
-    return VirtualCell(cfg, truth_log, summary_path)
-
-
-def configure_parser(p: argparse.ArgumentParser) -> None:
-    p.description = (
-        "Run the virtual robot cell: a simulated GR630ST with its closed controller, exposing "
-        "the same CAN (LTC-1; on a Unix seqpacket socket or a socketcand TCP server, see "
-        "[endpoints] of the truth file) and Modbus TCP endpoints as the real cell; with "
-        '[controller] can_profile = "cia402" (sim_bridge/gr630st_truth_cia402.toml) one '
-        "CANopen CiA 402 drive per joint instead of the LTC-1 controller. Stop it with Ctrl-C."
-    )
-    p.add_argument("--truth", type=Path, default=None, help="simulator config (private truth) TOML")
-    p.add_argument(
-        "--plant-seed",
-        type=int,
-        default=None,
-        help="draw the plant from this seed (0: the truth file as written; default: its "
-        "plant_seed)",
-    )
-    p.add_argument(
-        "--duration", type=float, default=None, help="stop after this simulated time [s]"
-    )
-    p.add_argument("--lockstep", action="store_true", help="run lock-step, faster than real time")
-    p.add_argument("--log", type=Path, default=None, help="write the per-cycle truth log (CSV)")
-    p.add_argument("--summary", type=Path, default=None, help="write counters and latency (JSON)")
-
-
-def cli_main(args: argparse.Namespace) -> int:
-    overrides: dict[str, Any] = {}
-    if args.lockstep:
-        overrides["realtime"] = False
-    if args.plant_seed is not None:
-        overrides["plant_seed"] = args.plant_seed
-    cfg = load_sim_config(args.truth, overrides)
-    cell = make_virtual_cell(cfg, args.log, args.summary)
-
-    with StopSignals(cell.stop_event):
-        cell.open()
-        try:
-            cell.run(args.duration)
-        finally:
-            cell.close()
-    return 0

@@ -10,7 +10,8 @@ from collections.abc import Iterator
 
 from sim_bridge.config import load_sim_config
 from sim_bridge.harness import TRUTH_CIA402, free_port, unique_can_address
-from sim_bridge.sim import VirtualCell, make_virtual_cell
+from sim_bridge.sim import VirtualCell
+from sim_bridge.sim_cli import make_virtual_cell
 
 
 @contextlib.contextmanager

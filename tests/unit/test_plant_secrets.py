@@ -30,6 +30,8 @@ PLANT_MODULES = (
     "sim_bridge.operator",
     "sim_bridge.controller",
     "sim_bridge.sim",
+    "sim_bridge.sim_cli",
+    "sim_bridge.cia402_cell",
 )
 #: Files that hold the plant's truth.
 TRUTH_FILES = ("gr630st_truth.toml", "gr630st_arm.xml")
