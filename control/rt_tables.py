@@ -198,13 +198,14 @@ def _effect(term: Any, coef: Any) -> dict[str, Any]:
 
 
 def point_model_table(model: DeclaredModel) -> dict[str, Any]:
-    """The point model of ``model``, declared or identified (module docstring)."""
-    from control.declared_model import IdentifiedControlModel
-
-    if isinstance(model, IdentifiedControlModel):
-        reg = model.identified.regressor
+    """The point model of ``model``, declared or identified (module docstring): an
+    identified one (:class:`~control.declared_model.IdentifiedControlModel`) carries the
+    identification's model as ``identified``."""
+    identified = getattr(model, "identified", None)
+    if identified is not None:
+        reg = identified.regressor
         chain = chain_table(reg.model)
-        parts = _identified(model.identified)
+        parts = _identified(identified)
     else:
         rigid = model.rigid
         chain = chain_table(rigid.model, rigid.armature_kgm2)
