@@ -51,6 +51,11 @@ class ControlConfig:
     #: mass (control/process.py, ``inertia_torque``); 0: none
     inertia_compensation: float = 0.6
     inertia_compensation_hz: float = 10.0
+    #: the stiction dither (control/rt/src/law/zero_moment.rs): each joint at rest gets a sine
+    #: of this share of the model's friction level at ``stiction_dither_hz`` [Hz], so the
+    #: painter breaks a joint away from its static friction with the rest of it; 0: off
+    stiction_dither: float = 0.0
+    stiction_dither_hz: float = 4.0
     #: soft joint limits: a virtual spring pushes back this far inside the hard range [rad]
     soft_limit_margin_rad: float = 0.05
     wall_stiffness_nm_per_rad: float = 2000.0
@@ -329,6 +334,16 @@ class ControlConfig:
             self.friction_deadband_rad_s >= 0,
             "[control].friction_deadband_rad_s",
             f"{self.friction_deadband_rad_s} must be >= 0",
+        )
+        require(
+            math.isfinite(self.stiction_dither) and 0 <= self.stiction_dither < 1,
+            "[control].stiction_dither",
+            f"{self.stiction_dither} not in [0, 1) of the friction level",
+        )
+        require(
+            math.isfinite(self.stiction_dither_hz) and 0 < self.stiction_dither_hz <= 50,
+            "[control].stiction_dither_hz",
+            f"{self.stiction_dither_hz} Hz not in (0, 50]",
         )
         require(
             math.isfinite(self.inertia_compensation) and 0 <= self.inertia_compensation < 1,

@@ -288,6 +288,8 @@ class ZeroMomentController:
             "tool_in_6_m": list(model.desc.tool.position_in_link6_m),
             "drive_servo_rate_hz": cfg.drive_servo_rate_hz,
             "dither_nm": [a * k for a, k in zip(dither, k_nm_per_a, strict=True)] if dither else [],
+            "stiction_dither": cfg.stiction_dither,
+            "stiction_dither_hz": cfg.stiction_dither_hz,
             "drive_model": drive_model,
         }
         #: the compiled cycle over the pieces above

@@ -511,6 +511,40 @@ def test_inertia_compensation_gives_its_share_of_m_qdd(at_once, model):
     assert np.any(np.abs(comp.tau_d_nm - plain.tau_d_nm) > 0.01)
 
 
+def test_the_stiction_dither_swings_a_joint_at_rest_below_its_friction_level(at_once, model):
+    """[control].stiction_dither: on a joint at rest, a sine of that share of the model's
+    friction level at stiction_dither_hz, added to the desired torque; none on a joint that
+    slides (beyond twice the rest speed), none with the share at 0; the settings are checked."""
+    cfg = dataclasses.replace(at_once, max_tool_speed_m_s=0.0)
+    plain = ZeroMomentController(cfg, model)
+    dithered = ZeroMomentController(
+        dataclasses.replace(cfg, stiction_dither=0.5, stiction_dither_hz=4.0), model
+    )
+    q, p, dt = np.array([0.0, 0.2, 0.3, 0.0, -0.3, 0.0]), (6.0, 4.0), 0.008
+    dq = np.zeros(model.n)
+    dq[0] = 0.05  # J1 slides; the others rest
+    torque, diffs = [], []
+    for cycle in range(1, 251):  # 2 s
+        plain.answer(_state(cycle, q, dq, period=dt), p)
+        dithered.answer(_state(cycle, q, dq, period=dt), p)
+        torque.append(dithered._cycle.stiction_torque_nm)
+        diffs.append(np.array(dithered.tau_d_nm) - np.array(plain.tau_d_nm))
+    torque, diffs = np.array(torque), np.array(diffs)
+    level = np.array(dithered._cycle.friction_level)
+    assert np.all(level[1:] > 0)
+    np.testing.assert_array_equal(torque[:, 0], 0.0)  # the sliding joint
+    np.testing.assert_allclose(np.abs(torque[:, 1:]).max(axis=0), 0.5 * level[1:], rtol=0.02)
+    np.testing.assert_allclose(torque.mean(axis=0), 0.0, atol=0.03 * level.max())
+    # it reaches the command through the desired torque (the outer loop's step, eq. 21)
+    np.testing.assert_allclose(diffs[:, 1:], torque[:, 1:], atol=1e-9)
+    for j in range(1, model.n):  # 4 Hz: zero crossings over 2 s
+        assert abs(np.sum(np.diff(np.sign(torque[:, j])) != 0) / 2 / 2.0 - 4.0) < 0.3
+    for bad in ({"stiction_dither": 1.0}, {"stiction_dither": -0.1},
+                {"stiction_dither_hz": 0.0}, {"stiction_dither": float("nan")}):  # fmt: skip
+        with pytest.raises(ConfigError, match="stiction_dither"):
+            dataclasses.replace(cfg, **bad)
+
+
 def test_inertia_compensation_settings_are_checked(at_once):
     bad_settings = (
         {"inertia_compensation": 1.0},

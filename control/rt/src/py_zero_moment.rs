@@ -385,6 +385,12 @@ impl PyZeroMomentCycle {
         Ok(self.lock()?.tau_inertia().to_vec())
     }
 
+    /// The stiction dither's torque of the last cycle [N·m].
+    #[getter]
+    fn stiction_torque_nm(&self) -> PyResult<Vec<f64>> {
+        Ok(self.lock()?.stiction_torque().to_vec())
+    }
+
     /// The tool speed the commands are held to [m/s].
     #[getter]
     fn speed_target_m_s(&self) -> PyResult<f64> {

@@ -15,7 +15,15 @@
 //!   rigid body, M(q) recomputed only after a joint moved [`Settings::inertia_step_rad`];
 //! - the friction compensation ramped in over the speed the loop delay allows, in full while
 //!   a positioning joint slides (law/guided_friction.rs);
-//! - hand guiding's speed limit on the tool point and the flange, on the predicted state.
+//! - hand guiding's speed limit on the tool point and the flange, on the predicted state;
+//! - the stiction dither (`[control] stiction_dither`, off by default): a joint at rest is
+//!   held by its static friction, which the model's friction (zero at rest) never offsets, so
+//!   the painter's first push must break it away alone, and a joint that barely moves on a
+//!   path sticks while the others slide (the demo's J2 on its downward leg: 2.8 s at rest
+//!   while the hand's torque on it built to 38 N·m). As Li et al. (Robotica 2025) compensate
+//!   start-up torque, each joint at rest gets a sine of a share of its friction level: below
+//!   the breakaway it moves nothing by itself, and on every swing towards the push the hand
+//!   needs only the rest of the breakaway.
 //!
 //! The pieces (outer loop, predictor, rest hold, guided switch, hold average, estimate) are
 //! the control process's own objects, borrowed for the cycle ([`Parts`]); this module holds
@@ -85,6 +93,10 @@ pub struct Settings {
     pub drive_servo_rate_hz: f64,
     /// The inner-loop dither's torque amplitude per joint [N·m] (empty: none).
     pub dither_nm: Vec<f64>,
+    /// The stiction dither (module docs): its amplitude as a share of each joint's friction
+    /// level (0: off) and its frequency [Hz].
+    pub stiction_dither: f64,
+    pub stiction_dither_hz: f64,
     /// The delay predictor's drive model (K K_p, Υ_I) when it is not the law's estimates.
     pub drive_model: Option<(Vec<f64>, Vec<f64>)>,
 }
@@ -95,6 +107,14 @@ fn count(v: &Value, key: &str) -> Result<usize, String> {
         return Err(format!("{key}: {x} is not a count"));
     }
     Ok(x as usize)
+}
+
+/// A number that may be absent (0).
+fn optional(v: &Value, key: &str) -> Result<f64, String> {
+    match v.get(key) {
+        None | Some(Value::Null) => Ok(0.0),
+        x => finite(x, key),
+    }
 }
 
 fn joints(v: &Value, key: &str, n: usize) -> Result<Vec<f64>, String> {
@@ -173,8 +193,22 @@ impl Settings {
             tool_in_6_m: [tool[0], tool[1], tool[2]],
             drive_servo_rate_hz: finite(v.get("drive_servo_rate_hz"), "drive_servo_rate_hz")?,
             dither_nm: dither,
+            stiction_dither: optional(v, "stiction_dither")?,
+            stiction_dither_hz: optional(v, "stiction_dither_hz")?,
             drive_model,
         };
+        if !(0.0..1.0).contains(&s.stiction_dither) {
+            return Err(format!(
+                "stiction_dither: {} is not a share of the friction level in [0, 1)",
+                s.stiction_dither
+            ));
+        }
+        if s.stiction_dither > 0.0 && !(s.stiction_dither_hz > 0.0) {
+            return Err(format!(
+                "stiction_dither_hz: {} Hz; a dither needs a frequency > 0",
+                s.stiction_dither_hz
+            ));
+        }
         Ok(s)
     }
 
@@ -184,6 +218,11 @@ impl Settings {
             || self.max_tool_speed_m_s > 0.0
             || self.friction_ramp_factor != 0.0
             || self.inertia_compensation != 0.0
+    }
+
+    /// The law needs each joint's friction level (the ramps, the stiction dither).
+    fn needs_friction_level(&self) -> bool {
+        self.friction_ramp_factor != 0.0 || self.stiction_dither > 0.0
     }
 }
 
@@ -236,6 +275,9 @@ pub struct ZeroMoment {
     sent: Vec<(Joints, Joints)>,
     prev_state: Option<(Joints, Joints)>,
     dither_phase: f64,
+    /// the stiction dither's phase [rad] and torque of the last cycle [N·m]
+    stiction_phase: f64,
+    stiction: Joints,
     ddq_f: Joints,
     dq_last: Option<Joints>,
     tau_inertia: Joints,
@@ -337,6 +379,8 @@ impl ZeroMoment {
             sent: Vec::with_capacity(cap),
             prev_state: None,
             dither_phase: 0.0,
+            stiction_phase: 0.0,
+            stiction: [0.0; MAX_JOINTS],
             ddq_f: [0.0; MAX_JOINTS],
             dq_last: None,
             tau_inertia: [0.0; MAX_JOINTS],
@@ -370,6 +414,33 @@ impl ZeroMoment {
     /// The inertia compensation's torque of the last cycle [N·m].
     pub fn tau_inertia(&self) -> &[f64] {
         &self.tau_inertia[..self.n()]
+    }
+
+    /// The stiction dither's torque of the last cycle [N·m].
+    pub fn stiction_torque(&self) -> &[f64] {
+        &self.stiction[..self.n()]
+    }
+
+    /// The stiction dither (module docs) for a cycle of `dt_s` [s] whose measured joint
+    /// velocities are `dq` [rad/s]: on each joint at rest (|dq| at most `rest_rad_s`, fading
+    /// out to twice that), a sine of `stiction_dither` × the joint's friction level at
+    /// `stiction_dither_hz`, the joints' phases spread over the period.
+    fn stiction_dither(&mut self, dq: &[f64], dt_s: f64) {
+        let n = self.n();
+        self.stiction[..n].fill(0.0);
+        let share = self.s.stiction_dither;
+        if share <= 0.0 {
+            return;
+        }
+        let turn = 2.0 * std::f64::consts::PI;
+        self.stiction_phase =
+            (self.stiction_phase + turn * self.s.stiction_dither_hz * dt_s) % turn;
+        let rest = self.s.rest_rad_s;
+        for j in 0..n {
+            let fade = (2.0 - dq[j].abs() / rest).clamp(0.0, 1.0);
+            let phase = self.stiction_phase + turn * j as f64 / n as f64;
+            self.stiction[j] = fade * share * self.friction_level[j] * phase.sin();
+        }
     }
 
     /// The tool speed the commands of the last cycle were held to [m/s].
@@ -706,7 +777,8 @@ impl ZeroMoment {
             let friction = if f * dq[j] > 0.0 { share * f } else { 0.0 };
             let mut t = stat[j] + friction - s.damping_nm_s_per_rad[j] * dq[j]
                 + hold[j]
-                + self.tau_inertia[j];
+                + self.tau_inertia[j]
+                + self.stiction[j];
             if q[j] > s.upper_rad[j] {
                 t -= k * (q[j] - s.upper_rad[j]);
             }
@@ -813,11 +885,12 @@ impl ZeroMoment {
         self.sent.clear();
         self.prev_state = None;
         self.dq_last = None;
-        if self.s.friction_ramp_factor != 0.0 {
+        if self.s.needs_friction_level() {
             let mut level = [0.0; MAX_JOINTS];
             self.friction_level_at(parts.model, st.q, &mut level[..n]);
             self.friction_level = level;
         }
+        self.stiction_phase = 0.0;
         self.engaged = true;
         self.last_cycle = Some(st.cycle - 1);
         Ok(())
@@ -906,6 +979,7 @@ impl ZeroMoment {
                 self.speed_target = self.speed_target(chain, work, &q[..n], &dq[..n]);
             }
         }
+        self.stiction_dither(st.dq, dt);
         self.cycle_command(parts, &q[..n], &dq[..n], p_bar, dt, q_cmd, dq_cmd)?;
         if self.s.max_tool_speed_m_s > 0.0 {
             if let Some((chain, work)) = parts.chain.as_mut() {
