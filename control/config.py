@@ -56,6 +56,9 @@ class ControlConfig:
     #: painter breaks a joint away from its static friction with the rest of it; 0: off
     stiction_dither: float = 0.0
     stiction_dither_hz: float = 4.0
+    #: ... while the arm is guided (``friction_ramp_guided_s``'s switch) and this long after
+    #: [s]: over the raster's 0.5 s corner stands, not on an arm left alone
+    stiction_dither_hold_s: float = 2.0
     #: soft joint limits: a virtual spring pushes back this far inside the hard range [rad]
     soft_limit_margin_rad: float = 0.05
     wall_stiffness_nm_per_rad: float = 2000.0
@@ -339,6 +342,11 @@ class ControlConfig:
             math.isfinite(self.stiction_dither) and 0 <= self.stiction_dither < 1,
             "[control].stiction_dither",
             f"{self.stiction_dither} not in [0, 1) of the friction level",
+        )
+        require(
+            math.isfinite(self.stiction_dither_hold_s) and self.stiction_dither_hold_s >= 0,
+            "[control].stiction_dither_hold_s",
+            f"{self.stiction_dither_hold_s} s must be >= 0",
         )
         require(
             math.isfinite(self.stiction_dither_hz) and 0 < self.stiction_dither_hz <= 50,

@@ -290,6 +290,7 @@ class ZeroMomentController:
             "dither_nm": [a * k for a, k in zip(dither, k_nm_per_a, strict=True)] if dither else [],
             "stiction_dither": cfg.stiction_dither,
             "stiction_dither_hz": cfg.stiction_dither_hz,
+            "stiction_dither_hold_s": cfg.stiction_dither_hold_s,
             "drive_model": drive_model,
         }
         #: the compiled cycle over the pieces above

@@ -23,6 +23,8 @@ from control.process import ZeroMomentController, load_control_config
 from gateway.errors import ConfigError, MessageError
 from gateway.messages import ControllerState, JointCommand, make_joint_state
 
+#: the stiction dither's fade in and out [s] (control/rt/src/law/zero_moment.rs STICTION_FADE_S)
+FADE_S = 0.25
 #: equal to rounding: a few ulps of torques up to ~1e4 N·m, commands of ~1 rad
 RTOL, ATOL = 1e-12, 1e-9
 
@@ -93,10 +95,11 @@ def test_outer_loop_per_cycle_equals_eq21_step(cfg, model):
 
 def _law_alone(at_once):
     """``at_once`` with the law alone: no tool speed limit (it scales a fast command), no eq.
-    (28) and no inertia compensation (their own tests)."""
+    (28), no inertia compensation and no stiction dither (their own tests)."""
     return dataclasses.replace(
-        at_once, max_tool_speed_m_s=0.0, omega_adaptation_per_s=0.0, inertia_compensation=0.0
-    )
+        at_once, max_tool_speed_m_s=0.0, omega_adaptation_per_s=0.0, inertia_compensation=0.0,
+        stiction_dither=0.0,
+    )  # fmt: skip
 
 
 def _state(cycle, q, dq, q_cmd=None, period=0.004, flags=2, current=None):
@@ -511,36 +514,51 @@ def test_inertia_compensation_gives_its_share_of_m_qdd(at_once, model):
     assert np.any(np.abs(comp.tau_d_nm - plain.tau_d_nm) > 0.01)
 
 
-def test_the_stiction_dither_swings_a_joint_at_rest_below_its_friction_level(at_once, model):
-    """[control].stiction_dither: on a joint at rest, a sine of that share of the model's
-    friction level at stiction_dither_hz, added to the desired torque; none on a joint that
-    slides (beyond twice the rest speed), none with the share at 0; the settings are checked."""
-    cfg = dataclasses.replace(at_once, max_tool_speed_m_s=0.0)
-    plain = ZeroMomentController(cfg, model)
+def test_the_stiction_dither_swings_a_joint_at_rest_while_the_arm_is_guided(at_once, model):
+    """[control].stiction_dither: while the arm is guided (a positioning joint slides) and
+    stiction_dither_hold_s after, a joint at rest gets a sine of that share of the model's
+    friction level at stiction_dither_hz, added to the desired torque; none on the sliding
+    joint, none on an arm nobody guides, none with the share at 0; the settings are checked."""
+    cfg = dataclasses.replace(at_once, max_tool_speed_m_s=0.0, stiction_dither_hold_s=1.0)
+    plain = ZeroMomentController(dataclasses.replace(cfg, stiction_dither=0.0), model)
     dithered = ZeroMomentController(
         dataclasses.replace(cfg, stiction_dither=0.5, stiction_dither_hz=4.0), model
     )
     q, p, dt = np.array([0.0, 0.2, 0.3, 0.0, -0.3, 0.0]), (6.0, 4.0), 0.008
-    dq = np.zeros(model.n)
-    dq[0] = 0.05  # J1 slides; the others rest
-    torque, diffs = [], []
-    for cycle in range(1, 251):  # 2 s
-        plain.answer(_state(cycle, q, dq, period=dt), p)
-        dithered.answer(_state(cycle, q, dq, period=dt), p)
-        torque.append(dithered._cycle.stiction_torque_nm)
-        diffs.append(np.array(dithered.tau_d_nm) - np.array(plain.tau_d_nm))
-    torque, diffs = np.array(torque), np.array(diffs)
+    rest, slide = np.zeros(model.n), np.zeros(model.n)
+    slide[0] = 0.05  # J1 slides (beyond its friction ramp: the arm is guided); the others rest
+    # 1 s untouched, 2 s guided, then 2 s at rest again: (dq, seconds)
+    script = [(rest, 1.0), (slide, 2.0), (rest, 2.0)]
+    torque, diffs, t, cycle = [], [], [], 0
+    for dq, seconds in script:
+        for _ in range(round(seconds / dt)):
+            cycle += 1
+            plain.answer(_state(cycle, q, dq, period=dt), p)
+            dithered.answer(_state(cycle, q, dq, period=dt), p)
+            torque.append(dithered._cycle.stiction_torque_nm)
+            diffs.append(np.array(dithered.tau_d_nm) - np.array(plain.tau_d_nm))
+            t.append(cycle * dt)
+    torque, diffs, t = np.array(torque), np.array(diffs), np.array(t)
     level = np.array(dithered._cycle.friction_level)
     assert np.all(level[1:] > 0)
-    np.testing.assert_array_equal(torque[:, 0], 0.0)  # the sliding joint
-    np.testing.assert_allclose(np.abs(torque[:, 1:]).max(axis=0), 0.5 * level[1:], rtol=0.02)
-    np.testing.assert_allclose(torque.mean(axis=0), 0.0, atol=0.03 * level.max())
+    np.testing.assert_array_equal(torque[t <= 1.0], 0.0)  # nobody guides the arm
+    guided = (t > 1.0 + FADE_S) & (t <= 3.0)
+    np.testing.assert_array_equal(torque[guided, 0], 0.0)  # the sliding joint
+    swing = np.abs(torque[guided, 1:]).max(axis=0)
+    np.testing.assert_allclose(swing, 0.5 * level[1:], rtol=0.02)
+    np.testing.assert_allclose(torque[guided].mean(axis=0), 0.0, atol=0.03 * level.max())
+    for j in range(1, model.n):  # 4 Hz: zero crossings
+        crossings = np.sum(np.diff(np.sign(torque[guided, j])) != 0)
+        assert abs(crossings / 2 / (guided.sum() * dt) - 4.0) < 0.3
+    # held on for stiction_dither_hold_s after the guiding (the guided switch's own hold
+    # first), then faded out
+    assert np.abs(torque[(t > 3.3) & (t <= 4.0)]).max() > 0.3 * level[1:].min()
+    np.testing.assert_array_equal(torque[t > 3.0 + 0.3 + 1.0 + FADE_S + dt], 0.0)
     # it reaches the command through the desired torque (the outer loop's step, eq. 21)
-    np.testing.assert_allclose(diffs[:, 1:], torque[:, 1:], atol=1e-9)
-    for j in range(1, model.n):  # 4 Hz: zero crossings over 2 s
-        assert abs(np.sum(np.diff(np.sign(torque[:, j])) != 0) / 2 / 2.0 - 4.0) < 0.3
+    np.testing.assert_allclose(diffs, torque, atol=1e-9)
     for bad in ({"stiction_dither": 1.0}, {"stiction_dither": -0.1},
-                {"stiction_dither_hz": 0.0}, {"stiction_dither": float("nan")}):  # fmt: skip
+                {"stiction_dither_hz": 0.0}, {"stiction_dither": float("nan")},
+                {"stiction_dither_hold_s": -1.0}):  # fmt: skip
         with pytest.raises(ConfigError, match="stiction_dither"):
             dataclasses.replace(cfg, **bad)
 

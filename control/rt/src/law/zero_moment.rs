@@ -23,7 +23,11 @@
 //!   while the hand's torque on it built to 38 N·m). As Li et al. (Robotica 2025) compensate
 //!   start-up torque, each joint at rest gets a sine of a share of its friction level: below
 //!   the breakaway it moves nothing by itself, and on every swing towards the push the hand
-//!   needs only the rest of the breakaway.
+//!   needs only the rest of the breakaway. Only while the arm is guided (a positioning joint
+//!   moves faster than [`STICTION_GATE_RAD_S`], or the friction's guided switch is on,
+//!   law/guided_friction.rs) and `stiction_dither_hold_s` after: an arm nobody guides
+//!   is left to its stiction (on the virtual cell a dither at rest tripled the weightless
+//!   arm's drift, 0.05-0.13 -> 0.32-0.36 mm in 5 s).
 //!
 //! The pieces (outer loop, predictor, rest hold, guided switch, hold average, estimate) are
 //! the control process's own objects, borrowed for the cycle ([`Parts`]); this module holds
@@ -36,7 +40,7 @@ use serde_json::Value;
 
 use crate::chain::{Chain, Work, MAX_JOINTS};
 use crate::law::delay::{self, DelayPredictor};
-use crate::law::guided_friction::GuidedFriction;
+use crate::law::guided_friction::{GuidedFriction, POSITIONING_JOINTS};
 use crate::law::inner_estimate::{self, cycle_means, InnerLoopEstimator};
 use crate::law::outer_loop::{Adaptation, HoldAverage, OuterLoop};
 use crate::law::rest_hold::RestHold;
@@ -44,6 +48,13 @@ use crate::point_model::PointModel;
 use crate::table::{finite, vector};
 
 type Joints = [f64; MAX_JOINTS];
+/// The stiction dither fades in and out over this [s]: a step of the friction level's share
+/// would jolt the arm.
+pub const STICTION_FADE_S: f64 = 0.25;
+/// The arm is guided for the stiction dither while a positioning joint moves faster than this
+/// [rad/s]: five times the rest speed; the dither alone moved an untouched arm's joints at
+/// 3.6 mrad/s at most (the weightless stack test), so it never keeps itself on.
+pub const STICTION_GATE_RAD_S: f64 = 0.01;
 const SQUARE: usize = MAX_JOINTS * MAX_JOINTS;
 
 /// The law's settings ([control] of the cell config, the robot's datasheet), as
@@ -94,9 +105,11 @@ pub struct Settings {
     /// The inner-loop dither's torque amplitude per joint [N·m] (empty: none).
     pub dither_nm: Vec<f64>,
     /// The stiction dither (module docs): its amplitude as a share of each joint's friction
-    /// level (0: off) and its frequency [Hz].
+    /// level (0: off), its frequency [Hz], and how long it goes on after the arm was last
+    /// guided [s].
     pub stiction_dither: f64,
     pub stiction_dither_hz: f64,
+    pub stiction_dither_hold_s: f64,
     /// The delay predictor's drive model (K K_p, Υ_I) when it is not the law's estimates.
     pub drive_model: Option<(Vec<f64>, Vec<f64>)>,
 }
@@ -195,6 +208,7 @@ impl Settings {
             dither_nm: dither,
             stiction_dither: optional(v, "stiction_dither")?,
             stiction_dither_hz: optional(v, "stiction_dither_hz")?,
+            stiction_dither_hold_s: optional(v, "stiction_dither_hold_s")?,
             drive_model,
         };
         if !(0.0..1.0).contains(&s.stiction_dither) {
@@ -275,8 +289,11 @@ pub struct ZeroMoment {
     sent: Vec<(Joints, Joints)>,
     prev_state: Option<(Joints, Joints)>,
     dither_phase: f64,
-    /// the stiction dither's phase [rad] and torque of the last cycle [N·m]
+    /// the stiction dither's phase [rad], its gain (0..1, fading in and out with the
+    /// guiding), the time since the arm was last guided [s], its torque of the last cycle [N·m]
     stiction_phase: f64,
+    stiction_gain: f64,
+    since_guided_s: f64,
     stiction: Joints,
     ddq_f: Joints,
     dq_last: Option<Joints>,
@@ -380,6 +397,8 @@ impl ZeroMoment {
             prev_state: None,
             dither_phase: 0.0,
             stiction_phase: 0.0,
+            stiction_gain: 0.0,
+            since_guided_s: f64::INFINITY,
             stiction: [0.0; MAX_JOINTS],
             ddq_f: [0.0; MAX_JOINTS],
             dq_last: None,
@@ -422,24 +441,42 @@ impl ZeroMoment {
     }
 
     /// The stiction dither (module docs) for a cycle of `dt_s` [s] whose measured joint
-    /// velocities are `dq` [rad/s]: on each joint at rest (|dq| at most `rest_rad_s`, fading
-    /// out to twice that), a sine of `stiction_dither` × the joint's friction level at
-    /// `stiction_dither_hz`, the joints' phases spread over the period.
-    fn stiction_dither(&mut self, dq: &[f64], dt_s: f64) {
+    /// velocities are `dq` [rad/s], `guided` whether the arm is being guided now
+    /// (law/guided_friction.rs): while it is and for `stiction_dither_hold_s` after, on each
+    /// joint at rest (|dq| at most `rest_rad_s`, fading out to twice that), a sine of
+    /// `stiction_dither` × the joint's friction level at `stiction_dither_hz`, the joints'
+    /// phases spread over the period; it fades in and out over [`STICTION_FADE_S`].
+    fn stiction_dither(&mut self, dq: &[f64], guided: bool, dt_s: f64) {
         let n = self.n();
         self.stiction[..n].fill(0.0);
         let share = self.s.stiction_dither;
         if share <= 0.0 {
             return;
         }
+        self.since_guided_s = if guided {
+            0.0
+        } else {
+            self.since_guided_s + dt_s
+        };
+        let target = if self.since_guided_s < self.s.stiction_dither_hold_s {
+            1.0
+        } else {
+            0.0
+        };
+        let step = dt_s / STICTION_FADE_S;
+        self.stiction_gain += (target - self.stiction_gain).clamp(-step, step);
+        if self.stiction_gain <= 0.0 {
+            return;
+        }
         let turn = 2.0 * std::f64::consts::PI;
         self.stiction_phase =
             (self.stiction_phase + turn * self.s.stiction_dither_hz * dt_s) % turn;
         let rest = self.s.rest_rad_s;
+        let amplitude = self.stiction_gain * share;
         for j in 0..n {
             let fade = (2.0 - dq[j].abs() / rest).clamp(0.0, 1.0);
             let phase = self.stiction_phase + turn * j as f64 / n as f64;
-            self.stiction[j] = fade * share * self.friction_level[j] * phase.sin();
+            self.stiction[j] = fade * amplitude * self.friction_level[j] * phase.sin();
         }
     }
 
@@ -891,6 +928,8 @@ impl ZeroMoment {
             self.friction_level = level;
         }
         self.stiction_phase = 0.0;
+        self.stiction_gain = 0.0;
+        self.since_guided_s = f64::INFINITY;
         self.engaged = true;
         self.last_cycle = Some(st.cycle - 1);
         Ok(())
@@ -979,7 +1018,10 @@ impl ZeroMoment {
                 self.speed_target = self.speed_target(chain, work, &q[..n], &dq[..n]);
             }
         }
-        self.stiction_dither(st.dq, dt);
+        let moving = st.dq[..n.min(POSITIONING_JOINTS)]
+            .iter()
+            .any(|v| v.abs() > STICTION_GATE_RAD_S);
+        self.stiction_dither(st.dq, moving || parts.guided.guided(), dt);
         self.cycle_command(parts, &q[..n], &dq[..n], p_bar, dt, q_cmd, dq_cmd)?;
         if self.s.max_tool_speed_m_s > 0.0 {
             if let Some((chain, work)) = parts.chain.as_mut() {
