@@ -213,8 +213,14 @@ def stop_while_dragging(tmp_path, event: str = "release", cell_overrides=None) -
                 "max_force_n": 80.0,  # enough to break J2 and J3 away from their stiction
                 "release_after_s" if event == "release" else "estop_after_s": 2.5,
                 # ... then as soon as the tool moves: in a stall (the arm sticks and slips
-                # under the 80 N hand, more often on a loaded machine) there is nothing to stop
-                "event_min_speed_m_s": 0.12}  # fmt: skip
+                # under the 80 N hand, more often on a loaded machine) there is nothing to stop.
+                # The trigger only has to be clear of the 0.08 m/s the tests assert the arm
+                # moved at (25 % above it): at 0.12 the CiA 402 arm, whose model was
+                # commissioned on the LTC cell and is read through the drives' own current
+                # (J2's replay model error 6.7 N·m there, 1.2-1.9 on LTC), stayed under it in
+                # 2 of about 14 runs over two days and was never released (2026-11-30: dragged
+                # to the path's end, 48 N of hand on a still arm)
+                "event_min_speed_m_s": 0.10}  # fmt: skip
     with Stack(tmp_path, sim_overrides={"operator": operator}, cell_overrides=cell_overrides) as st:
         st.start()
         st.start_teaching()
