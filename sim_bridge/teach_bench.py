@@ -94,8 +94,6 @@ HAND = {"hand_stiffness_n_per_m": 1500.0, "hand_damping_n_s_per_m": 300.0, "max_
 TREMOR_M, TREMOR_HZ = 0.0005, 9.0
 #: the operator got to the end when the tool ends this close to the path's last point [m]
 COMPLETED_WITHIN_M = 0.05
-#: the target is moving when it moves faster than this [m/s]
-MOVING_M_S = 1e-3
 STRATEGIES = ("offservo", "inertia", "paper", "best", "admittance")
 #: the ``[control]`` settings of each product strategy; "paper" starts Υ̂_I from the paper's
 #: 1.2/s and adapts it with ω̂ (eqs. 28, 30; control/rt/src/law/outer_loop.rs)
@@ -174,8 +172,9 @@ def metrics(
     target = _target(path, tau)
     speed = np.linalg.norm(np.gradient(target, tau, axis=0), axis=1) if tau.size > 1 else tau
     during = tau <= path[-1][0]
-    moving = (speed > MOVING_M_S) & during
-    dwell = (~moving) & during
+    phase = classify(tau, speed, path[-1][0], q)
+    dwell = phase == PHASES.index("dwell")
+    moving = (phase >= 0) & ~dwell
     f = np.linalg.norm(force, axis=1)
     moment = np.linalg.norm(np.cross(tool - flange, force), axis=1)
     vertices = origin + np.array([w[1:] for w in path])
@@ -195,7 +194,6 @@ def metrics(
             0.0, np.cumsum(np.linalg.norm(np.diff(np.array([w[1:] for w in path]), axis=0), axis=1))
         ],
     )
-    phase = classify(tau, speed, path[-1][0], q)
     return {
         "_series": {"progress_m": progress[during], "force_n": f[during], "phase": phase[during]},
         "phases": phase_forces(tau, f, phase),

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 PHASES = ("startup", "cruise", "reversal", "dwell")
-#: the target moves when it moves faster than this [m/s] (teach_bench.MOVING_M_S)
+#: the target moves when it moves faster than this [m/s]
 MOVING_M_S = 1e-3
 #: a leg's start-up [s]: at the raster's 0.1 m/s the target leads a tool held by stiction by
 #: 50 mm after 0.5 s, 75 N of the bench's 1500 N/m hand: by then the arm has broken away or
