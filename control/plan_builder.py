@@ -8,7 +8,7 @@ one second and the CAN driver stopped the arm. Built in another thread of the co
 would still hold the cycle back, since the GIL is one lock for both.
 
 So :class:`PlanBuilder` builds plans in a worker *process*, started with the first plan and
-kept, at a lower CPU priority than the cycle (:data:`WORKER_NICENESS`): the cycle callback
+kept, at a lower CPU priority than the cycle (control/plan_worker.py): the cycle callback
 submits the plan and answers every cycle with a hold while the worker builds
 (control/process.py ``PlanPlayer``, state ``planning``). :func:`build_parts` is the one
 function that builds a plan; the worker runs it, and so do pure tests without a worker.
@@ -16,7 +16,6 @@ function that builds a plan; the worker runs it, and so do pure tests without a 
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import math
 import os
@@ -34,11 +33,6 @@ log = logging.getLogger(__name__)
 
 #: a plan's segments: (label, role, q (T, n) [rad], dq (T, n) [rad/s])
 Parts = list[tuple[str, str, np.ndarray, np.ndarray]]
-
-#: niceness of the worker process: the scheduler prefers the cycle's processes over it when a
-#: core is shared (10: half of the 0..19 range; a planner that waits costs a pause, a cycle that
-#: waits costs lost commands)
-WORKER_NICENESS = 10
 
 
 class PlanRefused(ValueError):
@@ -103,50 +97,6 @@ def _replay_parts(
     return [(label, "replay", q, dq) for label, q, dq in segments]
 
 
-class _Captured(logging.Handler):
-    """In the worker: the build's log records, to be logged again by the control process
-    (the worker has no log of its own)."""
-
-    def __init__(self) -> None:
-        super().__init__(logging.INFO)
-        self.records: list[tuple[str, int, str]] = []
-
-    def emit(self, record: logging.LogRecord) -> None:
-        self.records.append((record.name, record.levelno, record.getMessage()))
-
-
-def _serve(requests: Connection, replies: Connection) -> None:
-    """The worker process: build each plan that comes over ``requests``, send back the outcome
-    (``("ok", parts)``, ``("refused", why)`` or ``("error", what)``) and the log records
-    over ``replies``, until the control process closes its end."""
-    with contextlib.suppress(OSError):  # not allowed here: still outside the cycle's process
-        os.nice(WORKER_NICENESS)
-    captured = _Captured()
-    root = logging.getLogger()
-    root.addHandler(captured)
-    root.setLevel(logging.INFO)
-    # imported now, not while the first plan waits
-    import control.experiments
-    import control.taught_path  # noqa: F401
-
-    while True:
-        try:
-            job_id, args = requests.recv()
-        except (EOFError, OSError):
-            return
-        captured.records = []
-        try:
-            outcome: tuple[str, Any] = ("ok", build_parts(*args))
-        except PlanRefused as exc:
-            outcome = ("refused", str(exc))
-        except Exception as exc:  # a fault of ours: the plan fails with it, the worker stays
-            outcome = ("error", f"{type(exc).__name__}: {exc}")
-        try:
-            replies.send((job_id, outcome, captured.records))
-        except (OSError, ValueError):
-            return
-
-
 class PlanBuilder:
     """Builds plans with :func:`build_parts` in one worker process (module docstring).
 
@@ -175,7 +125,7 @@ class PlanBuilder:
         try:
             with normal_priority_children():
                 proc = subprocess.Popen(
-                    [sys.executable, "-m", "control.plan_builder",
+                    [sys.executable, "-m", "control.plan_worker",
                      str(to_worker_r), str(from_worker_w)],
                     pass_fds=(to_worker_r, from_worker_w),
                     stdin=subprocess.DEVNULL,
@@ -252,9 +202,3 @@ class PlanBuilder:
     def close(self) -> None:
         """End the worker process now (a plan being built is dropped). Idempotent."""
         self._stop_worker()
-
-
-if __name__ == "__main__":  # the worker: PlanBuilder.start runs this module with two pipe fds
-    _serve(
-        Connection(int(sys.argv[1]), writable=False), Connection(int(sys.argv[2]), readable=False)
-    )

@@ -60,6 +60,11 @@ log = logging.getLogger("leadthrough.recorder")
 _STOP = object()
 #: the longest a received message waits in memory before it is on disk [s]
 FLUSH_PERIOD_S = 1.0
+#: niceness of the writer thread (its own, Linux keeps one per thread): turning each message
+#: into JSON costs ~0.4 ms, half of `make demo`'s observer process and more CPU than the CAN
+#: driver (2026-11-30); on a slow cell PC whose cores the cycle needs, the writer waits and the
+#: queue holds the messages (10: half of the 0..19 range, as control/plan_builder.py's worker)
+WRITER_NICENESS = 10
 
 
 class BusRecorder:
@@ -107,6 +112,8 @@ class BusRecorder:
         self._queue.put((str(sample.key_expr), time.monotonic_ns(), sample.payload.to_bytes()))
 
     def _write_loop(self) -> None:
+        with contextlib.suppress(OSError, AttributeError):  # not Linux, or not permitted
+            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), WRITER_NICENESS)
         #: wall-clock of the recording's start, advanced by the monotonic clock [ns]
         wall0_ns, mono0_ns = time.time_ns(), time.monotonic_ns()
         out: _McapFile | None = None

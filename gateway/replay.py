@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import time
 from pathlib import Path
+from typing import Any
 
 from gateway.bus import BusConfig, bus_config_from
 from gateway.config import load_toml
@@ -54,14 +55,20 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
 
 
 def cli_main(args: argparse.Namespace) -> int:
-    from gateway.operator_request import operator_request
+    from gateway.operator_request import OperatorClient
 
     bus = BusConfig()
     if args.config:
         bus = bus_config_from(load_toml(args.config), str(args.config))
     bus = bus.with_overrides(args.bus)
     plan = replay_plan(args.program, args.speed_mm_s)
-    reply = operator_request(bus, "replay", args.timeout, plan=plan)
+    with OperatorClient(bus) as client:
+        return _replay(client, plan, args)
+
+
+def _replay(client: Any, plan: dict, args: argparse.Namespace) -> int:
+    """Send the replay and, unless ``--no-wait``, follow it on the status until it ends."""
+    reply = client.request("replay", args.timeout, plan=plan)
     if not reply.get("ok"):
         print(f"REFUSED: {reply.get('message')} [state: {reply.get('state', '?')}]")
         return 1
@@ -70,7 +77,7 @@ def cli_main(args: argparse.Namespace) -> int:
         return 0
     while True:
         time.sleep(0.5)
-        status = operator_request(bus, "status", args.timeout)
+        status = client.request("status", args.timeout)
         result = status.get("plan") or {}
         if result.get("plan_id") != plan["plan_id"]:
             print(f"ENDED: the gateway no longer knows the replay [state: {status.get('state')}]")

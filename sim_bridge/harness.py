@@ -34,7 +34,7 @@ import tomli_w
 from drivers.can.seqpacket import socket_address
 from gateway.bus import BusConfig
 from gateway.config import load_toml
-from gateway.operator_request import operator_request
+from gateway.operator_request import OperatorClient
 from sim_bridge.sim import truth_log_columns
 
 REPO = Path(__file__).resolve().parent.parent
@@ -346,6 +346,7 @@ class Stack:
         self.sim: subprocess.Popen | None = None
         self.gateway: subprocess.Popen | None = None
         self._logs: list[Any] = []
+        self._client: OperatorClient | None = None
 
     def _spawn(self, name: str, args: list[str]) -> subprocess.Popen:
         out = (self.workdir / f"{name}.log").open("w")
@@ -375,7 +376,13 @@ class Stack:
         self.gateway = self._spawn("gateway", ["gateway", "--config", str(self.cell_path)])
 
     def request(self, command: str, timeout_s: float = 3.0, **fields: Any) -> dict[str, Any]:
-        return operator_request(self.bus, command, timeout_s, **fields)
+        """An operator command's reply, over one kept session (``wait_status`` polls every
+        0.1 s: :class:`~gateway.operator_request.OperatorClient`)."""
+        if self._client is None or self._client.bus != self.bus:
+            if self._client is not None:
+                self._client.close()
+            self._client = OperatorClient(self.bus)
+        return self._client.request(command, timeout_s, **fields)
 
     def restart_gateway(self, timeout_s: float = 10.0) -> None:
         """Start the gateway again (after a test killed it); the simulator runs on.
@@ -480,6 +487,9 @@ class Stack:
         """Stop the gateway (which stops its children) then the simulator; kill stragglers.
         Returns what had to be killed (empty when everything stopped as it should)."""
         killed = []
+        if self._client is not None:
+            self._client.close()
+            self._client = None
         for proc in (self.gateway, self.sim):
             if proc is not None and proc.poll() is None:
                 proc.send_signal(signal.SIGTERM)

@@ -5,13 +5,16 @@ a plan that takes too long fails and the arm was held all along."""
 
 from __future__ import annotations
 
+import os
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
 from example_program import write_program
 
 from control.plan_builder import PlanBuilder, PlanRefused, build_parts
+from control.plan_worker import WORKER_NICENESS
 from control.process import PlanPlayer
 from control.robot.description import load_description
 from gateway.messages import FLAG_SERVO_POWER, ControllerState, make_joint_state
@@ -115,6 +118,23 @@ def test_a_worker_that_dies_fails_the_plan_and_the_next_plan_gets_a_new_one(buil
     player.start({**plan, "plan_id": "r2"}, _state(200), PERIOD_S)
     _until_not_planning(player, 200)
     assert player.state == "running", player.reason
+
+
+def _niceness(pid: int) -> int:
+    stat = Path(f"/proc/{pid}/stat").read_text()
+    return int(stat[stat.rfind(")") + 2 :].split()[16])  # field 19: nice
+
+
+def test_the_worker_runs_below_the_cycle(builder):
+    """The worker lowers its own priority before its imports (control/plan_worker.py): the
+    scheduler prefers the cycle's processes over it, even while it starts."""
+    assert builder._proc is not None
+    expected = min(os.nice(0) + WORKER_NICENESS, 19)
+    deadline = time.monotonic() + BUILD_TIMEOUT_S
+    while _niceness(builder._proc.pid) != expected and time.monotonic() < deadline:
+        time.sleep(0.001)
+    assert _niceness(builder._proc.pid) == expected
+    assert os.nice(0) == expected - WORKER_NICENESS or expected == 19  # the owner's unchanged
 
 
 def test_build_parts_names_what_was_wrong():
