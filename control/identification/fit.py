@@ -124,6 +124,7 @@ def make_context(
         lowpass=data.lowpass if data.filter_hz is not None else None,
         sample_hz=data.sample_hz,
         raw_hz=data.raw_hz,
+        dq_noise=data.dq_noise_rad_s,
     )
 
 
@@ -452,7 +453,12 @@ class IdentifiedModel:
         return single, out
 
     def _context(
-        self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray, t_s: np.ndarray | None
+        self,
+        q: np.ndarray,
+        dq: np.ndarray,
+        ddq: np.ndarray,
+        t_s: np.ndarray | None,
+        dq_noise: np.ndarray | None = None,
     ) -> Context:
         reg = self.regressor
         payload = any(term.name == "payload" for term, _, _ in self.effects)
@@ -461,7 +467,7 @@ class IdentifiedModel:
         y = reg.regressor_columns(q, dq, ddq, cols.astype(int))
         return Context(
             q, dq, ddq, t_s, y[:, :, :nb], y[:, :, nb:] if payload else None, None, None,
-            self.envelope,
+            self.envelope, dq_noise=dq_noise,
         )  # fmt: skip
 
     def _rigid(self, y_base: np.ndarray) -> np.ndarray:
@@ -506,14 +512,17 @@ class IdentifiedModel:
         dq_rad_s: np.ndarray,
         ddq_rad_s2: np.ndarray,
         t_s: np.ndarray | None = None,
+        dq_noise_rad_s: np.ndarray | None = None,
     ) -> np.ndarray:
         """Rigid body + friction + accepted effect terms [N·m]; (n,) or (T, n).
 
         ``t_s`` [s] (scalar or (T,)) is only used by a thermal_drift effect (omitted without).
+        ``dq_noise_rad_s`` (n,): the std of the noise on ``dq_rad_s`` (None: exact), over
+        which friction is taken in expectation (:meth:`.terms.Context.sample_mean`).
         """
         single, (q, dq, ddq) = self._arrays(q_rad, dq_rad_s, ddq_rad_s2)
         t = None if t_s is None else np.broadcast_to(np.asarray(t_s, dtype=float), (q.shape[0],))
-        out = self.torque_from_context(self._context(q, dq, ddq, t))
+        out = self.torque_from_context(self._context(q, dq, ddq, t, dq_noise_rad_s))
         return out[0] if single else out
 
     def measured(self, tau_nm: np.ndarray) -> np.ndarray:
@@ -530,9 +539,10 @@ class IdentifiedModel:
         dq_rad_s: np.ndarray,
         ddq_rad_s2: np.ndarray,
         t_s: np.ndarray | None = None,
+        dq_noise_rad_s: np.ndarray | None = None,
     ) -> np.ndarray:
         """:meth:`torque_nm` through the measurement chain (:meth:`measured`) [N·m]."""
-        return self.measured(self.torque_nm(q_rad, dq_rad_s, ddq_rad_s2, t_s))
+        return self.measured(self.torque_nm(q_rad, dq_rad_s, ddq_rad_s2, t_s, dq_noise_rad_s))
 
     def torque_from_context(self, ctx: Context) -> np.ndarray:
         """:meth:`torque_nm` on a :class:`Context` whose regressor columns are computed (the
@@ -569,7 +579,7 @@ class IdentifiedModel:
         ``data.tau``: :meth:`torque_nm` at the sample times, through the torque's low-pass
         (:meth:`.preprocess.Prepared.lowpass`), delayed by :attr:`delay_s` when a time_delay
         effect was accepted; through the measurement chain (:meth:`measured`)."""
-        ctx = self._context(data.q, data.dq, data.ddq, data.t)
+        ctx = self._context(data.q, data.dq, data.ddq, data.t, data.dq_noise_rad_s)
         ctx.sample_hz, ctx.raw_hz = data.sample_hz, data.raw_hz
         tau = self.measured(data.lowpass(self.torque_from_context(ctx)))
         return shift_signal(data.t, data.segment, tau, -self.delay_s) if self.delay_s else tau

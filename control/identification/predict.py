@@ -40,6 +40,7 @@ from control.identification.preprocess import (
     gap_free_segments,
     lowpass_to_the_edges,
     states_to_the_edges,
+    velocity_noise_std,
 )
 from control.model.cylinders import torque_per_pa
 from control.robot.description import BAR_TO_PA, RobotDescription
@@ -138,10 +139,14 @@ def predict_rows(
         ok = at >= t[0]
         dq = None if m.dq is None else m.dq[a:b]
         q_f, dq_f, ddq_f = _states(t, m.q[a:b], dq, cutoff, at[ok])
+        # this stretch's own velocity noise, which friction is taken in expectation over
+        noise = velocity_noise_std(m.q[a:b], dq, float(np.median(np.diff(t))), cutoff)
         rows = np.flatnonzero(ok) + a
         for c in range(0, rows.size, CHUNK_ROWS):
             r = slice(c, c + CHUNK_ROWS)
-            out[rows[r]] = model.measured_torque_nm(q_f[r], dq_f[r], ddq_f[r], at[ok][r])
+            out[rows[r]] = model.measured_torque_nm(
+                q_f[r], dq_f[r], ddq_f[r], at[ok][r], dq_noise_rad_s=noise
+            )
         if desc_measured is not None:
             # the cylinders push at the time of the row itself: only the drive's torque lags
             q_now = q_f if not delay else _states(t, m.q[a:b], dq, cutoff, t)[0]

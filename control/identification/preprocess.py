@@ -106,6 +106,10 @@ class Prepared:
     #: taken as ``sample_hz``): a kept sample stands for ``raw_hz / sample_hz`` recorded ones
     #: (:meth:`.terms.Context.sample_mean`)
     raw_hz: np.ndarray | None = None
+    #: (n,) the std of the noise left on ``dq`` after its low-pass [rad/s]
+    #: (:func:`velocity_noise_std`; None: unknown): friction's sign is taken in expectation
+    #: over it (:meth:`.terms.Context.sample_mean`)
+    dq_noise_rad_s: np.ndarray | None = None
 
     @property
     def n_samples(self) -> int:
@@ -296,6 +300,22 @@ def white_noise_std(x: np.ndarray) -> np.ndarray:
     return 1.4826 * mad / np.sqrt(6.0)
 
 
+def velocity_noise_std(
+    q: np.ndarray, dq: np.ndarray | None, step_s: float, cutoff_hz: float
+) -> np.ndarray:
+    """Std of the noise on the velocity after the states' low-pass at ``cutoff_hz`` [rad/s],
+    per joint, from one gap-free stretch's raw samples ``q`` and ``dq`` (T, n) taken every
+    ``step_s``: the raw velocity's white noise (:func:`white_noise_std`; without a velocity
+    column, that of q's central difference, which the states are then made from) through the
+    filter's noise gain (:func:`filter_noise_gain`).
+
+    At rest the measured velocity is this noise alone, and a friction sign taken of it flips
+    between ± the Coulomb level from one sample to the next while the joint holds still (a
+    slow teaching motion, its rests and reversals, are full of such samples)."""
+    raw = np.asarray(dq, dtype=float) if dq is not None else np.gradient(q, step_s, axis=0)
+    return white_noise_std(raw) * np.sqrt(filter_noise_gain(cutoff_hz, 1.0 / step_s))
+
+
 def filter_noise_gain(cutoff_hz: float, fs_hz: float) -> float:
     """Variance gain of the torque filter on white noise: sum of its squared impulse response.
 
@@ -330,6 +350,7 @@ def prepare(
     parts: list[dict[str, np.ndarray]] = []
     rates = []
     noise: list[tuple[int, np.ndarray, np.ndarray, np.ndarray]] = []
+    dq_noise: list[tuple[int, np.ndarray]] = []
     for seg_id, (a, b) in enumerate(gap_free_segments(m.t)):
         seg_jumps = np.flatnonzero(jumps[a : b - 1].any(axis=1))
         if seg_jumps.size:
@@ -346,6 +367,9 @@ def prepare(
         step = float(np.median(np.diff(t)))
         fs = 1.0 / step
         raw_noise = white_noise_std(m.tau[a:b])
+        raw_dq_noise = velocity_noise_std(
+            m.q[a:b], None if m.dq is None else m.dq[a:b], step, position_cutoff_hz
+        )
         signals = {"q": m.q[a:b], "tau": m.tau[a:b]}
         if m.dq is not None:
             signals["dq"] = m.dq[a:b]
@@ -384,6 +408,7 @@ def prepare(
         rates.append(fs / factor)
         floor = raw_noise * np.sqrt(filter_noise_gain(tau_cut, fs))
         noise.append((part["t"].size, raw_noise, floor, raw_noise / np.sqrt(factor)))
+        dq_noise.append((part["t"].size, raw_dq_noise))
     if not parts:
         raise TooShortError(
             f"{m.source}: too short to analyse: no gap-free stretch longer than "
@@ -408,6 +433,7 @@ def prepare(
         noise_nm=_pooled([(k, f) for k, _, f, _ in noise]),
         raw_noise_nm=_pooled([(k, r) for k, r, _, _ in noise]),
         noise_dof_nm2=_squared(_pooled([(k, d) for k, _, _, d in noise])),
+        dq_noise_rad_s=_pooled(dq_noise),
     )
 
 
@@ -466,6 +492,7 @@ def concatenate(parts: Sequence[Prepared]) -> Prepared:
         noise_nm=_pooled([(p.n_samples, p.noise_nm) for p in parts]),
         raw_noise_nm=_pooled([(p.n_samples, p.raw_noise_nm) for p in parts]),
         noise_dof_nm2=_squared(_pooled([(p.n_samples, _sqrt(p.noise_dof_nm2)) for p in parts])),
+        dq_noise_rad_s=_pooled([(p.n_samples, p.dq_noise_rad_s) for p in parts]),
     )
 
 

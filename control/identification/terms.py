@@ -66,6 +66,7 @@ from typing import Any
 
 import numpy as np
 from scipy.fft import next_fast_len
+from scipy.special import ndtr
 
 from control.model.friction import (
     EQ14_PARAM_NAMES,
@@ -168,6 +169,10 @@ class Context:
     lowpass: Callable[[np.ndarray], np.ndarray] | None = None
     sample_hz: np.ndarray | None = None
     raw_hz: np.ndarray | None = None
+    #: (n,) the std of the noise on ``dq`` [rad/s] (:func:`.preprocess.velocity_noise_std`;
+    #: None or 0: exact velocities): :meth:`sample_mean` takes each function of the velocity
+    #: in expectation over it
+    dq_noise: np.ndarray | None = None
 
     @property
     def n_rows(self) -> int:
@@ -203,9 +208,26 @@ class Context:
         dq = self.dq[:, j]
         env = self.envelope
 
-        def at(v: np.ndarray) -> np.ndarray:
+        def exact(v: np.ndarray) -> np.ndarray:
             out = np.asarray(fn(v if env is None else env.clip_dq(j, v)), dtype=float)
             return out[:, None] if out.ndim == 1 else out
+
+        sigma = 0.0 if self.dq_noise is None else float(self.dq_noise[j])
+
+        def at(v: np.ndarray) -> np.ndarray:
+            """``fn`` in expectation over the velocity's noise (class docstring). A measured
+            velocity v̂ stands for a true one in v̂ ± σ, and where |v̂| is not well above σ its
+            sign is a coin toss that ``fn`` of v̂ alone takes at face value: ± the Coulomb
+            level from one sample to the next while the joint rests. Friction's functions are
+            a sign times an even part plus a smooth rest, so the expectation is taken over the
+            sign: ``fn(|v̂|)`` with the probability Φ(v̂/σ) that the true velocity is positive,
+            ``fn(-|v̂|)`` with the rest (exact for the sign's part: erf(v̂/√2σ) times it; at
+            v̂ = 0 the two cancel; far from 0, ``fn`` of v̂ itself)."""
+            if not (np.isfinite(sigma) and sigma > 0.0):
+                return exact(v)
+            size = np.abs(v)
+            positive = ndtr(v / sigma)[:, None]
+            return positive * exact(size) + (1.0 - positive) * exact(-size)
 
         if self.sample_hz is None or self.raw_hz is None or dq.size == 0:
             return at(dq)
@@ -249,6 +271,7 @@ class Context:
             None,
             take(self.sample_hz),
             take(self.raw_hz),
+            self.dq_noise,
         )
 
 

@@ -4,7 +4,16 @@ Usage::
 
     python -m tests.independent.family --seed S --draws N --out DIR [--cases CASE ...]
                                        [--jobs J] [--timeout SECONDS] [--duration-scale F]
-                                       [--chain]
+                                       [--declared [--chain]]
+
+Two worlds. By default the *hard world* (:mod:`.world`, issue 46): the same arms, rates and
+multisines, but a wrong URDF given to analyze (:mod:`.wrong_urdf`), a friction law per joint
+that is mostly not eq. (15) (:mod:`.friction_laws`), the measurement chain always on, jittered
+stamps, gaps and outliers (:mod:`.stamps`), 0-2 undeclared effects (:mod:`.world_effects`) and
+a holdout half teaching-like motion (:mod:`.teaching`); it is scored with the generating
+model's own least-squares fit, the oracle (:mod:`.oracle`), beside the floor
+(:mod:`.world_score`). With ``--declared`` the *declared model's world* described below (the
+product's own friction law, exact URDF, white noise, regular stamps, at most one effect).
 
 Each seed is one *draw* (:func:`draw`, deterministic from ``numpy.random.SeedSequence``): an
 arm, a sample rate, a training and a test run, a measurement chain and at most one undeclared
@@ -973,6 +982,26 @@ def draw_chain(seed: int, peak: np.ndarray) -> dict[str, list[float]]:
     return {"gain": gain.tolist(), "offset_nm": offset.tolist()}
 
 
+def draw_levels(seed: int, arm: FamilyArm, peak: np.ndarray) -> dict[str, Any]:
+    """The noise levels of draw ``seed`` (module docstring, Measurement), ``peak`` (n,) the
+    joints' peak |rigid torque| [N·m]."""
+    n = arm.n
+    lv = _rng(seed, _LEVELS)
+    tau_frac = np.clip(
+        _log_uniform(lv, *TORQUE_NOISE_FRACTION) * lv.uniform(0.8, 1.25, n), *TORQUE_NOISE_FRACTION
+    )
+    sigma = np.maximum(tau_frac * peak, TORQUE_NOISE_MIN_NM)
+    dq_std = np.clip(_log_uniform(lv, *DQ_NOISE_RAD_S) * lv.uniform(0.8, 1.25, n), *DQ_NOISE_RAD_S)
+    lsb = float(min(_log_uniform(lv, *DQ_LSB_RAD_S), 0.5 * dq_std.min()))
+    return {
+        "torque_noise_std_nm": sigma.tolist(),
+        "torque_noise_fraction_of_peak": tau_frac.tolist(),
+        "dq_noise_std_rad_s": dq_std.tolist(),
+        "dq_lsb_rad_s": lsb,
+        "q_step_rad": arm.encoder_step.tolist(),
+    }
+
+
 def gravity_joint(rigid: np.ndarray) -> int:
     """The joint (0-based) with the largest peak rigid-body torque of a run, (T, n)."""
     return int(np.argmax(np.abs(rigid).max(axis=0)))
@@ -1149,7 +1178,6 @@ def draw(
         known = ", ".join(CASES + tuple(CASE_ALIASES) + EXPLICIT_CASES)
         raise KeyError(f"unknown case {case!r}; known: {known}")
     arm = draw_arm(seed)
-    n = arm.n
     settings = draw_settings(seed)
     rate = settings["rate_hz"]
     t_tr = _times(settings["train_s"] * duration_scale, rate)
@@ -1176,20 +1204,8 @@ def draw(
     f_tr, f_te = fr.torque(q_tr, dq_tr), fr.torque(q_te, dq_te)
     nom_tr, nom_te = rig_tr + f_tr, rig_te + f_te
 
-    lv = _rng(seed, _LEVELS)
-    tau_frac = np.clip(
-        _log_uniform(lv, *TORQUE_NOISE_FRACTION) * lv.uniform(0.8, 1.25, n), *TORQUE_NOISE_FRACTION
-    )
-    sigma = np.maximum(tau_frac * peak, TORQUE_NOISE_MIN_NM)
-    dq_std = np.clip(_log_uniform(lv, *DQ_NOISE_RAD_S) * lv.uniform(0.8, 1.25, n), *DQ_NOISE_RAD_S)
-    lsb = float(min(_log_uniform(lv, *DQ_LSB_RAD_S), 0.5 * dq_std.min()))
-    levels = {
-        "torque_noise_std_nm": sigma.tolist(),
-        "torque_noise_fraction_of_peak": tau_frac.tolist(),
-        "dq_noise_std_rad_s": dq_std.tolist(),
-        "dq_lsb_rad_s": lsb,
-        "q_step_rad": arm.encoder_step.tolist(),
-    }
+    levels = draw_levels(seed, arm, peak)
+    sigma = np.asarray(levels["torque_noise_std_nm"])
 
     train = _Motion(t_tr, q_tr, dq_tr, ddq_tr, exc_tr, rig_tr, f_tr)
     test = _Motion(t_te, q_te, dq_te, ddq_te, exc_te, rig_te, f_te)
@@ -1518,10 +1534,16 @@ def evaluate(
     cases: Sequence[str] | None = None,
     duration_scale: float = 1.0,
     chain: bool = False,
+    declared: bool = False,
 ) -> dict[str, Any]:
-    """Draw, write, analyze and score one seed; a JSON-able record. Never raises."""
+    """Draw, write, analyze and score one seed of the hard world (:mod:`.world_score`), or with
+    ``declared`` of the declared model's world; a JSON-able record. Never raises."""
     rec: dict[str, Any] = {"seed": seed, "problems": [], "dir": str(out / f"seed_{seed}")}
     try:
+        if not declared:
+            from .world_score import evaluate_world  # it builds on this module
+
+            return evaluate_world(seed, out, timeout_s, cases, duration_scale, rec)
         return _evaluate(seed, out, timeout_s, cases, duration_scale, rec, chain)
     except Exception as exc:  # a broken draw must not hide the others
         rec["problems"].append(f"family failed: {type(exc).__name__}: {exc}")
@@ -1616,7 +1638,22 @@ def format_record(rec: dict[str, Any]) -> str:
     after = rec.get("analyze_rms_after") or [None] * n
     floor = rec.get("floor_nm") or [None] * n
     plain = rec.get("plain_ls_nm") or [None] * n
-    joints = " ".join(f"j{j + 1} {_g(after[j])}/{_g(floor[j])}/{_g(plain[j])}" for j in range(n))
+    hard = rec.get("world") == "hard"
+    oracle = rec.get("oracle_nm") or [None] * n
+    joints = " ".join(
+        f"j{j + 1} {_g(after[j])}/{_g(floor[j])}/"
+        + (f"{_g(oracle[j])}/" if hard else "")
+        + _g(plain[j])
+        for j in range(n)
+    )
+    figures = "after/floor/oracle/plainLS" if hard else "after/floor/plainLS"
+    laws = ""
+    if hard:
+        laws = (
+            "laws "
+            + ",".join(_LAW_SHORT.get(law["kind"], law["kind"]) for law in rec["friction_laws"])
+            + " | "
+        )
     crit = rec.get("criteria", {})
     verdicts = " ".join(
         f"{key.split('_')[0]}={_yes(crit.get(key))}" for key, _, _ in ACCEPTANCE if key in crit
@@ -1629,12 +1666,23 @@ def format_record(rec: dict[str, Any]) -> str:
         f" | noise tau {frac:.2g} %P dq {np.median(noise['dq_noise_std_rad_s']):.2g} rad/s | "
         f"outside {100 * oe['share_measured']:.0f} % (target {100 * oe['target']:.0f} %, "
         f"analyze {_g(100 * ana_share if ana_share is not None else None, '.0f')} %) | "
-        f"case {rec['case']}: {truth} | found: {found} | after/floor/plainLS [N·m] {joints} | "
+        f"{laws}case {rec['case']}: {truth} | found: {found} | {figures} [N·m] {joints} | "
         f"{verdicts} | analyze {ana.get('seconds', '-')} s, total {rec.get('seconds_total', '-')} s"
     )
     if rec["problems"]:
         line += " | PROBLEM: " + " | ".join(rec["problems"])
     return line
+
+
+_LAW_SHORT = {
+    "eq15": "eq15",
+    "asymmetric_coulomb": "asym",
+    "stribeck_power": "strP",
+    "stribeck_lorentz": "strL",
+    "lugre": "lugre",
+    "dahl": "dahl",
+    "temperature_viscous": "tempV",
+}
 
 
 def acceptance(records: list[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -1717,10 +1765,17 @@ def main(argv: list[str] | None = None) -> int:
         help="multiply the drawn run durations (default 1; for quick looks only)",
     )
     parser.add_argument(
+        "--declared",
+        action="store_true",
+        help="the declared model's world (exact URDF, eq. (15) friction, white noise, regular "
+        "stamps, at most one effect) instead of the hard world (default)",
+    )
+    parser.add_argument(
         "--chain",
         action="store_true",
         help="measure every run's torque through a per-joint gain (1 ± 5 %%) and offset "
-        "(± 0.5 %% of the joint's peak torque), drawn per seed (draw_chain); default off",
+        "(± 0.5 %% of the joint's peak torque), drawn per seed (draw_chain); default off; "
+        "with --declared only (the hard world always has it)",
     )
     args = parser.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
@@ -1730,6 +1785,7 @@ def main(argv: list[str] | None = None) -> int:
         "cases": args.cases,
         "duration_scale": args.duration_scale,
         "chain": args.chain,
+        "world": "declared" if args.declared else "hard",
         "records": [],
     }
     start = time.perf_counter()
@@ -1740,7 +1796,7 @@ def main(argv: list[str] | None = None) -> int:
         doc["records"].sort(key=lambda r: r["seed"])
         (args.out / "family.json").write_text(json.dumps(doc, indent=2, default=_jsonable) + "\n")
 
-    job_args = (args.out, args.timeout, args.cases, args.duration_scale, args.chain)
+    job_args = (args.out, args.timeout, args.cases, args.duration_scale, args.chain, args.declared)
     if args.jobs <= 1:
         for s in seeds:
             keep(evaluate(s, *job_args))
