@@ -66,7 +66,7 @@ from typing import Any
 
 import numpy as np
 from scipy.fft import next_fast_len
-from scipy.special import ndtr
+from scipy.special import expit
 
 from control.model.friction import (
     EQ14_PARAM_NAMES,
@@ -139,6 +139,22 @@ class Envelope:
     def from_json(cls, doc: dict[str, list[float]]) -> Envelope:
         keys = ("q_min_rad", "q_max_rad", "dq_min_rad_s", "dq_max_rad_s")
         return cls(*(np.asarray(doc[k], dtype=float) for k in keys))
+
+
+#: Log prior odds of a joint at rest against one moving at a velocity of its noise's size
+#: (:func:`rest_probability`): rest and motion equally likely, motion spread evenly over a range
+#: ``V`` about 10⁴ times the noise σ wide, ``ln(V / (σ √(2π)))`` ≈ 8. The band the joint counts
+#: as resting in is ± σ √(2 × 8) = ± 4 σ: half as wide for odds a hundred times smaller, as
+#: the band's edge moves with the square root of their log.
+REST_LOG_ODDS = 8.0
+
+
+def rest_probability(v: np.ndarray, sigma: float) -> np.ndarray:
+    """Probability that a joint whose velocity reads ``v`` [rad/s] through white noise of std
+    ``sigma`` [rad/s] is at rest: its reading's likelihood at rest, N(v; 0, σ²), against a
+    moving joint's, weighed by :data:`REST_LOG_ODDS`: ``expit(L - v² / 2σ²)``, 1 at 0, ½ at
+    ± 4 σ, under 10⁻³ beyond ± 5 σ."""
+    return expit(REST_LOG_ODDS - 0.5 * (np.asarray(v, dtype=float) / sigma) ** 2)
 
 
 @dataclass
@@ -215,19 +231,17 @@ class Context:
         sigma = 0.0 if self.dq_noise is None else float(self.dq_noise[j])
 
         def at(v: np.ndarray) -> np.ndarray:
-            """``fn`` in expectation over the velocity's noise (class docstring). A measured
-            velocity v̂ stands for a true one in v̂ ± σ, and where |v̂| is not well above σ its
-            sign is a coin toss that ``fn`` of v̂ alone takes at face value: ± the Coulomb
-            level from one sample to the next while the joint rests. Friction's functions are
-            a sign times an even part plus a smooth rest, so the expectation is taken over the
-            sign: ``fn(|v̂|)`` with the probability Φ(v̂/σ) that the true velocity is positive,
-            ``fn(-|v̂|)`` with the rest (exact for the sign's part: erf(v̂/√2σ) times it; at
-            v̂ = 0 the two cancel; far from 0, ``fn`` of v̂ itself)."""
+            """``fn`` in expectation over whether the joint moves (class docstring). A joint
+            at rest reads its velocity noise, and ``fn`` of that alone takes a coin toss's sign
+            at face value: ± the Coulomb level from one sample to the next while the joint
+            holds still. Given the measured v̂, the joint rests with the probability
+            :func:`rest_probability`, and there friction is ``fn`` at 0 (no sign, nothing a
+            function of the velocity can know of the torque a stuck joint holds); it moves
+            with the rest, at v̂."""
             if not (np.isfinite(sigma) and sigma > 0.0):
                 return exact(v)
-            size = np.abs(v)
-            positive = ndtr(v / sigma)[:, None]
-            return positive * exact(size) + (1.0 - positive) * exact(-size)
+            rest = rest_probability(v, sigma)[:, None]
+            return rest * exact(np.zeros_like(v)) + (1.0 - rest) * exact(v)
 
         if self.sample_hz is None or self.raw_hz is None or dq.size == 0:
             return at(dq)
