@@ -1551,16 +1551,12 @@ def evaluate(
         return rec
 
 
-def _evaluate(seed, out, timeout_s, cases, duration_scale, rec, chain=False) -> dict[str, Any]:
-    t0 = time.perf_counter()
-    d = draw(seed, draw_case(seed, cases) if cases else None, duration_scale, chain)
-    draw_dir = out / f"seed_{seed}"
-    paths = write_draw(draw_dir, d)
-    n = d.n
+def draw_fields(d: Draw, t0: float) -> dict[str, Any]:
+    """The record's description of draw ``d`` (either world's), generated since ``t0``."""
     arm = d.truth["arm"]
-    rec.update(
+    return dict(
         case=d.case,
-        n=n,
+        n=d.n,
         dh_convention=arm["dh_convention"],
         layout=arm["layout"],
         mass_scale_kg=arm["mass_scale_kg"],
@@ -1573,24 +1569,43 @@ def _evaluate(seed, out, timeout_s, cases, duration_scale, rec, chain=False) -> 
         truth=d.truth["effects"],
         seconds_generate=round(time.perf_counter() - t0, 1),
     )
-    t1 = time.perf_counter()
+
+
+def analyze_and_predict(
+    d: Draw, draw_dir: Path, paths: dict[str, Path], timeout_s: float, rec: dict[str, Any]
+) -> tuple[dict[str, Any] | None, np.ndarray | None, str | None]:
+    """Run ``analyze`` on the draw's files, then ``predict`` on its holdout, as a user would;
+    records both runs in ``rec``. Returns (analyze's summary, the predictions on the holdout
+    rows, the first error or None)."""
     assert d.holdout is not None
-    plain_raw, plain_res = plain_ls_offset(d.urdf, d.train, d.holdout)
-    rec["seconds_plain_ls"] = round(time.perf_counter() - t1, 1)
     ana = run_analyze(draw_dir, paths, timeout_s)
     summary = ana.pop("summary")
     rec["analyze"] = ana
     error, pred = ana["error"], None
     if error is None:
-        out = draw_dir / "holdout_pred.csv"
+        pred_path = draw_dir / "holdout_pred.csv"
         model = draw_dir / "analyze" / "model.json"
-        rec["predict"] = run_predict(model, paths["holdout"], out, timeout_s, ROOT)
+        rec["predict"] = run_predict(model, paths["holdout"], pred_path, timeout_s, ROOT)
         error = rec["predict"]["error"]
         if error is None:
             try:
-                pred = read_predictions(out, d.holdout.t, n)
+                pred = read_predictions(pred_path, d.holdout.t, d.n)
             except (OSError, ValueError) as exc:
                 error = f"predictions unusable: {exc}"
+    return summary, pred, error
+
+
+def _evaluate(seed, out, timeout_s, cases, duration_scale, rec, chain=False) -> dict[str, Any]:
+    t0 = time.perf_counter()
+    d = draw(seed, draw_case(seed, cases) if cases else None, duration_scale, chain)
+    draw_dir = out / f"seed_{seed}"
+    paths = write_draw(draw_dir, d)
+    rec.update(draw_fields(d, t0))
+    t1 = time.perf_counter()
+    assert d.holdout is not None
+    plain_raw, plain_res = plain_ls_offset(d.urdf, d.train, d.holdout)
+    rec["seconds_plain_ls"] = round(time.perf_counter() - t1, 1)
+    summary, pred, error = analyze_and_predict(d, draw_dir, paths, timeout_s, rec)
     scored = score(d, summary, pred, plain_res, error)
     rec["problems"] += scored.pop("problems")
     rec.update(scored, plain_ls_raw_nm=plain_raw.tolist())

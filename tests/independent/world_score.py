@@ -29,7 +29,7 @@ import numpy as np
 
 from . import family as fam
 from .oracle import fit_predict
-from .referee import MAX_DECLINED_SHARE, heldout_figures, read_predictions, run_predict
+from .referee import MAX_DECLINED_SHARE, heldout_figures
 from .table import FLOOR_FACTOR, MAIN_PARAMETER, main_parameter_check
 from .world import World, draw_world
 
@@ -218,45 +218,18 @@ def evaluate_world(
     draw_dir = out / f"seed_{seed}"
     paths = fam.write_draw(draw_dir, d)
     (draw_dir / "truth_robot.urdf").write_text(w.truth_urdf, encoding="ascii")
-    arm = d.truth["arm"]
+    rec.update(world="hard", **fam.draw_fields(d, t0))
     rec.update(
-        world="hard",
-        case=d.case,
-        n=d.n,
-        dh_convention=arm["dh_convention"],
-        layout=arm["layout"],
-        mass_scale_kg=arm["mass_scale_kg"],
-        total_mass_kg=arm["total_mass_kg"],
-        rate_hz=d.truth["rate_hz"],
-        duration_s=d.truth["duration_s"],
-        noise=d.truth["noise"],
-        measurement_chain=d.truth["measurement_chain"],
         friction_laws=d.truth["friction_laws"],
         recording=d.truth["recording"],
         holdout_motion_share=d.truth["holdout_motion_share"],
-        outside_envelope=d.truth["outside_envelope"],
-        truth=d.truth["effects"],
-        seconds_generate=round(time.perf_counter() - t0, 1),
     )
     t1 = time.perf_counter()
     assert d.holdout is not None
     plain_raw, plain_res = fam.plain_ls_offset(d.urdf, d.train, d.holdout)
     oracle_res = d.holdout.tau - fit_predict(w)
     rec["seconds_plain_ls_and_oracle"] = round(time.perf_counter() - t1, 1)
-    ana = fam.run_analyze(draw_dir, paths, timeout_s)
-    summary = ana.pop("summary")
-    rec["analyze"] = ana
-    error, pred = ana["error"], None
-    if error is None:
-        pred_path = draw_dir / "holdout_pred.csv"
-        model = draw_dir / "analyze" / "model.json"
-        rec["predict"] = run_predict(model, paths["holdout"], pred_path, timeout_s, fam.ROOT)
-        error = rec["predict"]["error"]
-        if error is None:
-            try:
-                pred = read_predictions(pred_path, d.holdout.t, d.n)
-            except (OSError, ValueError) as exc:
-                error = f"predictions unusable: {exc}"
+    summary, pred, error = fam.analyze_and_predict(d, draw_dir, paths, timeout_s, rec)
     scored = score_world(w, summary, pred, plain_res, oracle_res, error)
     rec["problems"] += scored.pop("problems")
     rec.update(scored, plain_ls_raw_nm=plain_raw.tolist())
