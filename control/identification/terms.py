@@ -39,8 +39,10 @@ it, not on the decimated grid.
 - ``spring`` on joint j: ``q_j``, ``1``; parameters ``k_nm_per_rad``, ``q0_rad`` and
   ``torque_at_zero_nm`` (= -k q0). A restoring spring (k > 0) pushes with ``-k (q - q0)``, which
   the motor must add: ``+k (q_j - q0)``. With k ≈ 0 it is a constant torque offset.
-- ``stribeck`` on joint j: ``exp(-(dq_j/v_s)²) sgn(dq_j)``, v_s scanned; parameters
-  ``amplitude_nm``, ``velocity_rad_s`` v_s.
+- ``stribeck`` on joint j: ``exp(-(dq_j/v_s)²) sgn(dq_j)``; parameters ``amplitude_nm``,
+  ``velocity_rad_s`` v_s. Read from model files; the search no longer offers it: a Stribeck
+  curve of another shape than the family's is the friction's own
+  (:attr:`FrictionTerm.stribeck_rad_s`), not an effect the model lacks.
 - ``load_dependent_friction`` on joint j: ``|τ_rigid,j| sgn(dq_j)`` with τ_rigid the model's
   rigid-body torque; parameter ``coefficient``.
 - ``time_delay``, all joints: no columns; the measured torque lags the kinematics by δ,
