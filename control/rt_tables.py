@@ -168,7 +168,11 @@ def _identified(im: IdentifiedModel) -> dict[str, Any]:
 
 def friction_table(term: Any, coef: Any) -> dict[str, Any]:
     """One joint's friction entry of the point model: a fitted :class:`FrictionTerm` and its
-    coefficients."""
+    coefficients. A friction with memory (``presliding_rad``) enters as the sliding friction
+    of its family, the same coefficients with the velocity's sign: the cycle evaluates one
+    state at a time, where the model slides (:attr:`.identification.terms.Context.sequence`);
+    what the memory adds, the torque a joint holds at rest and across a reversal, is the
+    stiction the law meets at rest, not a torque the model commands."""
     from control.model.friction import eq15_row
 
     if term.kind == "eq15":

@@ -925,9 +925,19 @@ def _analyze(
         def plain_sse(y: np.ndarray) -> np.ndarray:
             return plain_least_squares(ctx_train, y, folds, sliding_train).cv_sse
 
+        def without_memory(names: list[str]) -> list[str]:
+            """``names`` with each friction that has memory as the same law without it."""
+            swap = {}
+            for term in (refit[-1] if refit else base_fit).terms:
+                if term.presliding_rad is not None and term.key in names:
+                    plain = replace(term, presliding_rad=None)
+                    swap[term.key] = f"{term.key}/sliding"
+                    ls.add(swap[term.key], plain.columns(ctx_train))
+            return [swap.get(k, k) for k in names]
+
         state = fx.search_all_along(
             ls, ctx_train, train, base_fit.names, base_fit.weights, options.search, clock.say,
-            refit_friction, plain_sse,
+            refit_friction, plain_sse, without_memory,
         )  # fmt: skip
         base_fit = refit[-1] if refit else base_fit
         kind = base_fit.kind

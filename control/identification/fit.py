@@ -61,6 +61,7 @@ from control.identification.terms import (
     Envelope,
     FrictionTerm,
     RigidTerm,
+    friction_direction,
     shift_signal,
 )
 from control.model.cylinders import torque_per_pa, with_measured_cylinders
@@ -68,12 +69,13 @@ from control.robot.description import BAR_TO_PA, CylinderSpec, RobotDescription
 from gateway.errors import ConfigError, DataFileError
 
 MODEL_FORMAT = "leadthrough-model"
-MODEL_VERSION = 5
+MODEL_VERSION = 6
 #: Versions :meth:`IdentifiedModel.load` reads: 2 lacks the envelope and the plain joints, 3
 #: the measurement chain (read as gain 1, offset 0); 4 stored a cylinder's measured diameter in
 #: the torque channel's units (:meth:`.cylinders.Calibration.over_gain`): read where its joint's
-#: gain is 1, refused where it is not.
-READABLE_VERSIONS = (2, 3, 4, 5)
+#: gain is 1, refused where it is not; 5 has no friction with memory (``presliding_rad``),
+#: which a reader of version 5 would have ignored (hence 6).
+READABLE_VERSIONS = (2, 3, 4, 5, 6)
 #: Candidate transition velocities q_e [rad/s] of eqs. (16)-(17) for the grid search.
 Q_E_GRID_RAD_S = tuple(float(v) for v in np.geomspace(0.002, 0.2, 13))
 Q_E_SWEEPS = 2
@@ -83,6 +85,11 @@ SWEEP_NEIGHBOURS = 2
 #: (:mod:`control.model.friction`): from a sign as sharp as the velocity's resolution allows to
 #: one as wide as the Stribeck decay.
 SIGN_WIDTH_GRID_RAD_S = (0.0005, 0.001, 0.002, 0.005, 0.01, 0.02, 0.05)
+#: Candidate presliding travels x_c [rad] of a friction with memory (:class:`.terms.FrictionTerm`):
+#: joint-side travel over which a gear's friction turns round after a reversal. Contact
+#: deformation and the lost motion of strain-wave and cycloidal gears span about a tenth of an
+#: arc-minute (3e-5 rad) to a third of a degree (1e-2 rad, a compliant gear under load).
+PRESLIDING_GRID_RAD = tuple(float(v) for v in np.geomspace(3e-5, 1e-2, 6))
 #: Rows used by the q_e grid search at most (evenly thinned beyond): q_e is one number per
 #: joint and does not need every sample.
 Q_E_SEARCH_MAX_ROWS = 40_000
@@ -222,15 +229,17 @@ def fit_rigid_friction(
     progress: Progress | None = None,
     sign_grid: Sequence[float] = SIGN_WIDTH_GRID_RAD_S,
     extra: Sequence[str] = (),
+    presliding_grid: Sequence[float] = PRESLIDING_GRID_RAD,
 ) -> FrictionFit:
     """Rigid body + friction ``kind`` on ``ls`` (whose group "rigid" is already added).
 
     q_e per joint, and for eq. (15) the smooth sign's own width (``sign_grid``, or tied to q_e
     as the paper writes), by coordinate grid search on the held-out (contiguous K-fold) error
     of the joint, on at most :data:`Q_E_SEARCH_MAX_ROWS` rows: they are model choices, so they
-    are chosen on data the fit did not see. Then the two-step weighted LS on all rows; the
-    friction groups are left in ``ls``. A group of ``extra`` already in ``ls`` (the cylinder
-    columns, :mod:`.cylinders`) is fitted along throughout.
+    are chosen on data the fit did not see. Then, per joint, whether its friction has memory
+    (:func:`_choose_memory`, over ``presliding_grid``). Then the two-step weighted LS on all
+    rows; the friction groups are left in ``ls``. A group of ``extra`` already in ``ls`` (the
+    cylinder columns, :mod:`.cylinders`) is fitted along throughout.
     """
     if kind not in FRICTION_MODELS:
         raise ConfigError(f"--friction: {kind!r} is not one of {list(FRICTION_MODELS)}")
@@ -292,6 +301,9 @@ def fit_rigid_friction(
                     target.add(best[1][0].key, best[1][1])
                 terms[j] = best[1][0]
                 chosen[j] = best[1]
+    if presliding_grid and len(target.folds) >= 2:
+        for j in range(n):
+            terms[j] = _choose_memory(target, ctx, names, w0, terms[j], presliding_grid, step)
     if target is not ls:
         for term in terms:
             ls.add(term.key, term.columns(ctx))
@@ -299,8 +311,10 @@ def fit_rigid_friction(
     sigma = np.sqrt(ls.fold_sse(first).sum(axis=0) / np.maximum(ls.counts, 1.0))
     weights = 1.0 / np.maximum(sigma, max(_SIGMA_FLOOR_NM, 1e-6 * float(sigma.max())))
     evaluation = ls.evaluate(names, weights)
+    memory = [t.presliding_rad for t in terms]
     progress(
         f"friction {kind}: q_e = {[t.q_e_rad_s for t in terms]} rad/s"
+        + (f", presliding {memory} rad" if any(m is not None for m in memory) else "")
         + (
             f", sign width {[t.sign_width_rad_s for t in terms]} rad/s"
             if any(t.sign_width_rad_s is not None for t in terms)
@@ -311,6 +325,49 @@ def fit_rigid_friction(
         f"{np.array2string(evaluation.cv_rms, precision=3)} N·m"
     )
     return FrictionFit(kind, terms, weights, evaluation, tuple(extra))
+
+
+def _choose_memory(
+    target: BlockLS,
+    ctx: Context,
+    names: Sequence[str],
+    weights: np.ndarray,
+    term: FrictionTerm,
+    grid: Sequence[float],
+    step: int,
+) -> FrictionTerm:
+    """``term`` with memory (:attr:`.terms.FrictionTerm.presliding_rad` from ``grid``) where the
+    data show it, else ``term``; ``target`` is left holding the chosen term's columns.
+
+    A presliding travel is taken when its joint's held-out error is lower than the memoryless
+    law's in *every* fold (K contiguous blocks), and among those the lowest in total. The two
+    laws differ only where the joint turns round (and rests): a few per cent of the rows, where
+    a noise-level difference in the total would decide a coin toss. With K = 5 folds a
+    memoryless law as good as the memory loses all five with probability 2⁻⁵ ≈ 3 % per
+    travel tried. Either wrong choice costs the same at a pause (a static level held where
+    there is none, or none where one is held), so beyond that sign test the lower error
+    decides.
+    """
+    j = term.joint
+    base = target.cv_fold_sse(names, weights)[:, j]
+    base_cols = _thin(term.columns(ctx), step)
+    best: tuple[float, FrictionTerm | None, dict[int, np.ndarray] | None] = (
+        float(base.sum()),
+        None,
+        None,
+    )
+    for travel in grid:
+        cand = replace(term, presliding_rad=float(travel))
+        cols = _thin(cand.columns(ctx), step)
+        target.add(cand.key, cols)
+        folds = target.cv_fold_sse(names, weights)[:, j]
+        if np.all(folds < base) and float(folds.sum()) < best[0]:
+            best = (float(folds.sum()), cand, cols)
+    if best[1] is None or best[2] is None:
+        target.add(term.key, base_cols)
+        return term
+    target.add(best[1].key, best[2])
+    return best[1]
 
 
 # --------------------------------------------------------------------------------------------
@@ -459,6 +516,8 @@ class IdentifiedModel:
         ddq: np.ndarray,
         t_s: np.ndarray | None,
         dq_noise: np.ndarray | None = None,
+        sequence: bool = True,
+        directions: np.ndarray | None = None,
     ) -> Context:
         reg = self.regressor
         payload = any(term.name == "payload" for term, _, _ in self.effects)
@@ -467,7 +526,7 @@ class IdentifiedModel:
         y = reg.regressor_columns(q, dq, ddq, cols.astype(int))
         return Context(
             q, dq, ddq, t_s, y[:, :, :nb], y[:, :, nb:] if payload else None, None, None,
-            self.envelope, dq_noise=dq_noise,
+            self.envelope, dq_noise=dq_noise, sequence=sequence, directions=directions,
         )  # fmt: skip
 
     def _rigid(self, y_base: np.ndarray) -> np.ndarray:
@@ -493,9 +552,11 @@ class IdentifiedModel:
         return out[0] if single else out
 
     def friction_nm(self, q_rad: np.ndarray, dq_rad_s: np.ndarray) -> np.ndarray:
-        """Friction torque of the identified friction model [N·m]; (n,) or (T, n)."""
+        """Friction torque of the identified friction model [N·m]; (n,) or (T, n). One sample
+        (n,) has no history: a friction with memory slides there (:attr:`.terms.Context.sequence`);
+        rows (T, n) are one motion in time order."""
         single, (q, dq) = self._arrays(q_rad, dq_rad_s)
-        out = self._friction(Context(q, dq, dq, envelope=self.envelope))
+        out = self._friction(Context(q, dq, dq, envelope=self.envelope, sequence=not single))
         return out[0] if single else out
 
     def rigid_nm(
@@ -513,16 +574,22 @@ class IdentifiedModel:
         ddq_rad_s2: np.ndarray,
         t_s: np.ndarray | None = None,
         dq_noise_rad_s: np.ndarray | None = None,
+        directions: np.ndarray | None = None,
     ) -> np.ndarray:
         """Rigid body + friction + accepted effect terms [N·m]; (n,) or (T, n).
 
         ``t_s`` [s] (scalar or (T,)) is only used by a thermal_drift effect (omitted without).
         ``dq_noise_rad_s`` (n,): the std of the noise on ``dq_rad_s`` (None: exact), over
-        which friction is taken in expectation (:meth:`.terms.Context.sample_mean`).
+        which friction is taken in expectation (:meth:`.terms.Context.sample_mean`). Rows
+        (T, n) are one motion in time order, whose history a friction with memory follows;
+        one sample (n,) has none, and such a friction slides there. ``directions`` (T, n):
+        the friction directions of those rows when the caller follows the motion across
+        several calls (:meth:`friction_directions`).
         """
         single, (q, dq, ddq) = self._arrays(q_rad, dq_rad_s, ddq_rad_s2)
         t = None if t_s is None else np.broadcast_to(np.asarray(t_s, dtype=float), (q.shape[0],))
-        out = self.torque_from_context(self._context(q, dq, ddq, t, dq_noise_rad_s))
+        ctx = self._context(q, dq, ddq, t, dq_noise_rad_s, not single, directions)
+        out = self.torque_from_context(ctx)
         return out[0] if single else out
 
     def measured(self, tau_nm: np.ndarray) -> np.ndarray:
@@ -540,9 +607,41 @@ class IdentifiedModel:
         ddq_rad_s2: np.ndarray,
         t_s: np.ndarray | None = None,
         dq_noise_rad_s: np.ndarray | None = None,
+        directions: np.ndarray | None = None,
     ) -> np.ndarray:
         """:meth:`torque_nm` through the measurement chain (:meth:`measured`) [N·m]."""
-        return self.measured(self.torque_nm(q_rad, dq_rad_s, ddq_rad_s2, t_s, dq_noise_rad_s))
+        return self.measured(
+            self.torque_nm(q_rad, dq_rad_s, ddq_rad_s2, t_s, dq_noise_rad_s, directions)
+        )
+
+    def friction_directions(
+        self,
+        q_rad: np.ndarray,
+        dq_rad_s: np.ndarray,
+        dq_noise_rad_s: np.ndarray | None = None,
+        start: np.ndarray | None = None,
+        q_before: np.ndarray | None = None,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The friction directions of rows (T, n) of one motion, and each joint's last (n,):
+        for a caller that evaluates the motion in pieces (``leadthrough predict``: stretches
+        between gaps, chunks of rows) and passes each piece's slice to :meth:`torque_nm`, with
+        ``start`` (n,) the previous piece's last (None: zeros, no history) and ``q_before``
+        (n,) its last position [rad] (the travel across a gap; None: none). Joints whose
+        friction has no memory read 0."""
+        q, dq = (np.asarray(a, dtype=float).reshape(-1, self.n) for a in (q_rad, dq_rad_s))
+        out = np.zeros_like(q)
+        z0 = np.zeros(self.n) if start is None else np.asarray(start, dtype=float)
+        for term in self.friction_terms:
+            j = term.joint
+            if term.presliding_rad is None or j in self.plain_joints:
+                continue
+            sigma = 0.0 if dq_noise_rad_s is None else float(dq_noise_rad_s[j])
+            before = None if q_before is None else float(q_before[j])
+            out[:, j] = friction_direction(
+                q[:, j], dq[:, j], sigma, term.presliding_rad, z0[j], before
+            )
+        end = out[-1].copy() if out.shape[0] else z0.copy()
+        return out, end
 
     def torque_from_context(self, ctx: Context) -> np.ndarray:
         """:meth:`torque_nm` on a :class:`Context` whose regressor columns are computed (the
@@ -705,6 +804,7 @@ class IdentifiedModel:
                     None
                     if entry.get("sign_width_rad_s") is None
                     else float(entry["sign_width_rad_s"]),
+                    _presliding(entry.get("presliding_rad"), where, j),
                 )
             )
             coefs.append(np.array([float(entry[k]) for k in names]))
@@ -751,6 +851,18 @@ class IdentifiedModel:
             reg, beta, kind, terms, coefs, effects, str(urdf.get("path", "")), meta,
             None if env is None else Envelope.from_json(env), plain, gain, offset,
         )  # fmt: skip
+
+
+def _presliding(value: Any, where: str, j: int) -> float | None:
+    """A friction entry's ``presliding_rad`` (None: no memory); finite and positive."""
+    if value is None:
+        return None
+    x = float(value)
+    if not (np.isfinite(x) and x > 0.0):
+        raise DataFileError(
+            f"{where}: friction of joint {j + 1}: presliding_rad {value!r} is not > 0"
+        )
+    return x
 
 
 def _chain_from_json(

@@ -430,13 +430,21 @@ class BlockLS:
         names = list(names)
         if len(self.folds) < 2 or not names:
             return self.evaluate(names, weights).cv_sse
+        return self.cv_fold_sse(names, weights).sum(axis=0)
+
+    def cv_fold_sse(self, names: Sequence[str], weights: np.ndarray) -> np.ndarray:
+        """:meth:`cv_sse` fold by fold, (K, n): each fold's SSE per joint predicted by the fit
+        on the other folds (at least two folds)."""
+        names = list(names)
+        if len(self.folds) < 2 or not names:
+            raise ValueError("held-out errors per fold need at least two folds and one group")
         grams, rhss = self._fold_normals(names, weights)
         gram, rhs = grams.sum(axis=0), rhss.sum(axis=0)
-        cv = np.zeros(self.n)
+        out = np.zeros((len(self.folds), self.n))
         for k in range(len(self.folds)):
             sol = self._solve_normal(names, gram - grams[k], rhs - rhss[k])
-            cv += self.fold_sse(sol, k)[0]
-        return cv
+            out[k] = self.fold_sse(sol, k)[0]
+        return out
 
     def predict(self, sol: Solution, rows: slice | None = None) -> np.ndarray:
         """Model output of ``sol`` on this object's rows (or a slice), shape (T, n)."""

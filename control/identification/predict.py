@@ -130,6 +130,9 @@ def predict_rows(
     delay = model.delay_s
     gain = model.chain_arrays()[0]
     out = np.full((m.n_samples, model.n), np.nan)
+    # a friction with memory follows the whole file: across gaps (the travel over a gap is
+    # the positions' difference) and across chunks
+    direction, q_last = np.zeros(model.n), None
     for a, b in gap_free_segments(m.t):
         if b - a < MIN_STRETCH_ROWS:
             continue
@@ -142,10 +145,12 @@ def predict_rows(
         # this stretch's own velocity noise, which friction is taken in expectation over
         noise = velocity_noise_std(m.q[a:b], dq, float(np.median(np.diff(t))), cutoff)
         rows = np.flatnonzero(ok) + a
+        directions, direction = model.friction_directions(q_f, dq_f, noise, direction, q_last)
+        q_last = q_f[-1] if len(q_f) else q_last
         for c in range(0, rows.size, CHUNK_ROWS):
             r = slice(c, c + CHUNK_ROWS)
             out[rows[r]] = model.measured_torque_nm(
-                q_f[r], dq_f[r], ddq_f[r], at[ok][r], dq_noise_rad_s=noise
+                q_f[r], dq_f[r], ddq_f[r], at[ok][r], noise, directions[r]
             )
         if desc_measured is not None:
             # the cylinders push at the time of the row itself: only the drive's torque lags

@@ -153,8 +153,59 @@ def rest_probability(v: np.ndarray, sigma: float) -> np.ndarray:
     """Probability that a joint whose velocity reads ``v`` [rad/s] through white noise of std
     ``sigma`` [rad/s] is at rest: its reading's likelihood at rest, N(v; 0, σ²), against a
     moving joint's, weighed by :data:`REST_LOG_ODDS`: ``expit(L - v² / 2σ²)``, 1 at 0, ½ at
-    ± 4 σ, under 10⁻³ beyond ± 5 σ."""
+    ± 4 σ, 1.1 % at ± 5 σ, under 10⁻⁴ beyond ± 6 σ."""
     return expit(REST_LOG_ODDS - 0.5 * (np.asarray(v, dtype=float) / sigma) ** 2)
+
+
+def linear_recurrence(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``z_k = a_k z_(k-1) + b_k`` from ``z_(-1) = 0`` for every k, (T,): a prefix scan over
+    the affine maps (log₂ T passes of whole-array products instead of a loop over T). With
+    0 ≤ a ≤ 1 the products only shrink, so the scan is as accurate as the loop."""
+    out = np.array(b, dtype=float, copy=True)
+    mul = np.array(a, dtype=float, copy=True)
+    shift = 1
+    while shift < out.size:
+        # each right side is evaluated whole before it is assigned
+        out[shift:] = mul[shift:] * out[:-shift] + out[shift:]
+        mul[shift:] = mul[shift:] * mul[:-shift]
+        shift *= 2
+    return out
+
+
+def friction_direction(
+    q: np.ndarray,
+    dq: np.ndarray,
+    sigma: float,
+    presliding_rad: float,
+    start: float = 0.0,
+    q_before: float | None = None,
+) -> np.ndarray:
+    """The direction of a friction with memory, (T,) in [-1, 1]: the state z of Dahl's model
+    (exponent 1) driven by the joint's travel, ``dz/dx = (1 - z sgn(dx)) / x_c`` with ``x_c``
+    = ``presliding_rad`` the travel over which friction turns round after a reversal.
+
+    Stepped exactly per sample (for travel of one sign, ``z → s + (z - s) exp(-|Δx| / x_c)``,
+    s = sgn(Δx)), from z = ``start`` before the first sample (0: a file says nothing of the
+    joint's history; a caller cutting one motion into pieces carries the last piece's end, and
+    with ``q_before``, the last piece's last position, the travel from there to ``q[0]``).
+    The travel is the positions' difference weighted by the probability that the joint moves
+    (1 - :func:`rest_probability` of ``dq`` under the velocity noise ``sigma``; all of it
+    without noise): the positions of a resting joint wander by their noise, and Dahl's state
+    driven by that wander would decay from ±1 towards 0 at every rest (a step against the
+    direction moves z twice as far as a step with it). At rest z holds: the joint holds the
+    friction torque of its last motion, as a gear's teeth stay loaded when the joint stops.
+    Sliding steadily, z = sgn(dq): the friction of a memoryless law."""
+    q = np.asarray(q, dtype=float)
+    if q.size == 0:
+        return np.zeros(0)
+    dx = np.diff(q, prepend=q[0] if q_before is None else float(q_before))
+    if np.isfinite(sigma) and sigma > 0.0:
+        dx = dx * (1.0 - rest_probability(dq, sigma))
+    a = np.exp(-np.abs(dx) / presliding_rad)
+    z = linear_recurrence(a, np.sign(dx) * (1.0 - a))
+    if start:
+        z = z + float(start) * np.exp(-np.cumsum(np.abs(dx)) / presliding_rad)
+    return z
 
 
 @dataclass
@@ -189,6 +240,16 @@ class Context:
     #: None or 0: exact velocities): :meth:`sample_mean` takes each function of the velocity
     #: in expectation over it
     dq_noise: np.ndarray | None = None
+    #: True: the rows are one motion in time order, whose history a friction with memory
+    #: follows (:meth:`direction`); False: unrelated states (one sample evaluated at run time),
+    #: where it slides (its direction is the velocity's sign)
+    sequence: bool = True
+    #: (T, n) friction directions given by a caller that follows the motion across several
+    #: contexts (:meth:`.fit.IdentifiedModel.friction_directions`); None: computed here
+    directions: np.ndarray | None = None
+    _directions: dict[tuple[int, float], np.ndarray] = field(
+        default_factory=dict, repr=False, compare=False
+    )
 
     @property
     def n_rows(self) -> int:
@@ -203,6 +264,19 @@ class Context:
         """Joint j's velocities [rad/s], clipped to the envelope."""
         dq = self.dq[:, j]
         return dq if self.envelope is None else self.envelope.clip_dq(j, dq)
+
+    def direction(self, j: int, presliding_rad: float) -> np.ndarray:
+        """Joint j's friction direction with memory (:func:`friction_direction`), (T,);
+        computed once per joint and presliding travel."""
+        if self.directions is not None:
+            return self.directions[:, j]
+        key = (j, float(presliding_rad))
+        if key not in self._directions:
+            sigma = 0.0 if self.dq_noise is None else float(self.dq_noise[j])
+            self._directions[key] = friction_direction(
+                self.q[:, j], self.dq[:, j], sigma, presliding_rad
+            )
+        return self._directions[key]
 
     def sample_mean(self, j: int, fn: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
         """``fn`` (columns (T,) or (T, m) of a velocity array (T,)) of joint j's velocity,
@@ -286,6 +360,8 @@ class Context:
             take(self.sample_hz),
             take(self.raw_hz),
             self.dq_noise,
+            self.sequence,
+            take(self.directions),
         )
 
 
@@ -296,21 +372,25 @@ def friction_basis(
     q_e: float,
     gear_ratio: float,
     sign_width: float | None = None,
+    direction: np.ndarray | None = None,
 ) -> np.ndarray:
     """Friction design matrix of one joint, (T, m), columns :data:`FRICTION_PARAM_NAMES`.
 
     ``eq15`` and ``eq14`` are :func:`control.model.friction.eq15_basis` / ``eq14_basis``
     (``sign_width``, eq. 15's own sign width, only for ``eq15``); ``simple`` is Coulomb
-    ``s(dq) = tanh(dq / 2 q_e)``, viscous ``dq`` and a constant offset.
+    ``s(dq) = tanh(dq / 2 q_e)``, viscous ``dq`` and a constant offset. ``direction`` (T,),
+    when given, stands for the sign of the velocity in every column that carries it (a
+    friction with memory, :class:`FrictionTerm`).
     """
     if sign_width is not None and kind != "eq15":
         raise ValueError(f"friction {kind!r} has no separate sign width")
     if kind == "eq15":
-        return eq15_basis(q, dq, q_e, gear_ratio, sign_width)
+        return eq15_basis(q, dq, q_e, gear_ratio, sign_width, direction)
     if kind == "eq14":
-        return eq14_basis(q, dq, q_e)
+        return eq14_basis(q, dq, q_e, direction)
     if kind == "simple":
-        return np.column_stack([smooth_sign(dq, q_e), dq, np.ones_like(dq)])
+        s = smooth_sign(dq, q_e) if direction is None else direction
+        return np.column_stack([s, dq, np.ones_like(dq)])
     raise ValueError(f"unknown friction model {kind!r}")
 
 
@@ -328,13 +408,28 @@ class RigidTerm:
 @dataclass(frozen=True)
 class FrictionTerm:
     """Friction of one joint (0-based ``joint``) with transition velocity ``q_e`` [rad/s] and,
-    for eq. (15), the smooth sign's own width ``sign_width_rad_s`` (None: q_e)."""
+    for eq. (15), the smooth sign's own width ``sign_width_rad_s`` (None: q_e).
+
+    With ``presliding_rad`` x_c set, the friction has memory: the family's sign of the
+    velocity becomes the state of Dahl's model over the joint's travel
+    (:func:`friction_direction`), which turns round over x_c of travel after a reversal and
+    holds at rest. A gear's friction is a deformation of its contacts before it is a sliding:
+    after a reversal the torque crosses from one level to the other over a small travel, not
+    at one velocity, and a joint that stops keeps the torque its last motion loaded the teeth
+    with (LuGre, Dahl, Maxwell-slip models). A memoryless law puts zero friction at rest, a
+    whole static level off at every pause of a teaching motion. Columns are then the family's
+    with ``direction`` for the sign, taken in expectation over whether the joint moves
+    (:meth:`Context.sample_mean`): at rest the static level (eq. 15's τ_s + τ_c) in the held
+    direction. In a context that is not a sequence (:attr:`Context.sequence`) the joint slides:
+    the family's own sign.
+    """
 
     joint: int
     kind: str
     q_e_rad_s: float
     gear_ratio: float
     sign_width_rad_s: float | None = None
+    presliding_rad: float | None = None
 
     @property
     def key(self) -> str:
@@ -343,10 +438,19 @@ class FrictionTerm:
     def columns(self, ctx: Context) -> dict[int, np.ndarray]:
         j = self.joint
         q = ctx.q_of(j)
+        direction = None
+        if self.presliding_rad is not None and ctx.sequence:
+            direction = ctx.direction(j, self.presliding_rad)
         basis = ctx.sample_mean(
             j,
             lambda dq: friction_basis(
-                self.kind, q, dq, self.q_e_rad_s, self.gear_ratio, self.sign_width_rad_s
+                self.kind,
+                q,
+                dq,
+                self.q_e_rad_s,
+                self.gear_ratio,
+                self.sign_width_rad_s,
+                direction,
             ),
         )
         return {j: ctx.filtered(basis)}
@@ -360,6 +464,8 @@ class FrictionTerm:
             out["gear_ratio"] = float(self.gear_ratio)
         if self.sign_width_rad_s is not None:
             out["sign_width_rad_s"] = float(self.sign_width_rad_s)
+        if self.presliding_rad is not None:
+            out["presliding_rad"] = float(self.presliding_rad)
         return out
 
 

@@ -234,12 +234,15 @@ def eq15_basis(
     q_e_rad_s: float,
     gear_ratio: float,
     sign_width_rad_s: float | None = None,
+    direction: np.ndarray | None = None,
 ) -> np.ndarray:
     """Design matrix of eq. (15) for one joint, shape (T, 10), columns :data:`EQ15_PARAM_NAMES`.
 
     ``q_rad`` [rad] and ``dq_rad_s`` [rad/s] are that joint's samples, shape (T,). Given q_e,
     R and the sign width, ``eq15_basis(q, dq, q_e, R, w) @ params.linear_parameters()`` equals
-    :func:`friction_eq15` for that joint [N·m].
+    :func:`friction_eq15` for that joint [N·m]. ``direction`` (T,) in [-1, 1], when given,
+    stands where the smooth sign s(dq) stands (a friction with memory,
+    :mod:`control.identification.terms`); the viscous columns keep dq.
     """
     q = np.atleast_1d(np.asarray(q_rad, dtype=float))
     dq = np.atleast_1d(np.asarray(dq_rad_s, dtype=float))
@@ -249,7 +252,10 @@ def eq15_basis(
     _check_positive("gear_ratio", gear_ratio)
     if sign_width_rad_s is not None:
         _check_positive("sign_width_rad_s", sign_width_rad_s)
-    s = smooth_sign(dq, q_e_rad_s if sign_width_rad_s is None else sign_width_rad_s)
+    if direction is None:
+        s = smooth_sign(dq, q_e_rad_s if sign_width_rad_s is None else sign_width_rad_s)
+    else:
+        s = np.broadcast_to(np.asarray(direction, dtype=float), dq.shape)
     qr = q / gear_ratio
     return np.column_stack(
         [
@@ -287,18 +293,28 @@ def friction_eq14(
     )
 
 
-def eq14_basis(q_rad: np.ndarray, dq_rad_s: np.ndarray, q_e_rad_s: float) -> np.ndarray:
+def eq14_basis(
+    q_rad: np.ndarray,
+    dq_rad_s: np.ndarray,
+    q_e_rad_s: float,
+    direction: np.ndarray | None = None,
+) -> np.ndarray:
     """Design matrix of eq. (14) for one joint, shape (T, 7), columns :data:`EQ14_PARAM_NAMES`.
 
     ``q_rad`` [rad] and ``dq_rad_s`` [rad/s] have shape (T,); linear in the coefficients for a
-    given q_e [rad/s].
+    given q_e [rad/s]. ``direction`` (T,), when given, stands where sgn(dq) stands (as in
+    :func:`eq15_basis`).
     """
     q = np.atleast_1d(np.asarray(q_rad, dtype=float))
     dq = np.atleast_1d(np.asarray(dq_rad_s, dtype=float))
     if q.ndim != 1 or q.shape != dq.shape:
         raise ValueError(f"q and dq must be 1-D of equal length, got {q.shape} and {dq.shape}")
     _check_positive("q_e_rad_s", q_e_rad_s)
-    sgn = np.sign(dq)
+    sgn = (
+        np.sign(dq)
+        if direction is None
+        else np.broadcast_to(np.asarray(direction, dtype=float), dq.shape)
+    )
     return np.column_stack(
         [
             np.sin(q),

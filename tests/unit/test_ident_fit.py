@@ -173,9 +173,19 @@ def test_model_evaluation_is_vectorised_and_consistent(cylinder_run):
 
 def test_model_file_is_versioned(cylinder_run, tmp_path):
     doc = json.loads((cylinder_run["out"] / "model.json").read_text())
-    assert doc["format"] == "leadthrough-model" and doc["version"] == 5
+    assert doc["format"] == "leadthrough-model" and doc["version"] == 6
     assert len(doc["base_parameters"]["columns"]) == len(doc["base_parameters"]["values"]) == 40
     assert doc["friction"]["model"] == "eq15" and len(doc["friction"]["joints"]) == 6
+    # a friction with memory is read back; a presliding travel that is not > 0 is refused
+    memory = json.loads(json.dumps(doc))
+    memory["friction"]["joints"][1]["presliding_rad"] = 3e-4
+    (tmp_path / "memory.json").write_text(json.dumps(memory))
+    loaded = IdentifiedModel.load(tmp_path / "memory.json")
+    assert [t.presliding_rad for t in loaded.friction_terms][:3] == [None, 3e-4, None]
+    memory["friction"]["joints"][1]["presliding_rad"] = -1.0
+    (tmp_path / "memory.json").write_text(json.dumps(memory))
+    with pytest.raises(DataFileError, match="joint 2: presliding_rad"):
+        IdentifiedModel.load(tmp_path / "memory.json")
     doc["version"] = 1
     bad = tmp_path / "old.json"
     bad.write_text(json.dumps(doc))
