@@ -242,9 +242,10 @@ def fit_rigid_friction(
     q_e per joint, and for eq. (15) the smooth sign's own width (``sign_grid``, or tied to q_e
     as the paper writes), by coordinate grid search on the held-out (contiguous K-fold) error
     of the joint, on at most :data:`Q_E_SEARCH_MAX_ROWS` rows: they are model choices, so they
-    are chosen on data the fit did not see. Then, per joint, whether its friction has a
-    Gaussian Stribeck rise (over ``stribeck_grid``) and memory (over ``presliding_grid``)
-    (:func:`_choose_option`). Then the two-step weighted LS on all
+    are chosen on data the fit did not see. Then, per joint, whether its friction has memory
+    (over ``presliding_grid``) and then a Gaussian Stribeck rise (over ``stribeck_grid``;
+    its column carries the direction memory gives) (:func:`_choose_option`). Then the two-step
+    weighted LS on all
     rows; the friction groups are left in ``ls``. A group of ``extra`` already in ``ls`` (the
     cylinder columns, :mod:`.cylinders`) is fitted along throughout.
     """
@@ -310,8 +311,8 @@ def fit_rigid_friction(
                 chosen[j] = best[1]
     if len(target.folds) >= 2:
         for field_name, values in (
-            ("stribeck_rad_s", stribeck_grid),
             ("presliding_rad", presliding_grid),
+            ("stribeck_rad_s", stribeck_grid),
         ):
             for j in range(n if values else 0):
                 terms[j] = _choose_option(
