@@ -137,12 +137,17 @@ def _identified(im: IdentifiedModel) -> dict[str, Any]:
         w_rigid[j, base[links]] = np.asarray(pj.beta, dtype=float)[links]
     w_payload = np.zeros((n, n_link))
     friction: list[dict[str, Any] | None] = [None] * n
+    effects = []
     for term, coef in zip(im.friction_terms, im.friction_coef, strict=True):
         friction[term.joint] = friction_table(term, coef)
+        if term.stribeck_rad_s is not None and term.joint not in im.plain_joints:
+            # the friction's Gaussian Stribeck rise: the cycle's stribeck column, same formula
+            effects.append({"name": "stribeck", "joint": int(term.joint),
+                            "coef": _floats(coef[-1:]),
+                            "velocity_rad_s": float(term.stribeck_rad_s)})  # fmt: skip
     for j, pj in im.plain_joints.items():
         coef = [pj.coulomb_nm, pj.viscous_nm_s_per_rad, pj.offset_nm]
         friction[j] = {"kind": "plain", "coef": _floats(coef)}
-    effects = []
     for term, coef, _ in im.effects:
         if term.name in NOT_AT_RUN_TIME:
             continue
@@ -175,6 +180,8 @@ def friction_table(term: Any, coef: Any) -> dict[str, Any]:
     stiction the law meets at rest, not a torque the model commands."""
     from control.model.friction import eq15_row
 
+    n_family = len(term.parameter_names) - (term.stribeck_rad_s is not None)
+    coef = list(coef)[:n_family]  # a Gaussian Stribeck rise goes with the effects (_identified)
     if term.kind == "eq15":
         row = eq15_row(coef, term.q_e_rad_s, term.gear_ratio, term.sign_width_rad_s)
         return {"kind": "eq15", "row": _floats(row)}

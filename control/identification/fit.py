@@ -73,8 +73,9 @@ MODEL_VERSION = 6
 #: Versions :meth:`IdentifiedModel.load` reads: 2 lacks the envelope and the plain joints, 3
 #: the measurement chain (read as gain 1, offset 0); 4 stored a cylinder's measured diameter in
 #: the torque channel's units (:meth:`.cylinders.Calibration.over_gain`): read where its joint's
-#: gain is 1, refused where it is not; 5 has no friction with memory (``presliding_rad``),
-#: which a reader of version 5 would have ignored (hence 6).
+#: gain is 1, refused where it is not; 5 has no friction with memory (``presliding_rad``) nor
+#: a Gaussian Stribeck rise (``gauss_stribeck_*``), which a reader of version 5 would have
+#: ignored (hence 6).
 READABLE_VERSIONS = (2, 3, 4, 5, 6)
 #: Candidate transition velocities q_e [rad/s] of eqs. (16)-(17) for the grid search.
 Q_E_GRID_RAD_S = tuple(float(v) for v in np.geomspace(0.002, 0.2, 13))
@@ -90,6 +91,10 @@ SIGN_WIDTH_GRID_RAD_S = (0.0005, 0.001, 0.002, 0.005, 0.01, 0.02, 0.05)
 #: deformation and the lost motion of strain-wave and cycloidal gears span about a tenth of an
 #: arc-minute (3e-5 rad) to a third of a degree (1e-2 rad, a compliant gear under load).
 PRESLIDING_GRID_RAD = tuple(float(v) for v in np.geomspace(3e-5, 1e-2, 6))
+#: Candidate velocities v_s [rad/s] of a Gaussian Stribeck rise (:class:`.terms.FrictionTerm`):
+#: joint-side Stribeck velocities of gears reach from a few mrad/s to a few tenths of a rad/s,
+#: the range of the q_e grid.
+GAUSS_STRIBECK_GRID_RAD_S = tuple(float(v) for v in np.geomspace(0.002, 0.2, 7))
 #: Rows used by the q_e grid search at most (evenly thinned beyond): q_e is one number per
 #: joint and does not need every sample.
 Q_E_SEARCH_MAX_ROWS = 40_000
@@ -230,6 +235,7 @@ def fit_rigid_friction(
     sign_grid: Sequence[float] = SIGN_WIDTH_GRID_RAD_S,
     extra: Sequence[str] = (),
     presliding_grid: Sequence[float] = PRESLIDING_GRID_RAD,
+    stribeck_grid: Sequence[float] = GAUSS_STRIBECK_GRID_RAD_S,
 ) -> FrictionFit:
     """Rigid body + friction ``kind`` on ``ls`` (whose group "rigid" is already added).
 
@@ -237,7 +243,9 @@ def fit_rigid_friction(
     as the paper writes), by coordinate grid search on the held-out (contiguous K-fold) error
     of the joint, on at most :data:`Q_E_SEARCH_MAX_ROWS` rows: they are model choices, so they
     are chosen on data the fit did not see. Then, per joint, whether its friction has memory
-    (:func:`_choose_memory`, over ``presliding_grid``). Then the two-step weighted LS on all
+    (over ``presliding_grid``) and then a Gaussian Stribeck rise (over ``stribeck_grid``;
+    its column carries the direction memory gives) (:func:`_choose_option`). Then the two-step
+    weighted LS on all
     rows; the friction groups are left in ``ls``. A group of ``extra`` already in ``ls`` (the
     cylinder columns, :mod:`.cylinders`) is fitted along throughout.
     """
@@ -301,9 +309,15 @@ def fit_rigid_friction(
                     target.add(best[1][0].key, best[1][1])
                 terms[j] = best[1][0]
                 chosen[j] = best[1]
-    if presliding_grid and len(target.folds) >= 2:
-        for j in range(n):
-            terms[j] = _choose_memory(target, ctx, names, w0, terms[j], presliding_grid, step)
+    if len(target.folds) >= 2:
+        for field_name, values in (
+            ("presliding_rad", presliding_grid),
+            ("stribeck_rad_s", stribeck_grid),
+        ):
+            for j in range(n if values else 0):
+                terms[j] = _choose_option(
+                    target, ctx, names, w0, terms[j], field_name, values, step
+                )
     if target is not ls:
         for term in terms:
             ls.add(term.key, term.columns(ctx))
@@ -312,9 +326,11 @@ def fit_rigid_friction(
     weights = 1.0 / np.maximum(sigma, max(_SIGMA_FLOOR_NM, 1e-6 * float(sigma.max())))
     evaluation = ls.evaluate(names, weights)
     memory = [t.presliding_rad for t in terms]
+    gauss = [t.stribeck_rad_s for t in terms]
     progress(
         f"friction {kind}: q_e = {[t.q_e_rad_s for t in terms]} rad/s"
         + (f", presliding {memory} rad" if any(m is not None for m in memory) else "")
+        + (f", Gaussian Stribeck {gauss} rad/s" if any(m is not None for m in gauss) else "")
         + (
             f", sign width {[t.sign_width_rad_s for t in terms]} rad/s"
             if any(t.sign_width_rad_s is not None for t in terms)
@@ -327,24 +343,27 @@ def fit_rigid_friction(
     return FrictionFit(kind, terms, weights, evaluation, tuple(extra))
 
 
-def _choose_memory(
+def _choose_option(
     target: BlockLS,
     ctx: Context,
     names: Sequence[str],
     weights: np.ndarray,
     term: FrictionTerm,
+    field_name: str,
     grid: Sequence[float],
     step: int,
 ) -> FrictionTerm:
-    """``term`` with memory (:attr:`.terms.FrictionTerm.presliding_rad` from ``grid``) where the
-    data show it, else ``term``; ``target`` is left holding the chosen term's columns.
+    """``term`` with one of its options (``field_name``: ``presliding_rad``, memory;
+    ``stribeck_rad_s``, a Gaussian Stribeck rise; :class:`.terms.FrictionTerm`) set to a value
+    of ``grid`` where the data show it, else ``term``; ``target`` is left holding the chosen
+    term's columns.
 
-    A presliding travel is taken when its joint's held-out error is lower than the memoryless
-    law's in *every* fold (K contiguous blocks), and among those the lowest in total. The two
-    laws differ only where the joint turns round (and rests): a few per cent of the rows, where
-    a noise-level difference in the total would decide a coin toss. With K = 5 folds a
-    memoryless law as good as the memory loses all five with probability 2⁻⁵ ≈ 3 % per
-    travel tried. Either wrong choice costs the same at a pause (a static level held where
+    A value is taken when its joint's held-out error is lower than without the option in
+    *every* fold (K contiguous blocks), and among those the lowest in total. Either option
+    changes the law only where the joint turns round, rests or creeps: a few per cent of the
+    rows, where a noise-level difference in the total would decide a coin toss. With K = 5
+    folds a law as good without the option loses all five with probability 2⁻⁵ ≈ 3 % per value
+    tried. Either wrong choice of memory costs the same at a pause (a static level held where
     there is none, or none where one is held), so beyond that sign test the lower error
     decides.
     """
@@ -356,8 +375,8 @@ def _choose_memory(
         None,
         None,
     )
-    for travel in grid:
-        cand = replace(term, presliding_rad=float(travel))
+    for value in grid:
+        cand = replace(term, **{field_name: float(value)})
         cols = _thin(cand.columns(ctx), step)
         target.add(cand.key, cols)
         folds = target.cv_fold_sse(names, weights)[:, j]
@@ -794,20 +813,17 @@ class IdentifiedModel:
         kind = fr["model"]
         terms, coefs = [], []
         for j, entry in enumerate(fr["joints"]):
-            names = FRICTION_PARAM_NAMES[kind]
-            terms.append(
-                FrictionTerm(
-                    j,
-                    kind,
-                    float(entry["q_e_rad_s"]),
-                    float(entry.get("gear_ratio", 1.0)),
-                    None
-                    if entry.get("sign_width_rad_s") is None
-                    else float(entry["sign_width_rad_s"]),
-                    _presliding(entry.get("presliding_rad"), where, j),
-                )
+            term = FrictionTerm(
+                j,
+                kind,
+                float(entry["q_e_rad_s"]),
+                float(entry.get("gear_ratio", 1.0)),
+                None if entry.get("sign_width_rad_s") is None else float(entry["sign_width_rad_s"]),
+                _positive_or_none(entry, "presliding_rad", where, j),
+                _positive_or_none(entry, "gauss_stribeck_rad_s", where, j),
             )
-            coefs.append(np.array([float(entry[k]) for k in names]))
+            terms.append(term)
+            coefs.append(np.array([float(entry[k]) for k in term.parameter_names]))
         effects = [
             (
                 EffectTerm.from_json(e),
@@ -853,15 +869,15 @@ class IdentifiedModel:
         )  # fmt: skip
 
 
-def _presliding(value: Any, where: str, j: int) -> float | None:
-    """A friction entry's ``presliding_rad`` (None: no memory); finite and positive."""
+def _positive_or_none(entry: dict[str, Any], key: str, where: str, j: int) -> float | None:
+    """A friction entry's optional ``key`` (``presliding_rad``: memory; ``gauss_stribeck_rad_s``:
+    a Gaussian Stribeck rise; absent: none); finite and positive."""
+    value = entry.get(key)
     if value is None:
         return None
     x = float(value)
     if not (np.isfinite(x) and x > 0.0):
-        raise DataFileError(
-            f"{where}: friction of joint {j + 1}: presliding_rad {value!r} is not > 0"
-        )
+        raise DataFileError(f"{where}: friction of joint {j + 1}: {key} {value!r} is not > 0")
     return x
 
 

@@ -39,8 +39,10 @@ it, not on the decimated grid.
 - ``spring`` on joint j: ``q_j``, ``1``; parameters ``k_nm_per_rad``, ``q0_rad`` and
   ``torque_at_zero_nm`` (= -k q0). A restoring spring (k > 0) pushes with ``-k (q - q0)``, which
   the motor must add: ``+k (q_j - q0)``. With k ≈ 0 it is a constant torque offset.
-- ``stribeck`` on joint j: ``exp(-(dq_j/v_s)²) sgn(dq_j)``, v_s scanned; parameters
-  ``amplitude_nm``, ``velocity_rad_s`` v_s.
+- ``stribeck`` on joint j: ``exp(-(dq_j/v_s)²) sgn(dq_j)``; parameters ``amplitude_nm``,
+  ``velocity_rad_s`` v_s. Read from model files; the search no longer offers it: a Stribeck
+  curve of another shape than the family's is the friction's own
+  (:attr:`FrictionTerm.stribeck_rad_s`), not an effect the model lacks.
 - ``load_dependent_friction`` on joint j: ``|τ_rigid,j| sgn(dq_j)`` with τ_rigid the model's
   rigid-body torque; parameter ``coefficient``.
 - ``time_delay``, all joints: no columns; the measured torque lags the kinematics by δ,
@@ -95,6 +97,8 @@ FRICTION_PARAM_NAMES = {
     "eq15": EQ15_PARAM_NAMES,
 }
 COUPLING_SOURCES = ("torque", "friction")
+#: The coefficient of a friction's Gaussian Stribeck rise (:attr:`FrictionTerm.stribeck_rad_s`).
+STRIBECK_PARAM_NAMES = ("gauss_stribeck_nm",)
 
 
 @dataclass(frozen=True)
@@ -422,6 +426,14 @@ class FrictionTerm:
     (:meth:`Context.sample_mean`): at rest the static level (eq. 15's τ_s + τ_c) in the held
     direction. In a context that is not a sequence (:attr:`Context.sequence`) the joint slides:
     the family's own sign.
+
+    With ``stribeck_rad_s`` v_s set, the friction has a second Stribeck rise, of Gaussian shape
+    (Armstrong's ``exp(-(dq/v_s)²)``, LuGre's steady state), beside the family's own (eq. 15's
+    ``exp(-|dq|/q_e)``): drives differ in how their friction falls from the static level, and
+    a shape the family lacks is the friction's, not an effect the model lacks. It was an effect
+    of the search (``stribeck``), and was named on joints whose Stribeck curve had another
+    shape than eq. (15)'s (issue 46: on the hidden cases beside a gear ripple and a coupling;
+    on the hard world's Lorentz and power-law curves and LuGre joints).
     """
 
     joint: int
@@ -430,6 +442,9 @@ class FrictionTerm:
     gear_ratio: float
     sign_width_rad_s: float | None = None
     presliding_rad: float | None = None
+    #: v_s [rad/s] of a Gaussian Stribeck rise beside the family's own (None: none): one more
+    #: column ``exp(-(dq / v_s)²) sgn(dq)`` (the direction with memory)
+    stribeck_rad_s: float | None = None
 
     @property
     def key(self) -> str:
@@ -441,24 +456,27 @@ class FrictionTerm:
         direction = None
         if self.presliding_rad is not None and ctx.sequence:
             direction = ctx.direction(j, self.presliding_rad)
-        basis = ctx.sample_mean(
-            j,
-            lambda dq: friction_basis(
-                self.kind,
-                q,
-                dq,
-                self.q_e_rad_s,
-                self.gear_ratio,
-                self.sign_width_rad_s,
-                direction,
-            ),
-        )
-        return {j: ctx.filtered(basis)}
+        v_s = self.stribeck_rad_s
+
+        def basis(dq: np.ndarray) -> np.ndarray:
+            out = friction_basis(
+                self.kind, q, dq, self.q_e_rad_s, self.gear_ratio, self.sign_width_rad_s, direction
+            )
+            if v_s is None:
+                return out
+            sign = np.sign(dq) if direction is None else direction
+            return np.column_stack([out, np.exp(-((dq / v_s) ** 2)) * sign])
+
+        return {j: ctx.filtered(ctx.sample_mean(j, basis))}
+
+    @property
+    def parameter_names(self) -> tuple[str, ...]:
+        """Names of the fitted coefficients, in column order."""
+        extra = STRIBECK_PARAM_NAMES if self.stribeck_rad_s is not None else ()
+        return (*FRICTION_PARAM_NAMES[self.kind], *extra)
 
     def parameters(self, coef: np.ndarray) -> dict[str, float]:
-        out = {
-            name: float(v) for name, v in zip(FRICTION_PARAM_NAMES[self.kind], coef, strict=True)
-        }
+        out = {name: float(v) for name, v in zip(self.parameter_names, coef, strict=True)}
         out["q_e_rad_s"] = float(self.q_e_rad_s)
         if self.kind == "eq15":
             out["gear_ratio"] = float(self.gear_ratio)
@@ -466,6 +484,8 @@ class FrictionTerm:
             out["sign_width_rad_s"] = float(self.sign_width_rad_s)
         if self.presliding_rad is not None:
             out["presliding_rad"] = float(self.presliding_rad)
+        if self.stribeck_rad_s is not None:
+            out["gauss_stribeck_rad_s"] = float(self.stribeck_rad_s)
         return out
 
 

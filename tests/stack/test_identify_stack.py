@@ -147,7 +147,7 @@ def test_identification_names_a_spray_gun_mounted_between_training_and_test(tmp_
     """On the smooth friction law (truth ``stiction = false``). On the default plant, with
     stiction, the payload is the best candidate (+95 % held-out) but rule (iv) refuses it:
     fitted on the first half of the test run it makes J6 (0.18 N·m RMS) 16-28 % worse on the
-    second, and three springs and a coupling are accepted instead (README, Stiction)."""
+    second, and three springs and a coupling are accepted instead (docs/control.md, Stiction)."""
     effects = [{"kind": "payload", "mass_kg": 8.0, "com_m": [0.0, 0.0, 0.05],
                 "after_motion_s": train_motion_s() + 0.1}]  # fmt: skip
     summary = identify(tmp_path, effects, sim_overrides={"stiction": False})

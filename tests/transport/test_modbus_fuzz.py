@@ -11,7 +11,7 @@ Random *values* in a well-formed reply are what Modbus TCP cannot tell from the 
 (no checksum of its own above TCP's): the register map's plausibility checks refuse what is
 outside each point's range, and what is inside is published. The test counts those, and says
 how many showed the enabling device held: the enabling device's integrity is the safety
-circuit's, wired to the controller, not this bus's (README, safety).
+circuit's, wired to the controller, not this bus's (docs/safety.md).
 """
 
 from __future__ import annotations

@@ -59,13 +59,26 @@ def every_effect(rng: np.random.Generator) -> list[tuple[EffectTerm, np.ndarray,
     ]
 
 
-def model_with(regressor, kinds, rng, *, envelope=True, plain=(), effects=True):
+def model_with(regressor, kinds, rng, *, envelope=True, plain=(), effects=True, options=False):
+    """``options``: every other joint's friction with memory, every third with a Gaussian
+    Stribeck rise (:class:`FrictionTerm`)."""
     n = regressor.n
     terms = [
-        FrictionTerm(j, kinds[j], float(rng.uniform(0.005, 0.05)), float(rng.uniform(50, 150)))
+        FrictionTerm(
+            j,
+            kinds[j],
+            float(rng.uniform(0.005, 0.05)),
+            float(rng.uniform(50, 150)),
+            presliding_rad=3e-4 if options and j % 2 == 0 else None,
+            stribeck_rad_s=0.02 if options and j % 3 == 0 else None,
+        )
         for j in range(n)
     ]
-    coefs = [rng.normal(0.0, 20.0, len(FRICTION_PARAM_NAMES[t.kind])) for t in terms]
+    coefs = [rng.normal(0.0, 20.0, len(t.parameter_names)) for t in terms]
+    assert all(
+        len(t.parameter_names) == len(FRICTION_PARAM_NAMES[t.kind]) + (t.stribeck_rad_s is not None)
+        for t in terms
+    )
     nb = regressor.base.n_base
     beta = regressor.base.base_values(regressor.parameters()) + rng.normal(0.0, 0.5, nb)
     env = None
@@ -86,6 +99,22 @@ def model_with(regressor, kinds, rng, *, envelope=True, plain=(), effects=True):
         envelope=env,
         plain_joints=plain_joints,
     )
+
+
+def test_friction_options_evaluate_per_cycle_as_the_sliding_law(regressor):
+    """Memory and a Gaussian Stribeck rise (:class:`FrictionTerm`): one state slides, so the
+    cycle's table (the family's coefficients, the rise as a stribeck column) gives what
+    torque_nm gives for one sample, in every family and with plain joints."""
+    rng = np.random.default_rng(11)
+    for kinds, plain in ((["eq15"] * 6, ()), (["eq15", "eq14", "simple"] * 2, (1,))):
+        model = model_with(regressor, kinds, rng, plain=plain, effects=False, options=True)
+        point = PointModel(model)
+        zeros = np.zeros(regressor.n)
+        for q, dq in samples(regressor.n, rng, 60):
+            want = model.torque_nm(q, dq, zeros)
+            np.testing.assert_allclose(
+                point.torque_nm(q.tolist(), dq.tolist()), want, rtol=RTOL, atol=ATOL
+            )
 
 
 def PointModel(model: IdentifiedModel) -> _rt.PointModel:
