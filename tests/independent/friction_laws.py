@@ -53,6 +53,14 @@ from typing import Any
 
 import numpy as np
 
+# the levels are the declared world's (module docstring): one definition
+from .family import (
+    COULOMB_FRACTION,
+    FOURIER_OVER_COULOMB,
+    STATIC_OVER_COULOMB,
+    VISCOUS_FRACTION,
+)
+
 SIGN_VELOCITY = 1e-4  # rad/s
 SUBSTEPS = 4
 KINDS = (
@@ -64,11 +72,7 @@ KINDS = (
     "dahl",
     "temperature_viscous",
 )
-COULOMB_FRACTION = (0.02, 0.06)
-STATIC_OVER_COULOMB = (1.0, 1.5)
 V_S_RAD_S = (0.01, 0.05)
-VISCOUS_FRACTION = (0.02, 0.04)
-FOURIER_OVER_COULOMB = 0.04
 ASYMMETRY = (0.6, 1.4)
 STRIBECK_EXPONENT = (0.5, 2.0)
 PRESLIDING_RAD = (1e-4, 1e-3)
