@@ -125,7 +125,8 @@ class ControlConfig:
     #: in teaching and replay, set-points scheduled from the arm's pose: each cylinder asked
     #: for ``pressure_schedule_share`` of its joint's static load, within
     #: ``pressure_schedule_range_bar``, moving at most ``pressure_schedule_rate_bar_per_s``
-    #: (control/pressure_schedule.py); off until it holds up on the whole teach-bench (README)
+    #: (control/pressure_schedule.py); off until it holds up on the whole teach-bench
+    #: (docs/results/teaching.md)
     pressure_schedule: bool = False
     pressure_schedule_share: float = 0.8
     pressure_schedule_range_bar: tuple[float, float] = (0.5, 8.0)

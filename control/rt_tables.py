@@ -125,6 +125,8 @@ def _cylinders(model: DeclaredModel) -> list[dict[str, Any]]:
 def _identified(im: IdentifiedModel) -> dict[str, Any]:
     """The weights, friction, effects and envelope of an identified model (the module
     docstring; the same reading as ``IdentifiedModel.torque_nm`` at ddq = 0)."""
+    from control.identification.terms import EffectTerm
+
     reg = im.regressor
     n = reg.n
     n_link = 10 * n
@@ -142,9 +144,8 @@ def _identified(im: IdentifiedModel) -> dict[str, Any]:
         friction[term.joint] = friction_table(term, coef)
         if term.stribeck_rad_s is not None and term.joint not in im.plain_joints:
             # the friction's Gaussian Stribeck rise: the cycle's stribeck column, same formula
-            effects.append({"name": "stribeck", "joint": int(term.joint),
-                            "coef": _floats(coef[-1:]),
-                            "velocity_rad_s": float(term.stribeck_rad_s)})  # fmt: skip
+            rise = EffectTerm("stribeck", (term.joint,), {"velocity_rad_s": term.stribeck_rad_s})
+            effects.append(_effect(rise, coef[-1:]))
     for j, pj in im.plain_joints.items():
         coef = [pj.coulomb_nm, pj.viscous_nm_s_per_rad, pj.offset_nm]
         friction[j] = {"kind": "plain", "coef": _floats(coef)}
@@ -178,9 +179,10 @@ def friction_table(term: Any, coef: Any) -> dict[str, Any]:
     state at a time, where the model slides (:attr:`.identification.terms.Context.sequence`);
     what the memory adds, the torque a joint holds at rest and across a reversal, is the
     stiction the law meets at rest, not a torque the model commands."""
+    from control.identification.terms import FRICTION_PARAM_NAMES
     from control.model.friction import eq15_row
 
-    n_family = len(term.parameter_names) - (term.stribeck_rad_s is not None)
+    n_family = len(FRICTION_PARAM_NAMES[term.kind])
     coef = list(coef)[:n_family]  # a Gaussian Stribeck rise goes with the effects (_identified)
     if term.kind == "eq15":
         row = eq15_row(coef, term.q_e_rad_s, term.gear_ratio, term.sign_width_rad_s)

@@ -245,9 +245,8 @@ def fit_rigid_friction(
     are chosen on data the fit did not see. Then, per joint, whether its friction has memory
     (over ``presliding_grid``) and then a Gaussian Stribeck rise (over ``stribeck_grid``;
     its column carries the direction memory gives) (:func:`_choose_option`). Then the two-step
-    weighted LS on all
-    rows; the friction groups are left in ``ls``. A group of ``extra`` already in ``ls`` (the
-    cylinder columns, :mod:`.cylinders`) is fitted along throughout.
+    weighted LS on all rows; the friction groups are left in ``ls``. A group of ``extra``
+    already in ``ls`` (the cylinder columns, :mod:`.cylinders`) is fitted along throughout.
     """
     if kind not in FRICTION_MODELS:
         raise ConfigError(f"--friction: {kind!r} is not one of {list(FRICTION_MODELS)}")
@@ -315,9 +314,10 @@ def fit_rigid_friction(
             ("stribeck_rad_s", stribeck_grid),
         ):
             for j in range(n if values else 0):
-                terms[j] = _choose_option(
-                    target, ctx, names, w0, terms[j], field_name, values, step
+                chosen[j] = _choose_option(
+                    target, ctx, names, w0, terms[j], field_name, values, step, chosen.get(j)
                 )
+                terms[j] = chosen[j][0]
     if target is not ls:
         for term in terms:
             ls.add(term.key, term.columns(ctx))
@@ -352,11 +352,13 @@ def _choose_option(
     field_name: str,
     grid: Sequence[float],
     step: int,
-) -> FrictionTerm:
+    known: tuple[FrictionTerm, dict[int, np.ndarray]] | None = None,
+) -> tuple[FrictionTerm, dict[int, np.ndarray]]:
     """``term`` with one of its options (``field_name``: ``presliding_rad``, memory;
     ``stribeck_rad_s``, a Gaussian Stribeck rise; :class:`.terms.FrictionTerm`) set to a value
-    of ``grid`` where the data show it, else ``term``; ``target`` is left holding the chosen
-    term's columns.
+    of ``grid`` where the data show it, else ``term``, with its thinned columns; ``target`` is
+    left holding them. ``known``: a term and its columns already computed (``term``'s are
+    taken from there instead of being computed again).
 
     A value is taken when its joint's held-out error is lower than without the option in
     *every* fold (K contiguous blocks), and among those the lowest in total. Either option
@@ -369,7 +371,6 @@ def _choose_option(
     """
     j = term.joint
     base = target.cv_fold_sse(names, weights)[:, j]
-    base_cols = _thin(term.columns(ctx), step)
     best: tuple[float, FrictionTerm | None, dict[int, np.ndarray] | None] = (
         float(base.sum()),
         None,
@@ -383,10 +384,14 @@ def _choose_option(
         if np.all(folds < base) and float(folds.sum()) < best[0]:
             best = (float(folds.sum()), cand, cols)
     if best[1] is None or best[2] is None:
-        target.add(term.key, base_cols)
-        return term
+        if known is not None and known[0] == term:
+            cols = known[1]
+        else:
+            cols = _thin(term.columns(ctx), step)
+        target.add(term.key, cols)
+        return term, cols
     target.add(best[1].key, best[2])
-    return best[1]
+    return best[1], best[2]
 
 
 # --------------------------------------------------------------------------------------------

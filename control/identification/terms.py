@@ -369,6 +369,16 @@ class Context:
         )
 
 
+def gaussian_stribeck(
+    dq: np.ndarray, v_s: float, direction: np.ndarray | None = None
+) -> np.ndarray:
+    """A Stribeck rise of Gaussian shape, ``exp(-(dq / v_s)²)`` times the direction of motion
+    (``direction``, a friction's memory; None: sgn(dq)): the column of
+    :attr:`FrictionTerm.stribeck_rad_s` and of the ``stribeck`` effect."""
+    sign = np.sign(dq) if direction is None else direction
+    return np.exp(-((dq / v_s) ** 2)) * sign
+
+
 def friction_basis(
     kind: str,
     q: np.ndarray,
@@ -464,8 +474,7 @@ class FrictionTerm:
             )
             if v_s is None:
                 return out
-            sign = np.sign(dq) if direction is None else direction
-            return np.column_stack([out, np.exp(-((dq / v_s) ** 2)) * sign])
+            return np.column_stack([out, gaussian_stribeck(dq, v_s, direction)])
 
         return {j: ctx.filtered(ctx.sample_mean(j, basis))}
 
@@ -532,7 +541,7 @@ class EffectTerm:
             return np.column_stack([q, np.ones_like(q)])
         if name == "stribeck":
             v = float(s["velocity_rad_s"])
-            return ctx.sample_mean(j, lambda x: np.exp(-((x / v) ** 2)) * np.sign(x))
+            return ctx.sample_mean(j, lambda x: gaussian_stribeck(x, v))
         if name == "load_dependent_friction":
             assert ctx.rigid is not None
             return np.abs(ctx.rigid[:, j : j + 1]) * ctx.sample_mean(j, np.sign)

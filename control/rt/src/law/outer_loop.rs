@@ -28,7 +28,7 @@
 //! (control/rt/src/law/delay.rs). When it did not (the hand pushed, the model's inertia is off),
 //! τ_d no longer says what the drive was asked for, and a gradient on it learnt the mismatch as a
 //! gain error (teach-bench, seed 0: J6's ω̂ ended at 0.67 of the drive's after 59 s of teaching,
-//! J1's at 0.93; with τ̂, see the README). We take the normalised gradient Λ = γ ω̂ / τ̂² per
+//! J1's at 0.93; with τ̂, docs/results/teaching.md). We take the normalised gradient Λ = γ ω̂ / τ̂² per
 //! joint, in the log of ω̂, which makes the convergence rate γ independent of the load and
 //! keeps ω̂ > 0:
 //!
