@@ -4,6 +4,7 @@ the operator commands. Physical outcomes are judged from the simulator's truth l
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import signal
@@ -41,6 +42,19 @@ def tool_speed(truth: dict[str, np.ndarray], rows: np.ndarray, span: int = 5) ->
 PROFILES = CAN_PROFILES
 
 
+def cycle_record(stack: Stack) -> str:
+    """What the virtual controller saw of the command cycle (its summary, written when it
+    exited): printed beside a physical verdict, so a failure under load tells a starved cycle
+    (commands missed, the simulator's own overruns and late wake-ups) from the law's doing."""
+    try:
+        s = json.loads(stack.sim_summary.read_text())
+    except (OSError, ValueError) as exc:
+        return f"no simulator summary: {exc}"
+    keys = ("teaching_cycles", "teaching_missed_cycles", "controller_missed_cycles", "overruns",
+            "late_frames", "latency_p99_s", "wake_late_max_s")  # fmt: skip
+    return "virtual controller: " + ", ".join(f"{k} {s.get(k)}" for k in keys)
+
+
 def rest_without_operator(tmp_path, sim_overrides=None, cell_overrides=None):
     """Teach for 5 s with no hand on the tool: (truth, its first 5 s of teaching rows, the
     tool's largest distance from where it started [m])."""
@@ -49,6 +63,7 @@ def rest_without_operator(tmp_path, sim_overrides=None, cell_overrides=None):
         stack.start_teaching()
         truth = stack.wait_teaching(5.2, 30.0)
         stack.request("stop")
+    print(cycle_record(stack))
     rows = teaching_rows(truth)
     t = truth["t_s"][rows]
     window = rows[t - t[0] <= 5.0]
