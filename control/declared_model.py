@@ -60,7 +60,9 @@ class DeclaredModel:
         self.rigid = RigidBodyModel.from_description(desc)
         self.friction = Eq15Friction(friction)
         #: the compiled per-cycle form (control/rt/src/point_model.rs)
-        self.point = _rt.PointModel(to_json(point_model_table(self)))
+        self.point = _rt.PointModel(
+            to_json(point_model_table(desc, rigid=self.rigid, friction_rows=self.friction.rows))
+        )
 
     @classmethod
     def load(cls, path: str | Path) -> DeclaredModel:
@@ -159,7 +161,7 @@ class IdentifiedControlModel(DeclaredModel):
         #: the compiled per-cycle form (control/rt/src/point_model.rs); an effect it cannot
         #: evaluate is refused here, by name
         try:
-            self.point = _rt.PointModel(to_json(point_model_table(self)))
+            self.point = _rt.PointModel(to_json(point_model_table(self.desc, self.identified)))
         except ValueError as exc:
             raise ConfigError(f"{where}: {exc}") from None
         self.torque_gain, self.torque_offset_nm = self.identified.chain_arrays()

@@ -11,11 +11,12 @@ pinocchio and reads no model file: this module hands it the same numbers as plai
   placement at q = 0, its kind and axis (revolute or prismatic: another type is refused by
   name), the
   ten dynamic parameters of its body and its armature; the gravity; the tool frame.
-* :func:`point_model_table` turns a :class:`~control.declared_model.DeclaredModel` (declared or
-  identified) into the point model's table: the weights ``W`` with ``rigid_j = Y(q, dq, 0)[j]
-  · W[j]`` (an identified model's base parameters on their independent columns, a plain
-  joint's own row; a declared model's link parameters on every row), the friction of each
-  joint, the effects that act at run time, the training envelope, the cylinders' constants.
+* :func:`point_model_table` turns a model, declared (the description's rigid body and eq. 15
+  friction) or identified (an :class:`IdentifiedModel`), into the point model's table: the weights
+  ``W`` with ``rigid_j = Y(q, dq, 0)[j] · W[j]`` (an identified model's base parameters on their
+  independent columns, a plain joint's own row; a declared model's link parameters on every row),
+  the friction of each joint, the effects that act at run time, the training envelope, the
+  cylinders' constants.
 
 tests/unit/test_control_rt_chain.py and test_control_rt_model.py check the compiled numbers
 against pinocchio and the vectorised model.
@@ -31,8 +32,9 @@ import numpy as np
 if TYPE_CHECKING:
     import pinocchio as pin
 
-    from control.declared_model import DeclaredModel
     from control.identification.fit import IdentifiedModel
+    from control.model.dynamics import RigidBodyModel
+    from control.robot.description import RobotDescription
 
 CHAIN_FORMAT = "leadthrough-rigid-chain"
 CHAIN_VERSION = 1
@@ -111,9 +113,9 @@ def chain_table(
     }
 
 
-def _cylinders(model: DeclaredModel) -> list[dict[str, Any]]:
+def _cylinders(desc: RobotDescription) -> list[dict[str, Any]]:
     out = []
-    for spec in model.desc.cylinders:
+    for spec in desc.cylinders:
         crank = spec.kind == "j2_crank"
         ab, ac = float(spec.ab_m), float(spec.ac_m) if crank else 0.0  # type: ignore[arg-type]
         lever = spec.piston_area_m2 * ab * (ac if crank else 1.0)
@@ -210,29 +212,33 @@ def _effect(term: Any, coef: Any) -> dict[str, Any]:
     return out
 
 
-def point_model_table(model: DeclaredModel) -> dict[str, Any]:
-    """The point model of ``model``, declared or identified (module docstring): an
-    identified one (:class:`~control.declared_model.IdentifiedControlModel`) carries the
-    identification's model as ``identified``."""
-    identified = getattr(model, "identified", None)
+def point_model_table(
+    desc: RobotDescription,
+    identified: IdentifiedModel | None = None,
+    rigid: RigidBodyModel | None = None,
+    friction_rows: Any = None,
+) -> dict[str, Any]:
+    """The point model (module docstring) of the robot ``desc`` (its cylinders) with an
+    ``identified`` model, or else a declared one: the ``rigid`` body and eq. (15) friction
+    ``friction_rows`` (n, 10) (:class:`~control.model.friction.Eq15Friction` ``.rows``)."""
     if identified is not None:
-        reg = identified.regressor
-        chain = chain_table(reg.model)
+        chain = chain_table(identified.regressor.model)
         parts = _identified(identified)
     else:
-        rigid = model.rigid
+        if rigid is None or friction_rows is None:
+            raise ValueError("a declared point model needs its rigid body and friction rows")
         chain = chain_table(rigid.model, rigid.armature_kgm2)
         params = rigid.parameters()
         parts = {
             "coriolis": False,  # a declared model's friction_nm is eq. (15) alone
-            "w_rigid": _floats(np.tile(params, (model.n, 1))),
+            "w_rigid": _floats(np.tile(params, (len(desc.joints), 1))),
             "w_payload": None,
             "envelope": None,
-            "friction": [{"kind": "eq15", "row": _floats(row)} for row in model.friction.rows],
+            "friction": [{"kind": "eq15", "row": _floats(row)} for row in friction_rows],
             "effects": [],
         }
     return {"format": MODEL_FORMAT, "version": MODEL_VERSION, "chain": chain,
-            "cylinders": _cylinders(model), **parts}  # fmt: skip
+            "cylinders": _cylinders(desc), **parts}  # fmt: skip
 
 
 def to_json(table: dict[str, Any]) -> str:

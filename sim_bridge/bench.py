@@ -35,6 +35,7 @@ from typing import Any
 
 from gateway.bus_security import write_credentials
 from gateway.progress import add_progress_argument, progress_bar, progress_enabled
+from sim_bridge.commission import commissioned_stack
 from sim_bridge.harness import CAN_PROFILES, Stack, deep_merge
 
 #: the counters of the CAN driver's health that classify its answers
@@ -101,7 +102,7 @@ def run_rate(
     )
     result: dict[str, Any] = {"hz": rate_hz, "profile": profile, "cycles": 0, "error": None}
     result["locked_bus"] = locked_bus
-    with Stack(workdir, sim_overrides=overrides, cell_overrides=cell_overrides,
+    with commissioned_stack(workdir, sim_overrides=overrides, cell_overrides=cell_overrides,
                place=place) as stack:  # fmt: skip
         result["placement"] = None if stack.placement is None else {
             "product_cpus": list(stack.placement[0]), "sim_cpus": list(stack.placement[1])

@@ -101,6 +101,18 @@ def _locked(path: Path) -> Iterator[None]:
             fcntl.flock(fh, fcntl.LOCK_UN)
 
 
+def commissioned_stack(workdir: Path, plant_seed: int = 0, **kwargs: Any) -> Stack:
+    """A :class:`~.harness.Stack` of ``plant_seed`` whose control process compensates the
+    plant's commissioned model and inner-loop estimate (:func:`commissioned`, built by
+    `leadthrough identify` on this plant seed when not cached), with the current sensors' zero
+    they were identified with; ``kwargs`` as :class:`~.harness.Stack` takes them."""
+    done = commissioned(plant_seed)
+    return Stack(
+        workdir, plant_seed=plant_seed, model=done.model, inner_loop=done.inner_loop,
+        current_zero=done.current_zero, **kwargs,
+    )  # fmt: skip
+
+
 def commissioned(
     plant_seed: int,
     *,

@@ -20,6 +20,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from sim_bridge.commission import commissioned_stack
 from sim_bridge.harness import Stack
 
 _CLK_TCK = os.sysconf("SC_CLK_TCK")
@@ -128,7 +129,7 @@ def measure(rate_hz: float, seconds: float, workdir: Path) -> tuple[dict[str, fl
         "controller": {"cycle_period_s": 1.0 / rate_hz},
         "operator": {"enabling_after_s": 0.0, "mode": "none"},
     }
-    with Stack(workdir, sim_overrides=overrides) as stack:
+    with commissioned_stack(workdir, sim_overrides=overrides) as stack:
         stack.start()
         stack.start_teaching()
         try:

@@ -13,7 +13,7 @@ tool between a plan's training and test runs (in their pause).
 from __future__ import annotations
 
 from collections import deque
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -22,9 +22,6 @@ from gateway.config import require
 
 #: A joint faster than this counts as the arm being in motion (``after_motion_s``) [rad/s].
 MOTION_RAD_S = 0.01
-
-if TYPE_CHECKING:
-    from sim_bridge.plant import Plant
 
 
 def _add_point_mass(model: mujoco.MjModel, body: int, mass_kg: float, pos_m: np.ndarray) -> None:
@@ -96,10 +93,14 @@ class EffectSet:
             maxlen=max(self.delay_steps, 1) + 1
         )
 
-    def torque(self, plant: Plant, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
-        tau = np.zeros(plant.n)
+    def torque(
+        self, t_s: float, tau_motor_nm: np.ndarray, q: np.ndarray, dq: np.ndarray
+    ) -> np.ndarray:
+        """The effects' joint torque at simulated time ``t_s`` [s], with the motors' torque
+        ``tau_motor_nm`` (what load-dependent friction and a coupling scale with)."""
+        tau = np.zeros(len(q))
         for eff in self.torque_effects:
-            if not self._active(eff, plant.t_s):
+            if not self._active(eff, t_s):
                 continue  # not there yet (e.g. a hose clipped on after the training runs)
             j, kind = eff["_j"], eff["kind"]
             if kind == "spring":
@@ -115,14 +116,12 @@ class EffectSet:
                     float(eff["amplitude_nm"]) * np.exp(-((dq[j] / v) ** 2)) * np.tanh(dq[j] / 1e-3)
                 )
             elif kind == "load_dependent_friction":
-                tau[j] -= (
-                    float(eff["coefficient"]) * abs(plant.tau_motor_nm[j]) * np.tanh(dq[j] / 0.01)
-                )
+                tau[j] -= float(eff["coefficient"]) * abs(tau_motor_nm[j]) * np.tanh(dq[j] / 0.01)
             elif kind == "thermal_drift":
-                tau[j] += float(eff["rate_nm_per_s"]) * plant.t_s
+                tau[j] += float(eff["rate_nm_per_s"]) * t_s
             elif kind == "wrist_coupling":
                 k = int(eff["from_joint"]) - 1
-                tau[j] -= float(eff["coefficient"]) * plant.tau_motor_nm[k]
+                tau[j] -= float(eff["coefficient"]) * tau_motor_nm[k]
         return tau
 
     def _active(self, eff: dict[str, Any], t_s: float) -> bool:
@@ -132,19 +131,21 @@ class EffectSet:
             return self.motion_s >= float(eff["after_motion_s"])
         return t_s >= float(eff.get("after_s", 0.0))
 
-    def advance(self, plant: Plant, dt: float) -> None:
-        """Once per :meth:`Plant.run` of ``dt`` [s]: the time in motion, and payloads due."""
-        if np.abs(plant.dq_view).max() > MOTION_RAD_S:
+    def advance(self, t_s: float, dq: np.ndarray, dt: float) -> None:
+        """Once per run of the plant over ``dt`` [s], ending at ``t_s`` with joint velocity
+        ``dq``: the time in motion, and payloads due."""
+        if np.abs(dq).max() > MOTION_RAD_S:
             self.motion_s += dt
         if not self.pending_payloads:
             return
-        for item in [p for p in self.pending_payloads if self._active(p[0], plant.t_s)]:
+        for item in [p for p in self.pending_payloads if self._active(p[0], t_s)]:
             self.pending_payloads.remove(item)
             _, body, mass, pos = item
             _add_point_mass(self._model, body, mass, pos)  # the gun is mounted now
 
-    def measured_kinematics(self, plant: Plant) -> tuple[np.ndarray, np.ndarray]:
-        """Joint position and velocity as the encoders report them (delayed if injected)."""
+    def measured_kinematics(self, q: np.ndarray, dq: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Joint position and velocity as the encoders report them, from the plant's sampled
+        ``q``, ``dq`` (delayed if injected)."""
         if self.delay_steps and len(self.history) == self.history.maxlen:
             return self.history[0]
-        return plant.sample_q_rad, plant.sample_dq_rad_s
+        return q, dq

@@ -58,6 +58,7 @@ from typing import Any
 
 import numpy as np
 
+from sim_bridge.commission import commissioned_stack
 from sim_bridge.harness import CAN_PROFILES, TOOL_COLUMNS, Stack, TruthTail, tail_tool_speed
 
 #: after the injection, how long the gateway's status is watched before the truth is read [s]
@@ -354,7 +355,7 @@ def run_fault(
     """Run one fault on a fresh stack; its figures and checks (module docstring)."""
     operator = {**DRAG, **fault.drag, **fault.operator}
     cleanup: Callable[[], None] | None = None
-    with Stack(
+    with commissioned_stack(
         workdir,
         sim_overrides={"operator": operator},
         cell_overrides=cell_overrides,

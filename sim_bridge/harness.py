@@ -42,8 +42,6 @@ SIM_CELL = REPO / "deploy" / "config" / "sim_cell.toml"
 TRUTH = Path(__file__).with_name("gr630st_truth.toml")
 #: SCHED_FIFO priority of the virtual controller in real-time runs (Stack.__init__)
 VIRTUAL_CONTROLLER_FIFO_PRIORITY = 60
-#: ``Stack(model=COMMISSIONED)``: the plant seed's commissioned model (:mod:`.commission`)
-COMMISSIONED = "commissioned"
 
 SIM_CELL_CIA402 = REPO / "deploy" / "config" / "sim_cell_cia402.toml"
 TRUTH_CIA402 = Path(__file__).with_name("gr630st_truth_cia402.toml")
@@ -230,18 +228,17 @@ class Stack:
         lockstep: bool = False,
         quiet: bool = True,
         plant_seed: int = 0,
-        model: str | Path | None = COMMISSIONED,
+        model: str | Path | None = None,
         inner_loop: str | Path | None = None,
         current_zero: str | Path | None = None,
         place: bool = False,
         cell_file: Path = SIM_CELL,
     ) -> None:
         """``plant_seed``: the virtual robot drawn (:mod:`sim_bridge.truth`; 0 is the truth
-        file as written). ``model``: what the control process compensates: the plant's
-        commissioned model and inner-loop estimate (:func:`.commission.commissioned`, built
-        by `leadthrough identify` on this plant seed when not cached), a ``model.json`` path
-        (with the ``inner_loop.json`` of the same identification, or None), or None for a cell
-        that is not commissioned yet (it identifies but refuses to teach). ``current_zero``:
+        file as written). ``model``: what the control process compensates: a ``model.json``
+        path (with the ``inner_loop.json`` of the same identification, or None), or None for
+        a cell that is not commissioned yet (it identifies but refuses to teach); the plant
+        seed's commissioned model is :func:`.commission.commissioned_stack`'s. ``current_zero``:
         the ``current_zero.json`` of that identification (the CAN driver keeps the current
         sensors' zero the model was identified with; None: it measures one now). ``place``:
         run the simulator and the product on different CPUs (:func:`placement`). Off by
@@ -262,12 +259,6 @@ class Stack:
         eds = cell.get("can", {}).get("cia402", {}).get("eds")
         if eds and not Path(eds).is_absolute():
             cell["can"]["cia402"]["eds"] = str(Path(cell_file).resolve().parent / eds)
-        if model == COMMISSIONED:
-            from sim_bridge.commission import commissioned
-
-            done = commissioned(plant_seed)
-            model, inner_loop = done.model, done.inner_loop
-            current_zero = done.current_zero
         if current_zero is not None:
             cell["can"]["current_zero_file"] = str(current_zero)
         for key, path in (("model", model), ("inner_loop", inner_loop)):

@@ -356,7 +356,7 @@ class Plant:
             self.sample_dq_rad_s = np.zeros(n)
             d.time += ticks * dt
             mujoco.mj_kinematics(model, d)
-            self.effects.advance(self, ticks * dt)
+            self.effects.advance(self.t_s, self.dq_view, ticks * dt)
             return
         self.brakes = False
         q, dq = self._q, self.dq_view  # views: they follow the ticks
@@ -367,7 +367,7 @@ class Plant:
             self._damping[:] = friction.damping_nm_s_per_rad(dq)
         held = self.cylinders.torque_from_arms(arms, self.pressure_bar.tolist())  # over the cycle
         if self.effects.torque_effects:
-            held += self.effects.torque(self, q, dq)
+            held += self.effects.torque(self.t_s, self.tau_motor_nm, q, dq)
         hand = self.hand(self) if self.hand is not None else None
         if hand is not None and hand.any():
             self.hand_force_n, self._hand_on = hand, True
@@ -417,4 +417,4 @@ class Plant:
         self.tau_motor_nm = force / ticks
         self.current_a = self.tau_motor_nm / self.k_nm_per_a
         self._sample(q_before, dt)
-        self.effects.advance(self, ticks * dt)
+        self.effects.advance(self.t_s, self.dq_view, ticks * dt)

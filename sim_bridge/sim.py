@@ -374,7 +374,7 @@ class VirtualCell:
             op.mark_pressed(plant.t_s),
         )  # fmt: skip
         plant.pressure_set_bar[:] = self.io.setpoints()
-        q_m, dq_m = plant.effects.measured_kinematics(plant)
+        q_m, dq_m = plant.effects.measured_kinematics(plant.sample_q_rad, plant.sample_dq_rad_s)
         return p_meas, enabling, q_m, dq_m, plant.measured_current_a()
 
     def _heartbeat(self, now_s: float) -> None:

@@ -40,9 +40,9 @@ from typing import Any
 
 import numpy as np
 
+from sim_bridge.commission import commissioned_stack
 from sim_bridge.cpu import stack_pids
 from sim_bridge.faults import tool_xyz
-from sim_bridge.harness import Stack
 
 STROKE_M = 0.25
 MOVE_S = 5.0
@@ -122,7 +122,7 @@ def run(minutes: float, rate_hz: float, frame_loss: float, workdir: Path) -> dic
     }
     samples: list[dict[str, Any]] = []
     faults: list[str] = []
-    with Stack(workdir, sim_overrides=overrides) as stack:
+    with commissioned_stack(workdir, sim_overrides=overrides) as stack:
         stack.start()
         stack.start_teaching()
         pids = stack_pids(stack)

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from test_stack import rest_without_operator, teaching_rows, tool_speed, tool_xyz
 
-from sim_bridge.harness import Stack
+from sim_bridge.commission import commissioned_stack
 
 pytestmark = pytest.mark.stack
 
@@ -48,7 +48,9 @@ def test_a_push_moves_the_tool_along_it_and_the_arm_stops_when_the_hand_lets_go(
     """The hand pushes once the engagement probe is over (a painter waits for it)."""
     t0 = PROBE_S
     operator = {"mode": "force", "force_n": [0.0, 20.0, 0.0], "start_s": t0, "duration_s": 2.0}
-    with Stack(tmp_path, sim_overrides={"operator": operator}, cell_overrides=ADMITTANCE) as stack:
+    with commissioned_stack(
+        tmp_path, sim_overrides={"operator": operator}, cell_overrides=ADMITTANCE
+    ) as stack:
         stack.start()
         stack.start_teaching()
         # the operator's status says when the probe runs, and when it is over

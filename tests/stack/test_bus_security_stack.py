@@ -15,7 +15,7 @@ from gateway import bus_security as sec
 from gateway.bus import BusConfig, open_client, open_peer
 from gateway.errors import LinkTimeoutError
 from gateway.messages import IoState, Lifecycle, LifecycleMsg
-from sim_bridge.harness import Stack
+from sim_bridge.commission import commissioned_stack
 
 pytestmark = pytest.mark.stack
 
@@ -54,7 +54,9 @@ def _forge(bus: BusConfig, identity: str) -> int:
 
 def test_a_locked_bus_teaches_and_no_other_identity_reaches_a_driver(tmp_path):
     creds = _credentials(tmp_path / "bus.credentials")
-    with Stack(tmp_path, cell_overrides={"bus": {"credentials_file": str(creds)}}) as stack:
+    with commissioned_stack(
+        tmp_path, cell_overrides={"bus": {"credentials_file": str(creds)}}
+    ) as stack:
         stack.start()
         stack.start_teaching()
         truth = stack.wait_teaching(1.0, 30.0)

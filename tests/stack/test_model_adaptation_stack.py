@@ -20,7 +20,7 @@ import pytest
 
 from gateway.bus import open_client
 from gateway.program import ProgramWriter
-from sim_bridge.harness import Stack
+from sim_bridge.commission import commissioned_stack
 
 pytestmark = pytest.mark.stack
 
@@ -61,7 +61,7 @@ def test_a_replay_teaches_the_model_a_gun_it_lacked_and_teaching_leaves_it(tmp_p
             time.sleep(0.1)
         raise TimeoutError(f"{what}: telemetry {tele.get('model_adaptation')}, health {health}")
 
-    with Stack(tmp_path, sim_overrides={"effects": [gun]}) as stack:
+    with commissioned_stack(tmp_path, sim_overrides={"effects": [gun]}) as stack:
         stack.start()
         session = open_client(stack.bus)
         subs = [

@@ -16,7 +16,7 @@ import pytest
 from test_stack import teaching_rows, tool_speed, tool_xyz
 
 from gateway.bus import open_client
-from sim_bridge.harness import Stack
+from sim_bridge.commission import commissioned_stack
 
 pytestmark = pytest.mark.stack
 
@@ -30,7 +30,9 @@ def test_the_paper_law_moves_with_a_push_stops_after_it_and_adapts_upsilon(tmp_p
     def on_telemetry(sample) -> None:  # zenoh's thread: decode only
         last.update(json.loads(sample.payload.to_bytes()))
 
-    with Stack(tmp_path, sim_overrides={"operator": operator}, cell_overrides=PAPER) as stack:
+    with commissioned_stack(
+        tmp_path, sim_overrides={"operator": operator}, cell_overrides=PAPER
+    ) as stack:
         stack.start()
         session = open_client(stack.bus)
         try:

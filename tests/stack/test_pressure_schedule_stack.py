@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from test_stack import teaching_rows
 
-from sim_bridge.harness import Stack
+from sim_bridge.commission import commissioned_stack
 
 pytestmark = pytest.mark.stack
 
@@ -21,7 +21,9 @@ SCHEDULED = {"control": {"pressure_schedule": True}}
 def test_scheduled_set_points_follow_the_pose_and_the_pressures_follow_them(tmp_path):
     operator = {"mode": "force", "force_n": [30.0, 0.0, -30.0], "start_s": 0.5,
                 "duration_s": 2.5}  # fmt: skip
-    with Stack(tmp_path, sim_overrides={"operator": operator}, cell_overrides=SCHEDULED) as stack:
+    with commissioned_stack(
+        tmp_path, sim_overrides={"operator": operator}, cell_overrides=SCHEDULED
+    ) as stack:
         stack.start()
         stack.start_teaching()
         truth = stack.wait_teaching(11.0, 45.0)

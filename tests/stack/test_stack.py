@@ -17,6 +17,7 @@ import pytest
 
 from gateway.messages import ControllerState
 from sim_bridge.cia402_drives import MOVED_WITHIN_SYNCS
+from sim_bridge.commission import commissioned_stack
 from sim_bridge.harness import CAN_PROFILES, TOOL_COLUMNS, Stack, TruthTail, tail_tool_speed
 
 pytestmark = pytest.mark.stack
@@ -58,7 +59,9 @@ def cycle_record(stack: Stack) -> str:
 def rest_without_operator(tmp_path, sim_overrides=None, cell_overrides=None):
     """Teach for 5 s with no hand on the tool: (truth, its first 5 s of teaching rows, the
     tool's largest distance from where it started [m])."""
-    with Stack(tmp_path, sim_overrides=sim_overrides, cell_overrides=cell_overrides) as stack:
+    with commissioned_stack(
+        tmp_path, sim_overrides=sim_overrides, cell_overrides=cell_overrides
+    ) as stack:
         stack.start()
         stack.start_teaching()
         truth = stack.wait_teaching(5.2, 30.0)
@@ -105,7 +108,7 @@ def test_the_can_drivers_speed_monitor_stops_an_arm_the_law_lets_run(tmp_path):
         "hand_damping_n_s_per_m": 100.0,
         "max_force_n": 80.0,
     }
-    with Stack(
+    with commissioned_stack(
         tmp_path, sim_overrides={"operator": operator},
         cell_overrides={"control": {"max_tool_speed_m_s": 0.0}},
     ) as stack:  # fmt: skip
@@ -236,7 +239,9 @@ def stop_while_dragging(tmp_path, event: str = "release", cell_overrides=None) -
                 # 2 of about 14 runs over two days and was never released (2026-11-30: dragged
                 # to the path's end, 48 N of hand on a still arm)
                 "event_min_speed_m_s": 0.10}  # fmt: skip
-    with Stack(tmp_path, sim_overrides={"operator": operator}, cell_overrides=cell_overrides) as st:
+    with commissioned_stack(
+        tmp_path, sim_overrides={"operator": operator}, cell_overrides=cell_overrides
+    ) as st:
         st.start()
         st.start_teaching()
         if event == "release":
@@ -359,7 +364,7 @@ def test_a_bus_off_faults_the_cell_which_stays_stopped_until_it_is_re_armed(tmp_
     at once, but the cell stays stopped until the operator resets it, and then it starts."""
     operator = {"mode": "path", "path": [[0.0, 0, 0, 0], [0.5, 0, 0, 0], [4.5, 0.4, 0, 0]],
                 "bus_off_after_s": 2.0, "bus_off_s": 0.1}  # fmt: skip
-    with Stack(tmp_path, sim_overrides={"operator": operator}) as stack:
+    with commissioned_stack(tmp_path, sim_overrides={"operator": operator}) as stack:
         stack.start()
         stack.start_teaching()
         seen = stack.wait_status(
@@ -387,7 +392,7 @@ def test_a_push_that_breaks_the_stiction_away_moves_the_tool_along_x(tmp_path):
     """The plant has stiction: 20 N along x moved the tool 2 mm (J2 and J3 hold it), 40 N
     broke J1 away first and moved it mostly along -y; 60 N moves it along x."""
     operator = {"mode": "force", "force_n": [60.0, 0.0, 0.0], "start_s": 0.5, "duration_s": 2.0}
-    with Stack(tmp_path, sim_overrides={"operator": operator}) as stack:
+    with commissioned_stack(tmp_path, sim_overrides={"operator": operator}) as stack:
         stack.start()
         stack.start_teaching()
         truth = stack.wait_teaching(3.0, 30.0)
@@ -453,7 +458,9 @@ def test_killing_control_makes_the_driver_hold_and_the_arm_stop(tmp_path, profil
     # The operator drags the tool along +x at 0.1 m/s and keeps pulling after the kill.
     operator = {"mode": "path", "path": [[0.0, 0, 0, 0], [0.5, 0, 0, 0], [4.5, 0.4, 0, 0]]}
     cell = PROFILES[profile][1]
-    with Stack(tmp_path, sim_overrides={"operator": operator}, cell_overrides=cell) as stack:
+    with commissioned_stack(
+        tmp_path, sim_overrides={"operator": operator}, cell_overrides=cell
+    ) as stack:
         stack.start()
         stack.start_teaching()
         stack.wait_teaching(2.0, 30.0)
@@ -486,7 +493,7 @@ def test_killing_control_makes_the_driver_hold_and_the_arm_stop(tmp_path, profil
 
 
 def test_operator_commands_from_the_command_line(tmp_path):
-    with Stack(tmp_path) as stack:
+    with commissioned_stack(tmp_path) as stack:
         stack.start()
         stack.wait_status(lambda s: s.get("can_start") is True, 40.0, "cell ready")
         cli = [sys.executable, "-m", "gateway.cli"]
@@ -512,7 +519,7 @@ def test_teaching_is_refused_while_the_arm_carries_a_load_the_model_lacks(tmp_pa
     (measured without this check: the tool dropped 1.6 m in 2 s). The control process's
     static-load check keeps the cell in READY with a reason naming the joint."""
     gun = [{"kind": "payload", "mass_kg": 8.0, "com_m": [0.0, 0.0, 0.05]}]
-    with Stack(tmp_path, sim_overrides={"effects": gun}) as stack:
+    with commissioned_stack(tmp_path, sim_overrides={"effects": gun}) as stack:
         stack.start()
         stack.wait_status(lambda s: s.get("can_start") is True, 40.0, "cell ready to start")
         assert stack.request("start")["ok"]
@@ -549,7 +556,7 @@ def test_a_hard_push_never_moves_the_tool_faster_than_hand_guiding_allows(tmp_pa
     """
     operator = {"mode": "force", "force_n": [0.0, force_n, 0.0], "start_s": 0.5,
                 "duration_s": 3.0}  # fmt: skip
-    with Stack(tmp_path, sim_overrides={"operator": operator}) as stack:
+    with commissioned_stack(tmp_path, sim_overrides={"operator": operator}) as stack:
         stack.start()
         stack.start_teaching()
         time.sleep(4.0)

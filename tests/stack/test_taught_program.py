@@ -19,6 +19,7 @@ from control.robot.description import load_description
 from control.taught_path import path_error_m
 from drivers.can.config import CanDriverConfig
 from gateway.program import read_program
+from sim_bridge.commission import commissioned_stack
 from sim_bridge.harness import Stack
 
 pytestmark = pytest.mark.stack
@@ -44,7 +45,7 @@ def _marks_made(stack: Stack, count: int, timeout_s: float) -> dict:
 def test_taught_program_survives_kill_9_of_the_gateway_and_replays_along_the_path(tmp_path):
     operator = {"mode": "path", "path": PATH, "mark_at_s": list(HANDLE_MARKS_S),
                 "hand_off_after_s": PATH[-1][0] + 0.5}  # fmt: skip
-    with Stack(tmp_path, sim_overrides={"operator": operator}) as stack:
+    with commissioned_stack(tmp_path, sim_overrides={"operator": operator}) as stack:
         stack.start()
         stack.wait_status(lambda s: s.get("can_start") is True, 40.0, "cell ready to start")
         reply = stack.request("start", program="l_path")

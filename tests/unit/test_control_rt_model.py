@@ -119,7 +119,8 @@ def test_friction_options_evaluate_per_cycle_as_the_sliding_law(regressor):
 
 def PointModel(model: IdentifiedModel) -> _rt.PointModel:
     """The compiled model of an identified one, as the control process builds it."""
-    return _rt.PointModel(to_json(point_model_table(IdentifiedControlModel(model))))
+    control = IdentifiedControlModel(model)
+    return _rt.PointModel(to_json(point_model_table(control.desc, control.identified)))
 
 
 def samples(n: int, rng: np.random.Generator, count: int):

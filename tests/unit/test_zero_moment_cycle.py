@@ -315,7 +315,7 @@ class _NegatedFriction:
         from control.rt_tables import point_model_table, to_json
 
         self._m = model
-        table = point_model_table(model)
+        table = point_model_table(model.desc, rigid=model.rigid, friction_rows=model.friction.rows)
         for entry in table["friction"]:
             entry["row"][:10] = [-v for v in entry["row"][:10]]
         self.point = _rt.PointModel(to_json(table))

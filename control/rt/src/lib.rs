@@ -26,6 +26,8 @@ mod py_guided_friction;
 #[cfg(feature = "python")]
 mod py_inner_estimate;
 #[cfg(feature = "python")]
+mod py_module;
+#[cfg(feature = "python")]
 mod py_outer_loop;
 #[cfg(feature = "python")]
 mod py_rest_hold;

@@ -1,5 +1,5 @@
-//! The Python extension `control._rt`: the compiled model as the control process and the tests
-//! see it (control/rt_tables.py writes the tables).
+//! The compiled model's classes of `control._rt` (registered by py_module.rs), as the control
+//! process and the tests see them (control/rt_tables.py writes the tables).
 //!
 //! * `Chain(table_json)`: the rigid-body chain (chain.rs): inverse dynamics, its regressor,
 //!   the mass matrix, the tool's pose and Jacobian, as nested lists of floats.
@@ -234,17 +234,8 @@ impl PyPointModel {
     }
 }
 
-#[pymodule]
-fn _rt(m: &Bound<'_, PyModule>) -> PyResult<()> {
+pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyChain>()?;
     m.add_class::<PyPointModel>()?;
-    crate::py_inner_estimate::register(m)?;
-    crate::py_delay::register(m)?;
-    crate::py_guided_friction::register(m)?;
-    crate::py_rest_hold::register(m)?;
-    crate::py_outer_loop::register(m)?;
-    crate::py_admittance::register(m)?;
-    crate::py_zero_moment::register(m)?;
-    crate::py_cycle_loop::register(m)?;
     Ok(())
 }
