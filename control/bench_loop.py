@@ -30,7 +30,8 @@ from pathlib import Path
 
 import numpy as np
 
-from control.process import ControlProcess, load_control_config
+from control.cell_config import load_control_config
+from control.process import ControlProcess
 from gateway.bus import BusConfig
 from gateway.errors import ConfigError
 from gateway.messages import (

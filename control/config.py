@@ -25,7 +25,7 @@ class ControlConfig:
     #: is not commissioned yet: it identifies but refuses to teach
     model: Path | None = None
     #: ω = 1/(K K_p) per joint [rad/s per N·m] (eq. 21): written here, or read from the
-    #: ``inner_loop`` estimate (:func:`control.process.load_control_config`); empty: not
+    #: ``inner_loop`` estimate (:func:`control.cell_config.load_control_config`); empty: not
     #: commissioned, like ``model``
     omega_rad_s_per_nm: tuple[float, ...] = ()
     #: Υ_I = K_I/K_p per joint [1/s] (eq. 21), like ω
@@ -38,17 +38,18 @@ class ControlConfig:
     friction_deadband_rad_s: float = 5e-4
     #: above the deadband the compensated share of the model friction grows linearly to all of
     #: it over this many times the speed the friction's torque gives the joint's effective
-    #: inertia in the loop's delay (control/process.py, ``friction_ramps``; 0: all at once)
+    #: inertia in the loop's delay (control/rt/src/law/zero_moment.rs, ``friction_ramps``; 0: all
+    #: at once)
     friction_ramp_factor: float = 2.0
     #: ... but not while the arm is guided: once a positioning joint (J1-J3) slid faster than
     #: its ramp, every joint's friction is compensated in full until all three have been
-    #: slower than their ramps for this long [s] (control/process.py, ``GuidedFriction``;
-    #: 0: the ramp always applies)
+    #: slower than their ramps for this long [s] (control/rt/src/law/guided_friction.rs,
+    #: ``GuidedFriction``; 0: the ramp always applies)
     friction_ramp_guided_s: float = 0.3
     #: the zero-moment law's inertia compensation: the drives also give this share of
     #: M(q) q̈ (the nominal rigid body's inertia, the measured acceleration low-passed at
     #: ``inertia_compensation_hz``), so the painter accelerates only the rest of the arm's
-    #: mass (control/process.py, ``inertia_torque``); 0: none
+    #: mass (control/rt/src/law/zero_moment.rs, ``inertia_torque``); 0: none
     inertia_compensation: float = 0.6
     inertia_compensation_hz: float = 10.0
     #: the stiction dither (control/rt/src/law/zero_moment.rs): each joint at rest gets a sine

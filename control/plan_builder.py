@@ -10,7 +10,7 @@ would still hold the cycle back, since the GIL is one lock for both.
 So :class:`PlanBuilder` builds plans in a worker *process*, started with the first plan and
 kept, at a lower CPU priority than the cycle (control/plan_worker.py): the cycle callback
 submits the plan and answers every cycle with a hold while the worker builds
-(control/process.py ``PlanPlayer``, state ``planning``). :func:`build_parts` is the one
+(control/plan_player.py ``PlanPlayer``, state ``planning``). :func:`build_parts` is the one
 function that builds a plan; the worker runs it, and so do pure tests without a worker.
 """
 

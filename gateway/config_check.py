@@ -51,7 +51,7 @@ def _modbus(path: Path, raw: dict[str, Any]) -> object:
 
 
 def _control(path: Path, raw: dict[str, Any]) -> object:
-    from control.process import load_control_config
+    from control.cell_config import load_control_config
 
     return load_control_config(path)
 

@@ -542,7 +542,7 @@ def test_a_hard_push_never_moves_the_tool_faster_than_hand_guiding_allows(tmp_pa
     """Zero-moment mode, 80 N (it breaks J1's stiction away: 40 N did not) or 200 N (issue
     10's figure) for 3 s at the tool: a weightless arm would reach metres per second; the
     velocity command is scaled to max_tool_speed_m_s (0.22 m/s), less 3 × what the predicted
-    speed exceeds it by (control/process.py SPEED_FEEDBACK_GAIN), and the vendor loop brakes
+    speed exceeds it by (control/zero_moment_law.py SPEED_FEEDBACK_GAIN), and the vendor loop brakes
     the arm. 80 N: 222 mm/s at most (238 without the feedback), teaching goes on, and the
     tool never passes 250 mm/s.
 

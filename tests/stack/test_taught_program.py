@@ -31,7 +31,7 @@ HANDLE_MARKS_S = (0.3, 2.4, 4.0)
 STATE_WINDOW_S = CanDriverConfig().state_window_s
 #: p95 tool distance of the taught path's points from the replayed path [m]: the tremor
 #: filter, the vendor loop's lag and one cycle of command delay on a path ~0.4 m long. Measured
-#: 0.13 mm on this machine; without the load's command offset (control/process.py
+#: 0.13 mm on this machine; without the load's command offset (control/zero_moment_law.py
 #: ``hold_offset``) the arm sagged 3-4 mm under the vendor loop's finite stiffness.
 REPLAY_TOLERANCE_M = 0.001
 

@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 from example_cell import example_cell
 
-from control.process import ControlProcess, load_control_config
+from control.cell_config import load_control_config
+from control.process import ControlProcess
 from gateway.bus import BusConfig, open_client, open_router
 from gateway.messages import (
     ControllerState,

@@ -14,8 +14,8 @@ import pytest
 from example_program import write_program
 
 from control.plan_builder import PlanBuilder, PlanRefused, build_parts
+from control.plan_player import PlanPlayer
 from control.plan_worker import WORKER_NICENESS
-from control.process import PlanPlayer
 from control.robot.description import load_description
 from gateway.messages import FLAG_SERVO_POWER, ControllerState, make_joint_state
 

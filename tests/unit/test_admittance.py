@@ -11,8 +11,9 @@ import pytest
 from example_cell import example_cell
 
 from control import _rt
+from control.admittance_law import AdmittanceController
+from control.cell_config import load_control_config
 from control.declared_model import DeclaredModel
-from control.process import AdmittanceController, load_control_config
 from gateway.errors import ConfigError
 from gateway.messages import ControllerState, make_joint_state
 
@@ -162,7 +163,7 @@ def test_a_cell_config_naming_an_unknown_strategy_is_refused(cell, tmp_path):
 def test_the_reference_keeps_the_tool_and_the_flange_under_the_hand_guiding_speed(cfg):
     """A push far beyond anything a hand does: the reference's joint speeds would carry the
     tool at metres per second; the tool point and the flange stay at the configured limit
-    (within the 2 % the limit's cached Jacobians allow, control/process.py
+    (within the 2 % the limit's cached Jacobians allow, control/zero_moment_law.py
     SPEED_JACOBIAN_STEP_RAD)."""
     from control.model.dynamics import RigidBodyModel
 

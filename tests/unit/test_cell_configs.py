@@ -7,7 +7,8 @@ import pytest
 import tomli_w
 from example_cell import EXAMPLE_MODEL
 
-from control.process import ControlProcess, load_control_config
+from control.cell_config import load_control_config
+from control.process import ControlProcess
 from drivers.can.config import load_can_config
 from drivers.modbus.config import ModbusDriverConfig
 from gateway.bus import BusConfig

@@ -16,14 +16,15 @@ import numpy as np
 import pytest
 from example_cell import example_cell
 
+from control.cell_config import load_control_config
 from control.declared_model import DeclaredModel
 from control.identification.fit import IdentifiedModel
 from control.identification.rigid import RobotRegressor
 from control.identification.terms import FrictionTerm
 from control.load_check import static_load_check
-from control.process import ZeroMomentController, load_control_config
 from control.robot.description import load_description
 from control.robot.urdf import to_urdf
+from control.zero_moment_law import ZeroMomentController
 from gateway.messages import ControllerState, make_joint_state
 
 N = 6

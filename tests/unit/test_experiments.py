@@ -5,7 +5,7 @@ import pytest
 from example_program import write_program
 
 from control.experiments import build_plan, friction_runs, multisine, reciprocating
-from control.process import MAX_REPLAY_JOINT_SPEED_RAD_S, RESUME_ACCEL_RAD_S2, PlanPlayer
+from control.plan_player import MAX_REPLAY_JOINT_SPEED_RAD_S, RESUME_ACCEL_RAD_S2, PlanPlayer
 from control.robot.description import load_description
 from gateway.messages import (
     FLAG_PREV_HOLD,

@@ -411,9 +411,10 @@ def test_control_process_loads_the_identified_model(cylinder_run, tmp_path):
     """The versioned model file is what the control process compensates with."""
     from example_cell import example_cell
 
+    from control.cell_config import load_control_config
     from control.declared_model import DeclaredModel, IdentifiedControlModel
     from control.model.dynamics import RigidBodyModel
-    from control.process import ZeroMomentController, load_control_config
+    from control.zero_moment_law import ZeroMomentController
     from gateway.messages import ControllerState, make_joint_state
 
     model = DeclaredModel.load(cylinder_run["out"] / "model.json")

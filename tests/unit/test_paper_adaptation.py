@@ -17,8 +17,9 @@ import pytest
 from example_cell import example_cell
 
 from control._rt import OmegaAdaptation, OuterLoop, PaperAdaptation
+from control.cell_config import load_control_config
 from control.declared_model import DeclaredModel
-from control.process import ZeroMomentController, load_control_config
+from control.zero_moment_law import ZeroMomentController
 from gateway.config import ConfigError
 
 K = np.array([46.21, 66.18, 39.0])

@@ -11,9 +11,10 @@ import numpy as np
 import pytest
 from example_cell import example_cell
 
+from control.cell_config import load_control_config
 from control.model.cylinders import cylinder_torque_nm
 from control.pressure_schedule import PressureSchedule, ScheduleSettings
-from control.process import ControlProcess, load_control_config
+from control.process import ControlProcess
 from control.robot.description import load_description
 from gateway.config import ConfigError
 from gateway.messages import Lifecycle, LifecycleMsg

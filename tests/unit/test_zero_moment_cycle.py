@@ -17,9 +17,10 @@ import numpy as np
 import pytest
 from example_cell import EXAMPLE_MODEL, example_cell
 
+from control.cell_config import load_control_config
 from control.declared_model import DeclaredModel
 from control.model.cylinders import cylinder_torque_nm
-from control.process import ZeroMomentController, load_control_config
+from control.zero_moment_law import ZeroMomentController
 from gateway.errors import ConfigError, MessageError
 from gateway.messages import ControllerState, JointCommand, make_joint_state
 
@@ -286,7 +287,7 @@ def test_teaching_engages_once_the_arm_rests_in_the_hold_or_after_the_longest_wa
 
 def test_the_predictors_inverse_inertia_is_recomputed_only_after_the_arm_moved(cfg, model):
     from control.model.dynamics import RigidBodyModel
-    from control.process import INERTIA_STEP_RAD
+    from control.zero_moment_law import INERTIA_STEP_RAD
 
     ctl = ZeroMomentController(dataclasses.replace(cfg, command_delay_cycles=1), model)
     rigid = RigidBodyModel.from_description(model.desc)
@@ -406,7 +407,7 @@ def test_a_velocity_command_past_the_tool_speed_limit_is_scaled_down_to_it(at_on
 def test_the_speed_target_falls_by_three_times_the_excess_of_the_arms_speed(at_once, model):
     """SPEED_FEEDBACK_GAIN: under the limit the target is the limit; over it by e, the limit
     less 3 e, never below zero; a NaN speed leaves the limit as it is."""
-    from control.process import SPEED_FEEDBACK_GAIN
+    from control.zero_moment_law import SPEED_FEEDBACK_GAIN
 
     ctl = ZeroMomentController(at_once, model)
     limit = at_once.max_tool_speed_m_s
@@ -581,7 +582,7 @@ def test_tool_speed_scale_keeps_the_tool_and_the_flange_under_the_limit(at_once,
     exact where they were computed, and within 2 % of the speed anywhere within
     SPEED_JACOBIAN_STEP_RAD of there (the cache's reach)."""
     from control.model.dynamics import RigidBodyModel
-    from control.process import SPEED_JACOBIAN_STEP_RAD
+    from control.zero_moment_law import SPEED_JACOBIAN_STEP_RAD
 
     ctl = ZeroMomentController(at_once, model)
     kin = RigidBodyModel.from_description(model.desc)

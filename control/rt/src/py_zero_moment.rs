@@ -1,5 +1,5 @@
 //! `control._rt.ZeroMomentCycle` (law/zero_moment.rs): the zero-moment law's cycle, built by
-//! control/process.py's `ZeroMomentController` over the pieces it owns (the outer loop, the
+//! control/zero_moment_law.py's `ZeroMomentController` over the pieces it owns (the outer loop, the
 //! delay predictor, the rest hold, the guided switch, the hold average, the inner-loop
 //! estimate, the model, the nominal chain), which the cycle borrows each call. A joint state
 //! is passed as its fields; arrays in as any float sequence, out as lists.

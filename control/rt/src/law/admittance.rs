@@ -48,7 +48,7 @@
 //! through, the linear solve refuses an exactly singular matrix (numpy's `LinAlgError`), and
 //! `round` in the probe's length rounds half to even as Python's does. The buffers are
 //! allocated in `new`; the per-cycle methods allocate nothing. The Python
-//! `AdmittanceController` (control/process.py) drives it once per cycle.
+//! `AdmittanceController` (control/admittance_law.py) drives it once per cycle.
 
 use crate::chain::MAX_JOINTS;
 

@@ -1,5 +1,5 @@
 //! Whether the zero-moment arm is being guided, for its friction compensation
-//! (the zero-moment law in control/process.py uses it).
+//! (the zero-moment law in control/zero_moment_law.py uses it).
 //!
 //! The compensation ramps in with speed so that an arm at rest does not chatter on its
 //! stiction; a guided arm pays for it (on the teach bench's raster the painter pushed 55 N on

@@ -32,7 +32,7 @@
 //! The pieces (outer loop, predictor, rest hold, guided switch, hold average, estimate) are
 //! the control process's own objects, borrowed for the cycle ([`Parts`]); this module holds
 //! what only the cycle needs (caches, the engagement's state). The arithmetic is the Python
-//! law's it replaced (control/process.py `ZeroMomentController`), in the same order.
+//! law's it replaced (control/zero_moment_law.py `ZeroMomentController`), in the same order.
 
 #![allow(clippy::needless_range_loop)] // per-joint arithmetic reads as the formulas
 
@@ -58,7 +58,7 @@ pub const STICTION_GATE_RAD_S: f64 = 0.01;
 const SQUARE: usize = MAX_JOINTS * MAX_JOINTS;
 
 /// The law's settings ([control] of the cell config, the robot's datasheet), as
-/// control/process.py writes them for [`Settings::from_json`].
+/// control/zero_moment_law.py writes them for [`Settings::from_json`].
 #[derive(Clone, Debug)]
 pub struct Settings {
     pub n: usize,
