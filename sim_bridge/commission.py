@@ -46,6 +46,17 @@ CODE_TREES = ("control", "drivers", "gateway", "sim_bridge", "deploy/config")
 CODE_SUFFIXES = (".py", ".toml", ".xml", ".dbc", ".json", ".rs")  # .rs: the compiled cycle
 #: Longest a commissioning may take before it is abandoned (robot stopped) [s].
 IDENTIFY_TIMEOUT_S = 600.0
+#: What `leadthrough identify` is given beyond its own limit to stop, analyse and exit [s].
+IDENTIFY_GRACE_S = 120.0
+#: The longest the cell may take to become ready to start (:func:`commission`) [s].
+CELL_READY_S = 60.0
+#: The longest one :func:`commission` may take from start to end [s]: the cell's start, the
+#: identification's limit and its grace, and the cell's stop. Lock-step commissioning runs the
+#: plant no faster than real time (``lockstep_max_speedup``), so its wall time is at least the
+#: plan's motion (about 280 s for :data:`~control.identification.on_cell.QUICK_PLAN`) on any
+#: machine, and more where the machine cannot keep the pace: a test that commissions is given
+#: this, not the suite's default per-test limit (300 s, pyproject.toml).
+COMMISSION_LIMIT_S = CELL_READY_S + IDENTIFY_TIMEOUT_S + IDENTIFY_GRACE_S + 60.0
 
 
 @dataclass(frozen=True)
@@ -169,7 +180,7 @@ def commission(
         plant_seed=plant_seed, model=None,
     ) as stack:  # fmt: skip
         stack.start()
-        stack.wait_status(lambda s: s.get("can_start") is True, 60.0, "cell ready to start")
+        stack.wait_status(lambda s: s.get("can_start") is True, CELL_READY_S, "cell ready to start")
         reply = stack.request("start")
         if not reply.get("ok"):
             raise RuntimeError(f"start refused: {reply}")
@@ -178,7 +189,8 @@ def commission(
             [sys.executable, "-m", "gateway.cli", "identify", "--config", str(stack.cell_path),
              "--plan", str(plan_path), "--out", str(work / "ident"),
              "--timeout", str(IDENTIFY_TIMEOUT_S)],
-            capture_output=True, text=True, timeout=IDENTIFY_TIMEOUT_S + 120, cwd=REPO,
+            capture_output=True, text=True, timeout=IDENTIFY_TIMEOUT_S + IDENTIFY_GRACE_S,
+            cwd=REPO,
         )  # fmt: skip
         stack.request("stop")
     (work / "identify.log").write_text(out.stdout + out.stderr)

@@ -16,10 +16,15 @@ import time
 from pathlib import Path
 
 import jsonschema
+import pytest
 from mcap.reader import make_reader
 
 from sim_bridge.harness import REPO
 
+pytestmark = pytest.mark.stack
+
+#: the demo's limit here: the plant commissioned (tests/stack/conftest.py), teaching and the
+#: replay take 1-2 minutes of wall time; the test's own limit is this and its clean-up
 DEMO_TIMEOUT_S = 600.0
 
 
@@ -30,6 +35,7 @@ def _strict_json(data: bytes):
     return json.loads(data, parse_constant=refuse)
 
 
+@pytest.mark.timeout(DEMO_TIMEOUT_S + 30.0)
 def test_the_demo_leaves_a_recording_any_mcap_and_json_tool_reads(tmp_path):
     out = tmp_path / "demo"
     proc = subprocess.Popen(

@@ -14,6 +14,8 @@ import pytest
 from sim_bridge.faults import BY_NAME, format_record, run_fault
 from sim_bridge.harness import CAN_PROFILES
 
+pytestmark = pytest.mark.stack
+
 
 def test_a_hung_control_process_trips_the_lost_cycle_rule_and_the_arm_stops(tmp_path):
     rec = run_fault(

@@ -17,7 +17,7 @@ import pytest
 
 from control.experiments import build_plan
 from control.robot.description import load_description
-from sim_bridge.commission import commission, commissioned
+from sim_bridge.commission import COMMISSION_LIMIT_S, commission, commissioned
 from sim_bridge.config import load_sim_config
 from sim_bridge.effects import MOTION_RAD_S
 from sim_bridge.harness import Stack
@@ -95,6 +95,7 @@ def assert_inner_loop_within_20_percent(inner_loop: Path, plant_seed: int) -> No
     np.testing.assert_allclose(upsilon, ki / kp, rtol=0.2)
 
 
+@pytest.mark.timeout(COMMISSION_LIMIT_S)
 @pytest.mark.parametrize("plant_seed", [0, 1, 2])
 def test_commissioning_a_drawn_plant_reaches_the_noise_floor_and_its_inner_loop(plant_seed):
     """Issue 22's acceptance: the virtual cell of a drawn plant, commissioned by `leadthrough
@@ -125,6 +126,7 @@ def assert_current_zero_measures_the_offsets(path: Path | None, plant_seed: int)
     assert np.any(offset != 0), "the drawn plant has no current offsets to measure"
 
 
+@pytest.mark.timeout(COMMISSION_LIMIT_S)
 def test_identification_names_a_hose_spring_and_a_gear_ripple(tmp_path):
     effects = [
         {"kind": "spring", "joint": 1, "k_nm_per_rad": 300.0, "q0_rad": 0.0},
@@ -143,6 +145,7 @@ def test_identification_names_a_hose_spring_and_a_gear_ripple(tmp_path):
         assert after[j] <= 0.5 * before[j], f"joint {j + 1}: {before[j]:.3f} → {after[j]:.3f}"
 
 
+@pytest.mark.timeout(COMMISSION_LIMIT_S)
 def test_identification_names_a_spray_gun_mounted_between_training_and_test(tmp_path):
     """On the smooth friction law (truth ``stiction = false``). On the default plant, with
     stiction, the payload is the best candidate (+95 % held-out) but rule (iv) refuses it:

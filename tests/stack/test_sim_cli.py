@@ -6,10 +6,13 @@ import json
 import subprocess
 import sys
 
+import pytest
 import tomli_w
 
 from gateway.config import load_toml
 from sim_bridge.harness import REPO, TRUTH, deep_merge, free_port, unique_can_address
+
+pytestmark = pytest.mark.stack
 
 
 def _sim(tmp_path, *extra: str) -> tuple[subprocess.CompletedProcess, dict | None]:
