@@ -31,7 +31,7 @@ from control.rt_tables import point_model_table, to_json
 from gateway.config import ConfigError, from_mapping, load_toml, require, resolve_path
 
 if TYPE_CHECKING:
-    from control.identification.fit import IdentifiedModel
+    from control.identification.model import IdentifiedModel
 
 MODEL_FORMAT = "leadthrough-model"
 MODEL_VERSION = 1
@@ -130,7 +130,7 @@ class DeclaredModel:
 
 
 class IdentifiedControlModel(DeclaredModel):
-    """An identified model (control/identification/fit.py) behind the DeclaredModel methods.
+    """An identified model (control/identification/model.py) behind the DeclaredModel methods.
 
     ``gravity_nm`` is everything that acts at rest (rigid-body gravity plus position effects
     such as a spring or a ripple); ``friction_nm`` is everything that grows with velocity
@@ -143,7 +143,7 @@ class IdentifiedControlModel(DeclaredModel):
     def __init__(self, path: Path | IdentifiedModel, desc: RobotDescription | None = None) -> None:
         """From a ``model.json`` path, or an :class:`IdentifiedModel` already in memory (the
         model adapted in replay, control/model_adaptation.py)."""
-        from control.identification.fit import IdentifiedModel
+        from control.identification.model import IdentifiedModel
 
         loaded = isinstance(path, IdentifiedModel)
         where = "model" if loaded else str(path)

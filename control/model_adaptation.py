@@ -60,7 +60,7 @@ from pathlib import Path
 
 import numpy as np
 
-from control.identification.fit import IdentifiedModel
+from control.identification.model import IdentifiedModel
 from control.identification.terms import EffectTerm
 from control.model.cylinders import cylinder_torque_nm
 from control.robot.description import RobotDescription

@@ -32,7 +32,7 @@ import numpy as np
 if TYPE_CHECKING:
     import pinocchio as pin
 
-    from control.identification.fit import IdentifiedModel
+    from control.identification.model import IdentifiedModel
     from control.model.dynamics import RigidBodyModel
     from control.robot.description import RobotDescription
 

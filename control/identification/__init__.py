@@ -8,8 +8,8 @@ Two ways in, one pipeline:
   base-parameter regressor with pinocchio (:mod:`.rigid`), fit rigid body + friction by
   weighted least squares (:mod:`.fit`), validate on held-out trajectories (:mod:`.validate`),
   then look for residual structure and add the physical effect it points to (:mod:`.effects`),
-  and write the model file and a report (:mod:`.report`). :mod:`.analyze` ties the stages
-  together.
+  and write the model file (:mod:`.model`) and a report (:mod:`.report`). :mod:`.analyze`
+  ties the stages together (:mod:`.stages`, :mod:`.load`, :mod:`.families`, :mod:`.guard`).
 - **On the cell** (``leadthrough identify``, :mod:`.on_cell`): the commissioning run through
   the product. The gateway enters IDENTIFYING, the control process plays the excitation plan
   (:mod:`control.experiments`), the bus is recorded, each experiment segment is exported to

@@ -22,9 +22,10 @@ from typing import Any
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from control.identification.analyze import AnalyzeOptions, analyze, stage_bar
+from control.identification.analyze import analyze
 from control.identification.datafile import write_measurements
 from control.identification.rigid import RobotRegressor
+from control.identification.stages import AnalyzeOptions, stage_bar
 from control.identification.synthetic import (
     GR630ST_MAX_SPEED_RAD_S,
     GR630ST_NOISE_NM,
@@ -38,7 +39,7 @@ from gateway.progress import ProgressBar, add_progress_argument, progress_enable
 
 #: Torque scale per GR630ST joint for the synthetic friction [N·m].
 _TORQUE_SCALE_NM = (300.0, 1500.0, 600.0, 30.0, 10.0, 5.0)
-#: The benchmark's own stages ahead of the analysis's (:data:`.analyze.STAGES`), as its
+#: The benchmark's own stages ahead of the analysis's (:data:`.stages.STAGES`), as its
 #: progress bar counts them.
 BENCH_STAGES = ("synthesising the recordings", "writing the CSVs")
 
@@ -61,7 +62,7 @@ def bench_identify(
 
     Returns ``{"synthesize_s", "write_s", "stages_s": {stage: s}, "total_s", "samples",
     "summary"}``; prints seconds per stage. ``bar`` (``stage_bar(before=len(BENCH_STAGES))``
-    of :mod:`.analyze`) advances through :data:`BENCH_STAGES`, then the analysis's stages.
+    of :mod:`.stages`) advances through :data:`BENCH_STAGES`, then the analysis's stages.
     """
     say = progress or (bar.write if bar is not None else (lambda s: print(s, flush=True)))
     if bar is not None:

@@ -81,7 +81,7 @@ errors left in it may still take a false one: that is the price of this order.
   of squares by more than the same χ²_1 noise test; ``simple`` keeps its own.
 
 Afterwards the analysis works on the physical torque ``(τ_meas - b) / k`` (:meth:`Chain.
-to_physical`) and every model it builds carries the chain (:class:`.fit.IdentifiedModel`'s
+to_physical`) and every model it builds carries the chain (:class:`.model.IdentifiedModel`'s
 ``torque_gain`` and ``torque_offset_nm``), so what it predicts for a torque channel is again
 ``k τ + b``.
 """

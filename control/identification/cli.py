@@ -19,13 +19,14 @@ import sys
 from pathlib import Path
 
 from control.identification import effects as fx
-from control.identification.analyze import AUTO, AnalyzeOptions, analyze, stage_bar
+from control.identification.analyze import analyze
 from control.identification.preprocess import (
     DEFAULT_RATE_HZ,
     DEFAULT_STICK_VELOCITY_RAD_S,
 )
 from control.identification.report import NO_SAMPLES
 from control.identification.rigid import DEFAULT_GRAVITY_M_S2
+from control.identification.stages import AUTO, AnalyzeOptions, stage_bar
 from control.identification.terms import FRICTION_MODELS
 from gateway.errors import ConfigError, LeadthroughError
 from gateway.progress import add_progress_argument, progress_enabled

@@ -17,7 +17,7 @@ and each held-out block is predicted. All candidates are scored on **one referen
 the torque low-passed at the highest candidate, on the same rows (the same edges are trimmed
 for all): the reference's own noise is common to every candidate, so the comparison sees only
 what each candidate's model gets right. Joints are weighed as in
-:func:`.analyze.choose_family` (each joint's held-out MSE relative to its best candidate).
+:func:`.families.choose_family` (each joint's held-out MSE relative to its best candidate).
 Candidates within :data:`TIE_TOLERANCE` of the best are a tie, won by the highest cutoff
 among them: it keeps the most of the measured signal for the effect search.
 

@@ -1,6 +1,6 @@
 """Held-out folds of the training rows that stand as far from their fit as the test does.
 
-The guard (:func:`.analyze.guard_joints`) asks, per joint, which predictor does best on data
+The guard (:func:`.guard.guard_joints`) asks, per joint, which predictor does best on data
 its fit did not see: the model, plain least squares, the URDF's nominal rigid body, or zero.
 The answer depends on *where* the unseen data lie. Contiguous folds of one run hold out whole
 stretches of the trajectory: the fit must extrapolate into them, and a predictor without

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from control.identification.datafile import Measurements
-from control.identification.fit import IdentifiedModel
+from control.identification.model import IdentifiedModel
 from control.identification.predict import predict_rows
 from control.robot.description import RobotDescription
 

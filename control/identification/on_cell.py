@@ -27,13 +27,14 @@ from typing import Any
 import numpy as np
 
 from control.experiments import build_plan
-from control.identification.analyze import AnalyzeOptions, analyze, stage_bar
+from control.identification.analyze import analyze
 from control.identification.inner_loop import (
     DELAYS,
     InnerLoopEstimate,
     InnerLoopRun,
     fit_inner_loop_runs,
 )
+from control.identification.stages import AnalyzeOptions, stage_bar
 from control.robot.description import load_description
 from control.robot.urdf import to_urdf
 from drivers.can.current_zero import write_stored_zero

@@ -13,7 +13,7 @@ Per gap-free stretch of the file (:func:`.preprocess.gap_free_segments`):
 2. **Delay.** With a ``time_delay`` effect (torque lagging the kinematics by δ), row t is
    answered with the states at ``t - δ``; the rows of the first δ of a stretch, whose states
    were not recorded, are declined.
-3. **Torque.** :meth:`.fit.IdentifiedModel.measured_torque_nm` at those states (the physical
+3. **Torque.** :meth:`.model.IdentifiedModel.measured_torque_nm` at those states (the physical
    torque through the torque channel's gain and offset, :mod:`.chain`); with the cylinders'
    torque taken out when the model was identified (pressure columns), the cylinders' torque
    (eqs. 10, 12, the identification's measured piston diameters, the pressure low-passed at the
@@ -33,7 +33,8 @@ from pathlib import Path
 import numpy as np
 
 from control.identification.datafile import Measurements
-from control.identification.fit import IdentifiedModel, cylinder_joint_map
+from control.identification.fit import cylinder_joint_map
+from control.identification.model import IdentifiedModel
 from control.identification.preprocess import (
     FILTER_ORDER,
     JITTER_TOLERANCE,

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from control.identification.datafile import read_measurements
-from control.identification.fit import IdentifiedModel
+from control.identification.model import IdentifiedModel
 from control.identification.predict import predict_rows, write_predictions
 from gateway.errors import ConfigError
 

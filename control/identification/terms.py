@@ -3,7 +3,7 @@
 A *term* turns samples (a :class:`Context`) into regressor columns, per joint it acts on, and
 its fitted coefficients into named physical parameters. The same term objects build the
 columns for fitting (:mod:`.fit`, :mod:`.effects`) and evaluate the loaded model
-(:class:`.fit.IdentifiedModel`), so the two cannot drift apart.
+(:class:`.model.IdentifiedModel`), so the two cannot drift apart.
 
 Effect vocabulary (names are part of the model and report formats; joints are 1-based there,
 0-based in code). Each adds ``columns @ coefficients`` to the joint torque:
@@ -249,7 +249,7 @@ class Context:
     #: where it slides (its direction is the velocity's sign)
     sequence: bool = True
     #: (T, n) friction directions given by a caller that follows the motion across several
-    #: contexts (:meth:`.fit.IdentifiedModel.friction_directions`); None: computed here
+    #: contexts (:meth:`.model.IdentifiedModel.friction_directions`); None: computed here
     directions: np.ndarray | None = None
     _directions: dict[tuple[int, float], np.ndarray] = field(
         default_factory=dict, repr=False, compare=False

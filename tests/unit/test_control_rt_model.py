@@ -16,7 +16,7 @@ from example_cell import EXAMPLE_MODEL
 
 from control import _rt
 from control.declared_model import DeclaredModel, IdentifiedControlModel
-from control.identification.fit import IdentifiedModel, PlainJoint
+from control.identification.model import IdentifiedModel, PlainJoint
 from control.identification.rigid import RobotRegressor
 from control.identification.terms import (
     EFFECT_NAMES,

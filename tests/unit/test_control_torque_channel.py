@@ -18,7 +18,7 @@ from example_cell import example_cell
 
 from control.cell_config import load_control_config
 from control.declared_model import DeclaredModel
-from control.identification.fit import IdentifiedModel
+from control.identification.model import IdentifiedModel
 from control.identification.rigid import RobotRegressor
 from control.identification.terms import FrictionTerm
 from control.load_check import static_load_check

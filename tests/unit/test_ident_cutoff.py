@@ -93,8 +93,9 @@ def test_other_sample_rates_work(rate_hz):
 def test_short_files_drop_the_low_cutoffs_they_cannot_hold(tmp_path, seconds):
     """A 2 Hz candidate trims 2.5 s at each end: a 4 s file cannot hold it, so the candidates
     start higher; a 12 s file holds them all. analyze runs and says what it compared."""
-    from control.identification.analyze import AnalyzeOptions, analyze
+    from control.identification.analyze import analyze
     from control.identification.datafile import write_measurements
+    from control.identification.stages import AnalyzeOptions
 
     for name, shift in (("train", 0.0), ("test", 7.0)):
         m = _recording(1e-3, rate_hz=250.0, seconds=seconds)
@@ -121,9 +122,10 @@ def test_a_test_file_cut_short_by_gaps_keeps_the_cutoffs_it_can_hold(tmp_path):
     and coasts cut a recording of the cell) are 3 s each: a cutoff chosen below what they hold
     would trim the whole test file away. The candidates start where every file keeps rows, and
     the lowest left is one they hold; the test file's values play no part."""
-    from control.identification.analyze import AnalyzeOptions, analyze
+    from control.identification.analyze import analyze
     from control.identification.datafile import write_measurements
     from control.identification.preprocess import keeps_a_stretch
+    from control.identification.stages import AnalyzeOptions
 
     train = _recording(1e-3, rate_hz=125.0, seconds=30.0)
     write_measurements(tmp_path / "train.csv", Measurements(*_fields(train, 0.0), "train"))

@@ -158,7 +158,7 @@ def test_over_a_torque_gain_the_cylinders_physical_scale_is_the_channels_over_th
 
 def test_predict_reads_the_cylinders_share_through_the_channels_gain(stronger_run, tmp_path):
     from control.identification.datafile import read_measurements
-    from control.identification.fit import IdentifiedModel
+    from control.identification.model import IdentifiedModel
     from control.identification.predict import predict_rows
 
     model = IdentifiedModel.load(stronger_run["out"] / "model.json")
@@ -174,7 +174,7 @@ def test_predict_reads_the_cylinders_share_through_the_channels_gain(stronger_ru
 
 
 def test_a_version_4_model_with_a_gain_on_a_cylinder_joint_is_refused(stronger_run, tmp_path):
-    from control.identification.fit import IdentifiedModel
+    from control.identification.model import IdentifiedModel
     from gateway.errors import DataFileError
 
     doc = json.loads((stronger_run["out"] / "model.json").read_text())

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from control.identification.analyze import AnalyzeOptions, analyze
+from control.identification.analyze import analyze
 from control.identification.datafile import read_measurements, write_measurements
 from control.identification.effects import (
     ALL_ALONG,
@@ -23,8 +23,9 @@ from control.identification.effects import (
     Verdict,
     best_ripple_neighbour,
 )
-from control.identification.fit import IdentifiedModel
+from control.identification.model import IdentifiedModel
 from control.identification.rigid import RobotRegressor
+from control.identification.stages import AnalyzeOptions
 from control.identification.synthetic import (
     GR630ST_MAX_SPEED_RAD_S,
     GR630ST_NOISE_NM,

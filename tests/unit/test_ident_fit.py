@@ -10,17 +10,19 @@ import numpy as np
 import pytest
 from cylinder_recordings import RATE_HZ, write_recordings
 
-from control.identification.analyze import AnalyzeOptions, analyze
+from control.identification.analyze import analyze
 from control.identification.cli import cli_main, configure_parser
 from control.identification.datafile import Measurements, read_measurements, write_measurements
 from control.identification.dh_urdf import PANDA_DH_ROWS, urdf_from_dh
-from control.identification.fit import IdentifiedModel, remove_cylinders
+from control.identification.fit import remove_cylinders
+from control.identification.model import IdentifiedModel
 from control.identification.preprocess import (
     DEFAULT_STICK_VELOCITY_RAD_S,
     prepare,
     sliding_mask,
 )
 from control.identification.rigid import RobotRegressor
+from control.identification.stages import AnalyzeOptions
 from control.identification.synthetic import GR630ST_NOISE_NM
 from control.robot.description import load_description
 from gateway.errors import ConfigError, DataFileError

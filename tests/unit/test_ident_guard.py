@@ -1,4 +1,4 @@
-"""The guard of ``analyze`` (:func:`control.identification.analyze.guard_joints`): a joint whose
+"""The guard of ``analyze`` (:func:`control.identification.guard.guard_joints`): a joint whose
 model does worse on held-out training folds than plain least squares, the URDF's nominal rigid
 body with Coulomb/viscous friction, or zero falls back to the best of them; the choice is in
 the model file."""
@@ -8,13 +8,15 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
-from control.identification.analyze import AnalyzeOptions, GuardFolds, guard_joints
 from control.identification.datafile import Measurements
-from control.identification.fit import IdentifiedModel, make_context
+from control.identification.fit import make_context
 from control.identification.folds import CONTIGUOUS, Scheme
+from control.identification.guard import GuardFolds, guard_joints
 from control.identification.lsq import BlockLS, Evaluation, contiguous_folds
+from control.identification.model import IdentifiedModel
 from control.identification.preprocess import prepare
 from control.identification.rigid import RobotRegressor
+from control.identification.stages import AnalyzeOptions
 from control.identification.terms import FrictionTerm, RigidTerm
 
 ARM = """<robot name="two">
@@ -120,7 +122,7 @@ def test_the_second_look_on_the_test_run_keeps_what_extrapolates_best():
     """On the leading test rows a joint keeps the lowest error of what the training guard
     kept, plain least squares and zero; ties keep the training guard's choice, and a joint
     with too few rows there is not judged."""
-    from control.identification.analyze import TEST_GUARD_MIN_ROWS, guard_on_test
+    from control.identification.guard import TEST_GUARD_MIN_ROWS, guard_on_test
 
     rng = np.random.default_rng(2)
     t = 3 * TEST_GUARD_MIN_ROWS

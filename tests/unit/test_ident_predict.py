@@ -14,7 +14,7 @@ import pinocchio as pin
 import pytest
 
 from control.identification.datafile import Measurements, read_measurements, write_measurements
-from control.identification.fit import IdentifiedModel
+from control.identification.model import IdentifiedModel
 from control.identification.predict import MIN_STRETCH_ROWS, predict_rows
 from control.identification.predict_cli import cli_main, configure_parser
 from control.identification.rigid import RobotRegressor

@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from control.identification.datafile import Measurements
-from control.identification.fit import plain_friction_columns
+from control.identification.model import plain_friction_columns
 from control.identification.preprocess import prepare
 from control.identification.terms import Context, FrictionTerm
 

@@ -9,7 +9,7 @@ import warnings
 
 import numpy as np
 
-from control.identification.analyze import choose_family
+from control.identification.families import choose_family
 from control.identification.fit import FrictionFit
 from control.identification.lsq import Evaluation, Solution
 from control.identification.report import NO_SAMPLES, finite_or_none

@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from control.identification.fit import plain_friction_columns
+from control.identification.model import plain_friction_columns
 from control.identification.preprocess import (
     _lowpass,
     filter_noise_gain,

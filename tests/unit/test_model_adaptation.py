@@ -14,7 +14,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from control.identification.fit import IdentifiedModel
+from control.identification.model import IdentifiedModel
 from control.identification.rigid import RobotRegressor
 from control.model_adaptation import (
     APPEARED,

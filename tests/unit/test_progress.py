@@ -188,7 +188,8 @@ def _pendulum_run(path: Path, seconds: float, rate_hz: float, t0_s: float, seed:
 
 
 def test_the_analysis_stage_bar_reaches_its_total(tmp_path):
-    from control.identification.analyze import STAGES, AnalyzeOptions, analyze
+    from control.identification.analyze import analyze
+    from control.identification.stages import STAGES, AnalyzeOptions
 
     _pendulum_run(tmp_path / "train.csv", 6.0, 250.0, 0.0, 1)
     _pendulum_run(tmp_path / "test.csv", 6.0, 250.0, 7.0, 2)

@@ -153,7 +153,7 @@ def test_update_answers_with_the_reference_command(at_once, model):
 
 
 def test_identified_model_cycle_torques_equal_its_array_methods(tmp_path):
-    from control.identification.fit import IdentifiedModel
+    from control.identification.model import IdentifiedModel
     from control.identification.rigid import RobotRegressor
     from control.identification.terms import FrictionTerm
     from control.robot.description import load_description
