@@ -432,7 +432,7 @@ def _analyze(
             "rms_before": f"{where}; rigid body + friction family fitted on the training files",
             "rms_after": f"{where}; the final model (effects, plain joints)",
             "rms_plain_ls": f"{where}; plain least squares per joint fitted on the training "
-            "files (fit.plain_columns)",
+            "files (model.plain_columns)",
             "raw": "the same three on the raw measured torque, every row (raw.scored)",
             "rms_train_cv": "training files, held out by contiguous K-fold cross-validation",
             "rms_train": "training files, in-sample (for reference only)",
