@@ -181,7 +181,7 @@ def friction_table(term: Any, coef: Any) -> dict[str, Any]:
     state at a time, where the model slides (:attr:`.identification.terms.Context.sequence`);
     what the memory adds, the torque a joint holds at rest and across a reversal, is the
     stiction the law meets at rest, not a torque the model commands."""
-    from control.identification.terms import FRICTION_PARAM_NAMES
+    from control.identification.friction_law import FRICTION_PARAM_NAMES
     from control.model.friction import eq15_row
 
     n_family = len(FRICTION_PARAM_NAMES[term.kind])

@@ -57,6 +57,7 @@ from control.identification.families import (
 )
 from control.identification.fit import FrictionFit, model_from_solution
 from control.identification.folds import CONTIGUOUS, plan_folds
+from control.identification.friction_law import FRICTION_MODELS
 from control.identification.guard import (
     GuardFolds,
     _evaluate_on,
@@ -73,7 +74,7 @@ from control.identification.model import MODEL, PLAIN_LS, PlainJoint, plain_key
 from control.identification.preprocess import FILTER_ORDER, sliding_mask
 from control.identification.report import write_report
 from control.identification.stages import AUTO, AnalyzeOptions, Progress, _Clock, _Run
-from control.identification.terms import FRICTION_MODELS, Context, Envelope, shift_signal
+from control.identification.terms import Context, Envelope, shift_signal
 from control.identification.validate import (
     import_plotting,
     masked_rms,

@@ -46,10 +46,10 @@ errors left in it may still take a false one: that is the price of this order.
   (a) *its own joint's held-out error drops beyond noise*: with the gain column added, the
       blocked K-fold held-out sum of squares of joint j (:meth:`.lsq.BlockLS.cv_sse`, the
       pipeline's cross-validation) falls by drop_j with drop_j / noise_dof_j ≥ the χ²_1
-      quantile at level ``alpha / (joints tried)`` (test (ii) of :mod:`.effects` on that
+      quantile at level ``alpha / (joints tried)`` (test (ii) of :mod:`.effect_rules` on that
       joint alone, as the offsets below);
-  (b) *it holds forward in time*, rule (iv) of :mod:`.effects` with its machinery
-      (:func:`.effects.forward_sse`): everything fitted on the first half of the training
+  (b) *it holds forward in time*, rule (iv) of :mod:`.effect_rules` with its machinery
+      (:func:`.effect_rules.forward_sse`): everything fitted on the first half of the training
       rows with and without joint j's gain column (the first half's own prediction, so that
       nothing of the second half is in it), joint j's sum of squares on the second half
       falls by the same χ²_1 quantile × noise_dof_j. Otherwise the gain stays 1.
@@ -94,9 +94,9 @@ from typing import Any
 
 import numpy as np
 
-from control.identification.effects import NoiseFloor, chi2_threshold, forward_sse
+from control.identification.effect_rules import NoiseFloor, chi2_threshold, forward_sse
+from control.identification.friction_law import FRICTION_PARAM_NAMES
 from control.identification.lsq import BlockLS, Evaluation
-from control.identification.terms import FRICTION_PARAM_NAMES
 
 
 @dataclass(frozen=True)
@@ -174,8 +174,8 @@ class _Fit:
     def forward_drop(self, j: int, first: np.ndarray | None) -> float:
         """Joint j's drop [N²·m² measured] of the sum of squares on the rows not in ``first``
         (T,) when its gain is fitted too, everything fitted on the rows in ``first`` (None:
-        the first half of the rows); rule (iv) of :mod:`.effects`, with its
-        :func:`.effects.forward_sse`. The gain's column is the prediction of that fit, so
+        the first half of the rows); rule (iv) of :mod:`.effect_rules`, with its
+        :func:`.effect_rules.forward_sse`. The gain's column is the prediction of that fit, so
         nothing of the rows scored is in it."""
         sse = forward_sse(
             self.ls, self.names, self.w * self.k, _gain_key(j),

@@ -18,8 +18,9 @@ import math
 import sys
 from pathlib import Path
 
-from control.identification import effects as fx
+from control.identification import effect_rules
 from control.identification.analyze import analyze
+from control.identification.friction_law import FRICTION_MODELS
 from control.identification.preprocess import (
     DEFAULT_RATE_HZ,
     DEFAULT_STICK_VELOCITY_RAD_S,
@@ -27,7 +28,6 @@ from control.identification.preprocess import (
 from control.identification.report import NO_SAMPLES
 from control.identification.rigid import DEFAULT_GRAVITY_M_S2
 from control.identification.stages import AUTO, AnalyzeOptions, stage_bar
-from control.identification.terms import FRICTION_MODELS
 from gateway.errors import ConfigError, LeadthroughError
 from gateway.progress import add_progress_argument, progress_enabled
 
@@ -125,19 +125,19 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--margin",
         type=float,
-        default=fx.MARGIN,
+        default=effect_rules.MARGIN,
         help="held-out RMS gain an effect must bring on its joint (default 0.10 = 10 %%)",
     )
     p.add_argument(
         "--folds",
         type=int,
-        default=fx.DEFAULT_FOLDS,
+        default=effect_rules.DEFAULT_FOLDS,
         help="contiguous blocks for cross-validation (default 5)",
     )
     p.add_argument(
         "--max-effects",
         type=int,
-        default=fx.MAX_EFFECTS,
+        default=effect_rules.MAX_EFFECTS,
         help="stop after this many effects (default 6)",
     )
     p.add_argument(
@@ -176,7 +176,9 @@ def options_from_args(args: argparse.Namespace) -> AnalyzeOptions:
         gravity_m_s2=(gravity[0], gravity[1], gravity[2]),
         find_effects=not args.no_effects,
         plots=not args.no_plots,
-        search=fx.Options(margin=args.margin, folds=args.folds, max_effects=args.max_effects),
+        search=effect_rules.Options(
+            margin=args.margin, folds=args.folds, max_effects=args.max_effects
+        ),
         stick_velocity_rad_s=args.stick_velocity,
     )
 

@@ -21,12 +21,13 @@ import numpy as np
 
 from control.identification import cylinders as cyl
 from control.identification.fit import FrictionFit, fit_rigid_friction, model_from_solution
+from control.identification.friction_law import FRICTION_PARAM_NAMES
 from control.identification.lsq import BlockLS
 from control.identification.model import IdentifiedModel
 from control.identification.parallel import map_forked
 from control.identification.rigid import RobotRegressor
 from control.identification.stages import AUTO, _Clock, _Run
-from control.identification.terms import FRICTION_PARAM_NAMES, Context, RigidTerm
+from control.identification.terms import Context, RigidTerm
 from control.identification.validate import rms
 
 #: Ridge that pulls the rigid-body base parameters towards the URDF's nominal values, per

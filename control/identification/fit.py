@@ -43,12 +43,12 @@ from typing import Any
 
 import numpy as np
 
+from control.identification.friction_law import FRICTION_MODELS
 from control.identification.lsq import BlockLS, Evaluation, Solution, contiguous_folds
 from control.identification.model import IdentifiedModel, PlainJoint
 from control.identification.preprocess import Prepared
 from control.identification.rigid import RobotRegressor
 from control.identification.terms import (
-    FRICTION_MODELS,
     Context,
     EffectTerm,
     Envelope,

@@ -19,15 +19,14 @@ import numpy as np
 
 from control.identification import preprocess
 from control.identification.datafile import Measurements
+from control.identification.friction_law import FRICTION_PARAM_NAMES, friction_direction
 from control.identification.preprocess import Prepared
 from control.identification.rigid import BaseParameters, RobotRegressor
 from control.identification.terms import (
-    FRICTION_PARAM_NAMES,
     Context,
     EffectTerm,
     Envelope,
     FrictionTerm,
-    friction_direction,
     shift_signal,
 )
 from control.model.cylinders import with_measured_cylinders

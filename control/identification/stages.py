@@ -17,7 +17,8 @@ from typing import Any
 
 import numpy as np
 
-from control.identification import effects as fx
+from control.identification import effect_rules
+from control.identification.friction_law import FRICTION_MODELS
 from control.identification.heldout import TestFile
 from control.identification.preprocess import (
     DEFAULT_RATE_HZ,
@@ -25,7 +26,7 @@ from control.identification.preprocess import (
     Prepared,
 )
 from control.identification.rigid import DEFAULT_GRAVITY_M_S2, RobotRegressor
-from control.identification.terms import FRICTION_MODELS, Context, Envelope
+from control.identification.terms import Context, Envelope
 from control.robot.description import RobotDescription
 from gateway.errors import ConfigError
 from gateway.progress import ProgressBar, progress_bar
@@ -70,7 +71,7 @@ class AnalyzeOptions:
     skip_short_files: bool = False
     compare_friction: bool = True
     plots: bool = True
-    search: fx.Options = field(default_factory=fx.Options)
+    search: effect_rules.Options = field(default_factory=effect_rules.Options)
     #: joints slower than this are stuck: their rows neither fit nor score the model
     #: (:func:`.preprocess.sliding_mask`); 0 keeps every row [rad/s]
     stick_velocity_rad_s: float = DEFAULT_STICK_VELOCITY_RAD_S

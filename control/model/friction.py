@@ -242,7 +242,7 @@ def eq15_basis(
     R and the sign width, ``eq15_basis(q, dq, q_e, R, w) @ params.linear_parameters()`` equals
     :func:`friction_eq15` for that joint [N·m]. ``direction`` (T,) in [-1, 1], when given,
     stands where the smooth sign s(dq) stands (a friction with memory,
-    :mod:`control.identification.terms`); the viscous columns keep dq.
+    :mod:`control.identification.friction_law`); the viscous columns keep dq.
     """
     q = np.atleast_1d(np.asarray(q_rad, dtype=float))
     dq = np.atleast_1d(np.asarray(dq_rad_s, dtype=float))

@@ -16,12 +16,11 @@ from example_cell import EXAMPLE_MODEL
 
 from control import _rt
 from control.declared_model import DeclaredModel, IdentifiedControlModel
+from control.identification.friction_law import FRICTION_MODELS, FRICTION_PARAM_NAMES
 from control.identification.model import IdentifiedModel, PlainJoint
 from control.identification.rigid import RobotRegressor
 from control.identification.terms import (
     EFFECT_NAMES,
-    FRICTION_MODELS,
-    FRICTION_PARAM_NAMES,
     EffectTerm,
     Envelope,
     FrictionTerm,

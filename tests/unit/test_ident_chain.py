@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from control.identification.chain import estimate, leading_halves
-from control.identification.effects import NoiseFloor
+from control.identification.effect_rules import NoiseFloor
 from control.identification.lsq import BlockLS, contiguous_folds
 
 T = 6000
@@ -104,7 +104,7 @@ def test_a_gain_is_freed_only_where_its_own_joint_gains_not_where_the_others_do(
 def test_a_gain_that_does_not_hold_forward_in_time_stays_one() -> None:
     """Joint 2's channel reads 5 % high in the second half of the run only: a gain column
     lowers its K-fold held-out error far beyond noise (it splits the difference), but fitted
-    on the first half it predicts nothing of the second (rule (iv) of .effects). The rule
+    on the first half it predicts nothing of the second (rule (iv) of .effect_rules). The rule
     before freed it at 1.025; a datasheet constant's error holds all run long."""
     gain = np.ones((T, 3))
     gain[T // 2 :, 1] = 1.05

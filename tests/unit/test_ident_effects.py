@@ -16,13 +16,9 @@ import pytest
 
 from control.identification.analyze import analyze
 from control.identification.datafile import read_measurements, write_measurements
-from control.identification.effects import (
-    ALL_ALONG,
-    BETWEEN,
-    Options,
-    Verdict,
-    best_ripple_neighbour,
-)
+from control.identification.effect_candidates import best_ripple_neighbour
+from control.identification.effect_rules import Options, Verdict
+from control.identification.effects import ALL_ALONG, BETWEEN
 from control.identification.model import IdentifiedModel
 from control.identification.rigid import RobotRegressor
 from control.identification.stages import AnalyzeOptions

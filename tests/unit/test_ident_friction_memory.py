@@ -8,12 +8,11 @@ import numpy as np
 import pytest
 
 from control.identification.fit import fit_rigid_friction
+from control.identification.friction_law import friction_direction, linear_recurrence
 from control.identification.lsq import BlockLS, contiguous_folds
 from control.identification.terms import (
     Context,
     FrictionTerm,
-    friction_direction,
-    linear_recurrence,
 )
 
 RATE_HZ = 500.0

@@ -6,7 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from control.identification.effects import Options, candidates
+from control.identification.effect_candidates import candidates
+from control.identification.effect_rules import Options
 from control.identification.fit import fit_rigid_friction
 from control.identification.lsq import BlockLS, contiguous_folds
 from control.identification.terms import Context, FrictionTerm

@@ -11,7 +11,7 @@ from scipy.integrate import quad
 
 from control.identification.datafile import Measurements
 from control.identification.dh_urdf import PANDA_DH_ROWS, urdf_from_dh
-from control.identification.effects import chi2_threshold
+from control.identification.effect_rules import chi2_threshold
 from control.identification.families import choose_family
 from control.identification.fit import FrictionFit
 from control.identification.lsq import Evaluation, Solution

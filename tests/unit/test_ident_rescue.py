@@ -1,4 +1,4 @@
-"""Rule (vi) of the effect search (control/identification/effects.py): below the margin, a
+"""Rule (vi) of the effect search (control/identification/effect_rules.py): below the margin, a
 candidate is still taken where it lifts a joint that plain least squares beats, and plain least
 squares beats a joint only by more than the measured noise could give."""
 
@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from control.identification.effects import NoiseFloor, Verdict, chi2_threshold, rescuing
+from control.identification.effect_rules import NoiseFloor, Verdict, chi2_threshold, rescuing
 from control.identification.lsq import Evaluation, Solution
 from control.identification.terms import EffectTerm
 

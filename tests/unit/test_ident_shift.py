@@ -42,7 +42,7 @@ def test_shift_is_exact_on_a_smooth_signal_and_per_segment():
 def test_delay_refinement_finds_a_v_shaped_minimum_between_scan_points():
     """Near its optimum the error of a torque with friction steps grows like |δ - δ₀|: a
     parabola through the three best scan points misses δ₀, the bounded search does not."""
-    from control.identification.effects import DELAY_TOLERANCE_S, _refine
+    from control.identification.effect_candidates import DELAY_TOLERANCE_S, _refine
 
     true = 0.0121
 

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from control import _rt
-from control.identification.effects import forward_gain
+from control.identification.effect_rules import forward_gain
 from control.identification.fit import fit_rigid_friction
 from control.identification.lsq import BlockLS, contiguous_folds
 from control.identification.terms import Context, FrictionTerm

@@ -1,6 +1,6 @@
 """Friction taken in expectation over whether a joint moves, given its velocity's measurement
 noise (:meth:`control.identification.terms.Context.sample_mean`,
-:func:`control.identification.terms.rest_probability`,
+:func:`control.identification.friction_law.rest_probability`,
 :func:`control.identification.preprocess.velocity_noise_std`).
 
 A joint at rest reads its velocity noise; a friction sign taken of it flipped between ± the
@@ -16,13 +16,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from control.identification.friction_law import rest_probability
 from control.identification.model import plain_friction_columns
 from control.identification.preprocess import (
     _lowpass,
     filter_noise_gain,
     velocity_noise_std,
 )
-from control.identification.terms import Context, rest_probability
+from control.identification.terms import Context
 
 SIGMA = 2e-4  # rad/s
 

@@ -1,5 +1,5 @@
 //! One joint's friction at one state, for each family the identification fits
-//! (control/identification/terms.py `friction_basis`, control/model/friction.py eq. 15): the
+//! (control/identification/friction_law.py `friction_basis`, control/model/friction.py eq. 15): the
 //! compiled form of control/identification/point.py's closures, equal to them to rounding.
 
 use serde_json::Value;
