@@ -1,6 +1,6 @@
-//! One joint's friction at one state, for each family the identification fits
-//! (control/identification/friction_law.py `friction_basis`, control/model/friction.py eq. 15): the
-//! compiled form of control/identification/point.py's closures, equal to them to rounding.
+//! One joint's friction at one state, for each family the identification fits: the compiled
+//! form of control/identification/friction_law.py `friction_basis` and control/model/friction.py
+//! eq. 15 at a single state, equal to them to rounding (tests/unit/test_control_rt_model.py).
 
 use serde_json::Value;
 
