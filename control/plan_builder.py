@@ -1,7 +1,7 @@
 """Plans are built off the cycle (issue 45).
 
 A plan (an excitation plan of control/experiments.py, or a taught program's replay path of
-control/taught_path.py: tremor filter, joint limits, timing) takes tens to hundreds of
+control/taught_path*.py: tremor filter, joint limits, timing) takes tens to hundreds of
 milliseconds to build, and a slow cell PC takes three times longer. Built in the callback that
 answers every cycle, it held that callback back: on a slow machine 88 commands came late within
 one second and the CAN driver stopped the arm. Built in another thread of the control process it

@@ -40,7 +40,7 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
 
 def _show(path: Path) -> int:
     from control.robot.description import load_description
-    from control.taught_path import tool_path
+    from control.taught_path_kinematics import tool_path
     from gateway.program import read_program
 
     prog = read_program(path)

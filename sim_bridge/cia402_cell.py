@@ -3,8 +3,8 @@
 Chosen by ``[controller].can_profile = "cia402"`` (``sim_bridge/gr630st_truth_cia402.toml``;
 :func:`sim_bridge.sim_cli.make_virtual_cell`). The plant, the Modbus I/O, the operator, the
 e-stop chain, the CAN endpoint and the truth log are :class:`~sim_bridge.sim.VirtualCell`'s;
-the drives (:mod:`sim_bridge.cia402_drives`) replace the vendor controller's protocol and
-state machine.
+the drives (:mod:`sim_bridge.cia402_drive_set` of :mod:`sim_bridge.cia402_drives`) replace the
+vendor controller's protocol and state machine.
 
 The host clocks the communication cycle with SYNC; the cell keeps its own servo cycle
 (``[controller].cycle_period_s``, a whole number of physics steps). Each servo cycle the
@@ -30,7 +30,8 @@ import can
 import numpy as np
 
 from gateway.messages import ControllerState
-from sim_bridge.cia402_drives import AxisParameters, Cia402DriveSet, DriveLimits
+from sim_bridge.cia402_drive_set import Cia402DriveSet
+from sim_bridge.cia402_parameters import AxisParameters, DriveLimits
 from sim_bridge.config import SimConfig
 from sim_bridge.sim import LOG_FLUSH_CYCLES, VirtualCell, reference_at
 

@@ -3,11 +3,12 @@
 What a drive vendor ships, written from the standards (CiA 301 communication, CiA 402 drive
 profile) and the drive's EDS (``deploy/cia402/leadthrough_drive.eds``), not from the product:
 nothing here imports the product's CiA 402 host code. ``canopen``'s :class:`~canopen.LocalNode`
-holds each drive's object dictionary and serves SDO; NMT, SYNC, PDOs, heartbeats, EMCY and the
-CiA 402 state machine are done here, because canopen 2.4.1's local node neither transmits TPDOs
-on SYNC nor stores received RPDOs in its dictionary, and its NMT slave and heartbeat producer
-run timer threads this single-threaded cell loop cannot have. The protocol's facts and the
-state machine's table are :mod:`sim_bridge.cia402_profile`.
+holds each drive's object dictionary and serves SDO (:mod:`sim_bridge.cia402_dictionary`);
+NMT, SYNC, PDOs, heartbeats, EMCY and the CiA 402 state machine are done here, because
+canopen 2.4.1's local node neither transmits TPDOs on SYNC nor stores received RPDOs in its
+dictionary, and its NMT slave and heartbeat producer run timer threads this single-threaded
+cell loop cannot have. The protocol's facts and the state machine's table are
+:mod:`sim_bridge.cia402_profile`.
 
 The wire, per drive with node id ``n`` (all COB-IDs are CiA 301's predefined connection set):
 
@@ -19,21 +20,16 @@ The wire, per drive with node id ``n`` (all COB-IDs are CiA 301's predefined con
   the last SYNC take effect (synchronous transmission types 0..240; 254/255 take effect on
   arrival), and each TPDO is sent with the values sampled at this SYNC (types 1..240: every
   n-th SYNC; 0: when its data changed);
-- PDOs as the host maps them by SDO in 0x1400-0x1401/0x1600-0x1601 (RPDO) and
-  0x1800-0x1801/0x1A00-0x1A01 (TPDO), checked on write as CiA 301's mapping procedure asks:
-  a mapping is changed only with its PDO not valid (bit 31 of the COB-ID) and its count
-  (sub 0) at 0; every entry a mappable object of its whole size; at most 64 bits. Packing
-  reads the mapping entries, never a fixed layout;
+- PDOs as the host maps them by SDO, checked on write, packed and unpacked by their
+  mapping (:mod:`sim_bridge.cia402_dictionary`);
 - heartbeat producer ``0x700+n [state]`` every 0x1017 ms (0: off); consumer 0x1016 sub 1 =
   (producer id << 16) | time [ms]: armed by the producer's first heartbeat; a miss longer
-  than the time while operational or in Operation enabled applies 0x6007;
+  than the time while operational or in Operation enabled applies 0x6007
+  (:mod:`sim_bridge.cia402_heartbeat`);
 - EMCY ``0x80+n`` on every fault (its 0x603F code, 0x1001) and ``0x0000`` on its reset.
 
-Units (the drive's own, per its parameters): position increments = q_rad · (0x608F:1 /
-0x608F:2) · (0x6091:1 / 0x6091:2) / 2π on the joint side; velocity increments/s; quick stop
-deceleration 0x6085 increments/s²; current 0x6078 and torque 0x6077 per mille of the rated
-current 0x6075 [mA] and torque 0x6076 [mN·m, motor side]. With no torque sensor the drive's
-torque is its current times its torque constant 0x6076 / 0x6075, so 0x6077 reads as 0x6078.
+Units: the drive's own, per its parameters (:mod:`sim_bridge.cia402_parameters`). The drives
+of every joint are :mod:`sim_bridge.cia402_drive_set`.
 
 The motion (CiA 402's cyclic synchronous modes 8 and 9): the inner PI velocity loop of
 eq. (19) is the plant's; this drive gives it a reference (q_ref, dq_ref) at t_ref that it
@@ -49,18 +45,16 @@ from __future__ import annotations
 import logging
 import math
 import struct
-import time
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
-from fractions import Fraction
+from collections.abc import Callable
 from pathlib import Path
 
 import can
-import canopen
-import numpy as np
 from canopen.objectdictionary import ODVariable
 from canopen.sdo import SdoAbortedError
 
+from sim_bridge.cia402_dictionary import EDS_PATH, DriveDictionary, PdoConfig
+from sim_bridge.cia402_heartbeat import Heartbeats
+from sim_bridge.cia402_parameters import AxisParameters, DriveLimits
 from sim_bridge.cia402_profile import (
     ABORT_CONNECTION_OPTION,
     COB_ID_SYNC,
@@ -76,17 +70,10 @@ from sim_bridge.cia402_profile import (
     ERROR_REGISTER_GENERIC,
     ERROR_REGISTER_PROFILE,
     FOLLOWING_ERROR_WINDOW,
-    GEAR_RATIO,
     HEARTBEAT_BASE,
     MODES_OF_OPERATION,
     MODES_OF_OPERATION_DISPLAY,
-    MOTOR_RATED_CURRENT,
-    MOTOR_RATED_TORQUE,
-    NMT_COB_ID,
-    PDO_COB_ID_MASK,
-    PDO_NOT_VALID,
     POSITION_ACTUAL,
-    POSITION_ENCODER_RESOLUTION,
     POWERED_STATES,
     PRODUCER_HEARTBEAT_TIME,
     QUICK_STOP_DECELERATION,
@@ -124,99 +111,8 @@ log = logging.getLogger(__name__)
 #: log's "teaching"); one that repeats the same target holds it
 MOVED_WITHIN_SYNCS = 1
 
-#: The drive's EDS, one file for every axis (the node id fills in $NODEID).
-EDS_PATH = Path(__file__).resolve().parent.parent / "deploy" / "cia402" / "leadthrough_drive.eds"
-
-
-# --- the drive's parameters ----------------------------------------------------------------
-@dataclass(frozen=True)
-class AxisParameters:
-    """One drive's commissioning parameters, as its objects report them."""
-
-    encoder_increments: int  #: 0x608F:1, per ``encoder_motor_revolutions``
-    encoder_motor_revolutions: int  #: 0x608F:2
-    gear_motor_revolutions: int  #: 0x6091:1, per ``gear_shaft_revolutions``
-    gear_shaft_revolutions: int  #: 0x6091:2
-    rated_current_ma: int  #: 0x6075 [mA]
-    rated_torque_mnm: int  #: 0x6076 [mN·m], motor side
-
-    @classmethod
-    def for_joint(
-        cls,
-        gear_ratio: float,
-        rated_current_a: float,
-        torque_constant_nm_per_a: float,
-        encoder_bits: int,
-    ) -> AxisParameters:
-        """The parameters of a drive on a joint with gear ratio R [-], rated current [A], the
-        datasheet's joint-side torque constant [N·m/A] and a 2^bits motor encoder."""
-        ratio = Fraction(gear_ratio).limit_denominator(1000)
-        return cls(
-            encoder_increments=1 << encoder_bits,
-            encoder_motor_revolutions=1,
-            gear_motor_revolutions=ratio.numerator,
-            gear_shaft_revolutions=ratio.denominator,
-            rated_current_ma=round(rated_current_a * 1000.0),
-            rated_torque_mnm=round(torque_constant_nm_per_a * rated_current_a / gear_ratio * 1e3),
-        )
-
-    @property
-    def increments_per_rad(self) -> float:
-        """Position increments per joint-side radian."""
-        per_motor_rev = self.encoder_increments / self.encoder_motor_revolutions
-        ratio = self.gear_motor_revolutions / self.gear_shaft_revolutions
-        return per_motor_rev * ratio / (2.0 * math.pi)
-
-    def objects(self) -> dict[tuple[int, int], int]:
-        """The (index, sub-index) → value of these parameters in the object dictionary."""
-        return {
-            (POSITION_ENCODER_RESOLUTION, 1): self.encoder_increments,
-            (POSITION_ENCODER_RESOLUTION, 2): self.encoder_motor_revolutions,
-            (GEAR_RATIO, 1): self.gear_motor_revolutions,
-            (GEAR_RATIO, 2): self.gear_shaft_revolutions,
-            (MOTOR_RATED_CURRENT, 0): self.rated_current_ma,
-            (MOTOR_RATED_TORQUE, 0): self.rated_torque_mnm,
-        }
-
-
-@dataclass(frozen=True)
-class DriveLimits:
-    """The drive's monitoring, the same for every axis."""
-
-    #: |q_ref(t) − q| beyond this → Fault 0x8611 [rad, joint side]; 0x6065 reports it
-    max_following_error_rad: float = 0.05
-    #: in Operation enabled, this many communication cycle periods (0x1006) without a SYNC →
-    #: Fault 0x8700 (the sync watchdog; off while 0x1006 is 0)
-    sync_timeout_cycles: int = 10
-
-
-@dataclass(frozen=True)
-class PdoConfig:
-    """One PDO as its communication and mapping objects configure it."""
-
-    cob_id: int
-    valid: bool
-    transmission_type: int
-    entries: tuple[tuple[int, int, int], ...]  #: (index, sub-index, length [bits])
-
-    @property
-    def length_bytes(self) -> int:
-        return sum(bits for _, _, bits in self.entries) // 8
-
 
 # --- one drive ------------------------------------------------------------------------------
-class _SendingNetwork(canopen.Network):
-    """The canopen network of one drive: what it sends goes to ``send``; nothing is received
-    through it (the cell loop hands each frame to the drive)."""
-
-    def __init__(self, send: Callable[[can.Message], None]) -> None:
-        super().__init__(None)
-        self._send = send
-
-    def send_message(self, can_id: int, data: bytes, remote: bool = False) -> None:
-        self._send(can.Message(arbitration_id=can_id, data=bytes(data), is_extended_id=False))
-
-
 class Cia402Drive:
     """One joint's drive. :meth:`boot` it (power on), feed it frames (:meth:`on_nmt`,
     :meth:`on_frame`), :meth:`step` it once per servo cycle with the joint's position, give it
@@ -247,30 +143,25 @@ class Cia402Drive:
         self.node_id = node_id
         self.axis = axis
         self.limits = limits
-        self._network = _SendingNetwork(send)
-        self.node = canopen.LocalNode(node_id, canopen.import_od(str(eds), node_id))
-        self._network.add_node(self.node)
-        # canopen's NMT slave would start a timer thread on a write of 0x1017: the heartbeat
-        # producer is ours (:meth:`heartbeat`), run by the cell loop.
-        self.node._write_callbacks.remove(self.node.nmt.on_write)
-        self.node.add_write_callback(self._on_write)
-        self.node.add_read_callback(self._on_read)
-        self._od = self.node.object_dictionary
-        self._inc_per_rad = axis.increments_per_rad
+        self._od = DriveDictionary(node_id, send, self._on_read, self._on_write, eds)
+        self._heartbeats = Heartbeats()  #: producer (0x1017) and consumer (0x1016)
+        self.node = self._od.node
         #: the parameters stored in the drive's memory: a reset node restores them
         self._stored: dict[tuple[int, int], int] = {
             **axis.objects(),
-            (FOLLOWING_ERROR_WINDOW, 0): round(limits.max_following_error_rad * self._inc_per_rad),
+            (FOLLOWING_ERROR_WINDOW, 0): round(
+                limits.max_following_error_rad * axis.increments_per_rad
+            ),
         }
         self._live: dict[int, Callable[[], int]] = {
             STATUSWORD: lambda: self.statusword,
             MODES_OF_OPERATION_DISPLAY: lambda: int(self.mode or 0),
             ERROR_CODE: lambda: int(self.error_code),
             ERROR_REGISTER: self._error_register,
-            POSITION_ACTUAL: lambda: self._increments(self.q_rad),
-            VELOCITY_ACTUAL: lambda: self._increments(self.dq_rad_s),
-            CURRENT_ACTUAL: lambda: self._per_mille(self.current_a),
-            TORQUE_ACTUAL: lambda: self._per_mille(self.current_a),
+            POSITION_ACTUAL: lambda: self.axis.increments(self.q_rad),
+            VELOCITY_ACTUAL: lambda: self.axis.increments(self.dq_rad_s),
+            CURRENT_ACTUAL: lambda: self.axis.per_mille(self.current_a),
+            TORQUE_ACTUAL: lambda: self.axis.per_mille(self.current_a),
         }
         self.booted = False
         self.nmt_state = NmtState.INITIALISING
@@ -290,7 +181,6 @@ class Cia402Drive:
         self.q_ref_rad = self.dq_ref_rad_s = self.t_ref_s = 0.0
         self._estop = False
         self._following_error = False
-        self._pdo_cache: tuple[dict[int, PdoConfig], list[PdoConfig]] | None = None
 
     def boot(self) -> None:
         """Power on: transition 0, then boot-up (``0x700+id [0x00]``) and pre-operational."""
@@ -301,22 +191,11 @@ class Cia402Drive:
     # --- object dictionary ------------------------------------------------------------------
     def read(self, index: int, subindex: int = 0) -> int:
         """An object's value as an SDO upload would give it."""
-        obj = self._variable(index, subindex)
-        return obj.decode_raw(self.node.get_data(index, subindex))
+        return self._od.read(index, subindex)
 
     def write(self, index: int, subindex: int, value: int) -> None:
         """Write an object as an SDO download would (its checks included: SdoAbortedError)."""
-        obj = self._variable(index, subindex)
-        self.node.set_data(index, subindex, obj.encode_raw(value), check_writable=True)
-
-    def _variable(self, index: int, subindex: int) -> ODVariable:
-        obj = self._od[index]
-        return obj if isinstance(obj, ODVariable) else obj[subindex]
-
-    def _store(self, index: int, subindex: int, value: int) -> None:
-        """Set an object without the host's checks (the drive's own values)."""
-        raw = self._variable(index, subindex).encode_raw(value)
-        self.node.data_store.setdefault(index, {})[subindex] = raw
+        self._od.write(index, subindex, value)
 
     def _on_read(self, index: int, subindex: int, od: ODVariable) -> int | None:
         live = self._live.get(index)
@@ -356,13 +235,12 @@ class Cia402Drive:
                 raise SdoAbortedError(SdoAbort.VALUE_RANGE_EXCEEDED)
             self.sync_cob_id = value & SYNC_COB_ID_MASK
         elif index == PRODUCER_HEARTBEAT_TIME:
-            self._producer_period_s = value / 1000.0
-            self._next_heartbeat_wall = -math.inf
+            self._heartbeats.set_producer(value)
         elif index == CONSUMER_HEARTBEAT_TIME and subindex == 1:
-            self._set_consumer(value)
+            self._heartbeats.set_consumer(value)
         elif index in RPDO_COMMUNICATION + TPDO_COMMUNICATION + RPDO_MAPPING + TPDO_MAPPING:
-            self._check_pdo_write(index, subindex, value)
-            self._pdo_cache = None
+            self._od.check_pdo_write(index, subindex, value)
+            self._od.invalidate_pdos()
 
     def _load_settings(self) -> None:
         """The values the drive works with, from its dictionary (after a reset)."""
@@ -378,101 +256,21 @@ class Cia402Drive:
         self._abort_option = AbortConnectionOption(self.read(ABORT_CONNECTION_OPTION))
         self._cycle_period_s = self.read(COMMUNICATION_CYCLE_PERIOD) * 1e-6
 
-    # --- PDO configuration ------------------------------------------------------------------
-    def _check_pdo_write(self, index: int, subindex: int, value: int) -> None:
-        """CiA 301 PDO communication and mapping parameters: what may change, and when."""
-        receive = index in RPDO_COMMUNICATION + RPDO_MAPPING
-        comm = index if index in RPDO_COMMUNICATION + TPDO_COMMUNICATION else index - 0x200
-        cob_now = self.read(comm, 1)
-        valid = not cob_now & PDO_NOT_VALID
-        if index == comm:  # communication parameter
-            if subindex == 1:
-                if value & (1 << 29):
-                    raise SdoAbortedError(SdoAbort.VALUE_RANGE_EXCEEDED)  # no 29-bit ids
-                same_id = (value ^ cob_now) & PDO_COB_ID_MASK == 0
-                if valid and not value & PDO_NOT_VALID and not same_id:
-                    raise SdoAbortedError(SdoAbort.VALUE_RANGE_EXCEEDED)
-            elif subindex == 2 and not (value <= 240 or (receive and value >= 254)):
-                raise SdoAbortedError(SdoAbort.VALUE_RANGE_EXCEEDED)
-            return
-        # mapping parameter: only with the PDO not valid, entries only with the count at 0
-        if valid:
-            raise SdoAbortedError(SdoAbort.UNSUPPORTED_ACCESS)
-        if subindex == 0:
-            if value > 8:
-                raise SdoAbortedError(SdoAbort.MAPPING_TOO_LONG)
-            entries = [self.read(index, k) for k in range(1, value + 1)]
-            if sum(e & 0xFF for e in entries) > 64:
-                raise SdoAbortedError(SdoAbort.MAPPING_TOO_LONG)
-            for entry in entries:
-                self._check_entry(entry, receive)
-            return
-        if self.read(index, 0) != 0:
-            raise SdoAbortedError(SdoAbort.UNSUPPORTED_ACCESS)
-        if value:
-            self._check_entry(value, receive)
-
-    def _check_entry(self, entry: int, receive: bool) -> None:
-        index, subindex, bits = entry >> 16, (entry >> 8) & 0xFF, entry & 0xFF
-        try:
-            obj = self._variable(index, subindex)
-        except KeyError:
-            raise SdoAbortedError(SdoAbort.NOT_MAPPABLE) from None
-        usable = obj.writable if receive else obj.readable
-        if not obj.pdo_mappable or not usable:
-            raise SdoAbortedError(SdoAbort.NOT_MAPPABLE)
-        if bits != len(obj):
-            raise SdoAbortedError(SdoAbort.PARAMETER_INCOMPATIBLE)
-
     def pdo_config(self, comm_index: int) -> PdoConfig:
         """A PDO as its objects now configure it (``comm_index`` 0x1400.. or 0x1800..)."""
-        map_index = comm_index + 0x200
-        cob = self.read(comm_index, 1)
-        entries = []
-        for k in range(1, self.read(map_index, 0) + 1):
-            if e := self.read(map_index, k):
-                entries.append((e >> 16, (e >> 8) & 0xFF, e & 0xFF))
-        return PdoConfig(
-            cob_id=cob & PDO_COB_ID_MASK,
-            valid=not cob & PDO_NOT_VALID,
-            transmission_type=self.read(comm_index, 2),
-            entries=tuple(entries),
-        )
+        return self._od.pdo_config(comm_index)
 
-    def _pdos(self) -> tuple[dict[int, PdoConfig], list[PdoConfig]]:
-        """(valid RPDOs by COB-ID, valid TPDOs), read again when the dictionary changed."""
-        if self._pdo_cache is None:
-            rpdos = [self.pdo_config(i) for i in RPDO_COMMUNICATION]
-            tpdos = [self.pdo_config(i) for i in TPDO_COMMUNICATION]
-            self._pdo_cache = (
-                {p.cob_id: p for p in rpdos if p.valid},
-                [p for p in tpdos if p.valid],
-            )
-        return self._pdo_cache
-
-    def _pack(self, pdo: PdoConfig) -> bytes:
-        return b"".join(self.node.get_data(i, s) for i, s, _ in pdo.entries)
-
-    def _unpack(self, pdo: PdoConfig, data: bytes) -> None:
-        offset = 0
-        for index, subindex, bits in pdo.entries:
-            size = bits // 8
-            try:
-                self.node.set_data(index, subindex, data[offset : offset + size])
-            except SdoAbortedError:
-                # a value the drive refuses (a mode it has not) cannot be answered by abort
-                why = f"0x{index:04X} = {data[offset : offset + size].hex()} by PDO refused"
-                self._fault(ErrorCode.PARAMETER, why)
-            offset += size
+    def _refused(self, why: str) -> None:
+        """A value an RPDO carried was refused: a fault (a PDO cannot be answered by abort)."""
+        self._fault(ErrorCode.PARAMETER, why)
 
     # --- resets -----------------------------------------------------------------------------
     def _reset_application(self) -> None:
         """Power-on or NMT reset node: the application's objects (0x2000 and up) back to
         their stored values or defaults, the state machine restarted (transition 0)."""
-        for index in [i for i in self.node.data_store if i >= 0x2000]:
-            del self.node.data_store[index]
+        self._od.clear_application()
         for (index, subindex), value in self._stored.items():
-            self._store(index, subindex, value)
+            self._od.store(index, subindex, value)
         self._load_settings()
         self.error_code = ErrorCode.NONE
         self.state = DriveState.NOT_READY_TO_SWITCH_ON
@@ -491,31 +289,22 @@ class Cia402Drive:
     def _reset_communication(self) -> None:
         """NMT reset communication (and the end of every reset): the communication objects
         (0x1000-0x1FFF) back to their defaults, then boot-up and pre-operational."""
-        for index in [i for i in self.node.data_store if i < 0x2000]:
-            del self.node.data_store[index]
-        self._pdo_cache = None
+        self._od.clear_communication()
         self.sync_cob_id = self.read(COB_ID_SYNC) & SYNC_COB_ID_MASK
         self._cycle_period_s = self.read(COMMUNICATION_CYCLE_PERIOD) * 1e-6
         self._sync_count = 0
         self._tpdo_last: dict[int, bytes] = {}
         self._rpdo_latched: dict[int, bytes] = {}
         self.rpdo_stamp_s = None
-        self._producer_period_s = self.read(PRODUCER_HEARTBEAT_TIME) / 1000.0
-        self._next_heartbeat_wall = -math.inf
-        self._set_consumer(self.read(CONSUMER_HEARTBEAT_TIME, 1))
+        self._heartbeats.set_producer(self.read(PRODUCER_HEARTBEAT_TIME))
+        self._heartbeats.set_consumer(self.read(CONSUMER_HEARTBEAT_TIME, 1))
         self.nmt_state = NmtState.INITIALISING
         self._send(HEARTBEAT_BASE + self.node_id, bytes([NmtState.INITIALISING]))  # boot-up
         self.nmt_state = NmtState.PRE_OPERATIONAL
 
-    def _set_consumer(self, value: int) -> None:
-        self._consumer_id = (value >> 16) & 0x7F
-        self._consumer_time_s = (value & 0xFFFF) / 1000.0
-        self._consumer_cob_id = HEARTBEAT_BASE + self._consumer_id
-        self._consumer_last_wall: float | None = None  #: armed by the first heartbeat
-
     # --- frames -----------------------------------------------------------------------------
     def _send(self, cob_id: int, data: bytes) -> None:
-        self._network.send_message(cob_id, data)
+        self._od.send(cob_id, data)
 
     def on_nmt(self, data: bytes) -> None:
         """An NMT command frame (COB 0x000)."""
@@ -549,15 +338,14 @@ class Cia402Drive:
         nmt = self.nmt_state
         if not self.booted:
             return
-        if can_id == self._consumer_cob_id and self._consumer_time_s > 0:
-            self._consumer_last_wall = wall_s
+        self._heartbeats.received(can_id, wall_s)
         if nmt == NmtState.STOPPED:
             return  # only NMT and heartbeats in stopped
         if can_id == SDO_RX_BASE + self.node_id:
             self.node.sdo.on_request(can_id, data, stamp_s)
         elif can_id == self.sync_cob_id:
             self.on_sync(now_s)
-        elif nmt == NmtState.OPERATIONAL and (pdo := self._pdos()[0].get(can_id)) is not None:
+        elif nmt == NmtState.OPERATIONAL and (pdo := self._od.pdos()[0].get(can_id)) is not None:
             self._on_rpdo(pdo, data, stamp_s)
 
     def _on_rpdo(self, pdo: PdoConfig, data: bytes, stamp_s: float) -> None:
@@ -570,7 +358,7 @@ class Cia402Drive:
         if pdo.transmission_type <= 240:
             self._rpdo_latched[pdo.cob_id] = bytes(data)  # takes effect at the next SYNC
         else:
-            self._unpack(pdo, data)
+            self._od.unpack(pdo, data, self._refused)
 
     @property
     def setpoint_moving(self) -> bool:
@@ -584,19 +372,19 @@ class Cia402Drive:
         if self.nmt_state != NmtState.OPERATIONAL:
             return
         self._sync_count += 1
-        rpdos, tpdos = self._pdos()
+        rpdos, tpdos = self._od.pdos()
         for pdo in tpdos:
             kind = pdo.transmission_type
             if kind and self._sync_count % kind:
                 continue
-            data = self._pack(pdo)
+            data = self._od.pack(pdo)
             if kind == 0 and self._tpdo_last.get(pdo.cob_id) == data:
                 continue  # acyclic synchronous: sent at a SYNC when its data changed
             self._tpdo_last[pdo.cob_id] = data
             self._send(pdo.cob_id, data)
         for cob_id, data in self._rpdo_latched.items():
             if (pdo := rpdos.get(cob_id)) is not None:
-                self._unpack(pdo, data)
+                self._od.unpack(pdo, data, self._refused)
         self._rpdo_latched.clear()
         setpoint = (self._target_inc, self._velocity_offset_inc, self._target_velocity_inc)
         if setpoint != self._last_setpoint or any(setpoint[1:]):
@@ -608,32 +396,14 @@ class Cia402Drive:
 
     def heartbeat(self, wall_s: float) -> None:
         """Send the producer heartbeat (0x1017) when it is due."""
-        if not self.booted or self._producer_period_s <= 0:
-            return
-        if wall_s < self._next_heartbeat_wall:
-            return
-        self._send(HEARTBEAT_BASE + self.node_id, bytes([self.nmt_state]))
-        late = wall_s - self._next_heartbeat_wall > self._producer_period_s
-        self._next_heartbeat_wall = (wall_s if late else self._next_heartbeat_wall) + (
-            self._producer_period_s
-        )
+        if self.booted and self._heartbeats.due(wall_s):
+            self._send(HEARTBEAT_BASE + self.node_id, bytes([self.nmt_state]))
+            self._heartbeats.sent(wall_s)
 
     def _emcy(self, code: ErrorCode) -> None:
         if self.nmt_state in (NmtState.PRE_OPERATIONAL, NmtState.OPERATIONAL):
             data = struct.pack("<HB5x", code, self._error_register())
             self._send(EMCY_BASE + self.node_id, data)
-
-    # --- units ------------------------------------------------------------------------------
-    def _increments(self, value_rad: float) -> int:
-        """Joint-side radians as i32 increments (saturated)."""
-        return max(-0x7FFFFFFF, min(0x7FFFFFFF, round(value_rad * self._inc_per_rad)))
-
-    def _per_mille(self, current_a: float) -> int:
-        """A current [A] in per mille of the rated current, i16 (saturated)."""
-        return max(-32767, min(32767, round(current_a * 1e6 / self.axis.rated_current_ma)))
-
-    def _rad(self, increments: int) -> float:
-        return increments / self._inc_per_rad
 
     # --- state ------------------------------------------------------------------------------
     @property
@@ -779,19 +549,19 @@ class Cia402Drive:
         """The RPDOs of the SYNC(s) since the last step, in the mode selected."""
         if self.mode == Mode.CYCLIC_SYNCHRONOUS_POSITION:
             if self._fresh_target:
-                q = self._rad(self._target_inc)
-                self._set_reference(q, self._rad(self._velocity_offset_inc), now_s)
+                q = self.axis.rad(self._target_inc)
+                self._set_reference(q, self.axis.rad(self._velocity_offset_inc), now_s)
             else:  # no new target: freeze where the extrapolation has brought it
                 self._set_reference(self.reference_position(now_s), 0.0, now_s)
         else:
             q = self.reference_position(now_s)
-            self._set_reference(q, self._rad(self._target_velocity_inc), now_s)
+            self._set_reference(q, self.axis.rad(self._target_velocity_inc), now_s)
 
     def _quick_stop(self, now_s: float) -> None:
         """Slow down on the quick stop ramp 0x6085; at standstill, with option code 1..4, go
         to Switch on disabled (transition 12), the brake closing while the drive holds."""
         q = self.reference_position(now_s)
-        decel_rad_s2 = self._rad(self._quick_stop_decel_inc)
+        decel_rad_s2 = self.axis.rad(self._quick_stop_decel_inc)
         dq = self.dq_ref_rad_s
         if dq:
             slower = abs(dq) - decel_rad_s2 * max(now_s - self.t_ref_s, 0.0)
@@ -809,12 +579,10 @@ class Cia402Drive:
 
     def _watch_host(self, wall_s: float) -> None:
         """The consumer heartbeat (0x1016): a miss disarms it until the next heartbeat."""
-        last = self._consumer_last_wall
-        if last is None or self._consumer_time_s <= 0 or wall_s - last <= self._consumer_time_s:
-            return
-        self._consumer_last_wall = None
-        why = f"no heartbeat of node {self._consumer_id} for {wall_s - last:.3f} s"
-        if self.nmt_state == NmtState.OPERATIONAL or self.state == DriveState.OPERATION_ENABLED:
+        why = self._heartbeats.missed(wall_s)
+        if why is not None and (
+            self.nmt_state == NmtState.OPERATIONAL or self.state == DriveState.OPERATION_ENABLED
+        ):
             self._connection_lost(why)
 
     def _watch_sync(self, now_s: float) -> None:
@@ -824,189 +592,3 @@ class Cia402Drive:
         last = now_s if self._last_sync_s is None else self._last_sync_s
         if now_s - last > self.limits.sync_timeout_cycles * period_s:
             self._fault(ErrorCode.SYNC, f"no SYNC for {now_s - last:.3f} s", now_s)
-
-
-# --- the drive set --------------------------------------------------------------------------
-@dataclass
-class DriveSetStats:
-    """Counters of the drive set, named as the LTC controller's (the cell's summary)."""
-
-    command_sets: int = 0  #: SYNCs in Operation enabled with an RPDO from every drive
-    hold_sets: int = 0  #: (CiA 402 has no hold flag: always 0)
-    missed_cycles: int = 0  #: SYNCs in Operation enabled missing some drive's RPDOs
-    late_frames: int = 0  #: (CiA 402 has no cycle counter: always 0)
-    bad_frames: int = 0  #: PDOs shorter than their mapping
-    syncs: int = 0  #: SYNC frames received
-    following_syncs: int = 0  #: SYNCs with every drive operational, in Operation enabled
-    faults: list[str] = field(default_factory=list)
-
-
-class Cia402DriveSet:
-    """The drives of every joint on one CAN segment (node ids ``first_node_id`` ..), driven by
-    the cell loop like :class:`~sim_bridge.controller.VirtualController`: frames in
-    (:meth:`on_frame`), one :meth:`begin_cycle` per servo cycle, the plant's reference out
-    (:meth:`reference`), measurements back (:meth:`sample`). ``sim_clock`` gives simulated
-    time [s] when a frame arrives.
-
-    ``cycle`` counts servo cycles; a SYNC sets ``complete_for_cycle`` to it, so a lock-step
-    loop that waits for ``complete_for_cycle == cycle`` runs one servo cycle per SYNC.
-    """
-
-    def __init__(
-        self,
-        axes: Sequence[AxisParameters],
-        limits: DriveLimits,
-        send: Callable[[can.Message], None],
-        sim_clock: Callable[[], float],
-        first_node_id: int = 1,
-        eds: Path = EDS_PATH,
-    ) -> None:
-        # canopen's SDO server logs every expedited transfer at INFO: hundreds per start-up.
-        logging.getLogger("canopen").setLevel(logging.WARNING)
-        self.drives = [
-            Cia402Drive(first_node_id + j, axis, limits, send, eds) for j, axis in enumerate(axes)
-        ]
-        self.n = len(self.drives)
-        self._by_sdo = {SDO_RX_BASE + d.node_id: d for d in self.drives}
-        self._clock = sim_clock
-        self.cycle = 0
-        self.complete_for_cycle: int | None = None
-        self.stats = DriveSetStats()
-        self.estop = False  #: the cell's e-stop chain is open
-        #: where each unpowered joint is held while others are powered [rad]
-        self._hold_q = np.zeros(self.n)
-        self._was_powered = [False] * self.n
-        self._tpdo_sent_stamp: float | None = None
-        self.latencies_s: list[float] = []  #: TPDOs sent → the set's last RPDO arriving [s]
-
-    def power_on(self) -> None:
-        """Every drive boots: boot-up frames, pre-operational."""
-        for drive in self.drives:
-            drive.boot()
-
-    def on_frame(self, msg: can.Message, wall_s: float) -> None:
-        """A frame from the segment, handled at monotonic ``wall_s``."""
-        if msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id:
-            return
-        can_id, data, stamp = msg.arbitration_id, bytes(msg.data), msg.timestamp
-        if can_id == NMT_COB_ID:
-            for drive in self.drives:
-                drive.on_nmt(data)
-            return
-        now_s = self._clock()
-        if (drive := self._by_sdo.get(can_id)) is not None:
-            drive.on_frame(can_id, data, wall_s, now_s, stamp)
-            return
-        for drive in self.drives:
-            drive.on_frame(can_id, data, wall_s, now_s, stamp)
-        if any(can_id == d.sync_cob_id for d in self.drives):
-            self._on_sync()
-
-    def _on_sync(self) -> None:
-        stats = self.stats
-        stats.syncs += 1
-        if self.following:
-            stats.following_syncs += 1
-            stamps = [d.rpdo_stamp_s for d in self.drives]
-            if all(s is not None for s in stamps):
-                stats.command_sets += 1
-                if self._tpdo_sent_stamp is not None:
-                    self.latencies_s.append(max(stamps) - self._tpdo_sent_stamp)  # type: ignore[type-var]
-            else:
-                stats.missed_cycles += 1
-        for d in self.drives:
-            d.rpdo_stamp_s = None
-        self._tpdo_sent_stamp = time.time()  # the clock of the frames' arrival stamps
-        self.complete_for_cycle = self.cycle
-
-    def begin_cycle(self, now_s: float, q_rad: np.ndarray, wall_s: float) -> None:
-        """One servo cycle of every drive at simulated time ``now_s``, the joints at
-        ``q_rad`` [rad], at monotonic ``wall_s``."""
-        q = np.asarray(q_rad, dtype=float)
-        for j, drive in enumerate(self.drives):
-            before = len(drive.faults)
-            drive.step(now_s, float(q[j]), wall_s, self.estop)
-            self.stats.faults += drive.faults[before:]
-        self.stats.bad_frames = sum(d.bad_frames for d in self.drives)
-        powered = [d.powered for d in self.drives]
-        anyone_was = any(self._was_powered)
-        for j in range(self.n):
-            if not powered[j] and (self._was_powered[j] or not anyone_was):
-                self._hold_q[j] = q[j]
-        self._was_powered = powered
-        self.cycle = (self.cycle + 1) & 0xFFFF
-
-    def reference(self, now_s: float) -> tuple[np.ndarray, np.ndarray, float] | None:
-        """What the plant's inner loop follows from ``now_s``: (q_r [rad], dq_r [rad/s], t_r
-        [s]) for :meth:`~sim_bridge.plant.Plant.run`, or None with every drive unpowered.
-
-        The plant brakes all joints or none: while some drives are powered, an unpowered joint
-        is held where it lost power, standing in for its brake."""
-        if not self.servo_on:
-            return None
-        q, dq = self._hold_q.copy(), np.zeros(self.n)
-        for j, drive in enumerate(self.drives):
-            if (ref := drive.reference(now_s)) is not None:
-                q[j], dq[j] = ref
-        return q, dq, now_s
-
-    def sample(self, q_rad: np.ndarray, dq_rad_s: np.ndarray, current_a: np.ndarray) -> None:
-        """The joints' measurements after a servo cycle (encoders, current sensors)."""
-        rows = zip(
-            self.drives,
-            np.asarray(q_rad, dtype=float).tolist(),
-            np.asarray(dq_rad_s, dtype=float).tolist(),
-            np.asarray(current_a, dtype=float).tolist(),
-            strict=True,
-        )
-        for drive, q, dq, i in rows:
-            drive.sample(q, dq, i)
-
-    def heartbeats(self, wall_s: float) -> None:
-        """Each drive's producer heartbeat, when due."""
-        for drive in self.drives:
-            drive.heartbeat(wall_s)
-
-    def take_latencies(self) -> list[float]:
-        out, self.latencies_s = self.latencies_s, []
-        return out
-
-    @property
-    def servo_on(self) -> bool:
-        """Some drive's power stage is on (its brake released)."""
-        return any(d.powered for d in self.drives)
-
-    @property
-    def power_cut(self) -> bool:
-        """An unpowered drive's power went off by a fault (stop category 0)."""
-        return any(d.power_cut for d in self.drives if not d.powered)
-
-    @property
-    def following(self) -> bool:
-        """Every drive operational and in Operation enabled, and the host moving a setpoint
-        (a target that changed within :data:`MOVED_WITHIN_SYNCS` SYNCs, or a velocity): the
-        arm follows the host's commands, as the LTC controller's EXTERNAL without its hold
-        flag. A host that repeats one target holds the arm: that is not following."""
-        return all(
-            d.state == DriveState.OPERATION_ENABLED and d.nmt_state == NmtState.OPERATIONAL
-            for d in self.drives
-        ) and any(d.setpoint_moving for d in self.drives)
-
-    @property
-    def faulted(self) -> bool:
-        faults = (DriveState.FAULT, DriveState.FAULT_REACTION_ACTIVE)
-        return any(d.state in faults for d in self.drives)
-
-    def describe(self) -> list[dict[str, object]]:
-        """Each drive's NMT and CiA 402 state and error code (the cell's summary)."""
-        return [
-            {
-                "node_id": d.node_id,
-                "nmt": d.nmt_state.name,
-                "state": d.state.name,
-                "statusword": f"0x{d.statusword:04X}",
-                "error_code": f"0x{d.error_code:04X}",
-                "transitions": len(d.transitions),
-            }
-            for d in self.drives
-        ]

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from control.robot.description import load_description
-from control.taught_path import path_error_m
+from control.taught_path_kinematics import path_error_m
 from drivers.can.config import CanDriverConfig
 from gateway.program import read_program
 from sim_bridge.commission import commissioned_stack

@@ -22,7 +22,7 @@ import canopen
 import pytest
 from cia402_rig import cia402_cell
 
-from sim_bridge.cia402_drives import EDS_PATH
+from sim_bridge.cia402_dictionary import EDS_PATH
 from sim_bridge.harness import REPO, free_port, unique_can_address
 from sim_bridge.sim import VirtualCell
 

@@ -25,7 +25,8 @@ from drivers.can.rt_cia402 import (
     golden_vectors,
     tables_from_config,
 )
-from sim_bridge.cia402_drives import AxisParameters, Cia402DriveSet, DriveLimits
+from sim_bridge.cia402_drive_set import Cia402DriveSet
+from sim_bridge.cia402_parameters import AxisParameters, DriveLimits
 from sim_bridge.harness import SIM_CELL_CIA402
 
 

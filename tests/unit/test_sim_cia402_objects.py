@@ -15,7 +15,9 @@ from canopen.objectdictionary import datatypes as dt
 from canopen.sdo import SdoAbortedError
 
 from sim_bridge.cia402_cell import axis_parameters
-from sim_bridge.cia402_drives import EDS_PATH, AxisParameters, Cia402Drive, DriveLimits
+from sim_bridge.cia402_dictionary import EDS_PATH
+from sim_bridge.cia402_drives import Cia402Drive
+from sim_bridge.cia402_parameters import AxisParameters, DriveLimits
 from sim_bridge.cia402_profile import DriveState, NmtState
 from sim_bridge.config import load_sim_config
 

@@ -12,7 +12,8 @@ import can
 import pytest
 from canopen.sdo import SdoAbortedError
 
-from sim_bridge.cia402_drives import AxisParameters, Cia402Drive, DriveLimits
+from sim_bridge.cia402_drives import Cia402Drive
+from sim_bridge.cia402_parameters import AxisParameters, DriveLimits
 from sim_bridge.cia402_profile import DriveState, next_state, state_of, statusword
 
 S = DriveState

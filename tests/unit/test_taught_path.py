@@ -1,4 +1,4 @@
-"""Taught programs made replayable (control/taught_path.py): tremor out, constant tool speed,
+"""Taught programs made replayable (control/taught_path*.py): tremor out, constant tool speed,
 rest-to-rest strokes, joint limits kept, approaches between segments."""
 
 from __future__ import annotations
@@ -11,17 +11,9 @@ import numpy as np
 import pytest
 
 from control.robot.description import load_description
-from control.taught_path import (
-    TREMOR_CUTOFF_HZ,
-    approach,
-    constant_speed,
-    fastest_point_m_s,
-    path_error_m,
-    remove_tremor,
-    replay_trajectory,
-    slow_down,
-    tool_path,
-)
+from control.taught_path import approach, constant_speed, replay_trajectory
+from control.taught_path_kinematics import fastest_point_m_s, path_error_m, slow_down, tool_path
+from control.taught_path_tremor import TREMOR_CUTOFF_HZ, remove_tremor
 from gateway.program import Program
 
 DESC = load_description()
@@ -474,7 +466,7 @@ def test_path_error_is_the_distance_to_the_taught_polyline_not_to_its_samples():
 
 
 def test_path_error_search_is_exact_against_brute_force():
-    from control.taught_path import _polyline_distance, _segment_distance
+    from control.taught_path_kinematics import _polyline_distance, _segment_distance
 
     rng = np.random.default_rng(5)
     vertices = np.cumsum(rng.normal(0, 0.01, (400, 3)), axis=0)
