@@ -64,6 +64,7 @@ from gateway.messages import (
     make_joint_command,
 )
 from gateway.ratelog import RateLimitedLog
+from gateway.realtime import below_the_cycle
 from gateway.runner import run_service
 
 log = logging.getLogger("leadthrough.control")
@@ -482,6 +483,7 @@ class ControlProcess:
         """The slow loop (pressure set-points, health, telemetry) until :attr:`stop_event`."""
         s = self.session
         assert s is not None
+        below_the_cycle("control")  # the cycle's threads exist (open): they keep its priority
         period = 1.0 / HEALTH_RATE_HZ
         while not self.stop_event.wait(min(period, PRESSURE_PUBLISH_PERIOD_S)):
             now = self.clock()

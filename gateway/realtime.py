@@ -134,6 +134,24 @@ def normal_priority_children() -> Iterator[None]:
         os.sched_setscheduler(0, policy, param)
 
 
+def below_the_cycle(what: str) -> int | None:
+    """The calling thread one SCHED_FIFO priority below the one it has (None: it is not at
+    SCHED_FIFO, nothing changed; else the new priority), for a process on the cycle whose
+    cycle runs on other threads, created before at the cycle's priority, while this one does
+    the slow work: at equal SCHED_FIFO priority a thread runs until it blocks, so on a shared
+    core the control process's slow loop (an adapted model built, telemetry encoded) held the
+    CAN driver off its cycle (`taskset -c 0`: the demo faulted on "no fresh joint state from
+    the CAN driver" 2.3 s into teaching, 2026-11-30). One below, the CAN driver and the
+    process's own cycle threads preempt it, and it still runs before the processes at normal
+    priority, so it holds the interpreter's lock no longer than it did."""
+    if os.sched_getscheduler(0) != os.SCHED_FIFO:
+        return None
+    priority = max(os.sched_getparam(0).sched_priority - 1, 1)
+    os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    log.info("%s: its slow loop runs at SCHED_FIFO %d, below the cycle's threads", what, priority)
+    return priority
+
+
 def apply_realtime(cfg: Realtime, process: str) -> dict[str, Any]:
     """Place the calling product process (``process``: its subcommand name) by ``cfg``."""
     fifo = cfg.sched_fifo_priority if process in CYCLE_PROCESSES else 0

@@ -7,6 +7,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -19,6 +20,7 @@ from gateway.realtime import (
     Realtime,
     apply_realtime,
     apply_scheduling,
+    below_the_cycle,
     normal_priority_children,
     realtime_config_from,
 )
@@ -144,3 +146,36 @@ def test_a_child_started_by_a_fifo_thread_runs_at_normal_priority_and_the_thread
         os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
     assert child.stdout.split() == [str(os.SCHED_OTHER), "0"], child.stdout + child.stderr
     assert inside == os.SCHED_OTHER and after == (os.SCHED_FIFO, 5)
+
+
+def test_the_slow_loop_drops_below_the_cycle_and_the_cycle_threads_keep_its_priority():
+    """A thread at SCHED_FIFO 40 (the control process's main thread after [realtime]) starts
+    a cycle thread, which inherits 40, then drops itself to 39; at normal scheduling nothing
+    changes. Run in threads of their own: the test process keeps its scheduling."""
+    seen: dict[str, object] = {}
+    release = threading.Event()
+
+    def cycle() -> None:
+        release.wait(5.0)
+        seen["cycle"] = os.sched_getparam(0).sched_priority
+
+    def main_thread() -> None:
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(40))
+        except PermissionError:
+            seen["skip"] = True
+            return
+        worker = threading.Thread(target=cycle)
+        worker.start()
+        seen["returned"] = below_the_cycle("test")
+        seen["slow"] = os.sched_getparam(0).sched_priority
+        release.set()
+        worker.join(5.0)
+
+    t = threading.Thread(target=main_thread)
+    t.start()
+    t.join(10.0)
+    if seen.get("skip"):
+        pytest.skip("SCHED_FIFO not permitted here (no CAP_SYS_NICE)")
+    assert seen == {"returned": 39, "slow": 39, "cycle": 40}
+    assert below_the_cycle("test") is None  # this thread is at normal scheduling
