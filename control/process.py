@@ -554,4 +554,4 @@ def cli_main(args: argparse.Namespace) -> int:
         cfg, bus = load_control_config(args.config)
         return ControlProcess(cfg, bus.with_overrides(args.bus))
 
-    return run_service("control", build)
+    return run_service("control", build, place=getattr(args, "place", None))

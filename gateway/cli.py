@@ -11,7 +11,9 @@ import importlib
 import json
 import logging
 import sys
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 from gateway.errors import EXIT_CONFIG, ConfigError, LeadthroughError
 
@@ -196,7 +198,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.command in OPERATOR_COMMANDS:
             return _operator_main(args)
         if args.command in PRODUCT_PROCESSES:
-            _place(args.command, args.config)
+            args.place = _placement(args.command, args.config)
         return int(importlib.import_module(SUBCOMMANDS[args.command][0]).cli_main(args) or 0)
     except ConfigError as exc:
         print(f"leadthrough {args.command}: configuration refused: {exc}", file=sys.stderr)
@@ -206,13 +208,15 @@ def main(argv: list[str] | None = None) -> int:
         return 2
 
 
-def _place(process: str, cell_path: Path) -> None:
-    """Apply the cell config's ``[realtime]`` to this process before it opens any link
-    (gateway/realtime.py); a bad section is a ConfigError like any other."""
+def _placement(process: str, cell_path: Path) -> Callable[[], Any]:
+    """The cell config's ``[realtime]`` for this process, read now (a bad section is a
+    ConfigError like any other) and applied by :func:`gateway.runner.run_service` once the
+    process is built, before it opens any link (gateway/realtime.py)."""
     from gateway.config import load_toml
     from gateway.realtime import apply_realtime, realtime_config_from
 
-    apply_realtime(realtime_config_from(load_toml(cell_path), str(cell_path)), process)
+    cfg = realtime_config_from(load_toml(cell_path), str(cell_path))
+    return lambda: apply_realtime(cfg, process)
 
 
 def _single(name: str) -> argparse.ArgumentParser:

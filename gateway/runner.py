@@ -75,10 +75,15 @@ def run_service(
     notify: bool = False,
     status: Callable[[Any], str] | None = None,
     log_level: int = logging.INFO,
+    place: Callable[[], Any] | None = None,
 ) -> int:
     """Build, open and run one product process until it is asked to stop; its exit status:
     0 on a clean stop, :data:`EXIT_CONFIG` for a refused configuration, :data:`EXIT_FAILED`
-    for anything else (module docstring). ``status(service)`` is systemd's line once ready."""
+    for anything else (module docstring). ``status(service)`` is systemd's line once ready.
+    ``place()`` applies the process's ``[realtime]`` (gateway/realtime.py) once it is built and
+    before it opens a link: the threads it opens then inherit the cycle's priority, and the
+    building (a model loaded, a law set up: 0.8 s on a CPU group as slow as the slowest cell
+    PC) ran at the cycle's priority before and held the CAN driver off its cycle."""
     setup_logging(process, log_level)
     try:
         service = build()
@@ -88,6 +93,8 @@ def run_service(
     notifier = Notifier() if notify else None
     with StopSignals(service.stop_event):
         try:
+            if place is not None:
+                place()
             service.open()
             if notifier is not None:
                 notifier.ready("" if status is None else status(service))

@@ -720,8 +720,9 @@ def cli_main(args: argparse.Namespace) -> int:
         return Gateway(args.config.resolve(), bus, cfg, spawn=not args.no_spawn)
 
     return run_service(
-        "gateway", build, notify=True, status=lambda gw: f"serving the cell on {gw.bus.endpoint}"
-    )
+        "gateway", build, notify=True, status=lambda gw: f"serving the cell on {gw.bus.endpoint}",
+        place=getattr(args, "place", None),
+    )  # fmt: skip
 
 
 def _die_with_parent() -> None:

@@ -394,7 +394,11 @@ def configure_parser(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
 def cli_main(args: argparse.Namespace) -> int:
     """Run from parsed arguments (:func:`gateway.runner.run_service`): 0 on a clean stop,
     EXIT_CONFIG (78) for a bad config, 1 for other errors."""
-    return run_service(PROCESS_NAME, lambda: CanDriverProcess(args.config, args.bus))
+    return run_service(
+        PROCESS_NAME,
+        lambda: CanDriverProcess(args.config, args.bus),
+        place=getattr(args, "place", None),
+    )
 
 
 def main(argv: list[str] | None = None) -> int:

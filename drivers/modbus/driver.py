@@ -455,6 +455,7 @@ def cli_main(args: argparse.Namespace) -> int:
         PROCESS_NAME,
         lambda: ModbusDriverProcess(args.config, args.bus),
         log_level=getattr(logging, level, logging.INFO),
+        place=getattr(args, "place", None),
     )
 
 

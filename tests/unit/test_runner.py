@@ -136,3 +136,18 @@ def test_each_product_process_refuses_a_bad_config_with_78(name, tmp_path, caplo
         assert module.cli_main(parser.parse_args(["--config", str(bad)])) == EXIT_CONFIG
     assert "bsu" in caplog.text, caplog.text
     assert Path(bad).name in caplog.text
+
+
+def test_the_process_is_placed_once_built_and_before_it_opens_a_link():
+    """[realtime] is applied between build and open: the threads open starts inherit the
+    cycle's priority, and the building (models, laws) does not run at it."""
+    process = Process("none", RuntimeError("unused"))
+    calls = process.calls
+
+    def build():
+        calls.append("build")
+        return process
+
+    process.stop_event.set()
+    assert run_service("control", build, place=lambda: calls.append("place")) == 0
+    assert calls[:3] == ["build", "place", "open"]
