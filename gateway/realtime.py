@@ -139,9 +139,10 @@ def below_the_cycle(what: str) -> int | None:
     SCHED_FIFO, nothing changed; else the new priority), for a process on the cycle whose
     cycle runs on other threads, created before at the cycle's priority, while this one does
     the slow work: at equal SCHED_FIFO priority a thread runs until it blocks, so on a shared
-    core the control process's slow loop (an adapted model built, telemetry encoded) held the
-    CAN driver off its cycle (`taskset -c 0`: the demo faulted on "no fresh joint state from
-    the CAN driver" 2.3 s into teaching, 2026-11-30). One below, the CAN driver and the
+    core the control process's slow loop (an adapted model built, telemetry encoded) can hold
+    the CAN driver off its cycle. (A demo under `taskset -c 0` faulted on "no fresh joint state
+    from the CAN driver" 2.3 s into teaching, 2026-11-30; that fault was not reproduced alone
+    and not traced to this loop.) One below, the CAN driver and the
     process's own cycle threads preempt it, and it still runs before the processes at normal
     priority, so it holds the interpreter's lock no longer than it did."""
     if os.sched_getscheduler(0) != os.SCHED_FIFO:
