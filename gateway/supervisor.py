@@ -47,6 +47,7 @@ from gateway.messages import (
     encode_json,
 )
 from gateway.program import ProgramError, TeachRecorder, program_path
+from gateway.realtime import normal_priority_after_fork
 from gateway.runner import run_service
 from gateway.sd_notify import Notifier
 
@@ -726,7 +727,9 @@ def cli_main(args: argparse.Namespace) -> int:
 
 
 def _die_with_parent() -> None:
-    """In the child, before exec: ask Linux to SIGTERM us when the gateway dies."""
+    """In the child, before exec: normal scheduling (the gateway's own SCHED_FIFO is not for
+    its children, gateway/realtime.py), and ask Linux to SIGTERM us when the gateway dies."""
+    normal_priority_after_fork()
     try:
         libc = ctypes.CDLL("libc.so.6", use_errno=True)
         libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM)

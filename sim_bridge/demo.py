@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -232,10 +233,18 @@ def cli_main(args: argparse.Namespace) -> int:
             program = Path(status["program"]["path"])
             print(f"teaching: the simulated operator guides the tool ({HAND_OFF_AFTER_S:.0f} s) "
                   f"and marks the corners; the gateway writes {program} ...")  # fmt: skip
-            # Wait cheaply (reading the growing truth log would take CPU from the product).
-            deadline = time.monotonic() + HAND_OFF_AFTER_S + 0.5
-            while time.monotonic() < deadline:
+            # Wait cheaply (reading the growing truth log would take CPU from the product);
+            # a cell that leaves teaching (a fault) ends the demo at once, naming why.
+            taught_from = time.monotonic()
+            while time.monotonic() < taught_from + HAND_OFF_AFTER_S + 0.5:
                 stack.check_alive()
+                status = stack.request("status", timeout_s=1.0)
+                if status.get("state") != "teaching":
+                    elapsed = time.monotonic() - taught_from
+                    print(f"leadthrough demo: teaching ended {elapsed:.1f} s in: the cell is "
+                          f"{status.get('state')} ({status.get('reason')}); the demo stops "
+                          f"(logs in {out / 'run'})", file=sys.stderr)  # fmt: skip
+                    return 1
                 time.sleep(0.5)
             taught_rows = stack.truth()["t_s"].size
             stack.request("stop")
@@ -309,7 +318,11 @@ def replay_program(stack: Stack, program: Path) -> dict[str, Any]:
     print(f"taught program: {len(taught.marks)} marks, {taught.t_s.size} trace samples; "
           f"replaying it at {REPLAY_SPEED_MM_S:.0f} mm/s ...")  # fmt: skip
     stack.request("start")
-    stack.wait_status(lambda s: s.get("state") == "teaching", 20.0, "arm at rest, enabling held")
+    status = stack.wait_status(
+        lambda s: s.get("state") in ("teaching", "fault"), 20.0, "arm at rest, enabling held"
+    )
+    if status.get("state") == "fault":
+        raise RuntimeError(f"the cell faulted before the replay: {status.get('reason')}")
     first_row = stack.truth()["t_s"].size
     plan = replay_plan(program, REPLAY_SPEED_MM_S)
     reply = stack.request("replay", plan=plan)

@@ -4,9 +4,10 @@ slow cell PC does (issue 45). `make test-loaded` runs the stack tier this way.
 One busy process is pinned to each CPU named by ``--cores`` (default: CPU 0), at the product's
 own priority, for as long as the command runs. One busy process on one of two cores leaves the
 product (and the virtual cell, which shares the machine in tests) about one and a half cores.
-A busy process on every core leaves half of each: the virtual controller then starves with the
-product (its cycles start up to 59 ms late, its I/O module answers 0.1 s late), and the gateway
-faults for want of joint states, which says nothing about the product. ``--taskset CPUS`` also
+A busy process on every core leaves half of each to the processes at normal priority; the
+virtual controller (SCHED_FIFO 60, sim_bridge/harness.py) and the product's processes at
+``[realtime]`` priority run ahead of them (`leadthrough demo` beside one on each core: 4 of 4
+runs done; beside four on each, 2 of 2, 2026-12-01). ``--taskset CPUS`` also
 pins the command (and every process it starts) to those CPUs, as ``taskset -c`` does.
 
     python tests/cpu_load.py [--cores 0] [--taskset 0] -- COMMAND ...

@@ -41,6 +41,7 @@ def own_affinity():
         ({"cpu_affinity": [0, 0]}, "cpu_affinity"),
         ({"cpu_affinity": [-1]}, "cpu_affinity"),
         ({"sched_fifo_priority": 100}, "sched_fifo_priority"),
+        ({"sched_fifo_priority": 2}, "sched_fifo_priority"),  # the supervisors would be at 0
         ({"mlockall": "yes"}, "mlockall"),
         ({"cpu_set": [0]}, "cpu_set"),
     ],
@@ -65,13 +66,17 @@ def test_affinity_is_applied_and_a_refusal_is_reported_not_raised(own_affinity, 
     assert "cpu_affinity" in caplog.text and os.sched_getaffinity(0) == {first}
 
 
-def test_fifo_priority_is_asked_only_for_the_processes_on_the_cycle(monkeypatch):
+def test_the_cycle_gets_the_priority_and_the_supervisors_run_two_below(monkeypatch):
     asked = []
     monkeypatch.setattr(os, "sched_setscheduler", lambda *a: asked.append(a[2].sched_priority))
     cfg = Realtime(sched_fifo_priority=40)
-    for process in ("gateway", "modbus-driver", "can-driver", "control"):
+    for process in ("gateway", "modbus-driver", "can-driver", "control", "record", "sim"):
         apply_realtime(cfg, process)
-    assert asked == [40, 40]
+    assert asked == [38, 38, 40, 40]
+    asked.clear()
+    for process in ("gateway", "modbus-driver", "can-driver", "control"):
+        apply_realtime(Realtime(), process)
+    assert asked == []
 
 
 def test_a_refused_fifo_priority_and_mlockall_are_reported(monkeypatch):
@@ -146,6 +151,35 @@ def test_a_child_started_by_a_fifo_thread_runs_at_normal_priority_and_the_thread
         os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
     assert child.stdout.split() == [str(os.SCHED_OTHER), "0"], child.stdout + child.stderr
     assert inside == os.SCHED_OTHER and after == (os.SCHED_FIFO, 5)
+
+
+def test_a_process_the_gateway_starts_runs_at_normal_priority():
+    """The gateway runs at SCHED_FIFO below the cycle; the children it starts (control, which
+    imports and builds its model first) must not inherit it: they place themselves."""
+    from gateway.supervisor import _die_with_parent
+
+    probe = "import os; print(os.sched_getscheduler(0), os.sched_getparam(0).sched_priority)"
+    seen: dict[str, object] = {}
+
+    def supervisor_thread() -> None:
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(38))
+        except PermissionError:
+            seen["skip"] = True
+            return
+        child = subprocess.run(
+            [sys.executable, "-c", probe], capture_output=True, text=True,
+            preexec_fn=_die_with_parent,
+        )  # fmt: skip
+        seen["child"] = child.stdout.split()
+        seen["self"] = os.sched_getscheduler(0), os.sched_getparam(0).sched_priority
+
+    t = threading.Thread(target=supervisor_thread)
+    t.start()
+    t.join(30.0)
+    if seen.get("skip"):
+        pytest.skip("SCHED_FIFO not permitted here (no CAP_SYS_NICE)")
+    assert seen == {"child": [str(os.SCHED_OTHER), "0"], "self": (os.SCHED_FIFO, 38)}
 
 
 def test_the_slow_loop_drops_below_the_cycle_and_the_cycle_threads_keep_its_priority():
