@@ -16,17 +16,16 @@ from dataclasses import dataclass, field
 import can
 import numpy as np
 
-from drivers.can.ltc import (
+from drivers.can.adapter import HostRequest
+from drivers.can.ltc_fd import LtcFdProtocol
+from drivers.can.ltc_frames import (
     ControllerStatus,
     FaultCode,
     Heartbeat,
-    HostRequest,
     HostRequestFrame,
     JointCommandFrame,
-    LtcProtocol,
-    LtcProtocolBase,
 )
-from drivers.can.ltc_fd import LtcFdProtocol
+from drivers.can.ltc_protocol import LtcProtocol, LtcProtocolBase
 from gateway.errors import ConfigError, FrameError
 from gateway.messages import ControllerState
 from sim_bridge.config import ControllerSpec

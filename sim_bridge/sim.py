@@ -35,7 +35,7 @@ from typing import Any, TextIO
 import can
 import numpy as np
 
-from drivers.can.ltc import LtcProtocolBase
+from drivers.can.ltc_protocol import LtcProtocolBase
 from drivers.can.seqpacket import wait_readable
 from gateway.errors import ConfigError
 from gateway.messages import ControllerState

@@ -27,15 +27,10 @@ import cantools
 import numpy as np
 
 from drivers.can.codec import compile_message
-from drivers.can.ltc import (
-    DEFAULT_DBC_PATH,
-    ControllerStatus,
-    FaultCode,
-    LtcAdapter,
-    LtcProtocol,
-    frame_crc,
-)
+from drivers.can.ltc import LtcAdapter
 from drivers.can.ltc_fd import LtcFdAdapter, LtcFdProtocol
+from drivers.can.ltc_frames import ControllerStatus, FaultCode, frame_crc
+from drivers.can.ltc_protocol import DEFAULT_DBC_PATH, LtcProtocol
 from gateway.errors import FrameError
 from gateway.messages import ControllerState
 

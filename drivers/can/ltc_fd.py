@@ -28,8 +28,8 @@ import can
 import numpy as np
 
 from drivers.can.adapter import CanAdapter, CycleFeedback, HostRequest
-from drivers.can.ltc import (
-    STATUS_SIGNALS,
+from drivers.can.ltc import command_arrays, cycle_feedback
+from drivers.can.ltc_frames import (
     ControllerStatus,
     FaultCode,
     FrameCrc,
@@ -37,13 +37,10 @@ from drivers.can.ltc import (
     Heartbeat,
     HostRequestFrame,
     JointCommandFrame,
-    LtcProtocolBase,
     NmtState,
-    check_enum_against_dbc,
-    command_arrays,
-    cycle_feedback,
     id_bytes,
 )
+from drivers.can.ltc_protocol import STATUS_SIGNALS, LtcProtocolBase, check_enum_against_dbc
 from gateway.errors import ConfigError, FrameError
 from gateway.messages import ControllerState
 

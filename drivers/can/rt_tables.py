@@ -59,18 +59,17 @@ import numpy as np
 
 from drivers.can.adapter import ADAPTER_GROUP, AdapterStats, CanAdapter, CycleFeedback, HostRequest
 from drivers.can.codec import SignalLayout, _raw_bounds_for_encode
-from drivers.can.ltc import (
+from drivers.can.ltc import LtcAdapter
+from drivers.can.ltc_fd import LtcFdAdapter, LtcFdProtocol, crc16_of_frame
+from drivers.can.ltc_frames import (
     ControllerStatus,
     FaultCode,
     FrameSpec,
-    LtcAdapter,
-    LtcProtocol,
     NmtState,
-    _load_dbc,
     crc8_of_frame,
     frame_crc,
 )
-from drivers.can.ltc_fd import LtcFdAdapter, LtcFdProtocol, crc16_of_frame
+from drivers.can.ltc_protocol import LtcProtocol, _load_dbc
 from drivers.registry import load_adapter
 from gateway.errors import ConfigError, FrameError
 from gateway.messages import ControllerState

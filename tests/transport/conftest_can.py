@@ -24,15 +24,15 @@ from typing import Any
 import can
 import numpy as np
 
-from drivers.can.ltc import (
+from drivers.can.adapter import HostRequest
+from drivers.can.ltc_frames import (
     ControllerStatus,
     FaultCode,
     Heartbeat,
-    HostRequest,
     HostRequestFrame,
     JointCommandFrame,
-    LtcProtocol,
 )
+from drivers.can.ltc_protocol import LtcProtocol
 from gateway.errors import FrameError
 from gateway.messages import (
     ControllerState,

@@ -25,6 +25,7 @@ import numpy as np
 import pytest
 from conftest_can import ControlStub, FakeController, GatewayStub, free_port, wait_for
 
+from drivers.can.adapter import HostRequest
 from drivers.can.config import CanDriverConfig
 from drivers.can.driver import (
     PROCESS_NAME,
@@ -33,14 +34,8 @@ from drivers.can.driver import (
     cli_main,
     configure_parser,
 )
-from drivers.can.ltc import (
-    ControllerStatus,
-    FaultCode,
-    HostRequest,
-    JointFeedback,
-    LtcProtocol,
-    crc8_sae_j1850,
-)
+from drivers.can.ltc_frames import ControllerStatus, FaultCode, JointFeedback, crc8_sae_j1850
+from drivers.can.ltc_protocol import LtcProtocol
 from gateway.bus import BusConfig, open_client, open_router
 from gateway.errors import EXIT_CONFIG, FrameError, LinkTimeoutError
 from gateway.messages import (

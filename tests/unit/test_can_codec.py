@@ -15,8 +15,9 @@ import numpy as np
 import pytest
 
 from drivers.can.codec import MessageCodec, compile_message, compile_messages
-from drivers.can.ltc import DEFAULT_DBC_PATH, LtcProtocol, frame_crc
 from drivers.can.ltc_fd import DEFAULT_FD_DBC_PATH, LtcFdProtocol, frame_crc16
+from drivers.can.ltc_frames import frame_crc
+from drivers.can.ltc_protocol import DEFAULT_DBC_PATH, LtcProtocol
 from gateway.errors import ConfigError, FrameError
 
 DBCS = {"ltc_v1": DEFAULT_DBC_PATH, "ltc_fd_v1": DEFAULT_FD_DBC_PATH}

@@ -17,15 +17,6 @@ import numpy as np
 import pytest
 
 from drivers.can.adapter import ADAPTER_GROUP, CycleFeedback, HostRequest
-from drivers.can.ltc import (
-    ControllerStatus,
-    FaultCode,
-    Heartbeat,
-    HostRequestFrame,
-    JointCommandFrame,
-    LtcProtocol,
-    NmtState,
-)
 from drivers.can.ltc_fd import (
     DEFAULT_FD_DBC_PATH,
     BitRates,
@@ -41,6 +32,15 @@ from drivers.can.ltc_fd import (
     host_window_s,
     housekeeping_wire_time_s,
 )
+from drivers.can.ltc_frames import (
+    ControllerStatus,
+    FaultCode,
+    Heartbeat,
+    HostRequestFrame,
+    JointCommandFrame,
+    NmtState,
+)
+from drivers.can.ltc_protocol import LtcProtocol
 from drivers.registry import load_adapter
 from gateway.errors import ConfigError, FrameError
 from gateway.messages import ControllerState

@@ -1,4 +1,5 @@
-"""LTC-1 codec (drivers/can/ltc.py) and the LTC adapter's cycle assembly: pure functions."""
+"""LTC-1 codec (drivers/can/ltc_protocol.py, ltc_frames.py) and the LTC adapter's cycle assembly
+(drivers/can/ltc.py): pure functions."""
 
 from __future__ import annotations
 
@@ -9,18 +10,18 @@ import numpy as np
 import pytest
 
 from drivers.can.adapter import CycleFeedback, HostRequest
-from drivers.can.ltc import (
+from drivers.can.ltc import LtcAdapter
+from drivers.can.ltc_frames import (
     ControllerStatus,
     FaultCode,
     Heartbeat,
     HostRequestFrame,
     JointCommandFrame,
     JointFeedback,
-    LtcAdapter,
-    LtcProtocol,
     NmtState,
     crc8_sae_j1850,
 )
+from drivers.can.ltc_protocol import LtcProtocol
 from gateway.errors import ConfigError, FrameError
 from gateway.messages import ControllerState
 

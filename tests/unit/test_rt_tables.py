@@ -12,7 +12,7 @@ import math
 
 import pytest
 
-from drivers.can.ltc import LtcProtocol
+from drivers.can.ltc_protocol import LtcProtocol
 from drivers.can.rt_tables import GOLDEN_PATH, _json_float, dumps, ltc_tables, main
 from gateway.errors import ConfigError
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from drivers.can.ltc import HostRequest
+from drivers.can.adapter import HostRequest
 from gateway.errors import ConfigError
 from gateway.messages import ControllerState
 from sim_bridge.config import ControllerSpec

@@ -7,10 +7,10 @@
 //! arrived valid since the previous status; one bad per-cycle frame or a bus error frame loses
 //! the whole cycle (§8).
 //!
-//! [`LtcBase`] is what LTC-1 shares with its CAN FD profile LTC-1F (ltc_fd.rs), as ltc.py's
-//! `LtcProtocolBase`: the tables' header and messages, the receiver's checks of §8 (error
-//! frame, extended id, RTR, CAN FD or not, DLC, CRC, range, enums) with ltc.py's error texts,
-//! HOST_REQUEST and the heartbeats (§7), and the CRC-8 of §4.
+//! [`LtcBase`] is what LTC-1 shares with its CAN FD profile LTC-1F (ltc_fd.rs), as
+//! ltc_protocol.py's `LtcProtocolBase`: the tables' header and messages, the receiver's checks of
+//! §8 (error frame, extended id, RTR, CAN FD or not, DLC, CRC, range, enums) with
+//! ltc_protocol.py's error texts, HOST_REQUEST and the heartbeats (§7), and the CRC-8 of §4.
 //!
 //! Built by [`LtcAdapter::from_tables`] from drivers/can/rt_tables.py's `ltc_tables("ltc_dbc",
 //! n)`; the cycle then allocates nothing: decoded values go to preallocated scratch, errors are
@@ -32,7 +32,7 @@ pub const TABLES_FORMAT: u64 = 1;
 /// CTRL_STATUS.state's values (gateway/messages.py ControllerState).
 pub const CONTROLLER_STATES: [(i64, &str); 4] =
     [(0, "BRAKED"), (1, "HOLD"), (2, "EXTERNAL"), (3, "FAULT")];
-/// CTRL_STATUS.fault_code's values (ltc.py FaultCode, PROTOCOL.md §6.2).
+/// CTRL_STATUS.fault_code's values (ltc_frames.py FaultCode, PROTOCOL.md §6.2).
 pub const FAULT_CODES: [(i64, &str); 7] = [
     (0, "NONE"),
     (1, "ESTOP"),
@@ -44,7 +44,7 @@ pub const FAULT_CODES: [(i64, &str); 7] = [
 ];
 /// HOST_REQUEST.request's values (adapter.py HostRequest).
 pub const HOST_REQUESTS: [(i64, &str); 3] = [(0, "BRAKE"), (1, "SERVO_ON"), (2, "RESET_FAULT")];
-/// The heartbeats' NMT states (ltc.py NmtState, CiA 301).
+/// The heartbeats' NMT states (ltc_frames.py NmtState, CiA 301).
 pub const NMT_STATES: [(i64, &str); 4] = [
     (0, "BOOT"),
     (4, "STOPPED"),
@@ -52,8 +52,8 @@ pub const NMT_STATES: [(i64, &str); 4] = [
     (127, "PRE_OPERATIONAL"),
 ];
 
-/// The enums LTC defines beside the DBC; the DBC's value tables must say the same (ltc.py
-/// `check_enum_against_dbc`), and decoding refuses any other value.
+/// The enums LTC defines beside the DBC; the DBC's value tables must say the same
+/// (ltc_protocol.py `check_enum_against_dbc`), and decoding refuses any other value.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(crate) enum LtcEnum {
     ControllerState,
@@ -192,7 +192,7 @@ impl Crc {
 
 // --- the receiver's errors (§8) ----------------------------------------------------------------
 /// Why a frame of an LTC id was refused; `spec` indexes [`LtcBase::specs`]. Written out by
-/// [`LtcBase::write_error`] with ltc.py's FrameError texts.
+/// [`LtcBase::write_error`] with ltc_protocol.py's FrameError texts.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(crate) enum LtcError {
     /// a bus error frame (any id)
@@ -223,11 +223,11 @@ pub(crate) struct Spec {
     pub(crate) codec: MessageCodec,
     /// the end-to-end CRC of host frames (§4, §10.3), None for the controller's frames
     pub(crate) crc: Option<Crc>,
-    /// (signal index, enum), checked after the ranges, in ltc.py's order
+    /// (signal index, enum), checked after the ranges, in ltc_protocol.py's order
     pub(crate) enums: Vec<(usize, LtcEnum)>,
 }
 
-/// What both profiles share (ltc.py `LtcProtocolBase` plus the adapters' common parts).
+/// What both profiles share (ltc_protocol.py `LtcProtocolBase` plus the adapters' common parts).
 pub(crate) struct LtcBase {
     /// "LTC-1" or "LTC-1F", as error texts name the protocol
     pub(crate) protocol: &'static str,
@@ -452,8 +452,8 @@ impl LtcBase {
         Ok(out)
     }
 
-    /// Every signal of message `spec` is one of `names` (ltc.py binds every signal by name, so
-    /// it too refuses a message with signals it does not know).
+    /// Every signal of message `spec` is one of `names` (ltc_protocol.py binds every signal by
+    /// name, so it too refuses a message with signals it does not know).
     pub(crate) fn require_only(&self, spec: usize, names: &[&str]) -> Result<(), String> {
         let codec = &self.specs[spec].codec;
         match codec
@@ -522,10 +522,11 @@ impl LtcBase {
         (i != u8::MAX).then_some(i as usize)
     }
 
-    /// ltc.py `LtcProtocolBase.decode`: None for an id the protocol does not define, else the
-    /// message's index with its raw values in [`LtcBase::raw`]; Err for an error frame and for
-    /// a frame of an LTC id that is extended, remote, of the wrong format or length, with a
-    /// bad CRC, a value outside its range or an unknown enum value (§8), in ltc.py's order.
+    /// ltc_protocol.py `LtcProtocolBase.decode`: None for an id the protocol does not define,
+    /// else the message's index with its raw values in [`LtcBase::raw`]; Err for an error frame
+    /// and for a frame of an LTC id that is extended, remote, of the wrong format or length, with
+    /// a bad CRC, a value outside its range or an unknown enum value (§8), in ltc_protocol.py's
+    /// order.
     pub(crate) fn decode(&mut self, frame: &Frame) -> Result<Option<usize>, LtcError> {
         if frame.error {
             return Err(LtcError::ErrorFrame { id: frame.id });
@@ -578,7 +579,7 @@ impl LtcBase {
         Ok(Some(spec))
     }
 
-    /// ltc.py's FrameError text of `e`, appended to `out`.
+    /// ltc_protocol.py's FrameError text of `e`, appended to `out`.
     pub(crate) fn write_error(&self, e: &LtcError, out: &mut String) {
         let protocol = self.protocol;
         let _ = match *e {
@@ -670,8 +671,8 @@ impl LtcBase {
         self.cycle_frame_ids.contains(&id)
     }
 
-    /// Message `spec` from [`LtcBase::values`] (ltc.py `_message`): encoded, its CRC filled
-    /// in, as a classic or CAN FD frame.
+    /// Message `spec` from [`LtcBase::values`] (ltc_protocol.py `_message`): encoded, its CRC
+    /// filled in, as a classic or CAN FD frame.
     pub(crate) fn encode(&self, spec: usize) -> Result<Frame, FrameError> {
         let s = &self.specs[spec];
         let c = &s.codec;
@@ -725,7 +726,7 @@ pub(crate) struct StatusSignals {
     period: usize,
 }
 
-/// CTRL_STATUS's signals (ltc.py STATUS_SIGNALS).
+/// CTRL_STATUS's signals (ltc_protocol.py STATUS_SIGNALS).
 pub(crate) const STATUS_SIGNALS: [&str; 7] = [
     "cycle_counter",
     "state",
@@ -737,8 +738,8 @@ pub(crate) const STATUS_SIGNALS: [&str; 7] = [
 ];
 
 impl StatusSignals {
-    /// Bind the status signals of `spec`, and its enums (state, then fault_code: ltc.py's
-    /// order of checks).
+    /// Bind the status signals of `spec`, and its enums (state, then fault_code:
+    /// ltc_protocol.py's order of checks).
     pub(crate) fn bind(base: &mut LtcBase, spec: usize) -> Result<StatusSignals, String> {
         let [counter, state, fault, _missed, estop, servo, period] =
             base.signals(spec, STATUS_SIGNALS)?;
