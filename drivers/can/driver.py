@@ -6,7 +6,7 @@ is answered: forwarded command, coast, hold, ramp; servo requests and heartbeats
 publishes the JointState and answers the control process's JointCommand from zenoh's receiving
 thread, all without Python (read drivers/can/rt/src/core.rs for the rules). This module is what
 is not per cycle: it reads the cell config, derives the adapter's tables from the DBC/EDS
-(drivers/can/rt_tables.py, rt_cia402.py) and the speed monitor's kinematics from the robot
+(drivers/can/rt_tables.py, rt_cia402_tables.py) and the speed monitor's kinematics from the robot
 description (rt_kinematics.py), runs the adapter's start-up (CANopen's SDO configuration) on a
 python-can bus, then moves the core onto the loop; it publishes the loop's health and logs its
 notes at HEALTH_RATE_HZ, and closes it (BRAKE first).

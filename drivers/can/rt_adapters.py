@@ -4,7 +4,7 @@ The DBC and EDS files stay parsed in Python (cantools, canopen); the compiled ad
 (drivers/can/rt/src/{ltc,ltc_fd,cia402}.rs) take what those parsers derive, as JSON. This picks
 the derivation for an adapter instance: the LTC profiles' message and signal tables
 (:mod:`drivers.can.rt_tables`), or the CiA 402 drives' PDO layouts and state after the
-adapter's start-up (:mod:`drivers.can.rt_cia402`).
+adapter's start-up (:mod:`drivers.can.rt_cia402_tables`).
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from typing import Any
 
 from drivers.can.adapter import CanAdapter
 from drivers.can.config import CanDriverConfig
-from drivers.can.rt_cia402 import cia402_tables, tables_from_config
+from drivers.can.rt_cia402_tables import cia402_tables, tables_from_config
 from drivers.can.rt_tables import ltc_tables
 from gateway.errors import ConfigError
 

@@ -1,7 +1,8 @@
-"""The CiA 402 adapter's hand-over to the compiled cycle (drivers/can/rt_cia402.py): the golden
-vectors the Rust test replays (drivers/can/rt/tests/data/cia402_golden.json) are what the
-Python adapter answers today; the tables are JSON and carry the floats exactly; the layouts
-configured without a bus are the ones a real start-up against the virtual cell's drives maps."""
+"""The CiA 402 adapter's hand-over to the compiled cycle (drivers/can/rt_cia402_tables.py,
+rt_cia402.py): the golden vectors the Rust test replays
+(drivers/can/rt/tests/data/cia402_golden.json) are what the Python adapter answers today; the
+tables are JSON and carry the floats exactly; the layouts configured without a bus are the ones
+a real start-up against the virtual cell's drives maps."""
 
 from __future__ import annotations
 
@@ -15,14 +16,11 @@ import pytest
 
 from drivers.can.cia402 import Cia402Adapter
 from drivers.can.config import Cia402Config, load_can_config
-from drivers.can.rt_cia402 import (
-    EDS_PATH,
-    GOLDEN_PATH,
+from drivers.can.rt_cia402 import EDS_PATH, GOLDEN_PATH, dumps, golden_vectors
+from drivers.can.rt_cia402_tables import (
     TABLES_FORMAT,
     cia402_tables,
     configure_statically,
-    dumps,
-    golden_vectors,
     tables_from_config,
 )
 from sim_bridge.cia402_drive_set import Cia402DriveSet

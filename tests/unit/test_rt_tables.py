@@ -13,7 +13,8 @@ import math
 import pytest
 
 from drivers.can.ltc_protocol import LtcProtocol
-from drivers.can.rt_tables import GOLDEN_PATH, _json_float, dumps, ltc_tables, main
+from drivers.can.rt_json import _json_float
+from drivers.can.rt_tables import GOLDEN_PATH, dumps, ltc_tables, main
 from gateway.errors import ConfigError
 
 REGENERATE = "python -m drivers.can.rt_tables --golden drivers/can/rt/tests/data/ltc_golden.json"

@@ -3,8 +3,8 @@
 //!
 //! The start-up stays in Python (`Cia402Adapter.start`: NMT, the drives' configuration by SDO
 //! through python-canopen, the PDO maps and their byte formats from the EDS). Its result comes
-//! here as tables (drivers/can/rt_cia402.py `cia402_tables`, format [`TABLES_FORMAT`]): node
-//! ids, COB-IDs, the PDO layouts, the units, the heartbeat watch and the state the cycle
+//! here as tables (drivers/can/rt_cia402_tables.py `cia402_tables`, format [`TABLES_FORMAT`]):
+//! node ids, COB-IDs, the PDO layouts, the units, the heartbeat watch and the state the cycle
 //! continues from. [`Cia402Adapter::from_tables`] builds the adapter from them; after that the
 //! cycle never allocates (the texts it keeps are written into strings reserved at build).
 //!
@@ -28,7 +28,7 @@ use crate::adapter::{
 };
 use crate::frame::{Frame, CAN_SFF_MASK};
 
-/// The tables' format name (drivers/can/rt_cia402.py TABLES_FORMAT); others are refused.
+/// The tables' format name (drivers/can/rt_cia402_tables.py TABLES_FORMAT); others are refused.
 pub const TABLES_FORMAT: &str = "leadthrough.cia402-tables/1";
 
 /// The standard's device control commands (controlword bits 0-3 and 7).
@@ -566,7 +566,7 @@ fn reserved(s: &str, capacity: usize) -> String {
 }
 
 impl Cia402Adapter {
-    /// The adapter of the tables drivers/can/rt_cia402.py `cia402_tables` made of a started
+    /// The adapter of the tables drivers/can/rt_cia402_tables.py `cia402_tables` made of a started
     /// Python adapter (format in its docstring), continuing from the state they carry. Err
     /// names the first field that is missing or out of range.
     pub fn from_tables(tables: &Value) -> Result<Cia402Adapter, String> {
@@ -1152,7 +1152,7 @@ mod tests {
         INC * gear(k) / (2.0 * std::f64::consts::PI)
     }
 
-    /// Tables as rt_cia402.py makes them: drives 1..n, the EDS's layouts, 10 A / 2 A rated.
+    /// Tables as rt_cia402_tables.py makes them: drives 1..n, the EDS's layouts, 10 A / 2 A rated.
     fn tables(n: usize) -> Value {
         let joints: Vec<Value> = (0..n)
             .map(|k| {

@@ -89,7 +89,7 @@ macro_rules! with_core {
 #[pymethods]
 impl PyHostCore {
     /// `config_json`: `dataclasses.asdict(CanDriverConfig)`; `adapter`: its registry name;
-    /// `tables_json`: the adapter's tables (drivers/can/rt_tables.py, rt_cia402.py);
+    /// `tables_json`: the adapter's tables (drivers/can/rt_tables.py, rt_cia402_tables.py);
     /// `lower`/`upper`: the description's joint limits [rad]; `chain_json`: the kinematic
     /// chain of the speed monitor (drivers/can/rt_kinematics.py), None without a monitor;
     /// `stored_zero`: the commissioning's current zero (offset [A], samples, noise [A]).
