@@ -50,13 +50,17 @@ IDENTIFY_TIMEOUT_S = 600.0
 IDENTIFY_GRACE_S = 120.0
 #: The longest the cell may take to become ready to start (:func:`commission`) [s].
 CELL_READY_S = 60.0
+#: The longest the cell may take to stop after a commissioning [s]: Stack.stop gives the
+#: gateway (which stops its children) and then the simulator 10 s each to exit on SIGTERM before
+#: it kills them; three times that, for a machine that is slow while the stack winds down.
+CELL_STOP_S = 60.0
 #: The longest one :func:`commission` may take from start to end [s]: the cell's start, the
 #: identification's limit and its grace, and the cell's stop. Lock-step commissioning runs the
 #: plant no faster than real time (``lockstep_max_speedup``), so its wall time is at least the
 #: plan's motion (about 280 s for :data:`~control.identification.on_cell.QUICK_PLAN`) on any
 #: machine, and more where the machine cannot keep the pace: a test that commissions is given
 #: this, not the suite's default per-test limit (300 s, pyproject.toml).
-COMMISSION_LIMIT_S = CELL_READY_S + IDENTIFY_TIMEOUT_S + IDENTIFY_GRACE_S + 60.0
+COMMISSION_LIMIT_S = CELL_READY_S + IDENTIFY_TIMEOUT_S + IDENTIFY_GRACE_S + CELL_STOP_S
 
 
 @dataclass(frozen=True)
