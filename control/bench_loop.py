@@ -34,15 +34,8 @@ from control.cell_config import load_control_config
 from control.process import ControlProcess
 from gateway.bus import BusConfig
 from gateway.errors import ConfigError
-from gateway.messages import (
-    ControllerState,
-    IoState,
-    JointState,
-    Lifecycle,
-    LifecycleMsg,
-    make_joint_command,
-    make_joint_state,
-)
+from gateway.message_factories import make_joint_command, make_joint_state
+from gateway.messages import ControllerState, IoState, JointState, Lifecycle, LifecycleMsg
 
 #: the cycle the benchmark simulates [s] (250 Hz)
 CYCLE_PERIOD_S = 0.004

@@ -48,6 +48,7 @@ from gateway.bus import (
     undeclare_all,
 )
 from gateway.errors import ConfigError, MessageError
+from gateway.message_factories import make_joint_command
 from gateway.messages import (
     COMMANDING,
     HEALTH_RATE_HZ,
@@ -61,7 +62,6 @@ from gateway.messages import (
     LifecycleOrder,
     PressureSetpoint,
     encode_json,
-    make_joint_command,
 )
 from gateway.ratelog import RateLimitedLog
 from gateway.realtime import below_the_cycle

@@ -23,13 +23,8 @@ from control.load_check import REST_RAD_S
 from control.robot.description import RobotDescription
 from control.rt_tables import chain_table, to_json
 from gateway.errors import ConfigError, MessageError
-from gateway.messages import (
-    FLAG_PREV_COAST,
-    FLAG_PREV_HOLD,
-    JointCommand,
-    JointState,
-    make_joint_command,
-)
+from gateway.message_factories import make_joint_command
+from gateway.messages import FLAG_PREV_COAST, FLAG_PREV_HOLD, JointCommand, JointState
 
 #: the delay predictor's M(q)⁻¹ is recomputed after a joint moved this much [rad]
 INERTIA_STEP_RAD = 0.02

@@ -51,7 +51,7 @@ class Observations:
     stale_processes: tuple[str, ...] = ()
     max_speed_rad_s: float | None = None  #: fastest joint in the latest joint state
     #: how long the arm has been still: no joint left a band of standstill_rad_s·standstill_s
-    #: and none read faster than 10 standstill speeds (gateway/supervisor.py JointStateWatch)
+    #: and none read faster than 10 standstill speeds (gateway/joint_state_watch.py JointStateWatch)
     still_for_s: float = 0.0
     #: why the model does not match the arm's static load (control/load_check.py); None: it does
     load_problem: str | None = None
@@ -211,7 +211,7 @@ class LifecycleMachine:
 
     def _still(self, obs: Observations) -> bool:
         """The arm has been still for ``standstill_s``, as the joint-state watch judges it
-        from positions (gateway/supervisor.py ``JointStateWatch``): not from the newest
+        from positions (gateway/joint_state_watch.py ``JointStateWatch``): not from the newest
         measured speed, whose noise and a hold's dither would keep teaching waiting."""
         return obs.max_speed_rad_s is not None and obs.still_for_s >= self.limits.standstill_s
 

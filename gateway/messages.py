@@ -119,13 +119,6 @@ def _check_header(
         raise MessageError(f"{what}: layout version {data[4]} unsupported (want {version})")
 
 
-def _vec(values: Any, n: int, name: str) -> np.ndarray:
-    arr = np.asarray(values, dtype=np.float64).reshape(-1)
-    if arr.shape != (n,):
-        raise MessageError(f"{name} has {arr.size} values, expected {n}")
-    return _finite(name, arr)
-
-
 #: JointState.flags bits. The controller's e-stop and servo power, and how the driver answered
 #: the previous cycle (the one ``q_cmd_rad``/``dq_cmd_rad_s`` echo) when it was not with the
 #: control process's command: a hold (or no answer at all, which freezes the controller's
@@ -551,51 +544,3 @@ def decode_json(data: bytes, what: str) -> dict[str, Any]:
     if not isinstance(obj, dict):
         raise MessageError(f"{what}: payload must be a JSON object, got {type(obj).__name__}")
     return obj
-
-
-def make_joint_state(
-    cycle: int,
-    stamp_s: float,
-    controller_state: ControllerState,
-    flags: int,
-    q_rad: Any,
-    dq_rad_s: Any,
-    current_a: Any,
-    q_cmd_rad: Any,
-    dq_cmd_rad_s: Any,
-    cycle_period_s: float = 0.0,
-) -> JointState:
-    """Build a validated JointState from array-likes (raises MessageError on NaN/shape)."""
-    n = len(q_rad)
-    return JointState(
-        cycle,
-        stamp_s,
-        ControllerState(controller_state),
-        flags,
-        _vec(q_rad, n, "q_rad"),
-        _vec(dq_rad_s, n, "dq_rad_s"),
-        _vec(current_a, n, "current_a"),
-        _vec(q_cmd_rad, n, "q_cmd_rad"),
-        _vec(dq_cmd_rad_s, n, "dq_cmd_rad_s"),
-        float(cycle_period_s),
-    )
-
-
-def make_joint_command(
-    cycle: int,
-    state_stamp_s: float,
-    sent_stamp_s: float,
-    q_cmd_rad: Any,
-    dq_cmd_rad_s: Any,
-    state_rx_stamp_s: float = 0.0,
-) -> JointCommand:
-    """Build a validated JointCommand (raises MessageError on NaN or mismatched sizes)."""
-    n = len(q_cmd_rad)
-    return JointCommand(
-        cycle,
-        state_stamp_s,
-        sent_stamp_s,
-        _vec(q_cmd_rad, n, "q_cmd_rad"),
-        _vec(dq_cmd_rad_s, n, "dq_cmd_rad_s"),
-        float(state_rx_stamp_s),
-    )

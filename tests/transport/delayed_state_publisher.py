@@ -16,7 +16,8 @@ import time
 import numpy as np
 
 from gateway.bus import BusConfig, open_client
-from gateway.messages import ControllerState, make_joint_state
+from gateway.message_factories import make_joint_state
+from gateway.messages import ControllerState
 
 Q0 = np.array([0.0, 0.15, 0.25, 0.0, -0.4, 0.0])
 #: Time for the session's declarations to reach the router and its peers [s].

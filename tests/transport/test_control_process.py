@@ -14,14 +14,8 @@ from example_cell import example_cell
 from control.cell_config import load_control_config
 from control.process import ControlProcess
 from gateway.bus import BusConfig, open_client, open_router
-from gateway.messages import (
-    ControllerState,
-    IoState,
-    JointCommand,
-    Lifecycle,
-    LifecycleMsg,
-    make_joint_state,
-)
+from gateway.message_factories import make_joint_state
+from gateway.messages import ControllerState, IoState, JointCommand, Lifecycle, LifecycleMsg
 
 Q0 = np.array([0.0, 0.15, 0.25, 0.0, -0.4, 0.0])
 ROOT = Path(__file__).resolve().parents[2]

@@ -12,7 +12,8 @@ from websockets.sync.client import connect
 
 from gateway.bus import open_client
 from gateway.live_view import LiveView
-from gateway.messages import ControllerState, IoState, make_joint_state
+from gateway.message_factories import make_joint_state
+from gateway.messages import ControllerState, IoState
 
 SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
 

@@ -28,7 +28,8 @@ from control.robot.kinematics import dh_world_T_tool
 from control.robot.urdf import TOOL_LINK, to_urdf
 from gateway.bus import open_client
 from gateway.live_view import ARM_RATE_HZ, LiveView
-from gateway.messages import ControllerState, Lifecycle, LifecycleMsg, make_joint_state
+from gateway.message_factories import make_joint_state
+from gateway.messages import ControllerState, Lifecycle, LifecycleMsg
 from gateway.view_page.arm import cell_description
 
 #: a different angle on every joint, so that a joint order mix-up moves the tool [rad]

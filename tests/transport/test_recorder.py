@@ -11,6 +11,7 @@ import pytest
 from control.identification.datafile import read_measurements
 from gateway.bus import open_client
 from gateway.errors import DataFileError
+from gateway.message_factories import make_joint_state
 from gateway.messages import (
     FLAG_PREV_HOLD,
     FLAG_SERVO_POWER,
@@ -18,7 +19,6 @@ from gateway.messages import (
     IoState,
     JointState,
     encode_json,
-    make_joint_state,
 )
 from gateway.recorder import FLUSH_PERIOD_S, BusRecorder, export_csv, iter_mcap
 

@@ -16,7 +16,8 @@ from mcap_ros2.decoder import DecoderFactory
 
 from gateway.bus import BusConfig, open_client, open_router
 from gateway.errors import LinkTimeoutError
-from gateway.messages import ControllerState, make_joint_command, make_joint_state
+from gateway.message_factories import make_joint_command, make_joint_state
+from gateway.messages import ControllerState
 from gateway.ros2 import Ros2Bridge, Ros2Config
 from sim_bridge.harness import free_port
 

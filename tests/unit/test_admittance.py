@@ -15,7 +15,8 @@ from control.admittance_law import AdmittanceController
 from control.cell_config import load_control_config
 from control.declared_model import DeclaredModel
 from gateway.errors import ConfigError
-from gateway.messages import ControllerState, make_joint_state
+from gateway.message_factories import make_joint_state
+from gateway.messages import ControllerState
 
 N = 6
 DT = 0.004

@@ -25,7 +25,8 @@ from control.load_check import static_load_check
 from control.robot.description import load_description
 from control.robot.urdf import to_urdf
 from control.zero_moment_law import ZeroMomentController
-from gateway.messages import ControllerState, make_joint_state
+from gateway.message_factories import make_joint_state
+from gateway.messages import ControllerState
 
 N = 6
 GAIN = np.array([1.0, 0.93, 1.04, 1.0, 0.95, 1.0])

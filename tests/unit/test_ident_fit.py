@@ -417,7 +417,8 @@ def test_control_process_loads_the_identified_model(cylinder_run, tmp_path):
     from control.declared_model import DeclaredModel, IdentifiedControlModel
     from control.model.dynamics import RigidBodyModel
     from control.zero_moment_law import ZeroMomentController
-    from gateway.messages import ControllerState, make_joint_state
+    from gateway.message_factories import make_joint_state
+    from gateway.messages import ControllerState
 
     model = DeclaredModel.load(cylinder_run["out"] / "model.json")
     assert isinstance(model, IdentifiedControlModel)

@@ -17,21 +17,11 @@ import pytest
 
 from gateway.bus import BusConfig
 from gateway.errors import MessageError
+from gateway.joint_state_watch import JointStateWatch, joint_state_summary
 from gateway.lifecycle import LifecycleMachine, Limits
-from gateway.messages import (
-    ControllerState,
-    JointState,
-    Lifecycle,
-    StateWindow,
-    make_joint_state,
-)
-from gateway.supervisor import (
-    TICK_S,
-    Gateway,
-    GatewayConfig,
-    JointStateWatch,
-    joint_state_summary,
-)
+from gateway.message_factories import make_joint_state
+from gateway.messages import ControllerState, JointState, Lifecycle, StateWindow
+from gateway.supervisor import TICK_S, Gateway, GatewayConfig
 
 STILL = 5e-4  #: standstill speed [rad/s]
 PERIOD_S = 0.004

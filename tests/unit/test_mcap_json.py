@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from gateway import mcap_json
+from gateway.message_factories import make_joint_state
 from gateway.messages import (
     ControllerState,
     IoState,
@@ -18,7 +19,6 @@ from gateway.messages import (
     PressureSetpoint,
     StateWindow,
     encode_json,
-    make_joint_state,
 )
 
 RNG = np.random.default_rng(4)

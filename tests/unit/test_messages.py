@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from gateway.errors import MessageError
+from gateway.message_factories import make_joint_command, make_joint_state
 from gateway.messages import (
     ControllerState,
     IoState,
@@ -13,8 +14,6 @@ from gateway.messages import (
     Lifecycle,
     LifecycleMsg,
     PressureSetpoint,
-    make_joint_command,
-    make_joint_state,
 )
 
 

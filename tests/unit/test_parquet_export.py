@@ -23,7 +23,8 @@ from control.identification.datafile import (
 from gateway.cli import main
 from gateway.errors import EXIT_CONFIG, ConfigError, DataFileError
 from gateway.export_cli import output_format
-from gateway.messages import FLAG_SERVO_POWER, ControllerState, IoState, Keys, make_joint_state
+from gateway.message_factories import make_joint_state
+from gateway.messages import FLAG_SERVO_POWER, ControllerState, IoState, Keys
 from gateway.recorder import _McapFile
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -156,7 +156,7 @@ def test_a_child_started_by_a_fifo_thread_runs_at_normal_priority_and_the_thread
 def test_a_process_the_gateway_starts_runs_at_normal_priority():
     """The gateway runs at SCHED_FIFO below the cycle; the children it starts (control, which
     imports and builds its model first) must not inherit it: they place themselves."""
-    from gateway.supervisor import _die_with_parent
+    from gateway.children import _die_with_parent
 
     probe = "import os; print(os.sched_getscheduler(0), os.sched_getparam(0).sched_priority)"
     seen: dict[str, object] = {}

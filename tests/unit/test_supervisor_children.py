@@ -11,10 +11,11 @@ from pathlib import Path
 import pytest
 
 from gateway.bus import BusConfig
+from gateway.children import Child
 from gateway.errors import EXIT_CONFIG
 from gateway.gateway_config import GatewayConfig
 from gateway.lifecycle import Lifecycle
-from gateway.supervisor import Child, Gateway
+from gateway.supervisor import Gateway
 
 
 def _gateway_with_child(exit_code: int) -> tuple[Gateway, Child]:

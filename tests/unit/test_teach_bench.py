@@ -1,4 +1,5 @@
-"""The teach benchmark's path and figures (sim_bridge/teach_bench.py), on synthetic traces."""
+"""The teach benchmark's path and figures (sim_bridge/teach_bench.py,
+sim_bridge/teach_bench_metrics.py), on synthetic traces."""
 
 from __future__ import annotations
 
@@ -12,14 +13,16 @@ from sim_bridge.plant import Plant
 from sim_bridge.teach_bench import (
     DWELL_S,
     SPEED_M_S,
-    _distance_to_polyline,
-    _target,
-    adaptation_report,
     inertia_config,
-    metrics,
     raster_path,
     run_inertia,
     run_offservo,
+)
+from sim_bridge.teach_bench_metrics import (
+    _distance_to_polyline,
+    _target,
+    adaptation_report,
+    metrics,
     settling_time_s,
 )
 

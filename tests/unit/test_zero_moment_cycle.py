@@ -22,7 +22,8 @@ from control.declared_model import DeclaredModel
 from control.model.cylinders import cylinder_torque_nm
 from control.zero_moment_law import ZeroMomentController
 from gateway.errors import ConfigError, MessageError
-from gateway.messages import ControllerState, JointCommand, make_joint_state
+from gateway.message_factories import make_joint_state
+from gateway.messages import ControllerState, JointCommand
 
 #: the stiction dither's fade in and out [s] (control/rt/src/law/zero_moment.rs STICTION_FADE_S)
 FADE_S = 0.25
