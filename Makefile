@@ -36,6 +36,7 @@ demo: $(STAMP) $(RT_SO)
 test: $(STAMP) $(RT_SO)
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
+	$(BIN)/lint-imports
 	$(CARGO) fmt --all --check
 	$(CARGO) test --locked --quiet -p leadthrough-bus-rt -p leadthrough-can-rt -p leadthrough-control-rt
 	$(BIN)/pytest -q

@@ -37,9 +37,9 @@ from control.identification.inner_loop import (
 from control.identification.stages import AnalyzeOptions, stage_bar
 from control.robot.description import load_description
 from control.robot.urdf import to_urdf
-from drivers.can.current_zero import write_stored_zero
 from gateway.bus import BusConfig, bus_config_from
 from gateway.config import load_toml
+from gateway.current_zero_file import write_stored_zero
 from gateway.errors import LeadthroughError
 from gateway.messages import FLAG_PREV_COAST, FLAG_PREV_HOLD, decode_json
 from gateway.operator_request import operator_request
@@ -268,7 +268,7 @@ CAN_DRIVER = "can_driver"
 def write_current_zero(mcap: Path, key: str, out: Path) -> Path | None:
     """The current sensors' zero the CAN driver ran with during the recording (its newest
     health on ``key``), written to ``out/current_zero.json`` for ``[can] current_zero_file``
-    (:mod:`drivers.can.current_zero`): the model is identified from currents corrected by that
+    (:mod:`gateway.current_zero_file`): the model is identified from currents corrected by that
     zero, so the driver keeps it. None when the driver measured no zero (it is off)."""
     last: dict[str, Any] | None = None
     for _topic, _t, payload in iter_mcap(mcap, [key]):

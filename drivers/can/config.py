@@ -179,7 +179,7 @@ class CanDriverConfig:
     current_zero_settle_cycles: int = 5
     #: The zero `leadthrough identify` ran with (its ``current_zero.json``; relative to the
     #: cell config): used from the start instead of the one measured now, so the currents
-    #: agree with the identified model (current_zero.py). "": none, measure it.
+    #: agree with the identified model (gateway/current_zero_file.py). "": none, measure it.
     current_zero_file: str = ""
     #: Hand guiding's speed limit for the tool point and the flange [m/s], monitored from the
     #: measured positions while teaching or replaying (drivers/can/rt/src/speed_monitor.rs):

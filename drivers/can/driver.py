@@ -28,13 +28,13 @@ import can
 from drivers.can import _rt
 from drivers.can.adapter import ADAPTER_GROUP, CanAdapter
 from drivers.can.config import CanDriverConfig, load_can_config
-from drivers.can.current_zero import StoredZeroError, read_stored_zero
 from drivers.can.rt_adapters import adapter_tables, static_tables
 from drivers.can.rt_kinematics import chain_table
 from drivers.registry import load_adapter
 from gateway import bus_security as security
 from gateway.bus import BusConfig, open_peer, peer_config_entries
 from gateway.config import require
+from gateway.current_zero_file import StoredZeroError, read_stored_zero
 from gateway.errors import ConfigError, LinkTimeoutError
 from gateway.messages import HEALTH_RATE_HZ, encode_json
 from gateway.runner import run_service

@@ -1,5 +1,5 @@
-"""The current sensors' zero of the commissioning (drivers/can/current_zero.py): its file, and
-the driver refusing a bad one. The zero the driver measures (the mean of the newest cycles
+"""The current sensors' zero of the commissioning (gateway/current_zero_file.py): its file,
+and the driver refusing a bad one. The zero the driver measures (the mean of the newest cycles
 reported with the servo power off) is drivers/can/rt/src/current_zero.rs, tested there."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from drivers.can.current_zero import StoredZeroError, read_stored_zero, write_stored_zero
+from gateway.current_zero_file import StoredZeroError, read_stored_zero, write_stored_zero
 
 
 def test_stored_zero_round_trip(tmp_path):

@@ -1,14 +1,19 @@
-//! The motor-current sensors' zero, measured while the drives are unpowered
-//! (drivers/can/current_zero.py, the `CurrentZero` class; reading and writing
-//! `current_zero.json` stays in Python, which hands the stored zero to the constructor).
+//! The motor-current sensors' zero, measured while the drives are unpowered (reading and
+//! writing `current_zero.json` stays in Python, gateway/current_zero_file.py, which hands the
+//! stored zero to the constructor).
 //!
-//! A drive's current sensor reads a small constant offset in every current it reports. With
-//! the servo power off no current flows, so what the drive reports then is its offset plus
-//! noise. [`CurrentZero`] averages the newest `window` such cycles, after skipping `settle`
-//! cycles once the power went off (a drive's current filter still holds the last powered
-//! ticks), and freezes while the power is on. The driver subtracts it from every current it
-//! publishes and first requests the servo power once the window is full
-//! ([`CurrentZero::ready`]).
+//! A drive's current sensor reads a small constant offset (typically within 0.5 % of its
+//! range) in every current it reports, the servo on or off. With the servo power off no
+//! current flows (brakes engaged, or released for the servo-off baseline), so what the drive
+//! reports then is its offset plus noise. [`CurrentZero`] averages the newest `window` such
+//! cycles, after skipping `settle` cycles once the power went off (a drive's current filter
+//! still holds the last powered ticks), and freezes while the power is on. The driver
+//! subtracts it from every current it publishes, so identification, the control law and
+//! recordings see the motor's current, and reports it in its health. It first requests the
+//! servo power once the window is full ([`CurrentZero::ready`]): a zero from a handful of
+//! cycles would be off by the current noise over their root, a constant torque error that the
+//! zero-moment loop turns into a creeping wrist (at 0.02 A noise, 20 cycles leave 0.0045 A,
+//! 0.05 N·m on J5 of the GR630ST; 250 cycles 0.0013 A).
 //!
 //! The zero of the commissioning (`stored`), when given, is used from the start instead: the
 //! dynamic model was identified with it. The running mean then only watches it; a drift

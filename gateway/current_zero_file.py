@@ -1,30 +1,17 @@
-"""The motor-current sensors' zero, measured while the drives are unpowered.
+"""``current_zero.json``: the current sensors' zero of the commissioning, written by
+`leadthrough identify` (control/identification/on_cell.py) and read by the CAN driver
+(drivers/can/driver.py).
 
-A drive's current sensor reads a small constant offset (typically within 0.5 % of its range)
-in every current it reports, the servo on or off. With the servo power off no current flows
-(brakes engaged, or released for the servo-off baseline), so what the drive reports then is
-its offset plus noise. The driver (drivers/can/rt/src/current_zero.rs) averages the newest
-``window`` such cycles, after skipping ``settle`` cycles once the power went off (a drive's
-current filter still holds the last powered ticks), and freezes while the power is on. The
-driver subtracts it from every current it publishes, so identification, the control law and
-recordings see the motor's current, and reports it in its health. The servo power is first
-requested once the window is full (``ready`` in current_zero.rs, the driver's health says when
-it waits): a zero from a handful of cycles would be off by the current noise over their root,
-a constant torque error that the zero-moment loop turns into a creeping wrist (at 0.02 A
-noise, 20 cycles leave 0.0045 A, 0.05 N·m on J5 of the GR630ST; 250 cycles 0.0013 A).
-
-**The zero of the commissioning.** The dynamic model is identified from currents corrected by
-the zero measured when the cell was commissioned. A zero measured again at every start differs
-from it by the noise of both means (about 0.0018 A for two 250-cycle means at 0.02 A: 0.12 N·m
-on J2), a constant torque error that nothing in the zero-moment loop holds: the tool creeps
-(1.1 mm in 5 s with a spray gun on the virtual cell). So `leadthrough identify` writes the zero
-it ran with to ``current_zero.json`` (:func:`write_stored_zero`), ``[can] current_zero_file``
-names it, and the driver then uses *that* zero, ready at once: model and currents agree. It
-still measures a fresh zero whenever the power is off and reports it (``measured_a``,
-``drift_a`` in current_zero.rs); a drift beyond what the noise of the two means explains
-(current_zero.rs ``DRIFT_SIGMAS``, ``drift_significant``) means the sensors changed since
-the commissioning, and the driver says so: commission again. This module keeps the
-commissioning's file (:func:`write_stored_zero`, :func:`read_stored_zero`).
+The dynamic model is identified from currents corrected by the zero the CAN driver measured
+(with the servo power off, drivers/can/rt/src/current_zero.rs) when the cell was commissioned.
+A zero measured again at every start differs from it by the noise of both means (about
+0.0018 A for two 250-cycle means at 0.02 A: 0.12 N·m on J2), a constant torque error that
+nothing in the zero-moment loop holds: the tool creeps (1.1 mm in 5 s with a spray gun on the
+virtual cell). So `leadthrough identify` writes the zero it ran with to this file
+(:func:`write_stored_zero`), ``[can] current_zero_file`` names it, and the driver then uses
+*that* zero, ready at once (:func:`read_stored_zero`): model and currents agree. It still
+measures a fresh zero whenever the power is off and reports it; a drift beyond what the noise
+of the two means explains means the sensors changed since the commissioning: commission again.
 """
 
 from __future__ import annotations
