@@ -26,9 +26,9 @@ from control import _rt
 from control.model.cylinders import cylinder_torque_nm
 from control.model.dynamics import RigidBodyModel
 from control.model.friction import Eq15Friction, FrictionParams
-from control.robot.description import RobotDescription, load_description
 from control.rt_tables import point_model_table, to_json
 from gateway.config import ConfigError, from_mapping, load_toml, require, resolve_path
+from gateway.robot.description import RobotDescription, load_description
 
 if TYPE_CHECKING:
     from control.identification.model import IdentifiedModel

@@ -63,8 +63,8 @@ import numpy as np
 from control.identification.model import IdentifiedModel
 from control.identification.terms import EffectTerm
 from control.model.cylinders import cylinder_torque_nm
-from control.robot.description import RobotDescription
 from gateway.config import ConfigError
+from gateway.robot.description import RobotDescription
 
 #: the point mass's parameters among the last link's 10 (m, m·c first: pinocchio's order)
 POINT_MASS_PARAMETERS = 4

@@ -26,8 +26,8 @@ from typing import Any
 
 import numpy as np
 
-from control.robot.description import RobotDescription
 from gateway.realtime import normal_priority_children
+from gateway.robot.description import RobotDescription
 
 log = logging.getLogger(__name__)
 

@@ -11,10 +11,10 @@ import logging
 import numpy as np
 
 from control.plan_builder import Parts, PlanBuilder, PlanRefused, build_parts
-from control.robot.description import RobotDescription
 from gateway.messages import FLAG_PREV_HOLD, JointState
 from gateway.program import MAX_JOINT_SPEED_RAD_S as MAX_REPLAY_JOINT_SPEED_RAD_S
 from gateway.program import MAX_SPEED_MM_S
+from gateway.robot.description import RobotDescription
 
 log = logging.getLogger("leadthrough.control")
 

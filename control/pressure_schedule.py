@@ -39,7 +39,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from control.model.cylinders import torque_per_pa
-from control.robot.description import BAR_TO_PA, CylinderSpec
+from gateway.robot.description import BAR_TO_PA, CylinderSpec
 
 
 @dataclass(frozen=True)

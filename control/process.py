@@ -37,7 +37,6 @@ from control.model_adaptation import (
 from control.plan_builder import PlanBuilder
 from control.plan_player import PlanPlayer
 from control.pressure_schedule import PressureSchedule, ScheduleSettings
-from control.robot.description import load_description
 from control.zero_moment_law import ZeroMomentController
 from gateway import bus_security as security
 from gateway.bus import (
@@ -65,6 +64,7 @@ from gateway.messages import (
 )
 from gateway.ratelog import RateLimitedLog
 from gateway.realtime import below_the_cycle
+from gateway.robot.description import load_description
 from gateway.runner import run_service
 
 log = logging.getLogger("leadthrough.control")

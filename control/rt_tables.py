@@ -34,7 +34,7 @@ if TYPE_CHECKING:
 
     from control.identification.model import IdentifiedModel
     from control.model.dynamics import RigidBodyModel
-    from control.robot.description import RobotDescription
+    from gateway.robot.description import RobotDescription
 
 CHAIN_FORMAT = "leadthrough-rigid-chain"
 CHAIN_VERSION = 1

@@ -35,7 +35,6 @@ from typing import TYPE_CHECKING, NamedTuple
 import numpy as np
 from scipy.interpolate import PchipInterpolator
 
-from control.robot.description import RobotDescription
 from control.taught_path_checks import (
     _check_within_limits,
     _finite_array,
@@ -54,6 +53,7 @@ from control.taught_path_profile import (
     _stroke,
 )
 from control.taught_path_tremor import TREMOR_CUTOFF_HZ, remove_tremor
+from gateway.robot.description import RobotDescription
 
 if TYPE_CHECKING:
     from collections.abc import Sequence

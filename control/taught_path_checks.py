@@ -8,7 +8,7 @@ import math
 
 import numpy as np
 
-from control.robot.description import RobotDescription
+from gateway.robot.description import RobotDescription
 
 
 def _finite_array(value: object, name: str) -> np.ndarray:

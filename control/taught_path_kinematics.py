@@ -11,16 +11,16 @@ import numpy as np
 from scipy.interpolate import CubicHermiteSpline
 from scipy.spatial import cKDTree
 
-from control.robot.description import RobotDescription
-from control.robot.kinematics import dh_tool_and_flange
 from control.taught_path_checks import _joint_array
+from gateway.robot.description import RobotDescription
+from gateway.robot.kinematics import dh_tool_and_flange
 
 _NEAREST_SEGMENTS = 8  #: polyline segments tried first per point in path_error_m
 
 
 def tool_path(desc: RobotDescription, q_rad: np.ndarray) -> np.ndarray:
     """Tool point in the world (T, 3) [m] at each joint position (T, n) [rad], by
-    :func:`control.robot.kinematics.dh_tool_and_flange`."""
+    :func:`gateway.robot.kinematics.dh_tool_and_flange`."""
     q = _joint_array(q_rad, desc.n_dof, "q_rad")
     return dh_tool_and_flange(desc, q.reshape(-1, desc.n_dof))[0]
 

@@ -12,7 +12,7 @@ from typing import NamedTuple
 import numpy as np
 from scipy.interpolate import PchipInterpolator
 
-from control.robot.description import RobotDescription
+from gateway.robot.description import RobotDescription
 
 _PROFILE_STEP_M = 0.5e-3  #: arc-length grid of a stroke's speed profile [m]
 _MIN_PROFILE_STEPS = 50  #: a short stroke's grid has this many steps all the same

@@ -20,11 +20,11 @@ from control._rt import HoldAverage, OmegaAdaptation, OuterLoop, PaperAdaptation
 from control.config import ControlConfig
 from control.declared_model import DeclaredModel
 from control.load_check import REST_RAD_S
-from control.robot.description import RobotDescription
 from control.rt_tables import chain_table, to_json
 from gateway.errors import ConfigError, MessageError
 from gateway.message_factories import make_joint_command
 from gateway.messages import FLAG_PREV_COAST, FLAG_PREV_HOLD, JointCommand, JointState
+from gateway.robot.description import RobotDescription
 
 #: the delay predictor's M(q)⁻¹ is recomputed after a joint moved this much [rad]
 INERTIA_STEP_RAD = 0.02

@@ -76,9 +76,9 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
 
 
 def cli_main(args: argparse.Namespace) -> int:
-    from control.robot.description import load_description
     from gateway.messages import FLAG_PREV_COAST, FLAG_PREV_HOLD, Keys
     from gateway.recorder import export_csv, read_states
+    from gateway.robot.description import load_description
 
     if args.split is not None and not 0.0 < args.split < 1.0:
         raise ConfigError(f"--split {args.split}: must be between 0 and 1")
@@ -119,7 +119,7 @@ def cli_main(args: argparse.Namespace) -> int:
     for path, rows in written:
         print(f"{path}: {rows} rows")
     if args.urdf_out is not None:
-        from control.robot.urdf import to_urdf
+        from gateway.robot.urdf import to_urdf
 
         args.urdf_out.write_text(to_urdf(desc))
         print(f"{args.urdf_out}: the robot's URDF")

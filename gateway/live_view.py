@@ -38,7 +38,7 @@ from gateway.config import load_toml
 from gateway.signals import StopSignals
 
 if TYPE_CHECKING:
-    from control.robot.description import RobotDescription
+    from gateway.robot.description import RobotDescription
 
 log = logging.getLogger("leadthrough.view")
 

@@ -39,9 +39,9 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
 
 
 def _show(path: Path) -> int:
-    from control.robot.description import load_description
     from control.taught_path_kinematics import tool_path
     from gateway.program import read_program
+    from gateway.robot.description import load_description
 
     prog = read_program(path)
     desc = load_description()
@@ -69,8 +69,8 @@ def _export(args: argparse.Namespace) -> int:
     if not args.processed:
         print(f"wrote {write_csv(prog, args.csv)} ({prog.t_s.size} samples)")
         return 0
-    from control.robot.description import load_description
     from control.taught_path import replay_trajectory
+    from gateway.robot.description import load_description
 
     if not 0 < args.speed_mm_s <= MAX_SPEED_MM_S:
         raise LeadthroughError(f"--speed-mm-s {args.speed_mm_s}: must be in (0, {MAX_SPEED_MM_S}]")

@@ -309,10 +309,10 @@ def _adaptation_rows(adapted: dict[str, Any]) -> list[tuple[str, str]]:
 def replay_program(stack: Stack, program: Path) -> dict[str, Any]:
     """Start a new session and replay ``program`` as `leadthrough replay` does; its figures
     (``first_row``: the truth log's first row of the replay session)."""
-    from control.robot.description import load_description
     from control.taught_path_kinematics import path_error_m
     from gateway.program import read_program
     from gateway.replay import replay_plan
+    from gateway.robot.description import load_description
 
     taught = read_program(program)
     print(f"taught program: {len(taught.marks)} marks, {taught.t_s.size} trace samples; "

@@ -17,8 +17,8 @@ from control.identification.synthetic import (
     default_friction,
     synthesize,
 )
-from control.robot.description import RobotDescription
-from control.robot.urdf import to_urdf
+from gateway.robot.description import RobotDescription
+from gateway.robot.urdf import to_urdf
 
 RATE_HZ = 1000.0
 

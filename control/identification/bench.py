@@ -33,9 +33,9 @@ from control.identification.synthetic import (
     default_friction,
     synthesize,
 )
-from control.robot.description import load_description
-from control.robot.urdf import to_urdf
 from gateway.progress import ProgressBar, add_progress_argument, progress_enabled
+from gateway.robot.description import load_description
+from gateway.robot.urdf import to_urdf
 
 #: Torque scale per GR630ST joint for the synthetic friction [N·m].
 _TORQUE_SCALE_NM = (300.0, 1500.0, 600.0, 30.0, 10.0, 5.0)

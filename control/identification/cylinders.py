@@ -37,7 +37,7 @@ from typing import Any
 
 import numpy as np
 
-from control.robot.description import RobotDescription
+from gateway.robot.description import RobotDescription
 
 #: The fit's group of cylinder columns (:class:`.lsq.BlockLS`), those of
 #: :func:`.fit.cylinder_columns`.

@@ -11,7 +11,7 @@ Conventions (row i describes joint i, 1-based; θ_i = q_i + θ_offset_i):
   turns about its z axis.
 - ``"standard"``: the row holds ``(a_i, α_i, d_i)`` and
   ``F_{i-1}_T_F_i = Rz(θ_i) Tz(d_i) Tx(a_i) Rx(α_i)``; joint i turns about ``z_{i-1}``, so link
-  i's body is ``F_{i-1} Rz(θ_i)`` (as in :mod:`control.robot.kinematics`), and a fixed link
+  i's body is ``F_{i-1} Rz(θ_i)`` (as in :mod:`gateway.robot.kinematics`), and a fixed link
   ``<name>_dh_end`` marks the last DH frame ``F_n``.
 
 A row with ``fixed=True`` adds a fixed frame (e.g. Franka's flange, ``d = 0.107``) computed
@@ -27,8 +27,8 @@ from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
-from control.robot.kinematics import fmt, fmt_vec, homogeneous, matrix_to_rpy, rot_x, rot_z
 from gateway.errors import ConfigError
+from gateway.robot.kinematics import fmt, fmt_vec, homogeneous, matrix_to_rpy, rot_x, rot_z
 
 PLACEHOLDER_MASS_KG = 1.0
 PLACEHOLDER_INERTIA_KGM2 = 0.01

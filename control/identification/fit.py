@@ -56,8 +56,8 @@ from control.identification.terms import (
     RigidTerm,
 )
 from control.model.cylinders import torque_per_pa
-from control.robot.description import BAR_TO_PA, CylinderSpec, RobotDescription
 from gateway.errors import ConfigError, DataFileError
+from gateway.robot.description import BAR_TO_PA, CylinderSpec, RobotDescription
 
 #: Candidate transition velocities q_e [rad/s] of eqs. (16)-(17) for the grid search.
 Q_E_GRID_RAD_S = tuple(float(v) for v in np.geomspace(0.002, 0.2, 13))

@@ -20,7 +20,7 @@ import numpy as np
 from control.identification.datafile import Measurements
 from control.identification.model import IdentifiedModel
 from control.identification.predict import predict_rows
-from control.robot.description import RobotDescription
+from gateway.robot.description import RobotDescription
 
 
 @dataclass(frozen=True)

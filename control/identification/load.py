@@ -33,8 +33,8 @@ from control.identification.preprocess import (
 from control.identification.rigid import RobotRegressor
 from control.identification.stages import AnalyzeOptions, _Clock, _Run
 from control.identification.terms import Envelope
-from control.robot.description import RobotDescription, load_description
 from gateway.errors import ConfigError, DataFileError
+from gateway.robot.description import RobotDescription, load_description
 
 
 def _read(

@@ -30,8 +30,8 @@ from control.identification.terms import (
     shift_signal,
 )
 from control.model.cylinders import with_measured_cylinders
-from control.robot.description import RobotDescription
 from gateway.errors import DataFileError
+from gateway.robot.description import RobotDescription
 
 MODEL_FORMAT = "leadthrough-model"
 MODEL_VERSION = 6

@@ -35,8 +35,6 @@ from control.identification.inner_loop import (
     fit_inner_loop_runs,
 )
 from control.identification.stages import AnalyzeOptions, stage_bar
-from control.robot.description import load_description
-from control.robot.urdf import to_urdf
 from gateway.bus import BusConfig, bus_config_from
 from gateway.config import load_toml
 from gateway.current_zero_file import write_stored_zero
@@ -45,6 +43,8 @@ from gateway.messages import FLAG_PREV_COAST, FLAG_PREV_HOLD, decode_json
 from gateway.operator_request import operator_request
 from gateway.progress import ProgressBar, add_progress_argument, progress_bar, progress_enabled
 from gateway.recorder import BusRecorder, RecordedStates, export_csv, iter_mcap, read_states
+from gateway.robot.description import load_description
+from gateway.robot.urdf import to_urdf
 
 #: The inner-loop experiment: per joint, velocity steps to ±0.05 rad/s for 0.3 s (15 mrad).
 INNER_LOOP_STEPS: dict[str, Any] = {"joints": [1, 2, 3, 4, 5, 6], "speed_rad_s": 0.05,

@@ -44,8 +44,8 @@ from control.identification.preprocess import (
     velocity_noise_std,
 )
 from control.model.cylinders import torque_per_pa
-from control.robot.description import BAR_TO_PA, RobotDescription
 from gateway.errors import ConfigError, DataFileError
+from gateway.robot.description import BAR_TO_PA, RobotDescription
 
 #: A stretch shorter than this is declined: the zero-phase filter needs 3 × (2 × order + 1)
 #: samples of padding to run, and fewer rows than that give no usable derivative.

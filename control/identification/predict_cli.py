@@ -65,7 +65,7 @@ def _gains(text: str | None) -> tuple[float, ...] | None:
 
 def cli_main(args: argparse.Namespace) -> int:
     """Predict and write; prints the rows answered. Returns 0."""
-    from control.robot.description import load_description
+    from gateway.robot.description import load_description
 
     model = IdentifiedModel.load(args.model)
     m = read_measurements(args.data, _gains(args.drive_gains))

@@ -27,9 +27,9 @@ from control.identification.preprocess import (
 )
 from control.identification.rigid import DEFAULT_GRAVITY_M_S2, RobotRegressor
 from control.identification.terms import Context, Envelope
-from control.robot.description import RobotDescription
 from gateway.errors import ConfigError
 from gateway.progress import ProgressBar, progress_bar
+from gateway.robot.description import RobotDescription
 
 Progress = Callable[[str], None]
 #: ``--friction`` value that picks the family by held-out error on the training files.

@@ -19,7 +19,7 @@ from control.identification.datafile import Measurements
 from control.identification.rigid import RobotRegressor
 from control.model.cylinders import cylinder_torque_nm
 from control.model.friction import FrictionParams, friction_eq15
-from control.robot.description import RobotDescription
+from gateway.robot.description import RobotDescription
 
 #: Torque noise per joint for the GR630ST [N·m], white at the recording rate.
 GR630ST_NOISE_NM = (4.0, 6.0, 4.0, 0.4, 0.3, 0.2)

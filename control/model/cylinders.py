@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from control.robot.description import BAR_TO_PA, CylinderSpec, RobotDescription
+from gateway.robot.description import BAR_TO_PA, CylinderSpec, RobotDescription
 
 
 def _specs(desc_or_specs: RobotDescription | Sequence[CylinderSpec]) -> tuple[CylinderSpec, ...]:

@@ -1,6 +1,6 @@
 """Rigid-body dynamics of eq. (1) with pinocchio: M(q), C(q, dq) dq, g(q), the regressor of eq. (2).
 
-The model is built from the URDF of :func:`control.robot.urdf.to_urdf`, so ``q`` is the Table I
+The model is built from the URDF of :func:`gateway.robot.urdf.to_urdf`, so ``q`` is the Table I
 joint angle (offsets are inside the model; ``q = 0`` is the Table I zero pose) in description
 order. Results are rigid-body only unless a method says otherwise: the reflected rotor inertia
 (armature, ``J_rotor R²``) is kept apart and added on request, because the regressor of eq. (2)
@@ -12,8 +12,8 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
-from control.robot.description import RobotDescription
-from control.robot.urdf import TOOL_LINK, to_urdf
+from gateway.robot.description import RobotDescription
+from gateway.robot.urdf import TOOL_LINK, to_urdf
 
 #: Order of the 10 dynamic parameters per link in :meth:`RigidBodyModel.regressor` (pinocchio's
 #: ``Inertia.toDynamicParameters``): first moments are m·c, inertias are about the body origin.
@@ -96,7 +96,7 @@ class RigidBodyModel:
 
         Columns are grouped per link in :data:`LINK_PARAMETER_NAMES` order
         ``[m, mcx, mcy, mcz, Ixx, Ixy, Iyy, Ixz, Iyz, Izz]`` (kg, kg·m, kg·m²), expressed in the
-        engine body frame of each link (``B_i`` of :mod:`control.robot.kinematics`), inertias
+        engine body frame of each link (``B_i`` of :mod:`gateway.robot.kinematics`), inertias
         about the body origin. Armature is not included.
         """
         return pin.computeJointTorqueRegressor(

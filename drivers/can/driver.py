@@ -74,7 +74,7 @@ _LEVELS = {10: logging.DEBUG, 20: logging.INFO, 30: logging.WARNING, 40: logging
 
 def _datasheet(n: int) -> Any:
     """The robot description (the datasheet's) for ``n`` joints."""
-    from control.robot.description import load_description
+    from gateway.robot.description import load_description
 
     desc = load_description()
     if desc.n_dof != n:

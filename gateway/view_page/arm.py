@@ -8,7 +8,7 @@ at each joint, the tool point), and the same points as plain JSON for the browse
 cannot decode protobuf.
 
 The robot is the one the cell's control compensates (:func:`cell_description`), and the URDF
-is :func:`control.robot.urdf.to_urdf`'s: ``q`` is in description order, as in the joint
+is :func:`gateway.robot.urdf.to_urdf`'s: ``q`` is in description order, as in the joint
 states, and ``q = 0`` is the Table I zero pose.
 """
 
@@ -35,11 +35,11 @@ from foxglove.messages import (
 )
 from foxglove.websocket import ChannelView, Client, ServerListener
 
-from control.robot.description import RobotDescription, load_description
-from control.robot.urdf import TOOL_LINK, to_urdf
 from gateway.config import load_toml, resolve_path
 from gateway.errors import ConfigError
 from gateway.mcap_json import PREFIX
+from gateway.robot.description import RobotDescription, load_description
+from gateway.robot.urdf import TOOL_LINK, to_urdf
 
 #: the root frame of the transforms and the scene
 WORLD_FRAME = "world"

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from control.experiments import build_plan
-from control.robot.description import load_description
+from gateway.robot.description import load_description
 from sim_bridge.commission import COMMISSION_LIMIT_S, commission, commissioned
 from sim_bridge.config import load_sim_config
 from sim_bridge.effects import MOTION_RAD_S

@@ -15,10 +15,10 @@ import time
 import numpy as np
 import pytest
 
-from control.robot.description import load_description
 from control.taught_path_kinematics import path_error_m
 from drivers.can.config import CanDriverConfig
 from gateway.program import read_program
+from gateway.robot.description import load_description
 from sim_bridge.commission import commissioned_stack
 from sim_bridge.harness import Stack
 

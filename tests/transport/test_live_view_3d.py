@@ -23,13 +23,13 @@ import pytest
 from test_live_view import SUBPROTOCOLS, _recv_json
 from websockets.sync.client import connect
 
-from control.robot.description import DEFAULT_DESCRIPTION_PATH, load_description
-from control.robot.kinematics import dh_world_T_tool
-from control.robot.urdf import TOOL_LINK, to_urdf
 from gateway.bus import open_client
 from gateway.live_view import ARM_RATE_HZ, LiveView
 from gateway.message_factories import make_joint_state
 from gateway.messages import ControllerState, Lifecycle, LifecycleMsg
+from gateway.robot.description import DEFAULT_DESCRIPTION_PATH, load_description
+from gateway.robot.kinematics import dh_world_T_tool
+from gateway.robot.urdf import TOOL_LINK, to_urdf
 from gateway.view_page.arm import cell_description
 
 #: a different angle on every joint, so that a joint order mix-up moves the tool [rad]

@@ -16,9 +16,9 @@ from example_program import write_program
 from control.plan_builder import PlanBuilder, PlanRefused, build_parts
 from control.plan_player import PlanPlayer
 from control.plan_worker import WORKER_NICENESS
-from control.robot.description import load_description
 from gateway.message_factories import make_joint_state
 from gateway.messages import FLAG_SERVO_POWER, ControllerState
+from gateway.robot.description import load_description
 
 PERIOD_S = 0.008
 Q_HELD = np.array([0.0, 0.15, 0.25, 0.0, -0.4, 0.0])

@@ -17,9 +17,9 @@ import pytest
 
 from control import _rt
 from control.model.dynamics import RigidBodyModel
-from control.robot.description import load_description
-from control.robot.urdf import TOOL_LINK
 from control.rt_tables import chain_table, to_json
+from gateway.robot.description import load_description
+from gateway.robot.urdf import TOOL_LINK
 
 ATOL = 1e-9
 

@@ -25,9 +25,9 @@ from control.identification.terms import (
     Envelope,
     FrictionTerm,
 )
-from control.robot.description import load_description
-from control.robot.urdf import to_urdf
 from control.rt_tables import NOT_AT_RUN_TIME, point_model_table, to_json
+from gateway.robot.description import load_description
+from gateway.robot.urdf import to_urdf
 
 RTOL, ATOL = 1e-12, 1e-9
 

@@ -22,11 +22,11 @@ from control.identification.model import IdentifiedModel
 from control.identification.rigid import RobotRegressor
 from control.identification.terms import FrictionTerm
 from control.load_check import static_load_check
-from control.robot.description import load_description
-from control.robot.urdf import to_urdf
 from control.zero_moment_law import ZeroMomentController
 from gateway.message_factories import make_joint_state
 from gateway.messages import ControllerState
+from gateway.robot.description import load_description
+from gateway.robot.urdf import to_urdf
 
 N = 6
 GAIN = np.array([1.0, 0.93, 1.04, 1.0, 0.95, 1.0])

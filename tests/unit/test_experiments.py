@@ -6,9 +6,9 @@ from example_program import write_program
 
 from control.experiments import build_plan, friction_runs, multisine, reciprocating
 from control.plan_player import MAX_REPLAY_JOINT_SPEED_RAD_S, RESUME_ACCEL_RAD_S2, PlanPlayer
-from control.robot.description import load_description
 from gateway.message_factories import make_joint_state
 from gateway.messages import FLAG_PREV_HOLD, FLAG_SERVO_POWER, ControllerState, JointState
+from gateway.robot.description import load_description
 
 DT = 0.004
 Q0 = np.array([0.0, 0.1, 0.2, 0.0, -0.4, 0.0])

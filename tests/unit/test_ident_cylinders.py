@@ -16,8 +16,8 @@ from control.identification import cylinders as cyl
 from control.identification.cli import cli_main, configure_parser
 from control.identification.synthetic import GR630ST_NOISE_NM
 from control.model.cylinders import cylinder_torque_nm, with_measured_cylinders
-from control.robot.description import RobotDescription, load_description
 from gateway.errors import ConfigError
+from gateway.robot.description import RobotDescription, load_description
 
 #: The recorded arm's cylinders against the description: J2's bore 6 % and J3's 8 % wider
 #: (forces × 1.124 and × 1.166), within a datasheet's and a linkage's tolerances together.

@@ -32,8 +32,8 @@ from control.identification.synthetic import (
     synthesize,
 )
 from control.identification.terms import EFFECT_NAMES, EffectTerm
-from control.robot.description import load_description
-from control.robot.urdf import to_urdf
+from gateway.robot.description import load_description
+from gateway.robot.urdf import to_urdf
 
 RATE_HZ = 1000.0
 TRAIN_S = 60.0

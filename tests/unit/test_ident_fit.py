@@ -24,8 +24,8 @@ from control.identification.preprocess import (
 from control.identification.rigid import RobotRegressor
 from control.identification.stages import AnalyzeOptions
 from control.identification.synthetic import GR630ST_NOISE_NM
-from control.robot.description import load_description
 from gateway.errors import ConfigError, DataFileError
+from gateway.robot.description import load_description
 
 
 def _parse(argv: list[str]) -> argparse.Namespace:

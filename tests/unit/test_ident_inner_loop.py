@@ -10,7 +10,7 @@ import pytest
 
 from control.experiments import build_plan, velocity_steps
 from control.identification.inner_loop import fit_inner_loop
-from control.robot.description import load_description
+from gateway.robot.description import load_description
 from sim_bridge.config import load_sim_config
 from sim_bridge.plant import Plant
 

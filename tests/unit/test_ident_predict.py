@@ -19,9 +19,9 @@ from control.identification.predict import MIN_STRETCH_ROWS, predict_rows
 from control.identification.predict_cli import cli_main, configure_parser
 from control.identification.rigid import RobotRegressor
 from control.identification.terms import EffectTerm, FrictionTerm
-from control.robot.description import load_description
-from control.robot.urdf import to_urdf
 from gateway.errors import DataFileError
+from gateway.robot.description import load_description
+from gateway.robot.urdf import to_urdf
 
 RATE_HZ = 500.0
 VISCOUS_NM_S_PER_RAD = 40.0

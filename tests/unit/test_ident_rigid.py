@@ -10,10 +10,10 @@ from control.identification.dh_urdf import PANDA_DH_ROWS, DHRow, urdf_from_dh
 from control.identification.lsq import BlockLS, contiguous_folds
 from control.identification.rigid import RobotRegressor
 from control.identification.synthetic import GR630ST_MAX_SPEED_RAD_S, MultiSine
-from control.robot.description import load_description
-from control.robot.kinematics import dh_frames
-from control.robot.urdf import to_urdf
 from gateway.errors import ConfigError
+from gateway.robot.description import load_description
+from gateway.robot.kinematics import dh_frames
+from gateway.robot.urdf import to_urdf
 
 # Link base parameters (36 GR630ST, 43 Panda as in Gaz et al.) plus the separable armatures
 # (joint 1's merges with link 1's Izz; the QR finds which).

@@ -23,8 +23,8 @@ from control.model_adaptation import (
     load_state,
     save_state,
 )
-from control.robot.description import load_description
-from control.robot.urdf import to_urdf
+from gateway.robot.description import load_description
+from gateway.robot.urdf import to_urdf
 
 HELDOUT_RMS_NM = [2.0, 3.0, 2.5, 1.0, 1.0, 0.5]
 #: the replay-like poses: a raster's joints swing slowly around this pose

@@ -9,7 +9,7 @@ import pytest
 
 from control.model.cylinders import cylinder_torque_nm, pressure_for_torque
 from control.model.dynamics import RigidBodyModel
-from control.robot.description import CylinderSpec, RobotDescription, load_description
+from gateway.robot.description import CylinderSpec, RobotDescription, load_description
 
 J2, J3 = 1, 2
 

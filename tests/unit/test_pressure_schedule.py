@@ -15,9 +15,9 @@ from control.cell_config import load_control_config
 from control.model.cylinders import cylinder_torque_nm
 from control.pressure_schedule import PressureSchedule, ScheduleSettings
 from control.process import ControlProcess
-from control.robot.description import load_description
 from gateway.config import ConfigError
 from gateway.messages import Lifecycle, LifecycleMsg
+from gateway.robot.description import load_description
 
 DESC = load_description()
 

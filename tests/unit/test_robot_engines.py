@@ -11,16 +11,16 @@ import pinocchio as pin
 import pytest
 
 from control.model.dynamics import LINK_PARAMETER_NAMES, RigidBodyModel
-from control.robot.description import (
+from gateway.errors import ConfigError
+from gateway.robot.description import (
     DEFAULT_DESCRIPTION_PATH,
     LinkInertial,
     RobotDescription,
     load_description,
 )
-from control.robot.kinematics import dh_frames, dh_world_T_tool
-from control.robot.mjcf import TOOL_SITE, to_mjcf
-from control.robot.urdf import to_urdf
-from gateway.errors import ConfigError
+from gateway.robot.kinematics import dh_frames, dh_world_T_tool
+from gateway.robot.mjcf import TOOL_SITE, to_mjcf
+from gateway.robot.urdf import to_urdf
 
 N_CONFIGS = 200
 

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from control.model.dynamics import RigidBodyModel
-from control.robot.description import load_description
 from drivers.can.rt_kinematics import CHAIN_FORMAT, CHAIN_VERSION, chain_table
+from gateway.robot.description import load_description
 
 
 def _rotation(axis: np.ndarray, angle_rad: float) -> np.ndarray:

@@ -20,7 +20,7 @@ from control.identification.preprocess import prepare
 from control.model.cylinders import cylinder_torque_nm
 from control.model.dynamics import RigidBodyModel
 from control.model.friction import Eq15Friction, FrictionParams
-from control.robot.description import load_description
+from gateway.robot.description import load_description
 from sim_bridge.config import load_sim_config
 from sim_bridge.plant import Plant
 

@@ -10,11 +10,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from control.robot.description import load_description
 from control.taught_path import approach, constant_speed, replay_trajectory
 from control.taught_path_kinematics import fastest_point_m_s, path_error_m, slow_down, tool_path
 from control.taught_path_tremor import TREMOR_CUTOFF_HZ, remove_tremor
 from gateway.program import Program
+from gateway.robot.description import load_description
 
 DESC = load_description()
 DT = 0.004  #: controller period [s]

@@ -157,8 +157,8 @@ def test_identified_model_cycle_torques_equal_its_array_methods(tmp_path):
     from control.identification.model import IdentifiedModel
     from control.identification.rigid import RobotRegressor
     from control.identification.terms import FrictionTerm
-    from control.robot.description import load_description
-    from control.robot.urdf import to_urdf
+    from gateway.robot.description import load_description
+    from gateway.robot.urdf import to_urdf
 
     declared = DeclaredModel.load(EXAMPLE_MODEL)
     desc = load_description()

@@ -419,7 +419,7 @@ const PERIOD_US: u32 = 4000;
 const PERIOD_S: f64 = 0.004;
 const T0: f64 = 500.0;
 const DEG: f64 = std::f64::consts::PI / 180.0;
-/// The GR630ST datasheet's joint limits [deg] (control/robot/gr630st.toml).
+/// The GR630ST datasheet's joint limits [deg] (gateway/robot/gr630st.toml).
 const LOWER_DEG: [f64; N] = [-120.0, -70.0, -45.0, -360.0, -360.0, -360.0];
 const UPPER_DEG: [f64; N] = [120.0, 70.0, 60.0, 360.0, 360.0, 360.0];
 

@@ -1,6 +1,6 @@
 """URDF rendering of a :class:`RobotDescription`, for pinocchio.
 
-Bodies follow :mod:`control.robot.kinematics`: link ``i`` is frame ``F_{i-1}`` turned by the
+Bodies follow :mod:`gateway.robot.kinematics`: link ``i`` is frame ``F_{i-1}`` turned by the
 joint (``B_i``), every revolute joint turns about its child's z axis, and the link inertials and
 the fixed ``tool`` link are moved from the DH frames into those bodies. The MJCF writer uses the
 same placements, so both engines describe one arm.
@@ -11,8 +11,8 @@ from __future__ import annotations
 import math
 from xml.sax.saxutils import quoteattr
 
-from control.robot.description import RobotDescription
-from control.robot.kinematics import body_placements, fmt, fmt_vec, last_body_T_tool, matrix_to_rpy
+from gateway.robot.description import RobotDescription
+from gateway.robot.kinematics import body_placements, fmt, fmt_vec, last_body_T_tool, matrix_to_rpy
 
 #: URDF requires a velocity limit; the description has none. Informational only, unused here.
 URDF_VELOCITY_LIMIT_RAD_S = math.pi

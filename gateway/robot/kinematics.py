@@ -24,7 +24,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from control.robot.description import RobotDescription
+from gateway.robot.description import RobotDescription
 
 
 def rot_x(angle_rad: float) -> np.ndarray:

@@ -1,6 +1,6 @@
 """MJCF rendering of a :class:`RobotDescription`, for MuJoCo.
 
-Same bodies as :mod:`control.robot.urdf` (see :mod:`control.robot.kinematics`): bodies
+Same bodies as :mod:`gateway.robot.urdf` (see :mod:`gateway.robot.kinematics`): bodies
 ``link1`` .. ``link6`` with hinge joints about their z axes, a ``tool`` site at the tool point.
 Each joint's ``armature`` is the reflected rotor inertia ``J_rotor · R²``. There is no joint
 damping or frictionloss (the simulator applies eq. (15) itself), no contacts, and geoms are
@@ -13,15 +13,15 @@ from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
-from control.robot.description import RobotDescription
-from control.robot.kinematics import (
+from gateway.robot.description import RobotDescription
+from gateway.robot.kinematics import (
     body_placements,
     fmt,
     fmt_vec,
     last_body_T_tool,
     matrix_to_quat_wxyz,
 )
-from control.robot.urdf import link_name
+from gateway.robot.urdf import link_name
 
 TOOL_SITE = "tool"
 _MIN_CAPSULE_M = 1e-3
