@@ -70,4 +70,4 @@ format: $(STAMP)
 	$(BIN)/ruff format .
 
 clean:
-	rm -rf $(VENV) demo_out faults_out soak_out .cache target $(RT_SO)
+	rm -rf $(VENV) demo_out faults_out soak_out .cache target $(RT_SO) .grimp_cache .import_linter_cache

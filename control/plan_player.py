@@ -64,8 +64,9 @@ class PlanPlayer:
     LIMIT_MARGIN_RAD = 0.05
     #: the plan fails when its commands were held this long in a row [s]
     MAX_PAUSE_S = 0.5
-    #: the plan fails when it is not built within this long [s]: a replay path of minutes
-    #: builds in well under a second on a fast machine of our class; the arm holds meanwhile
+    #: the plan fails when it is not built within this long [s]: the demo's replay path
+    #: built in 1.5-2.3 s in the worker on one shared core (2026-12-01, issue 45's demos
+    #: under taskset -c 0), a path of minutes proportionally longer; the arm holds meanwhile
     MAX_PLANNING_S = 30.0
 
     def __init__(

@@ -142,7 +142,10 @@ def normal_priority_children() -> Iterator[None]:
     CPU-bound child would hold a shared core until it blocked (a replay's planning starved the
     CAN driver into "no fresh joint state", 2026-11-29). The thread's policy comes back after
     it. SCHED_RESET_ON_FORK would do it for children but also for the threads created later
-    (zenoh's), which must inherit the cycle's priority."""
+    (zenoh's), which must inherit the cycle's priority. Not ``Popen(preexec_fn=...)`` as the
+    gateway does (:func:`normal_priority_after_fork`): a ``preexec_fn`` makes Python fork the
+    whole control process (page tables of a few hundred MB, locked by ``mlockall``) instead of
+    the ``vfork`` it uses otherwise, on the core the cycle shares."""
     policy = os.sched_getscheduler(0)
     if policy not in (os.SCHED_FIFO, os.SCHED_RR):
         yield

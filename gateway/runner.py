@@ -82,8 +82,9 @@ def run_service(
     for anything else (module docstring). ``status(service)`` is systemd's line once ready.
     ``place()`` applies the process's ``[realtime]`` (gateway/realtime.py) once it is built and
     before it opens a link: the threads it opens then inherit the cycle's priority, and the
-    building (a model loaded, a law set up: 0.8 s on a CPU group as slow as the slowest cell
-    PC) ran at the cycle's priority before and held the CAN driver off its cycle."""
+    building (a model loaded, a law set up: 0.8 s in a CPU group given 0.15 of each CPU, 4-5
+    times harsher than the slowest machine of our class) ran at the cycle's priority before and
+    held the CAN driver off its cycle."""
     setup_logging(process, log_level)
     try:
         service = build()
