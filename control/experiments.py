@@ -191,6 +191,57 @@ def multisine(
     return Segment(f"multisine/seed{seed}", q, _differentiate(q, dt))
 
 
+def teaching_strokes(
+    q0: np.ndarray,
+    amplitude_rad: np.ndarray,
+    speeds_deg_s: tuple[float, float],
+    strokes: int,
+    rest_s: float,
+    dt: float,
+    seed: int,
+    offset_rad: np.ndarray | None = None,
+    transfer_speed_rad_s: float = 0.1,
+) -> Segment:
+    """A motion like a painter's teaching: every joint at once, ``strokes`` slow strokes, each
+    joint at its own speed drawn log-uniformly in ``speeds_deg_s`` [°/s], reversing at each
+    stroke (to 50-100 % of ``amplitude_rad`` on the other side of the centre) and resting
+    ``rest_s`` between strokes, so each stroke starts from rest (breakaway). Centred on ``q0 +
+    offset_rad``, reached from ``q0`` and left back to it at rest (:func:`transfer`)."""
+    rng = np.random.default_rng(seed)
+    q0 = np.asarray(q0, dtype=float)
+    n = q0.size
+    lo, hi = (float(v) for v in speeds_deg_s)
+    if not 0 < lo <= hi:
+        raise ValueError(f"teaching speeds {speeds_deg_s} °/s must be 0 < low <= high")
+    if strokes < 1 or rest_s < 0:
+        raise ValueError(f"teaching strokes {strokes} must be >= 1 and rest {rest_s} s >= 0")
+    amp = np.broadcast_to(np.asarray(amplitude_rad, dtype=float), (n,))
+    centre = q0 + (0.0 if offset_rad is None else np.asarray(offset_rad, dtype=float))
+    rest = max(1, round(rest_s / dt))
+    pos = centre.copy()
+    side = rng.choice([-1.0, 1.0], n)
+    pieces = [np.tile(pos, (rest, 1))]
+    for _ in range(strokes):
+        speed = np.radians(np.exp(rng.uniform(np.log(lo), np.log(hi), n)))
+        target = centre + side * amp * rng.uniform(0.5, 1.0, n)
+        paths = [
+            _blend_stroke(target[j] - pos[j], speed[j], dt) if target[j] != pos[j] else np.zeros(1)
+            for j in range(n)
+        ]
+        steps = max(p.size for p in paths)
+        block = np.column_stack([np.pad(p, (0, steps - p.size), mode="edge") for p in paths])
+        pieces += [pos + block, np.tile(target, (rest, 1))]
+        pos, side = target, -side
+    q = np.vstack(pieces)
+    if np.any(centre != q0):
+        there = transfer(q0, centre, transfer_speed_rad_s, dt)
+        back = transfer(pos, q0, transfer_speed_rad_s, dt)
+        q = np.vstack([there, q[1:], back[1:]])
+    else:
+        q = np.vstack([q, transfer(pos, q0, transfer_speed_rad_s, dt)[1:]])
+    return Segment(f"teaching/seed{seed}", q, _differentiate(q, dt))
+
+
 def velocity_steps(
     q0: np.ndarray, joints: list[int], speed_rad_s: float, step_s: float, dt: float
 ) -> list[Segment]:
@@ -240,7 +291,10 @@ def build_plan(
     slow_speed_deg_s}; ``inner_loop`` {joints, speed_rad_s, step_s} (velocity steps, role
     "inner_loop"); ``multisine`` [{seed, duration_s, amplitude_rad, base_hz, harmonics, role,
     offset_rad, transfer_speed_rad_s}] (role "train" or "test"; the optional offset centres the
-    sines away from the start pose, :func:`multisine`); ``pause_s``.
+    sines away from the start pose, :func:`multisine`); ``teaching`` [{seed, strokes,
+    amplitude_rad, speeds_deg_s: [low, high], rest_s, offset_rad, transfer_speed_rad_s, role}]
+    (:func:`teaching_strokes`; role "train", "test" or "validate", the default: recorded and
+    scored on the identified model, never given to the fit); ``pause_s``.
     """
     unknown = set(plan) - PLAN_KEYS
     if unknown:
@@ -291,13 +345,24 @@ def build_plan(
             if role not in ("train", "test"):
                 raise ValueError(f"multisine role {role!r} must be train or test")
             roles.append(role)
+        for spec in plan.get("teaching", []):
+            amp = np.broadcast_to(np.asarray(spec["amplitude_rad"], dtype=float), (n,))
+            offset = np.broadcast_to(np.asarray(spec.get("offset_rad", 0.0), dtype=float), (n,))
+            lo, hi = (float(v) for v in spec["speeds_deg_s"])
+            segs.append(teaching_strokes(q0, amp, (lo, hi), int(spec["strokes"]),
+                                         float(spec["rest_s"]), dt, int(spec["seed"]), offset,
+                                         float(spec.get("transfer_speed_rad_s", 0.1))))  # fmt: skip
+            role = spec.get("role", VALIDATE)
+            if role not in ("train", "test", VALIDATE):
+                raise ValueError(f"teaching role {role!r} must be train, test or {VALIDATE}")
+            roles.append(role)
     except KeyError as exc:
         raise ValueError(f"plan entry is missing {exc}") from None
     except (TypeError, ValueError) as exc:
         raise ValueError(f"bad plan value: {exc}") from None
     if not segs:
         raise ValueError(
-            "plan has no experiment (friction, gravity, inertia, inner_loop, multisine)"
+            "plan has no experiment (friction, gravity, inertia, inner_loop, multisine, teaching)"
         )
     pause = np.tile(q0, (max(1, round(float(plan.get("pause_s", 0.5)) / dt)), 1))
     out = []
@@ -309,4 +374,9 @@ def build_plan(
     return out
 
 
-PLAN_KEYS = {"plan_id", "friction", "gravity", "inertia", "inner_loop", "multisine", "pause_s"}
+PLAN_KEYS = {
+    "plan_id", "friction", "gravity", "inertia", "inner_loop", "multisine", "teaching", "pause_s",
+}  # fmt: skip
+
+#: the role of a segment recorded to judge the identified model on, never given to the fit
+VALIDATE = "validate"

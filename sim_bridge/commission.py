@@ -57,7 +57,7 @@ CELL_STOP_S = 60.0
 #: The longest one :func:`commission` may take from start to end [s]: the cell's start, the
 #: identification's limit and its grace, and the cell's stop. Lock-step commissioning runs the
 #: plant no faster than real time (``lockstep_max_speedup``), so its wall time is at least the
-#: plan's motion (about 280 s for :data:`~control.identification.on_cell.QUICK_PLAN`) on any
+#: plan's motion (about 275 s for :data:`~control.identification.on_cell.QUICK_PLAN`) on any
 #: machine, and more where the machine cannot keep the pace: a test that commissions is given
 #: this, not the suite's default per-test limit (300 s, pyproject.toml).
 COMMISSION_LIMIT_S = CELL_READY_S + IDENTIFY_TIMEOUT_S + IDENTIFY_GRACE_S + CELL_STOP_S

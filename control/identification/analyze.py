@@ -67,12 +67,17 @@ from control.identification.guard import (
     guard_on_test,
     plain_least_squares,
 )
-from control.identification.heldout import residuals, rms_answered, scored_rows
+from control.identification.heldout import per_file_rms, residuals, rms_answered, scored_rows
 from control.identification.load import _load
 from control.identification.lsq import BlockLS, contiguous_folds
 from control.identification.model import MODEL, PLAIN_LS, PlainJoint, plain_key
 from control.identification.preprocess import FILTER_ORDER, sliding_mask
 from control.identification.report import write_report
+from control.identification.speed_regimes import (
+    friction_coverage,
+    raw_by_speed,
+    scored_velocity,
+)
 from control.identification.stages import AUTO, AnalyzeOptions, Progress, _Clock, _Run
 from control.identification.terms import Context, Envelope, shift_signal
 from control.identification.validate import (
@@ -328,6 +333,14 @@ def _analyze(
         residuals(m, run.test_files, rows, run.desc) for m in (model_before, model, plain_model)
     ]
     (raw_before, raw_after, raw_plain), answered = rms_answered(errors)
+    named = dict(zip(("rms_before", "rms_after", "rms_plain_ls"), errors, strict=True))
+    by_speed = raw_by_speed(
+        named,
+        scored_velocity([f.measurements for f in run.test_files], rows),
+        answered,
+        options.stick_velocity_rad_s,
+    )
+    by_file = per_file_rms(run.test_files, rows, named, answered)
     if options.find_effects and not accepted:
         clock.say("no further effect found")
     clock.say(f"held-out RMS before effects: {np.array2string(rms_before, precision=3)} N·m")
@@ -390,11 +403,16 @@ def _analyze(
             "noise_std_nm": _floats(test.raw_noise_nm),
             "rows_scored": int(answered.sum()),
             "rows_declined": int(answered.size - answered.sum()),
+            "by_speed": by_speed,
+            "per_file": by_file,
             "scored": f"{raw_where}: raw measured torque minus each model's prediction "
             "(heldout.py, the arithmetic of `leadthrough predict`), no filter, stuck rows and "
             "reversals included",
         },
         "sliding_share_scored": on.mean(axis=0).tolist(),
+        "friction_measured_over": friction_coverage(
+            train.dq, sliding_train, options.stick_velocity_rad_s
+        ),
         "stick_velocity_rad_s": options.stick_velocity_rad_s,
         "rms_plain_ls": rms_plain.tolist(),
         "after_le_plain_ls": (rms_after <= rms_plain * (1 + 1e-9)).tolist(),

@@ -77,3 +77,25 @@ def rms_answered(errors: Sequence[np.ndarray]) -> tuple[list[np.ndarray], np.nda
     if not answered.any():
         return [np.full(e.shape[1], np.nan) for e in errors], answered
     return [np.sqrt(np.mean(e[answered] ** 2, axis=0)) for e in errors], answered
+
+
+def per_file_rms(
+    files: Sequence[TestFile],
+    rows: Sequence[np.ndarray],
+    errors: dict[str, np.ndarray],
+    answered: np.ndarray,
+) -> list[dict[str, object]]:
+    """Per test file (a multi-sine and a slow, reversing motion are judged apart): its name,
+    the rows scored and each model's per-joint RMS (``errors``: name → the stacked residuals
+    of :func:`residuals`) over those every model answers; None for a file with none."""
+    out: list[dict[str, object]] = []
+    first = 0
+    for f, keep in zip(files, rows, strict=True):
+        part = slice(first, first + int(keep.sum()))
+        first = part.stop
+        ok = answered[part]
+        entry: dict[str, object] = {"file": f.measurements.source, "rows_scored": int(ok.sum())}
+        for name, e in errors.items():
+            entry[name] = np.sqrt(np.mean(e[part][ok] ** 2, axis=0)).tolist() if ok.any() else None
+        out.append(entry)
+    return out

@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from control.experiments import build_plan
+from control.experiments import VALIDATE, build_plan
 from control.identification.analyze import analyze
 from control.identification.inner_loop import (
     DELAYS,
@@ -34,7 +34,9 @@ from control.identification.inner_loop import (
     InnerLoopRun,
     fit_inner_loop_runs,
 )
+from control.identification.report import write_report
 from control.identification.stages import AnalyzeOptions, stage_bar
+from control.identification.validation_runs import score_validation
 from gateway.bus import BusConfig, bus_config_from
 from gateway.config import load_toml
 from gateway.current_zero_file import write_stored_zero
@@ -66,6 +68,14 @@ WORKSPACE_OFFSETS: tuple[list[float], ...] = (
     [0.0, -0.15, 0.1, 0.0, 0.0, 0.0],
 )
 
+#: A motion like teaching, recorded to judge the model on and never fitted (role "validate",
+#: :func:`control.experiments.teaching_strokes`): every joint at once, 0.5-2 °/s, reversing at
+#: each stroke and starting each from rest, in the held-out box; about 25 s of robot time.
+TEACHING_VALIDATION: dict[str, Any] = {
+    "seed": 11, "strokes": 4, "amplitude_rad": 0.03, "speeds_deg_s": [0.5, 2.0], "rest_s": 1.0,
+    "offset_rad": WORKSPACE_OFFSETS[3], "role": "validate",
+}  # fmt: skip
+
 #: The paper's plan (Section 4): every joint's friction at 0.5–4 °/s and faster, gravity sweeps,
 #: inertia runs, and multi-sine excitation; about 25 minutes on the robot.
 FULL_PLAN: dict[str, Any] = {
@@ -85,6 +95,7 @@ FULL_PLAN: dict[str, Any] = {
         {"seed": 7, "duration_s": 40, "amplitude_rad": [0.25, 0.2, 0.2, 0.4, 0.4, 0.4],
          "base_hz": 0.13, "harmonics": 5, "role": "test", "offset_rad": WORKSPACE_OFFSETS[3]},
     ],
+    "teaching": [TEACHING_VALIDATION],
     "pause_s": 1.0,
 }  # fmt: skip
 
@@ -111,6 +122,7 @@ QUICK_PLAN: dict[str, Any] = {
         {"seed": 7, "duration_s": 20, "amplitude_rad": [0.25, 0.2, 0.2, 0.4, 0.4, 0.4],
          "base_hz": 0.13, "harmonics": 5, "role": "test", "offset_rad": WORKSPACE_OFFSETS[3]},
     ],
+    "teaching": [TEACHING_VALIDATION],
     "pause_s": 0.5,
 }  # fmt: skip
 
@@ -298,11 +310,11 @@ def finished_report(mcap: Path, key: str, plan_id: str) -> dict[str, Any]:
 
 def export_segments(
     mcap: Path, report: dict[str, Any], recorded: RecordedStates, out: Path, gains: list[float]
-) -> tuple[list[Path], list[Path]]:
+) -> tuple[list[Path], list[Path], list[Path]]:
     """Cut the recording (``recorded``, read once: each segment is cut from it) into one CSV
     per experiment segment of ``report`` (:func:`finished_report`): (train files, test
-    files)."""
-    train, test = [], []
+    files, validation files)."""
+    train, test, validate = [], [], []
     for k, seg in enumerate(report["segments"]):
         if seg["role"] == "inner_loop":
             continue  # velocity steps: fit_inner_loop_segments
@@ -311,8 +323,9 @@ def export_segments(
         path.parent.mkdir(parents=True, exist_ok=True)
         cycles = (seg["start_cycle"], seg["end_cycle"])
         export_csv(mcap, path, gains, cycle_range=cycles, recorded=recorded)
-        (test if seg["role"] == "test" else train).append(path)
-    return train, test
+        by_role = {"test": test, VALIDATE: validate}
+        by_role.get(seg["role"], train).append(path)
+    return train, test, validate
 
 
 def inner_loop_runs(recorded: RecordedStates, cycle_range: tuple[int, int]) -> list[InnerLoopRun]:
@@ -370,6 +383,10 @@ def fit_inner_loop_segments(
     return est
 
 
+def _nm(values: list[float | None]) -> str:
+    return "[" + " ".join("—" if v is None else f"{v:.3g}" for v in values) + "]"
+
+
 def configure_parser(p: argparse.ArgumentParser) -> None:
     p.description = (
         "Run the identification experiments on the live cell (the robot MOVES by itself: keep "
@@ -416,7 +433,7 @@ def cli_main(args: argparse.Namespace) -> int:
         print("or write the estimate out in place of omega_rad_s_per_nm and upsilon_i_per_s:")
         print(f"  omega_rad_s_per_nm = [{fmt(f'{v:.4g}' for v in inner.omega_rad_s_per_nm)}]")
         print(f"  upsilon_i_per_s = [{fmt(f'{v:.4g}' for v in inner.upsilon_i_per_s)}]")
-    train, test = export_segments(mcap, report, recorded, out, gains)
+    train, test, validate = export_segments(mcap, report, recorded, out, gains)
     if not train and not test and inner is not None:
         return 0  # an inner-loop-only plan: nothing to fit a dynamic model on
     urdf = out / "robot.urdf"
@@ -432,6 +449,16 @@ def cli_main(args: argparse.Namespace) -> int:
     )
     with stage_bar(show) as bar:
         summary = analyze(urdf, train, test, out, options, bar=bar)
+    if validate:
+        summary["validation"] = score_validation(
+            out / "model.json", validate, desc, options.stick_velocity_rad_s
+        )
+        write_report(out, summary)
     print(json.dumps({k: summary[k] for k in ("rms_before", "rms_after", "effects")}, indent=1))
+    for v in summary.get("validation", {}).get("files", []):
+        teach = v["by_speed"]["teaching"]["rms_after"]
+        print(f"slow, reversing motion never fitted ({Path(v['file']).name}): raw error "
+              f"{_nm(v['rms_after'])} N·m, at teaching speeds {_nm(teach)} N·m (measured "
+              f"torque {_nm(v['rms_measured'])} N·m)")  # fmt: skip
     print(f"model: {out / 'model.json'}  report: {out / 'report.md'}")
     return 0

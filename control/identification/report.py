@@ -7,7 +7,11 @@ without / with the accepted effects), ``relative_before`` / ``relative_after``
 ``rms_train_before``, ``effects`` (list of ``{"name", "joints" (1-based), "parameters" (units in
 the keys), "appeared": "all_along" | "between_train_and_test", "improved_joints",
 "heldout_rms_before", "heldout_rms_after"}``), ``friction_comparison`` (per family: train and
-test RMS and q_e), ``timing_s`` (seconds per stage and ``total``), plus file names and counts.
+test RMS and q_e), ``friction_measured_over`` (per joint: the speeds the friction was fitted
+over, :mod:`.speed_regimes`), ``raw`` (the raw-torque figures; ``raw.by_speed`` split at rest,
+teaching speeds and faster, ``raw.per_file`` per test file), ``validation`` (commissioning's
+slow motion never fitted, :mod:`.validation_runs`), ``timing_s`` (seconds per stage
+and ``total``), plus file names and counts.
 A figure with no samples behind it (a joint that never slid in the test files) is ``null``.
 """
 
@@ -68,6 +72,101 @@ def _param_text(params: dict[str, Any]) -> str:
         else:
             parts.append(f"{k} = {v}")
     return ", ".join(parts)
+
+
+def _range(r: list[float] | None) -> str:
+    return NO_SAMPLES if not r else f"{_fmt(r[0])}–{_fmt(r[1])}"
+
+
+def _per_file_lines(summary: dict[str, Any], joints: list[str]) -> list[str]:
+    """The raw error per test file, when there are several (a multi-sine and a slow,
+    reversing motion are judged apart)."""
+    files = (summary.get("raw") or {}).get("per_file") or []
+    if len(files) < 2:
+        return []
+    lines = [
+        "",
+        "Per test file, raw, after / plain LS [N·m]:",
+        "",
+        "| file | rows | " + " | ".join(joints) + " |",
+        "|---|---|" + "---|" * len(joints),
+    ]
+    for f in files:
+        after, plain = f.get("rms_after"), f.get("rms_plain_ls")
+        cells = [
+            NO_SAMPLES if after is None else f"{_fmt(after[j])} / {_fmt(plain[j])}"
+            for j in range(len(joints))
+        ]
+        lines.append(
+            f"| `{Path(str(f['file'])).name}` | {f['rows_scored']} | " + " | ".join(cells) + " |"
+        )
+    return lines
+
+
+def _validation_lines(summary: dict[str, Any], joints: list[str]) -> list[str]:
+    """The model on recordings never given to the fit (:mod:`.validation_runs`)."""
+    v = summary.get("validation")
+    if not v or not v.get("files"):
+        return []
+    lines = ["", "### On a slow, reversing motion never fitted", "", f"{v['what']}.", ""]
+    for f in v["files"]:
+        by = f["by_speed"]
+        lines += [
+            f"`{Path(str(f['file'])).name}`: {f['rows_scored']} of {f['rows']} rows scored.",
+            "",
+            "| joint | measured RMS [N·m] | error [N·m] | at rest | at teaching speeds | faster |",
+            "|---|---|---|---|---|---|",
+        ]
+        for j, name in enumerate(joints):
+            cells = [
+                f"{_fmt(by[r]['rms_after'][j])} ({_pct(by[r]['share'][j])})"
+                for r in ("rest", "teaching", "faster")
+            ]
+            lines.append(
+                f"| {name} | {_fmt(f['rms_measured'][j])} | {_fmt(f['rms_after'][j])} | "
+                + " | ".join(cells)
+                + " |"
+            )
+        lines.append("")
+    return lines
+
+
+def _speed_lines(summary: dict[str, Any], joints: list[str]) -> list[str]:
+    """Where in speed the friction was measured, and the raw error at rest, at teaching speeds
+    and faster (:mod:`.speed_regimes`)."""
+    cover = summary.get("friction_measured_over")
+    by = (summary.get("raw") or {}).get("by_speed")
+    if not cover or not by:
+        return []
+    teach = by["teaching_below_rad_s"]
+    lines = [
+        "",
+        "### Speeds: where the friction was measured, and the raw error by speed",
+        "",
+        f"Friction fitted on the training rows where each joint slides: 1st–99th percentile of "
+        f"their speed, the share of them below {_fmt(teach)} rad/s (teaching speeds), the "
+        "reversals and the share of training rows at rest. The raw test error (as above) "
+        f"split by each row's measured speed: at rest (below {_fmt(by['rest_below_rad_s'])} "
+        f"rad/s), teaching (below {_fmt(teach)} rad/s), faster; after / plain LS [N·m], the "
+        "share of rows in brackets.",
+        "",
+        "| joint | slid at [rad/s] | at teaching speeds | reversals | at rest | "
+        "error at rest | error teaching | error faster |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+
+    def cell(regime: str, j: int) -> str:
+        e = by[regime]
+        return f"{_fmt(e['rms_after'][j])} / {_fmt(e['rms_plain_ls'][j])} ({_pct(e['share'][j])})"
+
+    for j, name in enumerate(joints):
+        c = cover[j]
+        lines.append(
+            f"| {name} | {_range(c['speed_range_rad_s'])} | {_pct(c['teaching_share'])} | "
+            f"{c['reversals']} | {_pct(c['rest_share'])} | {cell('rest', j)} | "
+            f"{cell('teaching', j)} | {cell('faster', j)} |"
+        )
+    return lines
 
 
 def render_markdown(summary: dict[str, Any]) -> str:
@@ -153,6 +252,9 @@ def render_markdown(summary: dict[str, Any]) -> str:
                 f"| {name} | {_fmt(noise[j])} | {_fmt(raw['rms_before'][j])} | "
                 f"{_fmt(raw['rms_after'][j])} | {_fmt(raw['rms_plain_ls'][j])} |"
             )
+    lines += _per_file_lines(summary, joints)
+    lines += _validation_lines(summary, joints)
+    lines += _speed_lines(summary, joints)
     lines += ["", "## Effects found in the residual", ""]
     if not summary.get("effects_searched", True):
         lines.append("The effect search was switched off (`--no-effects`).")

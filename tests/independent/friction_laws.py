@@ -81,6 +81,10 @@ WARM_DROP = (0.10, 0.30)
 WARM_TIME_CONSTANT_S = (300.0, 1200.0)
 
 
+#: the laws with a state (the bristle's deflection z), carried across the session's runs
+STATEFUL_KINDS = ("lugre", "dahl")
+
+
 def sign(v: np.ndarray) -> np.ndarray:
     return np.tanh(np.asarray(v) / SIGN_VELOCITY)
 
@@ -114,7 +118,7 @@ class FrictionLaw:
         if self.kind == "stribeck_lorentz":
             drop = 1.0 / (1.0 + (v / vs) ** 2)
             return np.column_stack([(fc + (p["static_nm"] - fc) * drop) * s, visc * v])
-        if self.kind in ("lugre", "dahl"):
+        if self.kind in STATEFUL_KINDS:
             z, dz = bristle(t, v, self)
             return np.column_stack([p["sigma0_nm_rad"] * z + p["sigma1_nm_s_rad"] * dz, visc * v])
         if self.kind == "temperature_viscous":

@@ -15,7 +15,11 @@ measured torque on the columns of the model that generated it:
 - a constant (the chain's offset b_j); the chain's gain k_j scales every column's coefficient.
 
 The fit predicts the holdout rows; its residual is scored on the same rows as the product's.
-On noise-free data the oracle reproduces the holdout to rounding: it is the generating model.
+It predicts them from the holdout file as the product must (``from_file``, the default): a
+LuGre/Dahl bristle state starts at 0 at the file's first row (:attr:`.world.World.
+holdout_from_file`: what a resting joint holds there depends on the motion before the file).
+With ``from_file=False`` it carries the session's state, which only the generator knows; on
+noise-free data it then reproduces the holdout to rounding: it is the generating model.
 """
 
 from __future__ import annotations
@@ -28,8 +32,9 @@ from .baseline import base_columns, regressor
 CHUNK = 4000
 
 
-def design(world, run: str, model=None, cols=None) -> list[np.ndarray]:
-    """Per joint the oracle's columns (T, m_j) on run ``run`` of ``world``."""
+def design(world, run: str, model=None, cols=None, from_file: bool = False) -> list[np.ndarray]:
+    """Per joint the oracle's columns (T, m_j) on run ``run`` of ``world`` (``from_file``:
+    the holdout's friction and effect columns as its file alone determines them)."""
     model = pin.buildModelFromXML(world.truth_urdf) if model is None else model
     cols = base_columns(model) if cols is None else cols
     n = model.nv
@@ -43,18 +48,23 @@ def design(world, run: str, model=None, cols=None) -> list[np.ndarray]:
     out = []
     for j in range(n):
         ones = np.ones((q.shape[0], 1))
-        out.append(np.column_stack([np.vstack(blocks[j]), world.columns[run][j], ones]))
+        law = world.holdout_from_file[j] if from_file and run == "holdout" else None
+        law = world.columns[run][j] if law is None else law
+        out.append(np.column_stack([np.vstack(blocks[j]), law, ones]))
     return out
 
 
-def fit_predict(world, tau: dict[str, np.ndarray] | None = None) -> np.ndarray:
-    """The oracle fitted on train + test, its prediction of the holdout (T, n) [N·m];
+def fit_predict(
+    world, tau: dict[str, np.ndarray] | None = None, from_file: bool = True
+) -> np.ndarray:
+    """The oracle fitted on train + test, its prediction of the holdout (T, n) [N·m] from the
+    holdout's file (``from_file``) or with the session's bristle states (module docstring);
     ``tau`` per run name replaces the measured torque (tests: noise-free data)."""
     d = world.draw
     tau = tau or {"train": d.train.tau, "test": d.test.tau}
     model = pin.buildModelFromXML(world.truth_urdf)
     cols = base_columns(model)
-    a = {r: design(world, r, model, cols) for r in ("train", "test", "holdout")}
+    a = {r: design(world, r, model, cols, from_file) for r in ("train", "test", "holdout")}
     pred = np.empty((d.holdout.t.size, world.n))
     for j in range(world.n):
         x = np.vstack([a["train"][j], a["test"][j]])

@@ -9,7 +9,7 @@ import pinocchio as pin
 import pytest
 
 from . import family as fam
-from .friction_laws import FrictionLaw, draw_law
+from .friction_laws import STATEFUL_KINDS, FrictionLaw, draw_law
 from .oracle import fit_predict
 from .stamps import GAP_SAMPLES, GAPS_PER_FILE, OUTLIER_SHARE, gap_mask, outliers
 from .teaching import MOVE, REST, REST_S, TEACH_SPEED_RAD_S
@@ -137,9 +137,24 @@ def test_the_holdout_holds_multisine_and_teaching_stretches_with_slow_moves_and_
 
 def test_the_oracle_fitted_on_noise_free_data_reproduces_the_holdout(world):
     d = world.draw
-    pred = fit_predict(world, {"train": d.train.tau_clean, "test": d.test.tau_clean})
+    pred = fit_predict(
+        world, {"train": d.train.tau_clean, "test": d.test.tau_clean}, from_file=False
+    )
     err = np.abs(pred - d.holdout.tau_clean).max(axis=0)
     assert np.all(err <= 1e-6 * np.abs(d.holdout.tau_clean).max(axis=0))
+
+
+def test_the_oracle_from_the_holdout_file_differs_only_on_joints_with_a_bristle_state(world):
+    """From the file alone a bristle starts at 0 at its first row; every other law's columns,
+    and every joint's before the bristle has moved far, are the session's."""
+    d = world.draw
+    clean = {"train": d.train.tau_clean, "test": d.test.tau_clean}
+    session = fit_predict(world, clean, from_file=False)
+    from_file = fit_predict(world, clean)
+    stateful = [law.kind in STATEFUL_KINDS for law in world.laws]
+    for j, has_state in enumerate(stateful):
+        same = np.allclose(session[:, j], from_file[:, j], rtol=0, atol=1e-9)
+        assert same != has_state or not np.any(world.columns["holdout"][j] != 0), j
 
 
 def test_criteria_fail_a_false_effect_on_a_null_draw_and_an_after_rms_above_both_bounds():

@@ -38,7 +38,7 @@ import numpy as np
 import pinocchio as pin
 
 from . import family as fam
-from .friction_laws import FrictionLaw, draw_laws
+from .friction_laws import STATEFUL_KINDS, FrictionLaw, draw_laws
 from .referee import HOLDOUT_SHARE
 from .stamps import JITTER_FRACTION, gap_mask, jittered_times, outliers
 from .teaching import TestMotion, plan_test_motion
@@ -62,6 +62,9 @@ class World:
     motion: TestMotion
     seen: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]
     columns: dict[str, list[np.ndarray]]
+    #: per joint the holdout's columns as its file alone determines them: a bristle state
+    #: (LuGre, Dahl) started at 0 at the file's first row (:func:`draw_world`)
+    holdout_from_file: list[np.ndarray]
 
     @property
     def n(self) -> int:
@@ -184,6 +187,21 @@ def draw_world(seed: int, duration_scale: float = 1.0, pool: tuple[str, ...] | N
         }
         recording["outliers"][r] = count
 
+    # The oracle predicts the holdout from its file as any predictor must: a bristle's state at
+    # the file's first row is the torque a resting joint holds, set by the motion before the
+    # file, which no row of it records. Started at 0 there (the product's predict does the
+    # same); the session's state, which the generator knows and no file carries, is kept in
+    # ``columns`` (the oracle's columns on the training and test files, and its other figure).
+    t_hold = train_s + runs["holdout"].t
+    q_hold, v_hold = seen_rows["holdout"][0], seen_rows["holdout"][1]
+    holdout_from_file = []
+    for j, law in enumerate(laws):
+        c = columns["holdout"][j]
+        if law.kind in STATEFUL_KINDS:
+            c = c.copy()
+            c[:, : law_cols[j].shape[1]] = law.columns(t_hold, q_hold[:, j], v_hold[:, j])
+        holdout_from_file.append(c)
+
     wrong, urdf_errors = wrong_arm(arm, fam._rng(seed, _WRONG))
     effort = np.array([float(f"{3.0 * p:.3g}") for p in np.maximum(effort_peak, 1.0)])
     case = "+".join(e["name"] for e in applied.effects) or "null"
@@ -235,4 +253,5 @@ def draw_world(seed: int, duration_scale: float = 1.0, pool: tuple[str, ...] | N
         motion,
         seen_rows,
         columns,
+        holdout_from_file,
     )

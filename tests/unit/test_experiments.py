@@ -4,7 +4,13 @@ import numpy as np
 import pytest
 from example_program import write_program
 
-from control.experiments import build_plan, friction_runs, multisine, reciprocating
+from control.experiments import (
+    build_plan,
+    friction_runs,
+    multisine,
+    reciprocating,
+    teaching_strokes,
+)
 from control.plan_player import MAX_REPLAY_JOINT_SPEED_RAD_S, RESUME_ACCEL_RAD_S2, PlanPlayer
 from gateway.message_factories import make_joint_state
 from gateway.messages import FLAG_PREV_HOLD, FLAG_SERVO_POWER, ControllerState, JointState
@@ -268,3 +274,43 @@ def test_an_offset_multisine_moves_slowly_to_its_centre_and_back_to_q0():
     assert np.all(up <= amp + 1e-9) and np.all(up >= 0.3 * amp)
     assert np.abs(np.gradient(there, DT, axis=0)).max() <= 0.1 + 1e-3
     assert seg.q_rad.shape[0] * DT == pytest.approx(20.0 + 2 * 5.25, abs=3 * DT)
+
+
+def test_teaching_strokes_move_every_joint_slowly_reverse_each_stroke_and_start_from_rest():
+    """Commissioning's validation motion (on_cell.TEACHING_VALIDATION): 0.5-2 °/s, a reversal
+    at every stroke, a rest before each, within the amplitude about its centre."""
+    amp, offset = np.full(6, 0.03), np.array([0.0, -0.15, 0.1, 0.0, 0.0, 0.0])
+    seg = teaching_strokes(Q0, amp, (0.5, 2.0), 4, 1.0, DT, seed=11, offset_rad=offset)
+    np.testing.assert_allclose(seg.q_rad[[0, -1]], [Q0, Q0], atol=1e-9)
+    centre = Q0 + offset
+    # the strokes lie between the transfer there (1.5 x 0.15 / 0.1 rad/s = 2.25 s) and the
+    # last rest, after which the transfer back begins
+    there = int(np.ceil(2.25 / DT)) + 1
+    still = np.all(np.abs(seg.dq_rad_s) < 1e-9, axis=1)
+    core = slice(there, int(np.flatnonzero(still)[-1]) + 1)
+    assert np.all(np.abs(seg.q_rad[core] - centre) <= amp + 1e-9)
+    v = seg.dq_rad_s[core]
+    # strokes: 0.5-2 °/s (the blends below), never faster
+    assert np.abs(v).max() <= np.radians(2.0) * 1.01
+    for j in range(6):
+        moving = v[np.abs(v[:, j]) > 1e-5, j]
+        assert np.count_nonzero(np.diff(np.sign(moving)) != 0) == 3  # 4 strokes, 3 reversals
+        cruise = np.abs(moving)
+        assert np.percentile(cruise, 90) >= np.radians(0.5) * 0.99
+    # at rest for the rest time before every stroke: whole rows with every joint still
+    still = np.all(np.abs(v) < 1e-9, axis=1)
+    runs = np.diff(np.flatnonzero(np.diff(np.r_[0, still.astype(int), 0])))[::2]
+    assert np.sum(runs >= round(1.0 / DT) - 2) >= 4
+
+
+def test_a_plan_with_teaching_strokes_marks_them_for_validation_by_default():
+    spec = {"seed": 1, "strokes": 2, "amplitude_rad": 0.02, "speeds_deg_s": [0.5, 2.0],
+            "rest_s": 0.5}  # fmt: skip
+    segs = build_plan({"plan_id": "x", "teaching": [spec]}, Q0, LOWER, UPPER, DT, 0.05)
+    assert [(label, role) for label, role, _, _ in segs] == [("teaching/seed1", "validate")]
+    with pytest.raises(ValueError, match="teaching role"):
+        build_plan({"plan_id": "x", "teaching": [{**spec, "role": "x"}]}, Q0, LOWER, UPPER,
+                   DT, 0.05)  # fmt: skip
+    with pytest.raises(ValueError, match="teaching speeds"):
+        build_plan({"plan_id": "x", "teaching": [{**spec, "speeds_deg_s": [2, 0.5]}]}, Q0,
+                   LOWER, UPPER, DT, 0.05)  # fmt: skip

@@ -145,7 +145,9 @@ def test_identify_counts_the_experiments_the_cell_plays():
     labels = plan_labels(QUICK_PLAN, 6)
     friction = 6 * len(QUICK_PLAN["friction"]["speeds_deg_s"])
     inner = len(QUICK_PLAN["inner_loop"]["joints"])
-    assert len(labels) == friction + inner + len(QUICK_PLAN["multisine"])
+    assert len(labels) == friction + inner + len(QUICK_PLAN["multisine"]) + len(
+        QUICK_PLAN["teaching"]
+    )
     assert labels[0] == "friction/j1/2.0dps"
     assert experiments_done(labels, labels[3], 0) == 3
     assert experiments_done(labels, labels[3], 5) == 5  # never back
