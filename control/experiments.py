@@ -234,11 +234,8 @@ def teaching_strokes(
         pos, side = target, -side
     q = np.vstack(pieces)
     if np.any(centre != q0):
-        there = transfer(q0, centre, transfer_speed_rad_s, dt)
-        back = transfer(pos, q0, transfer_speed_rad_s, dt)
-        q = np.vstack([there, q[1:], back[1:]])
-    else:
-        q = np.vstack([q, transfer(pos, q0, transfer_speed_rad_s, dt)[1:]])
+        q = np.vstack([transfer(q0, centre, transfer_speed_rad_s, dt), q[1:]])
+    q = np.vstack([q, transfer(pos, q0, transfer_speed_rad_s, dt)[1:]])
     return Segment(f"teaching/seed{seed}", q, _differentiate(q, dt))
 
 

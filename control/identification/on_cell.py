@@ -315,6 +315,7 @@ def export_segments(
     per experiment segment of ``report`` (:func:`finished_report`): (train files, test
     files, validation files)."""
     train, test, validate = [], [], []
+    by_role = {"test": test, VALIDATE: validate}
     for k, seg in enumerate(report["segments"]):
         if seg["role"] == "inner_loop":
             continue  # velocity steps: fit_inner_loop_segments
@@ -323,7 +324,6 @@ def export_segments(
         path.parent.mkdir(parents=True, exist_ok=True)
         cycles = (seg["start_cycle"], seg["end_cycle"])
         export_csv(mcap, path, gains, cycle_range=cycles, recorded=recorded)
-        by_role = {"test": test, VALIDATE: validate}
         by_role.get(seg["role"], train).append(path)
     return train, test, validate
 

@@ -95,13 +95,15 @@ def raw_by_speed(
     return out
 
 
+def measured_velocity(m: Any) -> np.ndarray:
+    """A measurement file's velocity (T, n) [rad/s]: its own columns, or its positions'
+    finite-difference derivative where it has none (a state, never the scored torque)."""
+    return m.dq if m.dq is not None else np.gradient(m.q, m.t, axis=0)
+
+
 def scored_velocity(measurements: list[Any], rows: list[np.ndarray]) -> np.ndarray:
     """The measured velocity (R, n) [rad/s] of the scored rows of each file (``rows``: bool
-    per file), stacked as :func:`.heldout.residuals` stacks them; a file without velocity
-    columns gets its positions' finite-difference derivative (a state, never the scored
-    torque)."""
-    parts = []
-    for m, keep in zip(measurements, rows, strict=True):
-        dq = m.dq if m.dq is not None else np.gradient(m.q, m.t, axis=0)
-        parts.append(dq[keep])
-    return np.concatenate(parts)
+    per file), stacked as :func:`.heldout.residuals` stacks them (:func:`measured_velocity`)."""
+    return np.concatenate(
+        [measured_velocity(m)[keep] for m, keep in zip(measurements, rows, strict=True)]
+    )

@@ -22,7 +22,7 @@ import numpy as np
 from control.identification.datafile import read_measurements
 from control.identification.model import IdentifiedModel
 from control.identification.predict import predict_rows
-from control.identification.speed_regimes import raw_by_speed
+from control.identification.speed_regimes import measured_velocity, raw_by_speed
 from gateway.robot.description import RobotDescription
 
 WHAT = (
@@ -43,11 +43,9 @@ def score_file(
 ) -> dict[str, Any]:
     """One validation file's figures (module docstring)."""
     m = read_measurements(path)
-    with_cylinders = model.metadata.get("cylinders_removed") and m.p is not None
-    pred = predict_rows(model, m, desc if with_cylinders else None)
-    err = m.tau - pred
+    err = m.tau - predict_rows(model, m, desc)  # desc is used only for a cylinder model
     answered = np.isfinite(err).all(axis=1)
-    dq = m.dq if m.dq is not None else np.gradient(m.q, m.t, axis=0)
+    dq = measured_velocity(m)
     return {
         "file": path.name,
         "rows": int(m.n_samples),
