@@ -18,7 +18,8 @@ CARGO ?= cargo
 CARGO_BUILD = PYO3_PYTHON=$(abspath $(BIN)/python) $(CARGO) build --release --locked
 CAN_SO := drivers/can/_rt.abi3.so
 CONTROL_SO := control/_rt.abi3.so
-RT_SO := $(CAN_SO) $(CONTROL_SO)
+ROUTER_SO := gateway/_router.abi3.so
+RT_SO := $(CAN_SO) $(CONTROL_SO) $(ROUTER_SO)
 
 BUS_RS := gateway/rt/Cargo.toml $(shell find gateway/rt/src -name '*.rs')
 
@@ -30,6 +31,10 @@ $(CONTROL_SO): Cargo.toml Cargo.lock control/rt/Cargo.toml $(shell find control/
 	$(CARGO_BUILD) -p leadthrough-control-rt --features python
 	cp target/release/libcontrol_rt.so $@
 
+$(ROUTER_SO): Cargo.toml Cargo.lock gateway/router/Cargo.toml $(shell find gateway/router/src -name '*.rs') $(STAMP)
+	$(CARGO_BUILD) -p leadthrough-router-rt --features python
+	cp target/release/librouter_rt.so $@
+
 demo: $(STAMP) $(RT_SO)
 	$(BIN)/leadthrough demo --out demo_out
 
@@ -38,7 +43,7 @@ test: $(STAMP) $(RT_SO)
 	$(BIN)/ruff format --check .
 	$(BIN)/lint-imports
 	$(CARGO) fmt --all --check
-	$(CARGO) test --locked --quiet -p leadthrough-bus-rt -p leadthrough-can-rt -p leadthrough-control-rt
+	$(CARGO) test --locked --quiet -p leadthrough-bus-rt -p leadthrough-router-rt -p leadthrough-can-rt -p leadthrough-control-rt
 	$(BIN)/pytest -q
 
 # The stack tier beside a competing CPU load: a busy process pinned to CPU 0 at the product's

@@ -121,16 +121,71 @@ def _zenoh_config(
     return cfg
 
 
-def open_router(bus: BusConfig) -> zenoh.Session:
-    """Open the router session that every other process connects to (gateway only); on a
-    locked bus it authenticates every link and applies the access-control list."""
-    cfg = _zenoh_config(
-        "router", [bus.endpoint, *[bus.remote_endpoint] * bool(bus.remote_endpoint)], []
-    )
-    bus.insert_tls(cfg)
+def open_router(bus: BusConfig) -> zenoh.Session | LockedRouter:
+    """Open the router every other process connects to (gateway only) and the gateway's own
+    session on it. On an open bus the router is that session. On a locked bus it is
+    :class:`LockedRouter`: a compiled router that authenticates every link, applies the
+    access-control list and counts what the list refuses, with the gateway's session a client
+    of it."""
+    listen = [bus.endpoint, *[bus.remote_endpoint] * bool(bus.remote_endpoint)]
     if bus.locked:
-        security.insert_router_security(cfg, bus.credentials_file, bus.keys)
+        return LockedRouter.open(bus, listen)
+    cfg = _zenoh_config("router", listen, [])
+    bus.insert_tls(cfg)
     return zenoh.open(cfg)
+
+
+class LockedRouter:
+    """A locked bus's router and the gateway's own session, used as that session (every
+    attribute but :meth:`refusals` and :meth:`close` is the session's).
+
+    The router is compiled (gateway/router, the extension ``gateway._router``): zenoh's router
+    with the same settings the wheel would get, whose access-control decisions go to an
+    in-memory counter. The wheel reports them only as a formatted log line per decision, two
+    per message on the cycle, which the gateway had to read back through a pipe from its own
+    standard output: lines that filled the journal, and a router that stopped routing when the
+    pipe's reader was late (a locked-bus stack test faulted on "no fresh joint state" in CI).
+    The gateway's session is a client of it as the ``gateway`` identity, under the same list
+    as every other process."""
+
+    def __init__(self, router: Any, session: zenoh.Session) -> None:
+        self._router = router
+        self._session = session
+
+    @classmethod
+    def open(cls, bus: BusConfig, listen: list[str]) -> LockedRouter:
+        from gateway import _router  # compiled (make); only a locked bus needs it
+
+        entries = _zenoh_config("router", listen, [], cfg=_Entries())
+        bus.insert_tls(entries)
+        security.insert_router_security(entries, bus.credentials_file, bus.keys)
+        try:
+            router = _router.Router(entries.items)
+        except OSError as exc:
+            raise LinkTimeoutError(f"the bus router could not open on {listen}: {exc}") from exc
+        try:
+            session = _open_linked(
+                _zenoh_config("client", [], [bus.endpoint]), bus, security.GATEWAY,
+                CONNECT_TIMEOUT_S,
+            )  # fmt: skip
+        except BaseException:
+            router.close()
+            raise
+        return cls(router, session)
+
+    def refusals(self) -> list[tuple[str, str, str, int]]:
+        """Every (identity, action, key) the access-control list refused so far, with its
+        count (``gateway.bus_refusals.BusRefusals`` reads it)."""
+        return self._router.refusals()
+
+    def close(self) -> None:
+        try:
+            self._session.close()
+        finally:
+            self._router.close()
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._session, name)
 
 
 def _open_linked(cfg: zenoh.Config, bus: BusConfig, identity: str, timeout_s: float):

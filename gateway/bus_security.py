@@ -11,7 +11,8 @@ identity           may put (ingress at the router) / query
 ``modbus-driver``  I/O state, its health, driver telemetry
 ``operator``       queries on the gateway's request key (start, stop, reset, status, ...)
 ``observer``       nothing: subscribes only (recorders, monitors)
-``gateway``        its own puts are local to the router (lifecycle); nothing through a link
+``gateway``        the lifecycle; it answers the operator's queries (its session is a client
+                   of the router it hosts, :class:`gateway.bus.LockedRouter`)
 =================  ==========================================================================
 
 Every identity may declare subscribers and receive what the router forwards; no identity may
@@ -35,9 +36,9 @@ dictionary of accepted users); every other process reads its own line. It must b
 the service user only: a file with any group or other permission bit, or owned by another user,
 is refused. ``deploy/install.sh`` writes one with random passwords.
 
-Refused messages are dropped by zenoh inside the router and logged there at trace level
-(``RUST_LOG=zenoh::net::routing::interceptor::access_control=trace``); they never reach a
-driver.
+Refused messages are dropped by zenoh inside the router and never reach a driver; the router
+counts them per identity, action and key (gateway/router, read by
+:mod:`gateway.bus_refusals`), and `leadthrough status` names them.
 """
 
 from __future__ import annotations
@@ -82,6 +83,7 @@ PUTS: dict[str, Callable[[Keys], list[str]]] = {
         k.driver_telemetry,
     ],
     MODBUS_DRIVER: lambda k: [k.io_state, k.health("modbus_driver"), k.driver_telemetry],
+    GATEWAY: lambda k: [k.lifecycle],
 }
 #: identity → the keys it may query
 QUERIES: dict[str, Callable[[Keys], list[str]]] = {OPERATOR: lambda k: [k.request]}
@@ -189,6 +191,24 @@ def access_control(keys: Keys) -> dict[str, Any]:
                 }
             )
             policies.append({"rules": [rule_id], "subjects": [identity]})
+    # the gateway serves the request key: the operator's queries go out to it, its replies in
+    rules += [
+        {
+            "id": "serve-gateway",
+            "permission": "allow",
+            "flows": ["egress"],
+            "messages": ["query"],
+            "key_exprs": [keys.request],
+        },
+        {
+            "id": "reply-gateway",
+            "permission": "allow",
+            "flows": ["ingress"],
+            "messages": ["reply"],
+            "key_exprs": [keys.request],
+        },
+    ]
+    policies.append({"rules": ["serve-gateway", "reply-gateway"], "subjects": [GATEWAY]})
     return {
         "enabled": True,
         "default_permission": "deny",

@@ -23,8 +23,8 @@ from pathlib import Path
 
 import zenoh
 
-from gateway.bus import BusConfig, open_router, undeclare_all
-from gateway.bus_refusals import BusRefusals, count_bus_refusals
+from gateway.bus import BusConfig, LockedRouter, open_router, undeclare_all
+from gateway.bus_refusals import BusRefusals
 from gateway.children import Child, _die_with_parent
 from gateway.config import resolve_path
 from gateway.errors import EXIT_CONFIG, ConfigError, MessageError
@@ -107,8 +107,6 @@ class Gateway:
         self._handle_marks = 0  #: presses of it not yet recorded
         #: what the locked bus's access-control list refused (None on an open bus)
         self.refusals: BusRefusals | None = None
-        #: the children's standard output: the gateway's own, or the one before the tap
-        self._child_stdout: int | None = None
 
     # --- processes ----------------------------------------------------------------------
     def _argv(self, name: str) -> list[str]:
@@ -119,9 +117,7 @@ class Gateway:
         log.info("starting %s", child.name)
         # Same process group as the gateway (a terminal's Ctrl-C or a killpg reaches them all),
         # and the kernel sends SIGTERM if the gateway itself dies.
-        child.proc = subprocess.Popen(
-            child.argv, preexec_fn=_die_with_parent, stdout=self._child_stdout
-        )
+        child.proc = subprocess.Popen(child.argv, preexec_fn=_die_with_parent)
         child.started_s = time.monotonic()
         child.restart_at_s = None
 
@@ -468,10 +464,9 @@ class Gateway:
 
     # --- main -----------------------------------------------------------------------------
     def open(self) -> None:
-        if self.bus.locked:  # before the router opens: its refusals are logged from then on
-            self.refusals, tap = count_bus_refusals()
-            self._child_stdout = tap.original_fd
         self.session = open_router(self.bus)
+        if isinstance(self.session, LockedRouter):
+            self.refusals = BusRefusals(self.session.refusals)
         s = self.session
         self._state_sub = s.declare_subscriber(
             self.keys.state_window, zenoh.handlers.RingChannel(JOINT_STATE_QUEUE)
@@ -508,6 +503,8 @@ class Gateway:
                 if before != self.machine.state and self.machine.state == Lifecycle.FAULT:
                     log.error("FAULT: %s", self.machine.reason)
             self._follow_program()
+            if self.refusals is not None:
+                self.refusals.poll()
             self._serve_requests()
             with self.lock:
                 self._publish_lifecycle(now)

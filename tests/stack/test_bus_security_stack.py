@@ -90,3 +90,6 @@ def test_a_locked_bus_teaches_and_no_other_identity_reaches_a_driver(tmp_path):
     # teaching ran on without a gap through the forgeries (a gap: something stopped it)
     assert rows.size and np.max(np.diff(t)) < 0.1, np.max(np.diff(t))
     assert t[-1] - t[0] > 2 * FORGE_S
+    # the router counted its decisions in memory: none of them, allowed or refused, went to
+    # the gateway's output (the journal on a cell PC)
+    assert "authorized" not in (tmp_path / "gateway.log").read_text(errors="replace")

@@ -66,7 +66,7 @@ def test_only_the_owner_of_a_key_can_put_on_it(locked, key_name, allowed, refuse
             _put_as(bus, identity, key, identity.encode())
         if allowed is not None:
             _put_as(bus, allowed, key, allowed.encode())
-        else:  # the lifecycle: the gateway's own puts, local to the router
+        else:  # the lifecycle: the gateway's own session (identity "gateway") puts it
             router.put(key, b"gateway")
             time.sleep(SETTLE_S)
         assert got == [(allowed or "gateway").encode()]
@@ -115,7 +115,10 @@ def test_the_access_control_list_denies_by_default_and_names_every_identity():
         if r["id"] in p["rules"] and "put" in r["messages"] and r["flows"] == ["ingress"]
     }
     assert ingress_puts[(sec.CONTROL,)][0] == "lt/cmd/joints"
-    assert all("lt/gateway/lifecycle" not in keys for keys in ingress_puts.values())
+    # the lifecycle comes from the gateway's session alone
+    assert ingress_puts[(sec.GATEWAY,)] == ["lt/gateway/lifecycle"]
+    others = [keys for who, keys in ingress_puts.items() if who != (sec.GATEWAY,)]
+    assert all("lt/gateway/lifecycle" not in keys for keys in others)
     json.dumps(acl)  # zenoh takes it as JSON
 
 
