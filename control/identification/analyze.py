@@ -47,6 +47,7 @@ from threadpoolctl import threadpool_limits
 from control.identification import cylinders as cyl
 from control.identification import effects as fx
 from control.identification.chain import settle as settle_chain
+from control.identification.effect_rules import NoiseFloor
 from control.identification.families import (
     RIGID_PRIOR_RIDGE,
     _excitation_report,
@@ -223,6 +224,14 @@ def _analyze(
         ls, run, base_fit, names, options.search.alpha, clock.say
     )
     fits[kind] = base_fit
+    if options.find_effects and accepted_a:
+        # rule (viii): every accepted effect judged again on this final fit
+        train_eval, dropped = fx.prune(
+            ls, state, train_eval, base_fit.weights, NoiseFloor.of(run.train), options.search,
+            ctx_train.envelope, plain_sse, clock.say,
+        )  # fmt: skip
+        accepted_a, names = state.accepted, state.names
+        refused += dropped
     if calibration is not None:
         # the cylinders' torque in physical units too: the gain reads it as well
         calibration = calibration.over_gain(chain.gain)

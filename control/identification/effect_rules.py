@@ -50,6 +50,13 @@ training and test* are described) is accepted only if
     direction-dependent part of a Coulomb friction, with a small slope), and naming it would
     be false.
 
+(viii) case (A), *the backward look*: on the final fit (the measurement chain settled, every
+    effect in), each accepted effect is judged again by (i)-(iii), (vi) and (vii) against
+    the final model without it; the weakest that fails is dropped and the rest judged again
+    (:func:`.effects.prune`). An effect taken against the model of its round can be
+    redundant in the final one (a joint's offset, taken by the chain after the search; a
+    later effect), and naming it would be false.
+
 Rules (iv) and (v) are checked on the acceptable candidates in order of their score; the
 first that holds is taken.
 
