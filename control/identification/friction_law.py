@@ -13,13 +13,14 @@ the loaded model (:class:`.model.IdentifiedModel`) and the run-time tables
   (:func:`friction_direction`, stepped by the prefix scan :func:`linear_recurrence`), the
   travel weighted by the probability that the joint moves (:func:`rest_probability`, with
   which :meth:`.terms.Context.sample_mean` also takes every function of the velocity in
-  expectation).
+  expectation, under prior odds of rest the motion's own velocities give,
+  :func:`rest_log_odds`).
 """
 
 from __future__ import annotations
 
 import numpy as np
-from scipy.special import expit
+from scipy.special import erf, expit
 
 from control.model.friction import (
     EQ14_PARAM_NAMES,
@@ -43,19 +44,70 @@ STRIBECK_PARAM_NAMES = ("gauss_stribeck_nm",)
 
 
 #: Log prior odds of a joint at rest against one moving at a velocity of its noise's size
-#: (:func:`rest_probability`): rest and motion equally likely, motion spread evenly over a range
+#: (:func:`rest_probability`) where no motion is given to estimate them from
+#: (:func:`rest_log_odds`): rest and motion equally likely, motion spread evenly over a range
 #: ``V`` about 10⁴ times the noise σ wide, ``ln(V / (σ √(2π)))`` ≈ 8. The band the joint counts
 #: as resting in is ± σ √(2 × 8) = ± 4 σ: half as wide for odds a hundred times smaller, as
 #: the band's edge moves with the square root of their log.
 REST_LOG_ODDS = 8.0
 
+#: |v| / σ below which a sample is counted as possibly resting (:func:`rest_log_odds`): ± 2 σ
+#: holds 95.4 % of a resting joint's readings.
+REST_BAND_SIGMA = 2.0
 
-def rest_probability(v: np.ndarray, sigma: float) -> np.ndarray:
+#: |v| / σ band over which the moving joint's velocity density near 0 is read
+#: (:func:`rest_log_odds`): from 5 σ a resting joint's readings are under 6 · 10⁻⁷ of its
+#: samples, and to 10 σ the band is still near 0 on the motion's own scale.
+MOVING_BAND_SIGMA = (5.0, 10.0)
+
+#: Bound of the estimated log odds: at ± 20 the posterior is 0 or 1 to 2 · 10⁻⁹ at v = 0.
+REST_LOG_ODDS_LIMIT = 20.0
+
+
+def rest_log_odds(dq: np.ndarray, sigma: float) -> float:
+    """The log prior odds :func:`rest_probability` weighs a reading with, estimated from the
+    motion's own velocities ``dq`` (T,) read through noise of std ``sigma`` [rad/s]: how much
+    of the time the joint rests, against how densely the moving joint's velocity lies near 0.
+
+    The readings are a mixture: a share π at rest, N(0, σ²), and the moving rest of density
+    ``m`` per unit of v/σ near 0 (read where no resting reading falls, |v| in
+    :data:`MOVING_BAND_SIGMA` σ). The readings within ± :data:`REST_BAND_SIGMA` σ beyond the
+    moving ones there are the resting share: π = (share within − m · 2 × 2) / 0.954. The odds
+    that a reading at v rests are then π φ(v/σ) / m, so ``L = ln(π / (√(2π) m))``.
+
+    A multi-sine that only crosses 0 gives π ≈ 0 and L well below 0: every reading moves, as
+    it does (a fixed prior of rest-or-motion counted ± 4 σ around each crossing as rest and
+    dropped the friction's sign there, which the joint had). A teaching motion that dwells
+    gives π its share of dwelling and L above 0. Counts get half a sample each so that L
+    stays finite; it is bounded by ± :data:`REST_LOG_ODDS_LIMIT`. Without noise or samples,
+    :data:`REST_LOG_ODDS`."""
+    v = np.abs(np.asarray(dq, dtype=float))
+    v = v[np.isfinite(v)]
+    if v.size == 0 or not (np.isfinite(sigma) and sigma > 0.0):
+        return REST_LOG_ODDS
+    z = v / sigma
+    n = float(z.size)
+    lo, hi = MOVING_BAND_SIGMA
+    moving = (np.count_nonzero((z >= lo) & (z < hi)) + 0.5) / (n * 2.0 * (hi - lo))
+    inside = np.count_nonzero(z < REST_BAND_SIGMA) / n
+    share = (inside - moving * 2.0 * REST_BAND_SIGMA) / float(erf(REST_BAND_SIGMA / np.sqrt(2.0)))
+    share = min(max(share, 0.5 / n), 1.0)
+    odds = np.log(share / (np.sqrt(2.0 * np.pi) * moving))
+    return float(np.clip(odds, -REST_LOG_ODDS_LIMIT, REST_LOG_ODDS_LIMIT))
+
+
+def rest_probability(
+    v: np.ndarray, sigma: float, log_odds: float | np.ndarray = REST_LOG_ODDS
+) -> np.ndarray:
     """Probability that a joint whose velocity reads ``v`` [rad/s] through white noise of std
     ``sigma`` [rad/s] is at rest: its reading's likelihood at rest, N(v; 0, σ²), against a
-    moving joint's, weighed by :data:`REST_LOG_ODDS`: ``expit(L - v² / 2σ²)``, 1 at 0, ½ at
-    ± 4 σ, 1.1 % at ± 5 σ, under 10⁻⁴ beyond ± 6 σ."""
-    return expit(REST_LOG_ODDS - 0.5 * (np.asarray(v, dtype=float) / sigma) ** 2)
+    moving joint's, weighed by the prior ``log_odds`` (scalar or per reading,
+    :func:`rest_log_odds`; by default
+    :data:`REST_LOG_ODDS`): ``expit(L - v² / 2σ²)``; with L = 8, 1 at 0, ½ at ± 4 σ, 1.1 % at
+    ± 5 σ, under 10⁻⁴ beyond ± 6 σ."""
+    return expit(
+        np.asarray(log_odds, dtype=float) - 0.5 * (np.asarray(v, dtype=float) / sigma) ** 2
+    )
 
 
 def linear_recurrence(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -80,6 +132,7 @@ def friction_direction(
     presliding_rad: float,
     start: float = 0.0,
     q_before: float | None = None,
+    log_odds: float | np.ndarray = REST_LOG_ODDS,
 ) -> np.ndarray:
     """The direction of a friction with memory, (T,) in [-1, 1]: the state z of Dahl's model
     (exponent 1) driven by the joint's travel, ``dz/dx = (1 - z sgn(dx)) / x_c`` with ``x_c``
@@ -90,18 +143,19 @@ def friction_direction(
     joint's history; a caller cutting one motion into pieces carries the last piece's end, and
     with ``q_before``, the last piece's last position, the travel from there to ``q[0]``).
     The travel is the positions' difference weighted by the probability that the joint moves
-    (1 - :func:`rest_probability` of ``dq`` under the velocity noise ``sigma``; all of it
-    without noise): the positions of a resting joint wander by their noise, and Dahl's state
-    driven by that wander would decay from ±1 towards 0 at every rest (a step against the
-    direction moves z twice as far as a step with it). At rest z holds: the joint holds the
-    friction torque of its last motion, as a gear's teeth stay loaded when the joint stops.
+    (1 - :func:`rest_probability` of ``dq`` under the velocity noise ``sigma`` and the prior
+    ``log_odds``; all of it without noise): the positions of a resting joint wander by their
+    noise, and Dahl's state driven by that wander would decay from ±1 towards 0 at every rest
+    (a step against the direction moves z twice as far as a step with it). At rest z holds:
+    the joint holds the friction torque of its last motion, as a gear's teeth stay loaded
+    when the joint stops.
     Sliding steadily, z = sgn(dq): the friction of a memoryless law."""
     q = np.asarray(q, dtype=float)
     if q.size == 0:
         return np.zeros(0)
     dx = np.diff(q, prepend=q[0] if q_before is None else float(q_before))
     if np.isfinite(sigma) and sigma > 0.0:
-        dx = dx * (1.0 - rest_probability(dq, sigma))
+        dx = dx * (1.0 - rest_probability(dq, sigma, log_odds))
     a = np.exp(-np.abs(dx) / presliding_rad)
     z = linear_recurrence(a, np.sign(dx) * (1.0 - a))
     if start:

@@ -19,7 +19,11 @@ import numpy as np
 
 from control.identification import preprocess
 from control.identification.datafile import Measurements
-from control.identification.friction_law import FRICTION_PARAM_NAMES, friction_direction
+from control.identification.friction_law import (
+    FRICTION_PARAM_NAMES,
+    friction_direction,
+    rest_log_odds,
+)
 from control.identification.preprocess import Prepared
 from control.identification.rigid import BaseParameters, RobotRegressor
 from control.identification.terms import (
@@ -188,6 +192,7 @@ class IdentifiedModel:
         dq_noise: np.ndarray | None = None,
         sequence: bool = True,
         directions: np.ndarray | None = None,
+        rest_odds: np.ndarray | None = None,
     ) -> Context:
         reg = self.regressor
         payload = any(term.name == "payload" for term, _, _ in self.effects)
@@ -197,6 +202,7 @@ class IdentifiedModel:
         return Context(
             q, dq, ddq, t_s, y[:, :, :nb], y[:, :, nb:] if payload else None, None, None,
             self.envelope, dq_noise=dq_noise, sequence=sequence, directions=directions,
+            rest_odds=None if rest_odds is None else np.asarray(rest_odds, dtype=float),
         )  # fmt: skip
 
     def _rigid(self, y_base: np.ndarray) -> np.ndarray:
@@ -245,6 +251,7 @@ class IdentifiedModel:
         t_s: np.ndarray | None = None,
         dq_noise_rad_s: np.ndarray | None = None,
         directions: np.ndarray | None = None,
+        rest_odds: np.ndarray | None = None,
     ) -> np.ndarray:
         """Rigid body + friction + accepted effect terms [N·m]; (n,) or (T, n).
 
@@ -254,11 +261,13 @@ class IdentifiedModel:
         (T, n) are one motion in time order, whose history a friction with memory follows;
         one sample (n,) has none, and such a friction slides there. ``directions`` (T, n):
         the friction directions of those rows when the caller follows the motion across
-        several calls (:meth:`friction_directions`).
+        several calls (:meth:`friction_directions`). ``rest_odds`` (n,): the log prior odds of
+        rest per joint (:func:`.friction_law.rest_log_odds`) of the motion these rows belong
+        to, for the same caller, or (T, n) per row; None: estimated from these rows.
         """
         single, (q, dq, ddq) = self._arrays(q_rad, dq_rad_s, ddq_rad_s2)
         t = None if t_s is None else np.broadcast_to(np.asarray(t_s, dtype=float), (q.shape[0],))
-        ctx = self._context(q, dq, ddq, t, dq_noise_rad_s, not single, directions)
+        ctx = self._context(q, dq, ddq, t, dq_noise_rad_s, not single, directions, rest_odds)
         out = self.torque_from_context(ctx)
         return out[0] if single else out
 
@@ -278,10 +287,11 @@ class IdentifiedModel:
         t_s: np.ndarray | None = None,
         dq_noise_rad_s: np.ndarray | None = None,
         directions: np.ndarray | None = None,
+        rest_odds: np.ndarray | None = None,
     ) -> np.ndarray:
         """:meth:`torque_nm` through the measurement chain (:meth:`measured`) [N·m]."""
         return self.measured(
-            self.torque_nm(q_rad, dq_rad_s, ddq_rad_s2, t_s, dq_noise_rad_s, directions)
+            self.torque_nm(q_rad, dq_rad_s, ddq_rad_s2, t_s, dq_noise_rad_s, directions, rest_odds)
         )
 
     def friction_directions(
@@ -291,13 +301,15 @@ class IdentifiedModel:
         dq_noise_rad_s: np.ndarray | None = None,
         start: np.ndarray | None = None,
         q_before: np.ndarray | None = None,
+        rest_odds: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """The friction directions of rows (T, n) of one motion, and each joint's last (n,):
         for a caller that evaluates the motion in pieces (``leadthrough predict``: stretches
         between gaps, chunks of rows) and passes each piece's slice to :meth:`torque_nm`, with
         ``start`` (n,) the previous piece's last (None: zeros, no history) and ``q_before``
         (n,) its last position [rad] (the travel across a gap; None: none). Joints whose
-        friction has no memory read 0."""
+        friction has no memory read 0. ``rest_odds`` (n,) as :meth:`torque_nm` takes it (None:
+        estimated from these rows)."""
         q, dq = (np.asarray(a, dtype=float).reshape(-1, self.n) for a in (q_rad, dq_rad_s))
         out = np.zeros_like(q)
         z0 = np.zeros(self.n) if start is None else np.asarray(start, dtype=float)
@@ -307,8 +319,13 @@ class IdentifiedModel:
                 continue
             sigma = 0.0 if dq_noise_rad_s is None else float(dq_noise_rad_s[j])
             before = None if q_before is None else float(q_before[j])
+            odds = (
+                rest_log_odds(dq[:, j], sigma)
+                if rest_odds is None
+                else np.asarray(rest_odds, dtype=float)[..., j]
+            )
             out[:, j] = friction_direction(
-                q[:, j], dq[:, j], sigma, term.presliding_rad, z0[j], before
+                q[:, j], dq[:, j], sigma, term.presliding_rad, z0[j], before, odds
             )
         end = out[-1].copy() if out.shape[0] else z0.copy()
         return out, end
@@ -348,7 +365,9 @@ class IdentifiedModel:
         ``data.tau``: :meth:`torque_nm` at the sample times, through the torque's low-pass
         (:meth:`.preprocess.Prepared.lowpass`), delayed by :attr:`delay_s` when a time_delay
         effect was accepted; through the measurement chain (:meth:`measured`)."""
-        ctx = self._context(data.q, data.dq, data.ddq, data.t, data.dq_noise_rad_s)
+        ctx = self._context(
+            data.q, data.dq, data.ddq, data.t, data.dq_noise_rad_s, rest_odds=data.dq_rest_odds
+        )
         ctx.sample_hz, ctx.raw_hz = data.sample_hz, data.raw_hz
         tau = self.measured(data.lowpass(self.torque_from_context(ctx)))
         return shift_signal(data.t, data.segment, tau, -self.delay_s) if self.delay_s else tau

@@ -34,6 +34,7 @@ import numpy as np
 
 from control.identification.datafile import Measurements
 from control.identification.fit import cylinder_joint_map
+from control.identification.friction_law import rest_log_odds
 from control.identification.model import IdentifiedModel
 from control.identification.preprocess import (
     FILTER_ORDER,
@@ -145,13 +146,15 @@ def predict_rows(
         q_f, dq_f, ddq_f = _states(t, m.q[a:b], dq, cutoff, at[ok])
         # this stretch's own velocity noise, which friction is taken in expectation over
         noise = velocity_noise_std(m.q[a:b], dq, float(np.median(np.diff(t))), cutoff)
+        # and how much of it the joint rests, from the stretch's velocities as a whole
+        odds = np.array([rest_log_odds(dq_f[:, j], float(noise[j])) for j in range(model.n)])
         rows = np.flatnonzero(ok) + a
-        directions, direction = model.friction_directions(q_f, dq_f, noise, direction, q_last)
+        directions, direction = model.friction_directions(q_f, dq_f, noise, direction, q_last, odds)
         q_last = q_f[-1] if len(q_f) else q_last
         for c in range(0, rows.size, CHUNK_ROWS):
             r = slice(c, c + CHUNK_ROWS)
             out[rows[r]] = model.measured_torque_nm(
-                q_f[r], dq_f[r], ddq_f[r], at[ok][r], noise, directions[r]
+                q_f[r], dq_f[r], ddq_f[r], at[ok][r], noise, directions[r], odds
             )
         if desc_measured is not None:
             # the cylinders push at the time of the row itself: only the drive's torque lags

@@ -47,6 +47,7 @@ import numpy as np
 from scipy import signal
 
 from control.identification.datafile import Measurements
+from control.identification.friction_law import rest_log_odds
 from gateway.errors import ConfigError, DataFileError
 
 DEFAULT_RATE_HZ = 200.0
@@ -110,6 +111,11 @@ class Prepared:
     #: (:func:`velocity_noise_std`; None: unknown): friction's sign is taken in expectation
     #: over it (:meth:`.terms.Context.sample_mean`)
     dq_noise_rad_s: np.ndarray | None = None
+    #: (T, n) the log prior odds that each joint rests (:func:`.friction_law.rest_log_odds`),
+    #: estimated per gap-free stretch from its own filtered velocities (None: unknown): a
+    #: multi-sine that only crosses 0 and a teaching motion that dwells differ in them, and
+    #: the training and test files may be one of each
+    dq_rest_odds: np.ndarray | None = None
 
     @property
     def n_samples(self) -> int:
@@ -127,7 +133,7 @@ class Prepared:
         """The samples where ``mask`` (T,) is true (a boolean array or index array)."""
         per_sample = ("t", "q", "dq", "ddq", "tau", "segment")
         changes = {k: getattr(self, k)[mask] for k in per_sample}
-        for k in ("p", "filter_hz", "sample_hz", "raw_hz"):
+        for k in ("p", "filter_hz", "sample_hz", "raw_hz", "dq_rest_odds"):
             v = getattr(self, k)
             changes[k] = None if v is None else v[mask]
         return replace(self, **changes)
@@ -404,6 +410,10 @@ def prepare(
         part["filter_hz"] = np.full(part["t"].size, tau_cut)
         part["sample_hz"] = np.full(part["t"].size, fs / factor)
         part["raw_hz"] = np.full(part["t"].size, fs)
+        odds = [
+            rest_log_odds(part["dq"][:, j], float(raw_dq_noise[j])) for j in range(m.q.shape[1])
+        ]
+        part["rest_odds"] = np.tile(odds, (part["t"].size, 1))
         parts.append(part)
         rates.append(fs / factor)
         floor = raw_noise * np.sqrt(filter_noise_gain(tau_cut, fs))
@@ -434,6 +444,7 @@ def prepare(
         raw_noise_nm=_pooled([(k, r) for k, r, _, _ in noise]),
         noise_dof_nm2=_squared(_pooled([(k, d) for k, _, _, d in noise])),
         dq_noise_rad_s=_pooled(dq_noise),
+        dq_rest_odds=cat["rest_odds"],
     )
 
 
@@ -493,6 +504,7 @@ def concatenate(parts: Sequence[Prepared]) -> Prepared:
         raw_noise_nm=_pooled([(p.n_samples, p.raw_noise_nm) for p in parts]),
         noise_dof_nm2=_squared(_pooled([(p.n_samples, _sqrt(p.noise_dof_nm2)) for p in parts])),
         dq_noise_rad_s=_pooled([(p.n_samples, p.dq_noise_rad_s) for p in parts]),
+        dq_rest_odds=_cat_optional([p.dq_rest_odds for p in parts]),
     )
 
 

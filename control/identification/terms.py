@@ -75,6 +75,7 @@ from control.identification.friction_law import (
     friction_basis,
     friction_direction,
     gaussian_stribeck,
+    rest_log_odds,
     rest_probability,
 )
 
@@ -167,6 +168,11 @@ class Context:
     #: None or 0: exact velocities): :meth:`sample_mean` takes each function of the velocity
     #: in expectation over it
     dq_noise: np.ndarray | None = None
+    #: (T, n) the log prior odds that each joint rests (:func:`.friction_law.rest_log_odds`,
+    #: :attr:`.preprocess.Prepared.dq_rest_odds`) with which :meth:`sample_mean` and
+    #: :meth:`direction` weigh each reading; (n,) for every row alike; None: estimated from
+    #: these rows' own velocities, all taken as one motion
+    rest_odds: np.ndarray | None = None
     #: True: the rows are one motion in time order, whose history a friction with memory
     #: follows (:meth:`direction`); False: unrelated states (one sample evaluated at run time),
     #: where it slides (its direction is the velocity's sign)
@@ -192,6 +198,18 @@ class Context:
         dq = self.dq[:, j]
         return dq if self.envelope is None else self.envelope.clip_dq(j, dq)
 
+    def rest_log_odds(self, j: int) -> np.ndarray:
+        """Joint j's log prior odds of rest per row, (T,) (:attr:`rest_odds`, else estimated
+        from its velocities under :attr:`dq_noise` and kept)."""
+        if self.rest_odds is None:
+            sigma = np.zeros(self.dq.shape[1]) if self.dq_noise is None else self.dq_noise
+            n = self.dq.shape[1]
+            self.rest_odds = np.array(
+                [rest_log_odds(self.dq[:, i], float(sigma[i])) for i in range(n)]
+            )
+        odds = np.asarray(self.rest_odds, dtype=float)
+        return odds[:, j] if odds.ndim == 2 else np.full(self.dq.shape[0], odds[j])
+
     def direction(self, j: int, presliding_rad: float) -> np.ndarray:
         """Joint j's friction direction with memory (:func:`friction_direction`), (T,);
         computed once per joint and presliding travel."""
@@ -201,8 +219,9 @@ class Context:
         if key not in self._directions:
             sigma = 0.0 if self.dq_noise is None else float(self.dq_noise[j])
             self._directions[key] = friction_direction(
-                self.q[:, j], self.dq[:, j], sigma, presliding_rad
-            )
+                self.q[:, j], self.dq[:, j], sigma, presliding_rad,
+                log_odds=self.rest_log_odds(j),
+            )  # fmt: skip
         return self._directions[key]
 
     def sample_mean(self, j: int, fn: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
@@ -230,18 +249,19 @@ class Context:
             return out[:, None] if out.ndim == 1 else out
 
         sigma = 0.0 if self.dq_noise is None else float(self.dq_noise[j])
+        odds = self.rest_log_odds(j) if np.isfinite(sigma) and sigma > 0.0 else None
 
         def at(v: np.ndarray) -> np.ndarray:
             """``fn`` in expectation over whether the joint moves (class docstring). A joint
             at rest reads its velocity noise, and ``fn`` of that alone takes a coin toss's sign
             at face value: ± the Coulomb level from one sample to the next while the joint
             holds still. Given the measured v̂, the joint rests with the probability
-            :func:`rest_probability`, and there friction is ``fn`` at 0 (no sign, nothing a
-            function of the velocity can know of the torque a stuck joint holds); it moves
-            with the rest, at v̂."""
-            if not (np.isfinite(sigma) and sigma > 0.0):
+            :func:`rest_probability` under the prior :meth:`rest_log_odds`, and there
+            friction is ``fn`` at 0 (no sign, nothing a function of the velocity can know of
+            the torque a stuck joint holds); it moves with the rest, at v̂."""
+            if odds is None:
                 return exact(v)
-            rest = rest_probability(v, sigma)[:, None]
+            rest = rest_probability(v, sigma, odds)[:, None]
             return rest * exact(np.zeros_like(v)) + (1.0 - rest) * exact(v)
 
         if self.sample_hz is None or self.raw_hz is None or dq.size == 0:
@@ -259,6 +279,14 @@ class Context:
             acc = part if acc is None else acc + part
         assert acc is not None
         return acc
+
+    def _rest_odds_of(self, index: np.ndarray | slice) -> np.ndarray | None:
+        """:attr:`rest_odds` for the rows ``index`` (a subset keeps its parent's prior)."""
+        if self.dq.ndim != 2 or self.dq.shape[1] == 0:
+            return self.rest_odds
+        self.rest_log_odds(0)
+        odds = np.asarray(self.rest_odds, dtype=float)
+        return odds[index] if odds.ndim == 2 else odds
 
     def filtered(self, cols: np.ndarray) -> np.ndarray:
         """Columns (T, m) through :attr:`lowpass` (unchanged without one)."""
@@ -287,6 +315,7 @@ class Context:
             take(self.sample_hz),
             take(self.raw_hz),
             self.dq_noise,
+            self._rest_odds_of(index),
             self.sequence,
             take(self.directions),
         )
