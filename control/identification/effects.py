@@ -281,18 +281,19 @@ def prune(
     11 % of a joint's held-out RMS when accepted and 0.001 N·m once the chain had the offset.
     Named, it would be false; so would one that a later effect made redundant."""
     dropped: list[dict[str, Any]] = []
+    # the target does not change here, nor does the rival's error on it
+    rival = None if rival_sse is None else rival_sse(ls.y)
     while True:
         weakest = None
         for acc in state.accepted:
             term = acc.term
-            if term.name == "time_delay":
+            if not term.is_linear:  # the delay: no columns to take out
                 continue
             without = ls.evaluate([n for n in state.names if n != term.key], weights)
             v = judge(term, without, current, weights, noise, 1, options, 0, envelope)
             if v.accepted:
                 continue
-            if rival_sse is not None and rescuing([v], without, rival_sse(ls.y), noise,
-                                                  options.alpha):  # fmt: skip
+            if rival is not None and rescuing([v], without, rival, noise, options.alpha):
                 continue
             strength = v.chi2 / max(v.chi2_threshold, 1e-300)
             if weakest is None or strength < weakest[0]:
