@@ -28,7 +28,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "status": ("gateway.cli", "operator: show lifecycle state, links and why it cannot start"),
     "reset": ("gateway.cli", "operator: clear a fault once its cause is gone"),
     "mark": ("gateway.cli", "operator: mark a waypoint in the program being taught"),
-    "program": ("gateway.program_cli", "show a taught program, export it as CSV or processed"),
+    "program": ("control.program_cli", "show a taught program, export it as CSV or processed"),
     "replay": ("gateway.replay", "operator: play a taught program back on the robot"),
     "can-driver": ("drivers.can.driver", "run the CAN driver (started by the gateway)"),
     "modbus-driver": ("drivers.modbus.driver", "run the Modbus driver (started by the gateway)"),

@@ -161,7 +161,7 @@ def export_parquet(
     keys in the file-level metadata. Returns the rows written."""
     import numpy as np
 
-    from control.identification.datafile import write_parquet
+    from gateway.parquet_file import write_parquet
     from gateway.recorder import export_csv
 
     # The CSV is the one definition of the export's rows; the Parquet file is made from it,

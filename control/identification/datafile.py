@@ -31,8 +31,8 @@ row per sample. It is read into the same arrays as a CSV and checked by the same
 name the column and the data row (``row R (index R-1)``: rows counted from 1, and pandas'
 0-based index) instead of a line. The file-level metadata may carry the sidecar's keys, each
 value JSON (``drive_gains_nm_per_a``: ``[K1, ..]``, written by ``leadthrough export``); its
-gains come before a sidecar's. :func:`write_parquet` writes one; pyarrow is imported only
-when a Parquet file is read or written.
+gains come before a sidecar's. :func:`gateway.parquet_file.write_parquet` writes one
+(``leadthrough export``); pyarrow is imported only when a Parquet file is read or written.
 
 Errors
 ------
@@ -54,7 +54,7 @@ from __future__ import annotations
 import io
 import json
 import re
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -490,26 +490,6 @@ def _read_parquet(where: _Where, raw: bytes) -> tuple[_Layout, np.ndarray, np.nd
             raise where.header(f"metadata {SIDECAR_GAINS_KEY} {gains!r} is not JSON") from None
         embedded = _gains_array(f"{where.path}: metadata", value)
     return layout, np.column_stack(columns), embedded
-
-
-def write_parquet(
-    path: str | Path,
-    names: Sequence[str],
-    data: np.ndarray,
-    metadata: Mapping[str, Any] | None = None,
-) -> None:
-    """Write columns ``names`` of ``data`` (rows, len(names)) as float64 to a Parquet file,
-    in that order; ``metadata`` goes into the file-level metadata, each value as JSON (the
-    sidecar's keys: :func:`read_measurements` takes ``drive_gains_nm_per_a`` from there)."""
-    import pyarrow as pa
-    import pyarrow.parquet as pq
-
-    values = np.asarray(data, dtype=np.float64)
-    if values.ndim != 2 or values.shape[1] != len(names):
-        raise ValueError(f"data of shape {values.shape} for {len(names)} columns {list(names)}")
-    table = pa.Table.from_arrays([pa.array(column) for column in values.T], names=list(names))
-    meta = {str(k).encode(): json.dumps(v).encode() for k, v in (metadata or {}).items()}
-    pq.write_table(table.replace_schema_metadata(meta), Path(path))
 
 
 def write_measurements(path: str | Path, m: Measurements, digits: int = WRITE_DIGITS) -> None:

@@ -14,17 +14,13 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from control.identification.datafile import (
-    Measurements,
-    read_measurements,
-    write_measurements,
-    write_parquet,
-)
+from control.identification.datafile import Measurements, read_measurements, write_measurements
 from gateway.cli import main
 from gateway.errors import EXIT_CONFIG, ConfigError, DataFileError
 from gateway.export_cli import output_format
 from gateway.message_factories import make_joint_state
 from gateway.messages import FLAG_SERVO_POWER, ControllerState, IoState, Keys
+from gateway.parquet_file import write_parquet
 from gateway.recorder import _McapFile
 
 ROOT = Path(__file__).resolve().parents[2]
