@@ -96,6 +96,14 @@ def rest_log_odds(dq: np.ndarray, sigma: float) -> float:
     return float(np.clip(odds, -REST_LOG_ODDS_LIMIT, REST_LOG_ODDS_LIMIT))
 
 
+def rest_log_odds_per_joint(dq: np.ndarray, sigma: np.ndarray | None) -> np.ndarray:
+    """:func:`rest_log_odds` of every joint of one motion, velocities ``dq`` (T, n) with
+    noise ``sigma`` (n,) (None: exact velocities), (n,)."""
+    n = dq.shape[1]
+    noise = np.zeros(n) if sigma is None else np.asarray(sigma, dtype=float)
+    return np.array([rest_log_odds(dq[:, j], float(noise[j])) for j in range(n)])
+
+
 def rest_probability(
     v: np.ndarray, sigma: float, log_odds: float | np.ndarray = REST_LOG_ODDS
 ) -> np.ndarray:

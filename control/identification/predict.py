@@ -34,7 +34,7 @@ import numpy as np
 
 from control.identification.datafile import Measurements
 from control.identification.fit import cylinder_joint_map
-from control.identification.friction_law import rest_log_odds
+from control.identification.friction_law import rest_log_odds_per_joint
 from control.identification.model import IdentifiedModel
 from control.identification.preprocess import (
     FILTER_ORDER,
@@ -147,7 +147,7 @@ def predict_rows(
         # this stretch's own velocity noise, which friction is taken in expectation over
         noise = velocity_noise_std(m.q[a:b], dq, float(np.median(np.diff(t))), cutoff)
         # and how much of it the joint rests, from the stretch's velocities as a whole
-        odds = np.array([rest_log_odds(dq_f[:, j], float(noise[j])) for j in range(model.n)])
+        odds = rest_log_odds_per_joint(dq_f, noise)
         rows = np.flatnonzero(ok) + a
         directions, direction = model.friction_directions(q_f, dq_f, noise, direction, q_last, odds)
         q_last = q_f[-1] if len(q_f) else q_last

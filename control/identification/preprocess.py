@@ -47,7 +47,7 @@ import numpy as np
 from scipy import signal
 
 from control.identification.datafile import Measurements
-from control.identification.friction_law import rest_log_odds
+from control.identification.friction_law import rest_log_odds_per_joint
 from gateway.errors import ConfigError, DataFileError
 
 DEFAULT_RATE_HZ = 200.0
@@ -410,9 +410,7 @@ def prepare(
         part["filter_hz"] = np.full(part["t"].size, tau_cut)
         part["sample_hz"] = np.full(part["t"].size, fs / factor)
         part["raw_hz"] = np.full(part["t"].size, fs)
-        odds = [
-            rest_log_odds(part["dq"][:, j], float(raw_dq_noise[j])) for j in range(m.q.shape[1])
-        ]
+        odds = rest_log_odds_per_joint(part["dq"], raw_dq_noise)
         part["rest_odds"] = np.tile(odds, (part["t"].size, 1))
         parts.append(part)
         rates.append(fs / factor)

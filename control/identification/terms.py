@@ -75,7 +75,7 @@ from control.identification.friction_law import (
     friction_basis,
     friction_direction,
     gaussian_stribeck,
-    rest_log_odds,
+    rest_log_odds_per_joint,
     rest_probability,
 )
 
@@ -198,16 +198,16 @@ class Context:
         dq = self.dq[:, j]
         return dq if self.envelope is None else self.envelope.clip_dq(j, dq)
 
-    def rest_log_odds(self, j: int) -> np.ndarray:
-        """Joint j's log prior odds of rest per row, (T,) (:attr:`rest_odds`, else estimated
-        from its velocities under :attr:`dq_noise` and kept)."""
+    def _odds(self) -> np.ndarray:
+        """:attr:`rest_odds`, estimated from the rows' velocities under :attr:`dq_noise` the
+        first time when none were given, and kept."""
         if self.rest_odds is None:
-            sigma = np.zeros(self.dq.shape[1]) if self.dq_noise is None else self.dq_noise
-            n = self.dq.shape[1]
-            self.rest_odds = np.array(
-                [rest_log_odds(self.dq[:, i], float(sigma[i])) for i in range(n)]
-            )
-        odds = np.asarray(self.rest_odds, dtype=float)
+            self.rest_odds = rest_log_odds_per_joint(self.dq, self.dq_noise)
+        return np.asarray(self.rest_odds, dtype=float)
+
+    def rest_log_odds(self, j: int) -> np.ndarray:
+        """Joint j's log prior odds of rest per row, (T,) (:meth:`_odds`)."""
+        odds = self._odds()
         return odds[:, j] if odds.ndim == 2 else np.full(self.dq.shape[0], odds[j])
 
     def direction(self, j: int, presliding_rad: float) -> np.ndarray:
@@ -284,8 +284,7 @@ class Context:
         """:attr:`rest_odds` for the rows ``index`` (a subset keeps its parent's prior)."""
         if self.dq.ndim != 2 or self.dq.shape[1] == 0:
             return self.rest_odds
-        self.rest_log_odds(0)
-        odds = np.asarray(self.rest_odds, dtype=float)
+        odds = self._odds()
         return odds[index] if odds.ndim == 2 else odds
 
     def filtered(self, cols: np.ndarray) -> np.ndarray:
