@@ -44,8 +44,6 @@ class AdmittanceController(ZeroMomentController):
     adapt here: the hand's torque is in the current, so eq. (28) would learn it.
     """
 
-    ALWAYS_CHAIN = True
-
     def __init__(self, cfg: ControlConfig, model: DeclaredModel) -> None:
         super().__init__(cfg, model)
         band = _rt.hold_band_nm(
@@ -124,7 +122,6 @@ class AdmittanceController(ZeroMomentController):
             m = 0.5 * (m + m.T)
             if np.isfinite(m).all() and np.linalg.eigvalsh(m).min() > 0:
                 return m
-        assert self._inertia is not None
         return np.array(self._inertia.mass_matrix(q.tolist(), armature=True))
 
     def model_torque(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray, p_bar) -> np.ndarray:
@@ -185,7 +182,7 @@ class AdmittanceController(ZeroMomentController):
             return self._probe_cycle(st, p_bar)
         gap = st.cycle - (self.last_cycle if self.last_cycle is not None else st.cycle - 1)
         dt = period * max(1, min(gap, 50))
-        if self.cfg.max_tool_speed_m_s > 0 and self._inertia is not None:
+        if self.cfg.max_tool_speed_m_s > 0:
             self.speed_target_m_s = self.speed_target(st.q_rad, st.dq_rad_s)
         self.last_cycle = st.cycle
         q = st.q_rad
@@ -203,6 +200,8 @@ class AdmittanceController(ZeroMomentController):
         tau_h = np.sign(tau_h) * np.maximum(np.abs(tau_h) - stuck, 0.0)
         k = self.cfg.wall_stiffness_nm_per_rad
         walls = -k * np.maximum(q - self.upper, 0.0) + k * np.maximum(self.lower - q, 0.0)
+        # constrained guiding's fixture acts on the reference the arm follows
+        walls = walls + np.array(self._cycle.guide_torque_at(adm.q_r, adm.dq_r))
         if not (np.isfinite(tau_h).all() and np.isfinite(walls).all()):
             raise MessageError(f"cycle {st.cycle}: hand torque estimate undefined")
         q_r, dq_r = (np.array(v) for v in adm.step(tau_h, walls, self.mass(np.array(adm.q_r)), dt))
@@ -234,6 +233,7 @@ class AdmittanceController(ZeroMomentController):
 
     def _start_admittance(self, q: np.ndarray, noise: np.ndarray | None) -> None:
         self.admittance.reset(q, noise)
+        self._cycle.restart_guide()
         log.info("admittance engaged: dead zone %s N·m, residual b %s N·m",
                  np.round(self.admittance.band, 3).tolist(),
                  np.round(self._bias, 2).tolist())  # fmt: skip

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from gateway.config import require, require_count
+from gateway.guide_modes import GUIDE_AXES, guide_problem
 
 #: the lead-through laws (``[control].strategy``)
 STRATEGIES = ("zero_moment", "paper", "admittance")
@@ -63,6 +64,20 @@ class ControlConfig:
     #: soft joint limits: a virtual spring pushes back this far inside the hard range [rad]
     soft_limit_margin_rad: float = 0.05
     wall_stiffness_nm_per_rad: float = 2000.0
+    #: constrained guiding (control/rt/src/law/guide.rs): the mode teaching starts in when
+    #: `leadthrough start` names none (gateway/guide_modes.py ``GUIDES``), the tool axis an
+    #: "axis" guide runs along (x, y or z of the tool frame), and its fixtures' springs and
+    #: dampers on the tool point's deviation [N/m, N·s/m] and the tool's rotation [N·m/rad,
+    #: N·m·s/rad]. The rotation's stiffness sets what a push costs in orientation:
+    #: |r × F| / K with r the tool point's lever about the wrist: the hand's 80 N at 0.25 m
+    #: turns the gun 0.46° (teach-bench, seed 0, orientation-locked raster: 0.51° at most;
+    #: 1000 N·m/rad gave 1.17°)
+    guide: str = "free"
+    guide_axis: str = "x"
+    guide_stiffness_n_per_m: float = 3000.0
+    guide_damping_n_s_per_m: float = 600.0
+    guide_rot_stiffness_nm_per_rad: float = 2500.0
+    guide_rot_damping_nm_s_per_rad: float = 40.0
     #: ``inner_loop.json`` of `leadthrough identify` (relative to the cell config): ω and Υ_I
     #: estimated on this cell's drives, in place of the two lists above
     inner_loop: Path | None = None
@@ -330,6 +345,23 @@ class ControlConfig:
             "[control].admittance_filter_hz",
             f"{self.admittance_filter_hz} not in (0, 100] Hz",
         )
+        require(
+            guide_problem(self.guide) is None, "[control].guide", str(guide_problem(self.guide))
+        )
+        require(
+            self.guide_axis in GUIDE_AXES,
+            "[control].guide_axis",
+            f"{self.guide_axis!r} not one of {GUIDE_AXES}",
+        )
+        for key in (
+            "guide_stiffness_n_per_m",
+            "guide_damping_n_s_per_m",
+            "guide_rot_stiffness_nm_per_rad",
+            "guide_rot_damping_nm_s_per_rad",
+        ):
+            v = getattr(self, key)
+            ok = math.isfinite(v) and 0.0 <= v <= 1e5
+            require(ok, f"[control].{key}", f"{v} not in [0, 1e5]")
         require(
             0.0 <= self.friction_compensation <= 1.0,
             "[control].friction_compensation",

@@ -47,6 +47,7 @@ from gateway.bus import (
     undeclare_all,
 )
 from gateway.errors import ConfigError, MessageError
+from gateway.guide_modes import guide_problem
 from gateway.message_factories import make_joint_command
 from gateway.messages import (
     COMMANDING,
@@ -121,6 +122,8 @@ class ControlProcess:
         self.lifecycle_rx_s = -1e9
         self.stats = {"states": 0, "commands": 0, "bad_messages": 0, "io_stale": 0}
         self.lifecycle_order = LifecycleOrder()
+        #: the constrained guide in force (:meth:`_apply_guide`)
+        self._guide = cfg.guide
         self._ratelog = RateLimitedLog(log, 5.0, time.monotonic)
         self.stop_event = threading.Event()
         self.session = None
@@ -246,6 +249,7 @@ class ControlProcess:
                 dropped = self.lifecycle_order.admit(msg)
                 if dropped is None:
                     self.lifecycle, self.lifecycle_rx_s = msg, self.clock()
+                    self._apply_guide(msg)
                     if self._loop is not None:
                         self._loop.set_lifecycle(
                             msg.state == Lifecycle.TEACHING, self.lifecycle_rx_s,
@@ -256,6 +260,28 @@ class ControlProcess:
                     logging.WARNING, f"lifecycle_{dropped}", "lifecycle seq %d %s dropped: %s",
                     msg.seq, msg.state.name, dropped,
                 )  # fmt: skip
+
+    def _apply_guide(self, msg: LifecycleMsg) -> None:
+        """The constrained guide the gateway's lifecycle names (``guide``, the operator's
+        `leadthrough start --guide`), else the config's; the law takes a new one's reference
+        at its next cycle. A name that is not a guide keeps the one in force (lock held)."""
+        ctl = self.ctl
+        if ctl is None:
+            return
+        guide = msg.extra.get("guide", self.cfg.guide)
+        if guide == self._guide:
+            return
+        problem = guide_problem(guide)
+        if problem is not None:
+            self.stats["bad_messages"] += 1
+            self._ratelog(
+                logging.ERROR, "lifecycle_guide", "lifecycle seq %d: %s; the guide stays %s",
+                msg.seq, problem, self._guide,
+            )  # fmt: skip
+            return
+        ctl.guide = guide
+        self._guide = guide
+        log.info("guide → %s", guide)
 
     def _fresh_state(self, now: float) -> Lifecycle | None:
         """The gateway's lifecycle state if its last message is fresh, else None."""
@@ -502,6 +528,7 @@ class ControlProcess:
                 if self.load_check is None
                 else {**self.load_check.to_json(), "age_s": round(now - self.load_check_s, 3)},
                 "model_adaptation": adapted,
+                "guide": self._guide_report(),
             }
             s.put(self.keys.health("control"), encode_json(health))
             if self.ctl is not None:
@@ -531,6 +558,17 @@ class ControlProcess:
                 s.put(self.keys.control_telemetry, encode_json(tele))
             if self.player.plan_id is not None:
                 s.put(self.keys.experiment, encode_json(self.player.report()))
+
+    def _guide_report(self) -> dict[str, Any] | None:
+        """The constrained guide in force and the last cycle's deviation from it."""
+        if self.ctl is None:
+            return None
+        off_m, turned_rad = self.ctl.guide_deviation()
+        return {
+            "mode": self._guide,
+            "deviation_mm": round(1000.0 * off_m, 2),
+            "rotation_deg": round(math.degrees(turned_rad), 3),
+        }
 
     def stop(self) -> None:
         self.stop_event.set()

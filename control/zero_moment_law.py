@@ -22,6 +22,7 @@ from control.declared_model import DeclaredModel
 from control.load_check import REST_RAD_S
 from control.rt_tables import chain_table, to_json
 from gateway.errors import ConfigError, MessageError
+from gateway.guide_modes import GUIDE_AXES
 from gateway.message_factories import make_joint_command
 from gateway.messages import FLAG_PREV_COAST, FLAG_PREV_HOLD, JointCommand, JointState
 from gateway.robot.description import RobotDescription
@@ -68,9 +69,6 @@ class ZeroMomentController:
     the reference tests/unit/test_zero_moment_cycle.py pins the cycle to.
     """
 
-    #: the nominal rigid body whatever the settings (the admittance needs M(q) and the tool)
-    ALWAYS_CHAIN = False
-
     def __init__(self, cfg: ControlConfig, model: DeclaredModel) -> None:
         self.cfg = cfg
         n = model.n
@@ -102,15 +100,9 @@ class ZeroMomentController:
         #: the state when a command takes effect (control/rt/src/law/delay.rs), on the
         #: datasheet's nominal rigid body (with rotor inertias) for M(q)
         self.predictor = _rt.DelayPredictor(cfg.command_delay_cycles)
-        self._inertia: _rt.Chain | None = None
-        if (
-            self.ALWAYS_CHAIN
-            or cfg.command_delay_cycles
-            or cfg.max_tool_speed_m_s > 0
-            or cfg.friction_ramp_factor
-            or cfg.inertia_compensation
-        ):
-            self._inertia = nominal_chain(model.desc)
+        #: built whatever the settings: a constrained guide (control/rt/src/law/guide.rs),
+        #: which the operator may ask for at any start, needs the tool's Jacobian
+        self._inertia: _rt.Chain = nominal_chain(model.desc)
         #: the driver's hold at rest before teaching (:meth:`observe_hold`)
         self.hold = HoldAverage()
         self.damping = np.array(cfg.damping_nm_s_per_rad)
@@ -182,6 +174,12 @@ class ZeroMomentController:
             "stiction_dither_hz": cfg.stiction_dither_hz,
             "stiction_dither_hold_s": cfg.stiction_dither_hold_s,
             "drive_model": drive_model,
+            "guide": cfg.guide,
+            "guide_axis": GUIDE_AXES.index(cfg.guide_axis),
+            "guide_stiffness_n_per_m": cfg.guide_stiffness_n_per_m,
+            "guide_damping_n_s_per_m": cfg.guide_damping_n_s_per_m,
+            "guide_rot_stiffness_nm_per_rad": cfg.guide_rot_stiffness_nm_per_rad,
+            "guide_rot_damping_nm_s_per_rad": cfg.guide_rot_damping_nm_s_per_rad,
         }
         #: the compiled cycle over the pieces above
         self._cycle = _rt.ZeroMomentCycle(
@@ -294,6 +292,22 @@ class ZeroMomentController:
         a few low speeds both ways (its static level, where the model has a Stribeck rise);
         0 where the model is undefined. It runs in the cycle at every engagement."""
         return np.array(self._cycle.friction_level_nm(q.tolist()))
+
+    @property
+    def guide(self) -> str:
+        """Constrained guiding's mode (gateway/guide_modes.py ``GUIDES``,
+        control/rt/src/law/guide.rs); a new one takes its reference at the next cycle. Raises
+        ValueError for a name not among them."""
+        return self._cycle.guide
+
+    @guide.setter
+    def guide(self, name: str) -> None:
+        self._cycle.guide = name
+
+    def guide_deviation(self) -> tuple[float, float]:
+        """The last cycle's distance of the tool point from its plane or line [m] and the
+        tool's rotation from its locked orientation [rad] (0 where the mode holds neither)."""
+        return self._cycle.guide_deviation
 
     def disengage(self) -> None:
         self._cycle.disengage()

@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from gateway.errors import EXIT_CONFIG, ConfigError, LeadthroughError
+from gateway.guide_modes import GUIDES
 
 #: name → (module, one-line help)
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
@@ -79,6 +80,14 @@ def _configure_operator(p: argparse.ArgumentParser, name: str) -> None:
             help="name of the program this session's teaching is recorded to (default: "
             "teach-<UTC time>), in the gateway's [gateway].program_dir",
         )
+        p.add_argument(
+            "--guide",
+            choices=GUIDES,
+            default=None,
+            help="constrained guiding: the tool's orientation held, and with it the tool point "
+            "kept in the plane facing the tool or on a line along one of its axes (default: the "
+            "cell config's [control] guide); given while teaching, it changes the guide there",
+        )
     if name == "mark":
         p.add_argument("--label", default="", help="a label for the waypoint")
 
@@ -96,6 +105,8 @@ def _operator_main(args: argparse.Namespace) -> int:
         fields["program"] = args.program
     if getattr(args, "label", ""):
         fields["label"] = args.label
+    if getattr(args, "guide", None) is not None:
+        fields["guide"] = args.guide
     reply = operator_request(bus.with_overrides(args.bus), args.command, args.timeout, **fields)
     if args.json:
         print(json.dumps(reply, indent=2))
@@ -111,11 +122,26 @@ def _operator_main(args: argparse.Namespace) -> int:
         refused = reply.get("bus_refused") if args.command == "status" else None
         if isinstance(refused, dict) and refused.get("total"):
             print(f"  - {refusal_line(refused)}")
+        guide = reply.get("guide") if args.command == "status" else None
+        if isinstance(guide, dict) and (line := guide_line(guide)):
+            print(f"  - {line}")
         adapted = reply.get("model_adaptation") if args.command == "status" else None
         if isinstance(adapted, dict):
             for line in adaptation_lines(adapted):
                 print(f"  - {line}")
     return 0 if reply.get("ok") else 1
+
+
+def guide_line(guide: dict) -> str:
+    """What `leadthrough status` says of constrained guiding: the guide the control law holds
+    and how far the tool is from it ("" for a free guide or none reported)."""
+    held = guide.get("control")
+    if not isinstance(held, dict) or held.get("mode") in (None, "free"):
+        return ""
+    line = f"guide: {held.get('mode')}, the tool turned {held.get('rotation_deg')}° from its hold"
+    if held.get("mode") in ("plane", "axis"):
+        line += f", {held.get('deviation_mm')} mm off its {held.get('mode')}"
+    return line
 
 
 #: how many (identity, action, key) entries `leadthrough status` names, the most refused first

@@ -29,6 +29,7 @@ from gateway.children import Child, _die_with_parent
 from gateway.config import resolve_path
 from gateway.errors import EXIT_CONFIG, ConfigError, MessageError
 from gateway.gateway_config import GatewayConfig, load_gateway_config
+from gateway.guide_modes import guide_problem
 from gateway.joint_state_watch import JointStateWatch
 from gateway.lifecycle import DRIVER_TRIPS, LifecycleMachine, Limits, Observations
 from gateway.messages import (
@@ -91,6 +92,11 @@ class Gateway:
         self.model_adaptation: dict | None = None
         #: what the control law is doing, from its health (None: not reported)
         self.engagement: dict | None = None
+        #: the constrained guide the operator's start asked for (None: the control config's),
+        #: passed to the control process in the lifecycle while ready or teaching; and the
+        #: guide in force with its deviation, from control's health
+        self.guide: str | None = None
+        self.guide_report: dict | None = None
         #: the CAN driver's latched trips, from its health (lifecycle.DRIVER_TRIPS)
         self.driver_trips: dict[str, str] = {}
         #: the controller's fault in the CAN driver's words, from its health (None: none)
@@ -202,6 +208,8 @@ class Gateway:
                 self.engagement = engagement if isinstance(engagement, dict) else None
                 adapted = body.get("model_adaptation")
                 self.model_adaptation = adapted if isinstance(adapted, dict) else None
+                guide = body.get("guide")
+                self.guide_report = guide if isinstance(guide, dict) else None
             elif name == "can_driver" and body:  # an unreadable one changes nothing
                 self.driver_trips = {
                     key: str(body[key]) for key in DRIVER_TRIPS if body.get(key) is not None
@@ -295,6 +303,8 @@ class Gateway:
             # the control law's phase (control process health): "probing" while the
             # admittance measures the model's error at engagement
             "engagement": self.engagement,
+            # constrained guiding: asked for at start (None: the control config's) and in force
+            "guide": {"asked": self.guide, "control": self.guide_report},
             "model_adaptation": self.model_adaptation,
             "bus_refused": None if self.refusals is None else self.refusals.summary(),
         }
@@ -349,6 +359,9 @@ class Gateway:
             name, label = req.get("program"), req.get("label", "")
             if name is not None and not isinstance(name, str):
                 raise MessageError(f"'program' must be a name (string), not {name!r}")
+            guide = req.get("guide")
+            if guide is not None and (problem := guide_problem(guide)) is not None:
+                raise MessageError(problem)
             if not isinstance(label, str):
                 raise MessageError(f"'label' must be a string, not {label!r}")
         except MessageError as exc:
@@ -360,7 +373,7 @@ class Gateway:
             st, state = self.joint_state, self.machine.state
             if command != "mark":
                 try:
-                    ok, message = self._command(command, plan, name, obs)
+                    ok, message = self._command(command, plan, name, obs, guide)
                 except ProgramError as exc:
                     ok, message = False, str(exc)
         if command == "mark":  # the file's fsync outside the lock: callbacks wait on it
@@ -373,10 +386,20 @@ class Gateway:
             return {"ok": ok, "message": message, **self.status(now)}
 
     def _command(
-        self, command: str, plan: dict | None, name: str | None, obs: Observations
+        self,
+        command: str,
+        plan: dict | None,
+        name: str | None,
+        obs: Observations,
+        guide: str | None = None,
     ) -> tuple[bool, str]:
-        """One operator command but `mark` (lock held)."""
+        """One operator command but `mark` (lock held). ``guide``: the constrained guide
+        `start` asks for; a start while ready or teaching changes it (the law takes its
+        reference where the tool is then)."""
         m = self.machine
+        if command == "start" and m.state in (Lifecycle.READY, Lifecycle.TEACHING) and guide:
+            self.guide = guide
+            return True, f"guide now {guide}"
         if command == "identify":
             assert plan is not None
             return m.identify(plan, obs)
@@ -387,6 +410,7 @@ class Gateway:
             path = program_path(self.program_dir, name)
             ok, message = m.command(command, obs)
             if ok:
+                self.guide = guide
                 self.teach.prepare(path)
                 message += f"; teaching is recorded to {path}"
             return ok, message
@@ -455,7 +479,9 @@ class Gateway:
     def _publish_lifecycle(self, now: float) -> None:
         m = self.machine
         if m.seq != self._last_seq or now - self._last_pub_s >= 1.0 / LIFECYCLE_RATE_HZ:
-            extra = {"plan": m.plan} if m.state in PLAYING and m.plan else {}
+            extra: dict = {"plan": m.plan} if m.state in PLAYING and m.plan else {}
+            if self.guide is not None and m.state in (Lifecycle.READY, Lifecycle.TEACHING):
+                extra["guide"] = self.guide
             msg = LifecycleMsg(m.state, m.seq, now, m.reason, extra)
             self.session.put(self.keys.lifecycle, msg.to_bytes())
             if m.seq != self._last_seq:

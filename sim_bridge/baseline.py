@@ -21,6 +21,33 @@ from sim_bridge.plant import Plant
 
 #: record every this many physics steps (the figures' sample period)
 RECORD_EVERY_S = 0.004
+#: the ideal orientation lock of an inertia floor (:func:`orientation_lock`): stiff enough that
+#: the hand's 80 N at the tool turns the gun a few hundredths of a degree, damped near
+#: critically for the lightest wrist (0.25 kg·m²); explicit at the plant's 0.5 ms step,
+#: sqrt(K / I) × dt = 0.14
+LOCK_NM_PER_RAD, LOCK_NM_S_PER_RAD = 20000.0, 100.0
+
+
+def orientation_lock(plant: Plant) -> Any:
+    """Joint torques that hold the last link's orientation where it is now, as a stiff
+    spring-damper on its rotation (MuJoCo's own kinematics, the scorer's): an arm guided with
+    its gun's orientation locked by an ideal fixture, for the inertia floor of an
+    orientation-locked guide. Set it as ``plant.external_torque``."""
+    import mujoco
+    from scipy.spatial.transform import Rotation
+
+    model, data, body, n = plant.model, plant.data, plant.last_body, plant.n
+    r0 = data.xmat[body].reshape(3, 3).copy()
+    jac = np.zeros((3, model.nv))
+
+    def torque(p: Plant) -> np.ndarray:
+        r = data.xmat[body].reshape(3, 3)
+        e = Rotation.from_matrix(r @ r0.T).as_rotvec()
+        mujoco.mj_jacBody(model, data, None, jac, body)
+        jw = jac[:, :n]
+        return jw.T @ (-LOCK_NM_PER_RAD * e - LOCK_NM_S_PER_RAD * (jw @ data.qvel[:n]))
+
+    return torque
 
 
 def drag_released(
@@ -29,13 +56,15 @@ def drag_released(
     hand: dict[str, float],
     duration_s: float,
     gravity: bool = True,
+    lock_orientation: bool = False,
 ) -> dict[str, Any]:
     """Drag the released arm along ``path`` for ``duration_s`` with a hand of settings
     ``hand`` (:class:`.config.OperatorScript` fields); every :data:`RECORD_EVERY_S`: time ``t_s``
     (T,) and (T, 3) ``tool``, ``force`` (the hand's, world), ``target`` (where the hand wants
     the tool) and ``flange`` (the last link's origin) [m, N], (T, n) ``q`` the joints [rad];
     ``origin`` the tool at onset,
-    ``script`` the operator's settings."""
+    ``script`` the operator's settings. ``lock_orientation``: the gun's orientation held by
+    an ideal fixture (:func:`orientation_lock`)."""
     script = dataclasses.replace(
         cfg.operator,
         mode="path",
@@ -51,6 +80,8 @@ def drag_released(
     op = Operator(script)
     plant.hand = op.hand
     op.mark_onset(plant.t_s, plant.tool_position_m())
+    if lock_orientation:
+        plant.external_torque = orientation_lock(plant)
     every = max(1, round(RECORD_EVERY_S / plant.cfg.timestep_s))
     rows = []
     for k in range(round(duration_s / plant.cfg.timestep_s)):

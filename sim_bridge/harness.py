@@ -456,10 +456,11 @@ class Stack:
             f"hand force {np.round([truth[k][-1] for k in ('f_x', 'f_y', 'f_z')], 1).tolist()} N"
         )
 
-    def start_teaching(self, timeout_s: float = 40.0) -> dict[str, Any]:
-        """Wait until the cell can start, send `start`, wait for TEACHING."""
+    def start_teaching(self, timeout_s: float = 40.0, **fields: Any) -> dict[str, Any]:
+        """Wait until the cell can start, send `start` (with ``fields``, e.g. ``guide``), wait
+        for TEACHING."""
         self.wait_status(lambda s: s.get("can_start") is True, timeout_s, "cell ready to start")
-        reply = self.request("start")
+        reply = self.request("start", **fields)
         if not reply.get("ok"):
             raise RuntimeError(f"start refused: {reply}")
         return self.wait_status(lambda s: s.get("state") == "teaching", 10.0, "teaching")

@@ -174,6 +174,9 @@ class Plant:
         self._frictionloss, self._damping = m.dof_frictionloss[:n], m.dof_damping[:n]
         self._applied = d.qfrc_applied[:n]
         self._hand_wrench = d.xfrc_applied[self.last_body]
+        #: joint torques [N·m] a scorer adds over each :meth:`run` (the inertia floor's ideal
+        #: orientation lock, sim_bridge/baseline.py); None: none
+        self.external_torque: Callable[[Plant], np.ndarray] | None = None
         self._act, self._ctrl, self._act_force = d.act, d.ctrl, d.actuator_force
         self._opt = m.opt
         self._hand_on = False  #: the hand's wrench is on the last body
@@ -368,6 +371,8 @@ class Plant:
         held = self.cylinders.torque_from_arms(arms, self.pressure_bar.tolist())  # over the cycle
         if self.effects.torque_effects:
             held += self.effects.torque(self.t_s, self.tau_motor_nm, q, dq)
+        if self.external_torque is not None:
+            held += self.external_torque(self)
         hand = self.hand(self) if self.hand is not None else None
         if hand is not None and hand.any():
             self.hand_force_n, self._hand_on = hand, True

@@ -20,8 +20,10 @@ Strategies:
   466 N·m of gravity), so no pressure balances it there and the hand cannot keep up;
 - ``inertia``: the floor no law can beat: the plant's own arm with gravity, friction, the
   cylinders and every injected effect taken away, dragged through the same hand (the plant
-  alone, faster than real time). What it costs is the arm's inertia (and the hand's own
-  spring-damper), which a law can only lower by rendering less than the arm's mass;
+  alone, faster than real time); with ``--guide`` (any but free) the gun's orientation is
+  held by an ideal fixture, the floor of an orientation-locked guide. What it costs is the
+  arm's inertia (and the hand's own spring-damper), which a law can only lower by rendering
+  less than the arm's mass;
 - ``paper``: the paper's adaptive method, ``[control] strategy = "paper"``: the zero-moment
   law with eqs. (28) and (30) adapting ω̂ and Υ̂_I together from the measured current
   (control/rt/src/law/outer_loop.rs, PaperAdaptation), Υ̂_I starting from the paper's 1.2/s
@@ -74,13 +76,19 @@ import mujoco
 import numpy as np
 
 from gateway.bus import open_client
+from gateway.guide_modes import GUIDES
 from gateway.progress import add_progress_argument, progress_bar, progress_enabled
 from sim_bridge.baseline import drag_released
 from sim_bridge.commission import commissioned
 from sim_bridge.config import load_sim_config
 from sim_bridge.harness import Stack
 from sim_bridge.plant import Plant
-from sim_bridge.teach_bench_metrics import adaptation_report, metrics
+from sim_bridge.teach_bench_metrics import (
+    adaptation_report,
+    flange_poses,
+    metrics,
+    orientation_drift_deg,
+)
 from sim_bridge.teach_phases import PHASES
 from sim_bridge.teach_seeds import aggregate, parse_seeds, print_seed_table, seed_rows
 
@@ -198,29 +206,26 @@ def inertia_config(plant_seed: int) -> Any:
     )
 
 
-def run_inertia(plant_seed: int, path: list[list[float]], tail_s: float = 2.0) -> dict[str, Any]:
+def run_inertia(
+    plant_seed: int, path: list[list[float]], tail_s: float = 2.0, guide: str | None = None
+) -> dict[str, Any]:
     """The floor (module docstring): the plant's arm of ``plant_seed`` weightless,
-    frictionless, without cylinders or effects, dragged along ``path``."""
+    frictionless, without cylinders or effects, dragged along ``path``; under a constrained
+    ``guide`` (any but free) with the gun's orientation held by an ideal fixture
+    (:func:`.baseline.orientation_lock`): a locked wrist no longer turns out of the hand's
+    way, so the hand moves more of the arm."""
     hand = {**HAND, "tremor_m": TREMOR_M, "tremor_hz": TREMOR_HZ}
+    locked = guide not in (None, "free")
     trace = drag_released(
-        inertia_config(plant_seed), path, hand, path[-1][0] + tail_s, gravity=False
-    )
+        inertia_config(plant_seed), path, hand, path[-1][0] + tail_s, gravity=False,
+        lock_orientation=locked,
+    )  # fmt: skip
     t = trace["t_s"]
-    return metrics(path, t - t[0], trace["tool"], trace["origin"], trace["force"], trace["flange"],
-                   trace["q"])  # fmt: skip
-
-
-def _flange_positions(plant_seed: int, q: np.ndarray) -> np.ndarray:
-    """The flange (the last link's origin) at the logged joint positions ``q`` (T, n), from
-    the plant's own kinematics: the scorer's, never the product's."""
-    cfg = dataclasses.replace(load_sim_config(), plant_seed=plant_seed)
-    plant = Plant(cfg)
-    model, data = plant.model, plant.data
-    out = np.empty((q.shape[0], 3))
-    for k, row in enumerate(q):
-        data.qpos[: plant.n] = row
-        mujoco.mj_kinematics(model, data)
-        out[k] = data.xpos[plant.last_body]
+    out = metrics(path, t - t[0], trace["tool"], trace["origin"], trace["force"], trace["flange"],
+                  trace["q"])  # fmt: skip
+    _, rot = flange_poses(plant_seed, trace["q"])
+    out["orientation_drift_deg"] = {"max": round(float(orientation_drift_deg(rot).max()), 3)}
+    out["guide"] = "orientation-locked" if locked else "free"
     return out
 
 
@@ -249,10 +254,12 @@ def run_best(
     tail_s: float = 2.0,
     online_estimate: bool = False,
     control: dict[str, Any] | None = None,
+    guide: str | None = None,
 ) -> dict[str, Any]:
     """The product's zero-moment lead-through on the virtual cell, as separate processes;
-    ``online_estimate`` turns on the control process's online inner-loop estimate, and
-    ``control`` sets keys of the cell config's ``[control]`` section (a tuning to try)."""
+    ``online_estimate`` turns on the control process's online inner-loop estimate,
+    ``control`` sets keys of the cell config's ``[control]`` section (a tuning to try), and
+    ``guide`` is the constrained guide the operator's start asks for (None: the config's)."""
     done = commissioned(plant_seed)
     control = dict(control or {})
     if online_estimate:
@@ -277,7 +284,7 @@ def run_best(
         session = open_client(stack.bus)
         try:
             subscriber = session.declare_subscriber(stack.bus.keys.control_telemetry, last)
-            stack.start_teaching()
+            stack.start_teaching(**({"guide": guide} if guide else {}))
             teaching_from_s = time.monotonic()
             deadline = time.monotonic() + path[-1][0] + tail_s
             while time.monotonic() < deadline:  # wait cheaply: the product needs the CPU
@@ -297,7 +304,16 @@ def run_best(
     force = np.stack([truth[f"f_{a}"][rows] for a in "xyz"], axis=1)
     q = np.stack([truth[f"q{j + 1}"][rows] for j in range(6)], axis=1)
     tau = truth["t_s"][rows] - truth["t_s"][rows[0]]
-    out = metrics(path, tau, tool, tool[0], force, _flange_positions(plant_seed, q), q)
+    flange, rot = flange_poses(plant_seed, q)
+    out = metrics(path, tau, tool, tool[0], force, flange, q)
+    drift = orientation_drift_deg(rot)
+    # how far the tool turned from where the hand took it: what an orientation-locked guide
+    # holds (the scorer's kinematics, the plant's joints)
+    out["orientation_drift_deg"] = {
+        "p95": round(float(np.percentile(drift, 95)), 3),
+        "max": round(float(drift.max()), 3),
+    }
+    out["guide"] = guide or control.get("guide", "free")
     out["commands_missed"] = int(np.sum(np.isnan(truth["latency_s"][rows])))
     # what the motors carried (the datasheet's K × the reported current), RMS per joint: the
     # cylinders' share of the load shows here ([control] pressure_schedule)
@@ -416,6 +432,13 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
         "as a JSON object, e.g. '{\"damping_nm_s_per_rad\": [20, 20, 10, 5, 5, 2]}'",
     )
     p.add_argument(
+        "--guide",
+        choices=GUIDES,
+        default=None,
+        help="the constrained guide the painter's start asks for in the product's strategies "
+        "(`leadthrough start --guide`); the summary gives the tool's orientation drift",
+    )
+    p.add_argument(
         "--strategies",
         nargs="+",
         choices=STRATEGIES,
@@ -442,7 +465,7 @@ def run_seed(
         if name == "offservo":
             results[name] = run_offservo(plant_seed, path)
         elif name == "inertia":
-            results[name] = run_inertia(plant_seed, path)
+            results[name] = run_inertia(plant_seed, path, guide=args.guide)
         else:
             results[name] = run_best(
                 plant_seed,
@@ -450,6 +473,7 @@ def run_seed(
                 out / name,
                 online_estimate=args.online_estimate,
                 control=PRODUCT_STRATEGIES[name] | args.control,
+                guide=args.guide,
             )
         results[name]["wall_time_s"] = time.monotonic() - t0
         bar.advance(label="")
@@ -465,6 +489,7 @@ def run_seed(
         },
         "hand": {**HAND, "tremor_m": TREMOR_M, "tremor_hz": TREMOR_HZ},
         "control_settings": args.control,
+        "guide": args.guide,
         "strategies": results,
     }
     reports = {name: r.pop("_adaptation", None) for name, r in results.items()}

@@ -2,7 +2,8 @@
 force and its moment about the flange, per phase and over the moving part, the tool's distance
 from the path, whether the operator got to the end), and the adaptation report: the loop's
 estimates ω̂ and Υ̂_I = ω̂_I against the plant's hidden inner gains ω = 1/(K·K_p) and K_I/K_p
-(K the datasheet torque constant), read for scoring only."""
+(K the datasheet torque constant), read for scoring only; the flange's pose and the tool's
+turn from the plant's own kinematics."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ import itertools
 import math
 from typing import Any
 
+import mujoco
 import numpy as np
 
 from sim_bridge.config import load_sim_config
@@ -19,6 +21,30 @@ from sim_bridge.teach_phases import PHASES, classify, phase_forces
 
 #: the operator got to the end when the tool ends this close to the path's last point [m]
 COMPLETED_WITHIN_M = 0.05
+
+
+def flange_poses(plant_seed: int, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The flange (the last link's origin, (T, 3)) and the last link's orientation ((T, 3,
+    3), the tool's: it is fixed to it) at the logged joint positions ``q`` (T, n), from the
+    plant's own kinematics: the scorer's, never the product's."""
+    cfg = dataclasses.replace(load_sim_config(), plant_seed=plant_seed)
+    plant = Plant(cfg)
+    model, data = plant.model, plant.data
+    out = np.empty((q.shape[0], 3))
+    rot = np.empty((q.shape[0], 3, 3))
+    for k, row in enumerate(q):
+        data.qpos[: plant.n] = row
+        mujoco.mj_kinematics(model, data)
+        out[k] = data.xpos[plant.last_body]
+        rot[k] = data.xmat[plant.last_body].reshape(3, 3)
+    return out, rot
+
+
+def orientation_drift_deg(rot: np.ndarray) -> np.ndarray:
+    """The angle of each orientation of ``rot`` (T, 3, 3) from the first [°]."""
+    relative = np.einsum("tij,kj->tik", rot, rot[0])
+    cos = (np.trace(relative, axis1=1, axis2=2) - 1.0) / 2.0
+    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
 
 
 def _target(path: list[list[float]], tau: np.ndarray) -> np.ndarray:

@@ -12,7 +12,9 @@ figures:
 - p95 force at most :data:`P95_LIMIT_N`;
 - never at the hand's force limit (the bench's hand saturates there: the painter could not
   keep up);
-- path p95 within :data:`PATH_LIMIT_MM`.
+- path p95 within :data:`PATH_LIMIT_MM`;
+- with a constrained guide that holds the tool's orientation (`--guide`), the tool turned at
+  most :data:`ORIENTATION_LIMIT_DEG` from where the hand took it.
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ from sim_bridge.teach_phases import PHASES
 FLOOR_FACTOR = 2.0  #: mean force / inertia floor a seed may reach (issue 47)
 P95_LIMIT_N = 30.0  #: p95 of the painter's force [N] (issue 47)
 PATH_LIMIT_MM = 15.0  #: p95 distance from the intended path [mm] (issue 47)
+ORIENTATION_LIMIT_DEG = 1.0  #: an orientation-locked tool's turn from its start [°] (issue 47)
 #: a peak this close under the hand's limit is the limit [N]: the saturated hand's force is
 #: the limit itself up to the tremor's share of the spring (0.5 mm x 1500 N/m = 0.75 N)
 AT_LIMIT_N = 1.0
@@ -56,6 +59,8 @@ def seed_rows(summaries: dict[int, dict[str, Any]]) -> list[dict[str, Any]]:
         strategies = {}
         for name, r in results.items():
             ratio = r["mean_force_n"] / floor if floor else math.nan
+            turned = r.get("orientation_drift_deg", {}).get("max")
+            locked = r.get("guide") not in (None, "free")
             strategies[name] = {
                 "mean_force_n": r["mean_force_n"],
                 "p95_force_n": r["p95_force_n"],
@@ -69,6 +74,12 @@ def seed_rows(summaries: dict[int, dict[str, Any]]) -> list[dict[str, Any]]:
                 "p95_ok": bool(r["p95_force_n"] <= P95_LIMIT_N),
                 "at_hand_limit": bool(r["peak_force_n"] >= limit - AT_LIMIT_N),
                 "path_ok": bool(r["path_error_mm"] <= PATH_LIMIT_MM),
+                "guide": r.get("guide"),
+                "orientation_max_deg": turned,
+                # None where no guide holds the orientation (nothing to judge)
+                "orientation_ok": bool(turned <= ORIENTATION_LIMIT_DEG)
+                if locked and turned is not None
+                else None,
             }
         rows.append({"seed": seed, "inertia_floor_n": floor, "strategies": strategies})
     return rows
@@ -82,14 +93,17 @@ def aggregate(rows: list[dict[str, Any]]) -> dict[str, Any]:
         runs = [row["strategies"][name] for row in rows if name in row["strategies"]]
         every = [
             r["within_floor_factor"] and r["p95_ok"] and not r["at_hand_limit"] and r["path_ok"]
+            and r.get("orientation_ok") is not False
             for r in runs
-        ]
+        ]  # fmt: skip
+        locked = [r for r in runs if r.get("orientation_ok") is not None]
         counts[name] = {
             "seeds": len(runs),
             "within_floor_factor": sum(r["within_floor_factor"] for r in runs),
             "p95_ok": sum(r["p95_ok"] for r in runs),
             "never_at_hand_limit": sum(not r["at_hand_limit"] for r in runs),
             "path_ok": sum(r["path_ok"] for r in runs),
+            "orientation_ok": sum(r["orientation_ok"] for r in locked) if locked else None,
             "all_figures": sum(every),
             "completed": sum(r["completed"] for r in runs),
         }
@@ -98,6 +112,7 @@ def aggregate(rows: list[dict[str, Any]]) -> dict[str, Any]:
             "floor_factor": FLOOR_FACTOR,
             "p95_limit_n": P95_LIMIT_N,
             "path_limit_mm": PATH_LIMIT_MM,
+            "orientation_limit_deg": ORIENTATION_LIMIT_DEG,
         },
         "seeds": rows,
         "by_strategy": counts,
@@ -115,7 +130,7 @@ def print_seed_table(rows: list[dict[str, Any]]) -> None:
     per phase; then per strategy the seeds that meet the figures."""
     print(
         f"\n{'seed':>5} {'strategy':>11} {'floor N':>7} {'mean N':>7} {'p95 N':>7} "
-        f"{'peak N':>7} {'path mm':>7} {'missed':>6} {'x floor':>7} "
+        f"{'peak N':>7} {'path mm':>7} {'missed':>6} {'x floor':>7} {'turn °':>6} "
         + " ".join(f"{p[:8]:>8}" for p in PHASES)
     )
     for row in rows:
@@ -126,6 +141,7 @@ def print_seed_table(rows: list[dict[str, Any]]) -> None:
                 f"{_cell(r['mean_force_n'])} {_cell(r['p95_force_n'])} "
                 f"{_cell(r['peak_force_n'])} {_cell(r['path_error_mm'])} "
                 f"{'-' if missed is None else missed:>6} {_cell(r['mean_over_floor'], '7.2f')} "
+                f"{_cell(r.get('orientation_max_deg'), '6.2f')} "
                 + " ".join(_cell(r["phases"][p], "8.1f") for p in PHASES)
             )
     summary = aggregate(rows)["by_strategy"]
@@ -134,8 +150,13 @@ def print_seed_table(rows: list[dict[str, Any]]) -> None:
         f"{P95_LIMIT_N:g} N, never at the hand's limit, path p95 <= {PATH_LIMIT_MM:g} mm"
     )
     for name, c in summary.items():
+        turned = (
+            ""
+            if c["orientation_ok"] is None
+            else f", {c['orientation_ok']} within {ORIENTATION_LIMIT_DEG:g}° of the start"
+        )
         print(
             f"{name:>11}: {c['within_floor_factor']}/{c['seeds']} floor, {c['p95_ok']} p95, "
-            f"{c['never_at_hand_limit']} below the limit, {c['path_ok']} path; "
-            f"all four {c['all_figures']}/{c['seeds']}; completed {c['completed']}"
+            f"{c['never_at_hand_limit']} below the limit, {c['path_ok']} path{turned}; "
+            f"all {c['all_figures']}/{c['seeds']}; completed {c['completed']}"
         )

@@ -157,3 +157,16 @@ def test_the_inertia_floor_is_below_the_cylinders_baseline_on_a_short_raster():
     floor = run_inertia(0, path, tail_s=0.5)
     baseline = run_offservo(0, path, tail_s=0.5)
     assert floor["completed"] and 0.1 < floor["mean_force_n"] < baseline["mean_force_n"]
+
+
+def test_an_orientation_locked_floor_holds_the_gun_and_costs_the_hand_more():
+    """The floor of an orientation-locked guide (sim_bridge/baseline.py orientation_lock):
+    the gun's orientation stays within a tenth of a degree on a short raster, where the free
+    floor's wrist turns out of the hand's way by degrees, and the hand moves more of the arm."""
+    path = raster_path(width_m=0.3, height_m=0.1, passes=2, start_s=0.5)
+    free = run_inertia(0, path, tail_s=0.5)
+    locked = run_inertia(0, path, tail_s=0.5, guide="orientation-locked")
+    assert locked["guide"] == "orientation-locked" and free["guide"] == "free"
+    assert locked["orientation_drift_deg"]["max"] < 0.1
+    assert free["orientation_drift_deg"]["max"] > 1.0
+    assert locked["completed"] and locked["mean_force_n"] > free["mean_force_n"]

@@ -45,8 +45,28 @@ def test_each_seed_is_scored_against_its_own_floor_and_the_figures_are_counted(c
     assert best[102]["at_hand_limit"] and not best[102]["p95_ok"] and not best[102]["path_ok"]
     counts = aggregate(rows)["by_strategy"]["best"]
     assert counts == {"seeds": 3, "within_floor_factor": 2, "p95_ok": 2,
-                      "never_at_hand_limit": 2, "path_ok": 2, "all_figures": 1,
-                      "completed": 3}  # fmt: skip
+                      "never_at_hand_limit": 2, "path_ok": 2, "orientation_ok": None,
+                      "all_figures": 1, "completed": 3}  # fmt: skip
     print_seed_table(rows)
     out = capsys.readouterr().out
-    assert "all four 1/3" in out and "2.02" in out
+    assert "all 1/3" in out and "2.02" in out
+
+
+def test_an_orientation_locked_run_is_judged_on_its_turn_and_a_free_one_is_not(capsys):
+    locked_ok = _run(9.0, 25.0, 60.0, 10.0) | {
+        "guide": "orientation-locked",
+        "orientation_drift_deg": {"max": 0.8},
+    }
+    locked_off = _run(9.0, 25.0, 60.0, 10.0) | {
+        "guide": "plane",
+        "orientation_drift_deg": {"max": 1.3},
+    }
+    free = _run(9.0, 25.0, 60.0, 10.0) | {"guide": "free", "orientation_drift_deg": {"max": 9.0}}
+    rows = seed_rows({s: _summary(5.0, r) for s, r in enumerate((locked_ok, locked_off, free))})
+    verdicts = [r["strategies"]["best"]["orientation_ok"] for r in rows]
+    assert verdicts == [True, False, None]
+    counts = aggregate(rows)["by_strategy"]["best"]
+    # the plane turned 1.3°: it fails all figures; the free run is not judged on its turn
+    assert counts["orientation_ok"] == 1 and counts["all_figures"] == 2
+    print_seed_table(rows)
+    assert "1 within 1° of the start" in capsys.readouterr().out

@@ -13,6 +13,7 @@ use pyo3::exceptions::{PyArithmeticError, PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 
 use crate::chain::MAX_JOINTS;
+use crate::law::guide::GuideMode;
 use crate::law::zero_moment::{Parts, Settings, State, ZeroMoment};
 use crate::py::{PyChain, PyPointModel};
 use crate::py_delay::PyDelayPredictor;
@@ -391,6 +392,38 @@ impl PyZeroMomentCycle {
         Ok(self.lock()?.stiction_torque().to_vec())
     }
 
+    /// Constrained guiding's mode (law/guide.rs): "free", "orientation-locked", "plane" or
+    /// "axis". Setting another mode takes its reference at the next cycle; ValueError for a
+    /// name not among them, or a mode other than "free" on a law without the nominal chain.
+    #[getter]
+    fn guide(&self) -> PyResult<&'static str> {
+        Ok(self.lock()?.guide.mode().name())
+    }
+
+    #[setter]
+    fn set_guide(&self, name: &str) -> PyResult<()> {
+        let mode = GuideMode::parse(name).map_err(PyValueError::new_err)?;
+        if mode != GuideMode::Free && self.chain.is_none() {
+            return Err(Self::no_chain());
+        }
+        self.lock()?.guide.set_mode(mode);
+        Ok(())
+    }
+
+    /// The constrained guiding's torque of the last cycle [N·m].
+    #[getter]
+    fn guide_torque_nm(&self) -> PyResult<Vec<f64>> {
+        Ok(self.lock()?.guide_torque().to_vec())
+    }
+
+    /// The last cycle's distance of the tool point from its plane or line [m], and its
+    /// rotation from the locked orientation [rad] (0 where the mode holds neither).
+    #[getter]
+    fn guide_deviation(&self) -> PyResult<(f64, f64)> {
+        let law = self.lock()?;
+        Ok((law.guide.deviation_m(), law.guide.rotation_rad()))
+    }
+
     /// The tool speed the commands are held to [m/s].
     #[getter]
     fn speed_target_m_s(&self) -> PyResult<f64> {
@@ -438,6 +471,30 @@ impl PyZeroMomentCycle {
             law.refresh_inertia(chain, work, &q)?;
             Ok(rows(law.m(), law.s.n))
         })
+    }
+
+    /// The constrained guide's torque at (q, dq) [N·m]: the admittance's fixture on its
+    /// reference (control/admittance_law.py); the first call after :meth:`restart_guide` or
+    /// a change of mode takes the reference there.
+    fn guide_torque_at(&self, py: Python<'_>, q: Vec<f64>, dq: Vec<f64>) -> PyResult<Vec<f64>> {
+        self.check(&q, "q")?;
+        self.check(&dq, "dq")?;
+        self.with_parts(py, |law, parts| {
+            let mut out = vec![0.0; q.len()];
+            if let Some((chain, work)) = parts.chain.as_mut() {
+                law.guide.torque(chain, work, &q, &dq, &mut out);
+            } else if law.guide.mode() != GuideMode::Free {
+                return Err("constrained guiding needs the nominal chain".into());
+            }
+            Ok(out)
+        })
+    }
+
+    /// The constrained guide takes its reference again at the next cycle (the admittance
+    /// engages).
+    fn restart_guide(&self) -> PyResult<()> {
+        self.lock()?.guide.restart();
+        Ok(())
     }
 
     /// The faster of the tool point and the flange at (q, dq) [m/s].

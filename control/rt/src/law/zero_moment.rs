@@ -16,6 +16,9 @@
 //! - the friction compensation ramped in over the speed the loop delay allows, in full while
 //!   a positioning joint slides (law/guided_friction.rs);
 //! - hand guiding's speed limit on the tool point and the flange, on the predicted state;
+//! - constrained guiding's fixture on the tool (law/guide.rs: the gun's orientation held, the
+//!   tool point in a plane or on a line), on the predicted state, its reference taken at
+//!   engagement or where a new guide finds the arm;
 //! - the stiction dither (`[control] stiction_dither`, off by default): a joint at rest is
 //!   held by its static friction, which the model's friction (zero at rest) never offsets, so
 //!   the painter's first push must break it away alone, and a joint that barely moves on a
@@ -40,6 +43,7 @@ use serde_json::Value;
 
 use crate::chain::{Chain, Work, MAX_JOINTS};
 use crate::law::delay::{self, DelayPredictor};
+use crate::law::guide::{Guide, GuideMode, GuideSettings};
 use crate::law::guided_friction::{GuidedFriction, POSITIONING_JOINTS};
 use crate::law::inner_estimate::{self, cycle_means, InnerLoopEstimator};
 use crate::law::outer_loop::{Adaptation, HoldAverage, OuterLoop};
@@ -112,6 +116,9 @@ pub struct Settings {
     pub stiction_dither_hold_s: f64,
     /// The delay predictor's drive model (K K_p, Υ_I) when it is not the law's estimates.
     pub drive_model: Option<(Vec<f64>, Vec<f64>)>,
+    /// Constrained guiding's fixture (law/guide.rs) and the mode the law starts in.
+    pub guide: GuideSettings,
+    pub guide_mode: GuideMode,
 }
 
 fn count(v: &Value, key: &str) -> Result<usize, String> {
@@ -152,6 +159,22 @@ impl Settings {
         if !dither.is_empty() && dither.len() != n {
             return Err(format!("dither_nm needs {n} values or none"));
         }
+        let guide_mode = match v.get("guide") {
+            None | Some(Value::Null) => GuideMode::Free,
+            Some(Value::String(name)) => GuideMode::parse(name)?,
+            Some(other) => return Err(format!("guide: {other} is not a name")),
+        };
+        let guide = GuideSettings {
+            stiffness_n_per_m: optional(v, "guide_stiffness_n_per_m")?,
+            damping_n_s_per_m: optional(v, "guide_damping_n_s_per_m")?,
+            rot_stiffness_nm_per_rad: optional(v, "guide_rot_stiffness_nm_per_rad")?,
+            rot_damping_nm_s_per_rad: optional(v, "guide_rot_damping_nm_s_per_rad")?,
+            axis: match v.get("guide_axis") {
+                None | Some(Value::Null) => 0,
+                Some(_) => count(v, "guide_axis")?,
+            },
+        };
+        guide.check()?;
         let drive_model = match v.get("drive_model") {
             None | Some(Value::Null) => None,
             Some(d) => Some((joints(d, "k_star", n)?, joints(d, "upsilon", n)?)),
@@ -210,6 +233,8 @@ impl Settings {
             stiction_dither_hz: optional(v, "stiction_dither_hz")?,
             stiction_dither_hold_s: optional(v, "stiction_dither_hold_s")?,
             drive_model,
+            guide,
+            guide_mode,
         };
         if !(0.0..1.0).contains(&s.stiction_dither) {
             return Err(format!(
@@ -228,7 +253,8 @@ impl Settings {
 
     /// The law needs the nominal rigid body (M(q), the tool's Jacobian).
     pub fn needs_chain(&self) -> bool {
-        self.command_delay_cycles > 0
+        self.guide_mode != GuideMode::Free
+            || self.command_delay_cycles > 0
             || self.max_tool_speed_m_s > 0.0
             || self.friction_ramp_factor != 0.0
             || self.inertia_compensation != 0.0
@@ -298,6 +324,9 @@ pub struct ZeroMoment {
     ddq_f: Joints,
     dq_last: Option<Joints>,
     tau_inertia: Joints,
+    /// Constrained guiding (law/guide.rs) and its torque of the last cycle [N·m].
+    pub guide: Guide,
+    tau_guide: Joints,
 }
 
 fn max_abs_diff(a: &[f64], b: &[f64]) -> f64 {
@@ -379,6 +408,7 @@ pub fn invert(a: &[f64], n: usize, out: &mut [f64]) -> Result<(), String> {
 impl ZeroMoment {
     pub fn new(s: Settings) -> ZeroMoment {
         let cap = s.command_delay_cycles + 1;
+        let guide = Guide::new(s.guide, s.guide_mode);
         ZeroMoment {
             speed_target: s.max_tool_speed_m_s,
             s,
@@ -403,6 +433,8 @@ impl ZeroMoment {
             ddq_f: [0.0; MAX_JOINTS],
             dq_last: None,
             tau_inertia: [0.0; MAX_JOINTS],
+            guide,
+            tau_guide: [0.0; MAX_JOINTS],
         }
     }
 
@@ -433,6 +465,11 @@ impl ZeroMoment {
     /// The inertia compensation's torque of the last cycle [N·m].
     pub fn tau_inertia(&self) -> &[f64] {
         &self.tau_inertia[..self.n()]
+    }
+
+    /// The constrained guiding's torque of the last cycle [N·m].
+    pub fn guide_torque(&self) -> &[f64] {
+        &self.tau_guide[..self.n()]
     }
 
     /// The stiction dither's torque of the last cycle [N·m].
@@ -815,7 +852,8 @@ impl ZeroMoment {
             let mut t = stat[j] + friction - s.damping_nm_s_per_rad[j] * dq[j]
                 + hold[j]
                 + self.tau_inertia[j]
-                + self.stiction[j];
+                + self.stiction[j]
+                + self.tau_guide[j];
             if q[j] > s.upper_rad[j] {
                 t -= k * (q[j] - s.upper_rad[j]);
             }
@@ -930,6 +968,8 @@ impl ZeroMoment {
         self.stiction_phase = 0.0;
         self.stiction_gain = 0.0;
         self.since_guided_s = f64::INFINITY;
+        self.guide.restart();
+        self.tau_guide = [0.0; MAX_JOINTS];
         self.engaged = true;
         self.last_cycle = Some(st.cycle - 1);
         Ok(())
@@ -1017,6 +1057,11 @@ impl ZeroMoment {
             if self.s.max_tool_speed_m_s > 0.0 {
                 self.speed_target = self.speed_target(chain, work, &q[..n], &dq[..n]);
             }
+            // the fixture on the state the command acts at, like the rest of the torque
+            self.guide
+                .torque(chain, work, &q[..n], &dq[..n], &mut self.tau_guide[..n]);
+        } else if self.guide.mode() != GuideMode::Free {
+            return Err("constrained guiding needs the nominal chain".into());
         }
         let moving = st.dq[..n.min(POSITIONING_JOINTS)]
             .iter()
