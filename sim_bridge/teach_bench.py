@@ -144,6 +144,29 @@ def raster_path(
     return path
 
 
+def raster_facing(path: list[list[float]], normal: np.ndarray) -> list[list[float]]:
+    """``path`` (:func:`raster_path`: passes along y, steps along z) laid in the plane normal
+    to ``normal`` instead of the world's y-z plane: its passes along the plane's horizontal,
+    its steps along the plane's steepest direction. A painter guided in a plane paints the
+    panel the gun faces (``--guide plane``: the plane normal to the tool's z at the start)."""
+    n = np.asarray(normal, dtype=float) / np.linalg.norm(normal)
+    across = np.cross([0.0, 0.0, 1.0], n)
+    if np.linalg.norm(across) < 1e-6:  # a gun pointing straight up or down: passes along y
+        across = np.array([0.0, 1.0, 0.0])
+    across /= np.linalg.norm(across)
+    up = np.cross(n, across)
+    up = up if up[2] >= 0.0 else -up
+    return [[w[0], *(w[1] * n + w[2] * across + w[3] * up).tolist()] for w in path]
+
+
+def tool_axis_at_start(plant_seed: int) -> np.ndarray:
+    """The tool's z (the gun's axis) where the plant of ``plant_seed`` starts, world axes,
+    from the plant's own kinematics."""
+    q0 = np.array([load_sim_config().initial_q_rad])
+    _, rot = flange_poses(plant_seed, q0)
+    return rot[0][:, 2]
+
+
 def balancing_bar(cfg: Any) -> tuple[list[float], list[float]]:
     """The cylinder pressures [bar] that best carry the gravity torque of joints 2 and 3 at
     the arm's start pose (least squares, clipped to 0..10 bar), from the plant's own physics
@@ -436,7 +459,8 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
         choices=GUIDES,
         default=None,
         help="the constrained guide the painter's start asks for in the product's strategies "
-        "(`leadthrough start --guide`); the summary gives the tool's orientation drift",
+        "(`leadthrough start --guide`); the summary gives the tool's orientation drift; with "
+        "'plane' the raster lies in the plane the gun faces",
     )
     p.add_argument(
         "--strategies",
@@ -455,8 +479,12 @@ def run_seed(
     and ``out/teach_bench.png``, prints the table, returns the summary."""
     out.mkdir(parents=True, exist_ok=True)
     path = raster_path()
+    facing = args.guide == "plane"
+    if facing:  # the raster on the panel the gun faces, where the plane guide holds it
+        path = raster_facing(path, tool_axis_at_start(plant_seed))
     print(f"raster spray path: {PASSES} passes of {WIDTH_M} m over {HEIGHT_M} m at "
-          f"{SPEED_M_S} m/s, {path[-1][0]:.0f} s; plant seed {plant_seed}")  # fmt: skip
+          f"{SPEED_M_S} m/s, {path[-1][0]:.0f} s; plant seed {plant_seed}"
+          + ("; in the plane the gun faces" if facing else ""))  # fmt: skip
     results: dict[str, dict[str, Any]] = {}
     for name in strategies:
         t0 = time.monotonic()
@@ -480,7 +508,7 @@ def run_seed(
     summary = {
         "plant_seed": plant_seed,
         "path": {
-            "kind": "raster",
+            "kind": "raster facing the gun" if facing else "raster",
             "width_m": WIDTH_M,
             "height_m": HEIGHT_M,
             "passes": PASSES,

@@ -14,6 +14,7 @@ from sim_bridge.teach_bench import (
     DWELL_S,
     SPEED_M_S,
     inertia_config,
+    raster_facing,
     raster_path,
     run_inertia,
     run_offservo,
@@ -170,3 +171,21 @@ def test_an_orientation_locked_floor_holds_the_gun_and_costs_the_hand_more():
     assert locked["orientation_drift_deg"]["max"] < 0.1
     assert free["orientation_drift_deg"]["max"] > 1.0
     assert locked["completed"] and locked["mean_force_n"] > free["mean_force_n"]
+
+
+def test_a_raster_facing_the_gun_lies_in_its_plane_with_level_passes():
+    """``--guide plane`` lays the raster in the plane the gun faces: the same times and
+    lengths, every point in the plane, the passes level, the steps downwards; a gun facing
+    along x gives the world's y-z raster back."""
+    path = raster_path()
+    n = np.array([0.826, 0.404, 0.392])  # the GR630ST's gun at its start pose
+    facing = raster_facing(path, n)
+    a, b = np.array(path), np.array(facing)
+    np.testing.assert_array_equal(a[:, 0], b[:, 0])
+    lengths = [np.linalg.norm(np.diff(x[:, 1:], axis=0), axis=1) for x in (a, b)]
+    np.testing.assert_allclose(lengths[1], lengths[0], atol=1e-12)
+    np.testing.assert_allclose(b[:, 1:] @ n / np.linalg.norm(n), 0.0, atol=1e-12)
+    level = np.isclose(np.diff(a[:, 3]), 0.0)  # the passes of the y-z raster
+    np.testing.assert_allclose(np.diff(b[:, 3])[level], 0.0, atol=1e-12)
+    assert b[-1, 3] < 0.0  # it ends at the bottom, as the y-z raster
+    np.testing.assert_allclose(raster_facing(path, [1.0, 0.0, 0.0]), path, atol=1e-12)
