@@ -122,8 +122,6 @@ class ControlProcess:
         self.lifecycle_rx_s = -1e9
         self.stats = {"states": 0, "commands": 0, "bad_messages": 0, "io_stale": 0}
         self.lifecycle_order = LifecycleOrder()
-        #: the constrained guide in force (:meth:`_apply_guide`)
-        self._guide = cfg.guide
         self._ratelog = RateLimitedLog(log, 5.0, time.monotonic)
         self.stop_event = threading.Event()
         self.session = None
@@ -269,18 +267,17 @@ class ControlProcess:
         if ctl is None:
             return
         guide = msg.extra.get("guide", self.cfg.guide)
-        if guide == self._guide:
+        if guide == ctl.guide:
             return
         problem = guide_problem(guide)
         if problem is not None:
             self.stats["bad_messages"] += 1
             self._ratelog(
                 logging.ERROR, "lifecycle_guide", "lifecycle seq %d: %s; the guide stays %s",
-                msg.seq, problem, self._guide,
+                msg.seq, problem, ctl.guide,
             )  # fmt: skip
             return
         ctl.guide = guide
-        self._guide = guide
         log.info("guide → %s", guide)
 
     def _fresh_state(self, now: float) -> Lifecycle | None:
@@ -565,7 +562,7 @@ class ControlProcess:
             return None
         off_m, turned_rad = self.ctl.guide_deviation()
         return {
-            "mode": self._guide,
+            "mode": self.ctl.guide,
             "deviation_mm": round(1000.0 * off_m, 2),
             "rotation_deg": round(math.degrees(turned_rad), 3),
         }

@@ -54,6 +54,15 @@ pub fn mat_mul(a: &Mat3, b: &Mat3) -> Mat3 {
     out
 }
 
+/// `a bᵀ`.
+pub fn mat_mul_t(a: &Mat3, b: &Mat3) -> Mat3 {
+    [
+        [dot(&a[0], &b[0]), dot(&a[0], &b[1]), dot(&a[0], &b[2])],
+        [dot(&a[1], &b[0]), dot(&a[1], &b[1]), dot(&a[1], &b[2])],
+        [dot(&a[2], &b[0]), dot(&a[2], &b[1]), dot(&a[2], &b[2])],
+    ]
+}
+
 /// The turn by `angle` [rad] about the unit `axis`: `c·I + s·[a]× + (1 − c)·a·aᵀ`.
 pub fn axis_rotation(axis: &Vec3, angle: f64) -> Mat3 {
     let (s, c) = angle.sin_cos();

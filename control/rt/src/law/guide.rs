@@ -33,7 +33,7 @@
 #![allow(clippy::needless_range_loop)] // per-joint arithmetic reads as the formulas
 
 use crate::chain::{Chain, Work, MAX_JOINTS};
-use crate::spatial::{mat_vec, sub, Mat3, Vec3};
+use crate::spatial::{dot, mat_mul_t, mat_vec, sub, Mat3, Vec3};
 
 /// The guide modes, by the names the operator and the config use.
 pub const GUIDE_NAMES: [&str; 4] = ["free", "orientation-locked", "plane", "axis"];
@@ -144,17 +144,6 @@ pub fn rotation_vector(r: &Mat3) -> Vec3 {
     }
     let s = angle / (2.0 * angle.sin());
     [w[0] * s, w[1] * s, w[2] * s]
-}
-
-/// The product `a bᵀ` of two rotations.
-fn mul_transposed(a: &Mat3, b: &Mat3) -> Mat3 {
-    let mut out = [[0.0; 3]; 3];
-    for i in 0..3 {
-        for j in 0..3 {
-            out[i][j] = a[i][0] * b[j][0] + a[i][1] * b[j][1] + a[i][2] * b[j][2];
-        }
-    }
-    out
 }
 
 /// The fixture's state: its mode, the mode waiting for its reference, the reference.
@@ -275,8 +264,8 @@ impl Guide {
                 *t += jac[i * n + k] * dq[k];
             }
         }
-        let e = rotation_vector(&mul_transposed(&pose.r, &self.r0));
-        self.rotation_rad = (e[0] * e[0] + e[1] * e[1] + e[2] * e[2]).sqrt();
+        let e = rotation_vector(&mat_mul_t(&pose.r, &self.r0));
+        self.rotation_rad = dot(&e, &e).sqrt();
         let mut wrench = [0.0; 6];
         for i in 0..3 {
             wrench[3 + i] = -self.s.rot_stiffness_nm_per_rad * e[i]
@@ -285,7 +274,7 @@ impl Guide {
         if matches!(self.mode, GuideMode::Plane | GuideMode::Axis) {
             let off = mat_vec(&self.projector, &sub(&pose.p, &self.p0));
             let v = mat_vec(&self.projector, &[twist[0], twist[1], twist[2]]);
-            self.deviation_m = (off[0] * off[0] + off[1] * off[1] + off[2] * off[2]).sqrt();
+            self.deviation_m = dot(&off, &off).sqrt();
             for i in 0..3 {
                 wrench[i] = -self.s.stiffness_n_per_m * off[i] - self.s.damping_n_s_per_m * v[i];
             }

@@ -969,7 +969,6 @@ impl ZeroMoment {
         self.stiction_gain = 0.0;
         self.since_guided_s = f64::INFINITY;
         self.guide.restart();
-        self.tau_guide = [0.0; MAX_JOINTS];
         self.engaged = true;
         self.last_cycle = Some(st.cycle - 1);
         Ok(())
