@@ -5,7 +5,7 @@ parser. :func:`ltc_tables` builds the Python adapter the registry names (``ltc_d
 ``ltc_fd`` for LTC-1F), so the DBC is parsed and checked exactly as the Python driver does it,
 and exports what its compiled codecs (:mod:`drivers.can.codec`) and the protocol know, as a
 JSON-serialisable ``dict``; ``LtcAdapter::from_tables`` / ``LtcFdAdapter::from_tables``
-(``drivers/can/rt/src/ltc.rs``, ``ltc_fd.rs``) take it as a ``serde_json::Value``.
+(``drivers/can/rt/src/ltc_adapter.rs``, ``ltc_fd_adapter.rs``) take it as a ``serde_json::Value``.
 
 Table format (``"format": 1``)::
 

@@ -15,7 +15,7 @@
 //!
 //! Decoding reports errors as a small `Copy` value ([`DecodeError`]) written out only when
 //! someone wants the text, so a bad frame costs no allocation either. The table readers at the
-//! bottom are shared with the adapters (ltc.rs, ltc_fd.rs).
+//! bottom are shared with the adapters (ltc_adapter.rs, ltc_fd_adapter.rs).
 
 use std::fmt::{self, Write};
 

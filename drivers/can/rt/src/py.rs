@@ -30,8 +30,8 @@ fn json_arg(text: &str, what: &str) -> PyResult<serde_json::Value> {
 
 fn build_adapter(name: &str, tables: &serde_json::Value) -> Result<Box<dyn Adapter>, String> {
     Ok(match name {
-        "ltc_dbc" => Box::new(crate::ltc::LtcAdapter::from_tables(tables)?),
-        "ltc_fd" => Box::new(crate::ltc_fd::LtcFdAdapter::from_tables(tables)?),
+        "ltc_dbc" => Box::new(crate::ltc_adapter::LtcAdapter::from_tables(tables)?),
+        "ltc_fd" => Box::new(crate::ltc_fd_adapter::LtcFdAdapter::from_tables(tables)?),
         "cia402" => Box::new(crate::cia402::Cia402Adapter::from_tables(tables)?),
         other => {
             return Err(format!(

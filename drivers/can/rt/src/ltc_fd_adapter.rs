@@ -6,7 +6,7 @@
 //! answers with one CYCLE_CMD (CAN FD with bit rate switch, 48 bytes, CRC-16/CCITT-FALSE of
 //! §10.3). There is nothing to assemble: a valid CYCLE_FB is a complete cycle, a bad one is a
 //! lost cycle and cannot spoil a neighbour. HOST_REQUEST, the heartbeats and the receiver's
-//! checks are LTC-1's ([`crate::ltc::LtcBase`]).
+//! checks are LTC-1's ([`crate::ltc_adapter::LtcBase`]).
 //!
 //! Built by [`LtcFdAdapter::from_tables`] from drivers/can/rt_tables.py's
 //! `ltc_tables("ltc_fd", n)`; the cycle allocates nothing.
@@ -15,49 +15,7 @@ use serde_json::Value;
 
 use crate::adapter::{Adapter, AdapterStats, Feedback, FrameError, HostRequest, MAX_JOINTS};
 use crate::frame::Frame;
-use crate::ltc::{id_bytes, LtcBase, StatusSignals, STATUS_SIGNALS};
-
-// --- CRC-16/CCITT-FALSE (§10.3) ---------------------------------------------------------------
-const fn crc16_table(poly: u16) -> [u16; 256] {
-    let mut table = [0u16; 256];
-    let mut byte = 0;
-    while byte < 256 {
-        let mut crc = (byte as u16) << 8;
-        let mut bit = 0;
-        while bit < 8 {
-            crc = if crc & 0x8000 != 0 {
-                (crc << 1) ^ poly
-            } else {
-                crc << 1
-            };
-            bit += 1;
-        }
-        table[byte] = crc;
-        byte += 1;
-    }
-    table
-}
-
-static CRC16_CCITT: [u16; 256] = crc16_table(0x1021);
-
-fn crc16_update(mut crc: u16, data: &[u8]) -> u16 {
-    for &b in data {
-        crc = (crc << 8) ^ CRC16_CCITT[((crc >> 8) as u8 ^ b) as usize];
-    }
-    crc
-}
-
-/// CRC-16/CCITT-FALSE: poly 0x1021, init 0xFFFF, not reflected, xorout 0 (check 0x29B1);
-/// Python's `binascii.crc_hqx(data, 0xFFFF)`.
-pub fn crc16_ccitt_false(data: &[u8]) -> u16 {
-    crc16_update(0xFFFF, data)
-}
-
-/// The CRC of an LTC-1F CYCLE_CMD: over the two little-endian id bytes, then `data` (the data
-/// bytes before the CRC, 0..45).
-pub fn frame_crc16(id: u32, data: &[u8]) -> u16 {
-    crc16_update(crc16_update(0xFFFF, &id_bytes(id)), data)
-}
+use crate::ltc_adapter::{LtcBase, StatusSignals, STATUS_SIGNALS};
 
 /// The LTC-1F host adapter (registry name `ltc_fd`): ltc_fd.py `LtcFdAdapter`.
 pub struct LtcFdAdapter {
@@ -240,7 +198,7 @@ impl Adapter for LtcFdAdapter {
 mod tests {
     use super::*;
     use crate::adapter::ControllerState;
-    use crate::ltc::golden;
+    use crate::ltc_adapter::golden;
 
     fn adapter(n: usize) -> LtcFdAdapter {
         let mut t = golden::cases("ltc_fd")[0]["tables"].clone();
@@ -267,7 +225,7 @@ mod tests {
 
     #[test]
     fn crc16_check_value_and_manual_example() {
-        assert_eq!(crc16_ccitt_false(b"123456789"), 0x29B1);
+        assert_eq!(crate::frame_crc::crc16_ccitt_false(b"123456789"), 0x29B1);
         // PROTOCOL.md §10.3: CYCLE_CMD answering 0x1234, joint 1 at 0.1 rad and −0.25 rad/s,
         // joint 2 at −0.2 rad and +0.5 rad/s, the others 0: CRC 0x04CD
         let mut a = adapter(2);
@@ -281,7 +239,7 @@ mod tests {
             &[0x34, 0x12, 0, 0, 0xa0, 0x86, 0x01, 0x3c, 0xf6, 0xc0, 0xf2, 0xfc, 0x88, 0x13, 0, 0]
         );
         assert_eq!((f.data[46], f.data[47]), (0xcd, 0x04));
-        assert_eq!(frame_crc16(0x200, &f.data[..46]), 0x04CD);
+        assert_eq!(crate::frame_crc::frame_crc16(0x200, &f.data[..46]), 0x04CD);
         out.clear();
         a.command_frames(0x1234, &[0.1, -0.2], &[-0.25, 0.5], true, &mut out)
             .unwrap();

@@ -7,7 +7,7 @@
 //! arrived valid since the previous status; one bad per-cycle frame or a bus error frame loses
 //! the whole cycle (§8).
 //!
-//! [`LtcBase`] is what LTC-1 shares with its CAN FD profile LTC-1F (ltc_fd.rs), as
+//! [`LtcBase`] is what LTC-1 shares with its CAN FD profile LTC-1F (ltc_fd_adapter.rs), as
 //! ltc_protocol.py's `LtcProtocolBase`: the tables' header and messages, the receiver's checks of
 //! §8 (error frame, extended id, RTR, CAN FD or not, DLC, CRC, range, enums) with
 //! ltc_protocol.py's error texts, HOST_REQUEST and the heartbeats (§7), and the CRC-8 of §4.
@@ -25,6 +25,7 @@ use crate::adapter::{
 };
 use crate::codec::{self, DecodeError, MessageCodec};
 use crate::frame::{Frame, CANFD_MAX_DLEN, CAN_SFF_MASK};
+use crate::frame_crc::{frame_crc16, frame_crc8};
 
 /// The table layout this code reads (rt_tables.py `TABLES_FORMAT`).
 pub const TABLES_FORMAT: u64 = 1;
@@ -98,51 +99,6 @@ impl LtcEnum {
     }
 }
 
-// --- CRC-8/SAE-J1850 (§4) ---------------------------------------------------------------------
-const fn crc8_table(poly: u8) -> [u8; 256] {
-    let mut table = [0u8; 256];
-    let mut byte = 0;
-    while byte < 256 {
-        let mut crc = byte as u8;
-        let mut bit = 0;
-        while bit < 8 {
-            crc = if crc & 0x80 != 0 {
-                (crc << 1) ^ poly
-            } else {
-                crc << 1
-            };
-            bit += 1;
-        }
-        table[byte] = crc;
-        byte += 1;
-    }
-    table
-}
-
-static CRC8_J1850: [u8; 256] = crc8_table(0x1D);
-
-fn crc8_update(mut crc: u8, data: &[u8]) -> u8 {
-    for &b in data {
-        crc = CRC8_J1850[(crc ^ b) as usize];
-    }
-    crc
-}
-
-/// CRC-8/SAE-J1850: poly 0x1D, init 0xFF, not reflected, xorout 0xFF (check 0x4B).
-pub fn crc8_sae_j1850(data: &[u8]) -> u8 {
-    crc8_update(0xFF, data) ^ 0xFF
-}
-
-/// The two identifier bytes, little-endian, that start every LTC CRC's input (§4, §10.3).
-pub fn id_bytes(id: u32) -> [u8; 2] {
-    [(id & 0xFF) as u8, ((id >> 8) & 0xFF) as u8]
-}
-
-/// The CRC of an LTC-1 host frame: over the id bytes, then `data` (the bytes before the CRC).
-pub fn frame_crc8(id: u32, data: &[u8]) -> u8 {
-    crc8_update(crc8_update(0xFF, &id_bytes(id)), data) ^ 0xFF
-}
-
 /// A frame's end-to-end CRC, in its last data bytes (little-endian).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(crate) enum Crc {
@@ -185,7 +141,7 @@ impl Crc {
     pub(crate) fn of_frame(self, id: u32, data: &[u8]) -> u32 {
         match self {
             Crc::Crc8SaeJ1850 => frame_crc8(id, data) as u32,
-            Crc::Crc16CcittFalse => crate::ltc_fd::frame_crc16(id, data) as u32,
+            Crc::Crc16CcittFalse => frame_crc16(id, data) as u32,
         }
     }
 }
@@ -1028,7 +984,7 @@ impl Adapter for LtcAdapter {
 }
 
 /// Replaying drivers/can/rt/tests/data/ltc_golden.json (rt_tables.py `--golden`): the Python
-/// adapter's behaviour, frame by frame, for both profiles (used by ltc_fd.rs's tests too).
+/// adapter's behaviour, frame by frame, for both profiles (used by ltc_fd_adapter.rs's tests too).
 #[cfg(test)]
 pub(crate) mod golden {
     use super::*;
@@ -1285,17 +1241,6 @@ mod tests {
             last = a.feed(f, 0.0);
         }
         last
-    }
-
-    #[test]
-    fn crc8_check_value_and_manual_examples() {
-        assert_eq!(crc8_sae_j1850(b"123456789"), 0x4B);
-        // PROTOCOL.md §4: JOINT_CMD_J1 example, CRC 0x4F; HOST_REQUEST SERVO_ON counter 7
-        assert_eq!(
-            frame_crc8(0x201, &[0xa0, 0x86, 0x01, 0x3c, 0xf6, 0x00, 0x2a]),
-            0x4F
-        );
-        assert_eq!(frame_crc8(0x020, &[0x01, 0x07, 0, 0, 0, 0, 0]), 0xD2);
     }
 
     #[test]
