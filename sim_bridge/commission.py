@@ -135,7 +135,7 @@ def commissioned(
     progress: Callable[[str], None] = print,
 ) -> Commissioned:
     """The commissioned model of ``plant_seed`` for this code: from the cache, or built now by
-    :func:`commission` (about a minute) and kept."""
+    :func:`commission` (about 5 minutes: the plan's motion at real time) and kept."""
     from control.identification.on_cell import QUICK_PLAN
 
     if plant_seed < 0:
@@ -147,7 +147,7 @@ def commissioned(
         if (folder / "model.json").exists() and (folder / "inner_loop.json").exists():
             return Commissioned(plant_seed, folder)
         progress(f"commissioning plant seed {plant_seed} with `leadthrough identify` "
-                 f"(lock-step, about a minute) into {folder} ...")  # fmt: skip
+                 f"(lock-step, about 5 minutes) into {folder} ...")  # fmt: skip
         work = root / f".build-seed{plant_seed}-{os.getpid()}"
         shutil.rmtree(work, ignore_errors=True)
         t0 = time.monotonic()

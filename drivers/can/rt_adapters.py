@@ -3,9 +3,8 @@
 The DBC and EDS files stay parsed in Python (cantools, canopen); the compiled adapters
 (drivers/can/rt/src/{ltc_adapter,ltc_fd_adapter,cia402}.rs) take what those parsers derive,
 as JSON. This picks the derivation for an adapter instance: the LTC profiles' message and
-signal tables
-(:mod:`drivers.can.rt_tables`), or the CiA 402 drives' PDO layouts and state after the
-adapter's start-up (:mod:`drivers.can.rt_cia402_tables`).
+signal tables (:mod:`drivers.can.rt_tables`), or the CiA 402 drives' PDO layouts and state
+after the adapter's start-up (:mod:`drivers.can.rt_cia402_tables`).
 """
 
 from __future__ import annotations
