@@ -15,7 +15,7 @@
 //!
 //! Decoding reports errors as a small `Copy` value ([`DecodeError`]) written out only when
 //! someone wants the text, so a bad frame costs no allocation either. The table readers
-//! (codec/table_readers.rs) are shared with the adapters (ltc_adapter.rs, ltc_fd_adapter.rs).
+//! (codec/table_readers.rs) are shared with the LTC adapters (ltc_base.rs, ltc_adapter.rs).
 
 use std::fmt::Write;
 

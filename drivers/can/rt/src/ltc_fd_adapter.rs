@@ -6,7 +6,7 @@
 //! answers with one CYCLE_CMD (CAN FD with bit rate switch, 48 bytes, CRC-16/CCITT-FALSE of
 //! §10.3). There is nothing to assemble: a valid CYCLE_FB is a complete cycle, a bad one is a
 //! lost cycle and cannot spoil a neighbour. HOST_REQUEST, the heartbeats and the receiver's
-//! checks are LTC-1's ([`crate::ltc_adapter::LtcBase`]).
+//! checks are LTC-1's ([`crate::ltc_base::LtcBase`]).
 //!
 //! Built by [`LtcFdAdapter::from_tables`] from drivers/can/rt_tables.py's
 //! `ltc_tables("ltc_fd", n)`; the cycle allocates nothing.
@@ -15,7 +15,8 @@ use serde_json::Value;
 
 use crate::adapter::{Adapter, AdapterStats, Feedback, FrameError, HostRequest, MAX_JOINTS};
 use crate::frame::Frame;
-use crate::ltc_adapter::{LtcBase, StatusSignals, STATUS_SIGNALS};
+use crate::ltc_base::LtcBase;
+use crate::ltc_status::{StatusSignals, STATUS_SIGNALS};
 
 /// The LTC-1F host adapter (registry name `ltc_fd`): ltc_fd.py `LtcFdAdapter`.
 pub struct LtcFdAdapter {

@@ -1,6 +1,6 @@
 //! Reading the tables rt_tables.py exports: each reader takes one entry of a JSON object and
 //! names it when it is missing or of the wrong type. The codec reads its signals with them,
-//! LTC's adapters their tables (ltc_adapter.rs).
+//! LTC's adapters their tables (ltc_base.rs, ltc_adapter.rs).
 
 use serde_json::Value;
 
