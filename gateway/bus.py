@@ -21,6 +21,7 @@ import zenoh
 
 from gateway import bus_security as security
 from gateway import bus_tls as tls
+from gateway.cell_section import CellSection
 from gateway.config import from_mapping, require
 from gateway.errors import LinkTimeoutError
 from gateway.messages import Keys
@@ -303,6 +304,12 @@ def check_cell_sections(cell: dict[str, Any], where: str) -> None:
         where,
         f"unknown section(s) {unknown}: a cell config has {[f'[{s}]' for s in CELL_SECTIONS]}",
     )
+
+
+#: the ``[bus]`` section of the cell config, registered in pyproject.toml
+CELL_SECTION = CellSection(
+    "bus", lambda path, raw: bus_config_from(raw, str(path)), BusConfig, order=1
+)
 
 
 def undeclare_all(entities: Iterable[Any]) -> None:
