@@ -137,3 +137,12 @@ def test_the_gateway_refuses_to_start_on_a_broken_entry_point_naming_it(
     with caplog.at_level(logging.ERROR):
         assert cli_main(args) == 78  # before any zenoh session or child process
     assert any(f"paint = {value!r}" in r.getMessage() for r in caplog.records), caplog.text
+
+
+def test_a_section_is_known_to_every_process_once_registered(tmp_path, monkeypatch):
+    from gateway.bus import check_cell_sections
+
+    with pytest.raises(ConfigError, match=r"unknown section\(s\) \['paint'\]: .*'\[ros2\]'"):
+        check_cell_sections({"paint": {}}, "cell.toml")
+    _install_broken_section(tmp_path, monkeypatch)
+    check_cell_sections({"paint": {}}, "cell.toml")  # its name is enough: nothing is imported
