@@ -146,3 +146,8 @@ def test_a_section_is_known_to_every_process_once_registered(tmp_path, monkeypat
         check_cell_sections({"paint": {}}, "cell.toml")
     _install_broken_section(tmp_path, monkeypatch)
     check_cell_sections({"paint": {}}, "cell.toml")  # its name is enough: nothing is imported
+
+
+def test_the_configuration_doc_says_where_each_registered_section_is_described():
+    text = (REPO / "docs" / "configuration.md").read_text()
+    assert [name for name in section_names() if f"`[{name}]`" not in text] == []
