@@ -10,6 +10,7 @@ from pathlib import Path
 from control.config import ControlConfig
 from control.identification.inner_loop import read_outer_loop_gains
 from gateway.bus import BusConfig, bus_config_from
+from gateway.cell_section import CellSection
 from gateway.config import from_mapping, load_toml, resolve_path
 from gateway.errors import ConfigError
 
@@ -38,3 +39,10 @@ def load_control_config(cell_path: str | Path) -> tuple[ControlConfig, BusConfig
         if getattr(cfg, key) is not None:
             cfg = ControlConfig(**{**cfg.__dict__, key: resolve_path(cell_path, getattr(cfg, key))})
     return cfg, bus
+
+
+#: the ``[control]`` section of the cell config, registered in pyproject.toml (checked by the
+#: control process when it starts, not by the gateway)
+CELL_SECTION = CellSection(
+    "control", lambda path, raw: load_control_config(path), ControlConfig, order=5
+)

@@ -21,6 +21,7 @@ import zenoh
 
 from gateway import bus_security as security
 from gateway import bus_tls as tls
+from gateway.cell_section import CellSection, section_names
 from gateway.config import from_mapping, require
 from gateway.errors import LinkTimeoutError
 from gateway.messages import Keys
@@ -282,10 +283,6 @@ def declare_loop_publisher(session: zenoh.Session, key: str):
     )
 
 
-#: the sections of a cell config; each process reads its own and the [bus]
-CELL_SECTIONS = ("bus", "can", "control", "gateway", "modbus", "realtime", "ros2")
-
-
 def bus_config_from(cell: dict[str, Any], where: str) -> BusConfig:
     """The ``[bus]`` section of a parsed cell config (defaults when absent). Every process
     and tool reads its cell config through here, so a section nobody reads (a typo: a
@@ -296,13 +293,21 @@ def bus_config_from(cell: dict[str, Any], where: str) -> BusConfig:
 
 def check_cell_sections(cell: dict[str, Any], where: str) -> None:
     """Refuse a cell config with a section nobody reads (ConfigError naming it):
-    :func:`bus_config_from` calls it, and a loader that does not read ``[bus]``."""
-    unknown = sorted(set(cell) - set(CELL_SECTIONS))
+    :func:`bus_config_from` calls it, and a loader that does not read ``[bus]``. The sections
+    are the registered ones (gateway/cell_section.py); each process reads its own and [bus]."""
+    known = sorted(section_names())
+    unknown = sorted(set(cell) - set(known))
     require(
         not unknown,
         where,
-        f"unknown section(s) {unknown}: a cell config has {[f'[{s}]' for s in CELL_SECTIONS]}",
+        f"unknown section(s) {unknown}: a cell config has {[f'[{s}]' for s in known]}",
     )
+
+
+#: the ``[bus]`` section of the cell config, registered in pyproject.toml
+CELL_SECTION = CellSection(
+    "bus", lambda path, raw: bus_config_from(raw, str(path)), BusConfig, order=1
+)
 
 
 def undeclare_all(entities: Iterable[Any]) -> None:

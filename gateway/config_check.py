@@ -3,12 +3,15 @@ process that uses it, every error at once, each naming the file, the section and
 `leadthrough config schema` prints a JSON Schema of the cell config for editors (TOML language
 servers such as Taplo take one): sections, keys and their types, unknown keys refused.
 
+The sections, their loaders and their config classes come from the registry of cell-config
+sections (gateway/cell_section.py: pyproject.toml's entry points), so this module imports no
+process; a registry that cannot be read is a ConfigError naming the broken entry point.
+
 The gateway runs the same check when it starts its children (gateway/supervisor.py,
-:data:`GATEWAY_START_SECTIONS`): an error in any of those sections is reported there, once, and
+:func:`gateway_start_sections`): an error in any of those sections is reported there, once, and
 the gateway exits with EX_CONFIG (78), which the systemd unit does not restart, instead of
-starting children that would each refuse it. ``[control]`` is left to the control process (its
-loader's imports take seconds; it exits 78 on a bad section, and the gateway faults naming it
-without restarting it).
+starting children that would each refuse it. ``[control]`` is left to the control process (it
+exits 78 on a bad section, and the gateway faults naming it without restarting it).
 """
 
 from __future__ import annotations
@@ -19,69 +22,17 @@ import json
 import sys
 import types
 import typing
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from gateway.cell_section import cell_sections
 from gateway.errors import EXIT_CONFIG, ConfigError
 
 
-def _bus(path: Path, raw: dict[str, Any]) -> object:
-    from gateway.bus import bus_config_from
-
-    return bus_config_from(raw, str(path))
-
-
-def _gateway(path: Path, raw: dict[str, Any]) -> object:
-    from gateway.gateway_config import load_gateway_config
-
-    return load_gateway_config(path)
-
-
-def _can(path: Path, raw: dict[str, Any]) -> object:
-    from drivers.can.config import load_can_config
-
-    return load_can_config(path)
-
-
-def _modbus(path: Path, raw: dict[str, Any]) -> object:
-    from drivers.modbus.config import ModbusDriverConfig
-
-    return ModbusDriverConfig.from_cell_config(raw, str(path))
-
-
-def _control(path: Path, raw: dict[str, Any]) -> object:
-    from control.cell_config import load_control_config
-
-    return load_control_config(path)
-
-
-def _realtime(path: Path, raw: dict[str, Any]) -> object:
-    from gateway.realtime import realtime_config_from
-
-    return realtime_config_from(raw, str(path))
-
-
-def _ros2(path: Path, raw: dict[str, Any]) -> object:
-    from gateway.ros2 import ros2_config_from
-
-    return ros2_config_from(raw, str(path))
-
-
-#: the sections the gateway checks before it starts its children (its own and [bus] are read
-#: before that, by load_gateway_config)
-GATEWAY_START_SECTIONS = ("can", "modbus", "realtime")
-
-#: section → its loader (the one the process that reads it uses)
-LOADERS: dict[str, Callable[[Path, dict[str, Any]], object]] = {
-    "bus": _bus,
-    "gateway": _gateway,
-    "can": _can,
-    "modbus": _modbus,
-    "control": _control,
-    "realtime": _realtime,
-    "ros2": _ros2,
-}
+def gateway_start_sections() -> tuple[str, ...]:
+    """The sections the gateway checks before it starts its children (``checked_at_start`` in
+    the registry: its own and [bus] it reads before that, by load_gateway_config)."""
+    return tuple(section.name for section in cell_sections() if section.checked_at_start)
 
 
 def check_cell(path: Path, sections: tuple[str, ...] | None = None) -> dict[str, str]:
@@ -89,20 +40,21 @@ def check_cell(path: Path, sections: tuple[str, ...] | None = None) -> dict[str,
     cannot be read or parsed is one error under ``"file"``."""
     from gateway.config import load_toml
 
+    registered = cell_sections()
     try:
         raw = load_toml(path)
     except ConfigError as exc:
         return {"file": str(exc)}
     result: dict[str, str] = {}
-    for section, load in LOADERS.items():
-        if sections is not None and section not in sections:
+    for section in registered:
+        if sections is not None and section.name not in sections:
             continue
         try:
-            load(path, raw)
+            section.loader(path, raw)
         except ConfigError as exc:
-            result[section] = str(exc)
+            result[section.name] = str(exc)
         else:
-            result[section] = ""
+            result[section.name] = ""
     return result
 
 
@@ -117,26 +69,6 @@ def _distinct(result: dict[str, str]) -> list[str]:
         if message and message not in seen:  # an unknown section fails every loader alike
             seen.append(message)
     return seen
-
-
-def _section_classes() -> dict[str, type]:
-    from control.config import ControlConfig
-    from drivers.can.config import CanDriverConfig
-    from drivers.modbus.config import ModbusDriverConfig
-    from gateway.bus import BusConfig
-    from gateway.gateway_config import GatewayConfig
-    from gateway.realtime import Realtime
-    from gateway.ros2 import Ros2Config
-
-    return {
-        "bus": BusConfig,
-        "gateway": GatewayConfig,
-        "can": CanDriverConfig,
-        "modbus": ModbusDriverConfig,
-        "control": ControlConfig,
-        "realtime": Realtime,
-        "ros2": Ros2Config,
-    }
 
 
 def _type_schema(hint: Any) -> dict[str, Any]:
@@ -197,7 +129,7 @@ def cell_schema() -> dict[str, Any]:
         "$schema": "https://json-schema.org/draft/2020-12/schema",
         "title": "leadthrough cell config",
         "type": "object",
-        "properties": {name: _class_schema(cls) for name, cls in _section_classes().items()},
+        "properties": {s.name: _class_schema(s.config_class) for s in cell_sections()},
         "additionalProperties": False,
     }
 

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from gateway.bus import BusConfig, bus_config_from
+from gateway.cell_section import CellSection
 from gateway.config import from_mapping, load_toml, require
 
 #: the processes the gateway may start and supervise
@@ -59,3 +60,9 @@ def load_gateway_config(cell_path: Path) -> tuple[GatewayConfig, BusConfig]:
     bus = bus_config_from(raw, str(cell_path))  # first: it refuses an unknown section
     cfg = from_mapping(GatewayConfig, raw.get("gateway", {}), f"{cell_path} [gateway]")
     return cfg, bus
+
+
+#: the ``[gateway]`` section of the cell config, registered in pyproject.toml
+CELL_SECTION = CellSection(
+    "gateway", lambda path, raw: load_gateway_config(path), GatewayConfig, order=2
+)

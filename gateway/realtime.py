@@ -31,6 +31,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any
 
+from gateway.cell_section import CellSection
 from gateway.config import from_mapping, require
 
 log = logging.getLogger("leadthrough.realtime")
@@ -88,6 +89,17 @@ class Realtime:
 
 def realtime_config_from(cell: dict[str, Any], where: str) -> Realtime:
     return from_mapping(Realtime, cell.get("realtime", {}), f"{where} [realtime]")
+
+
+#: the ``[realtime]`` section of the cell config, registered in pyproject.toml; the gateway
+#: checks it before it starts its children (each of them places itself by it)
+CELL_SECTION = CellSection(
+    "realtime",
+    lambda path, raw: realtime_config_from(raw, str(path)),
+    Realtime,
+    order=6,
+    checked_at_start=True,
+)
 
 
 def apply_scheduling(

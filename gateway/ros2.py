@@ -46,6 +46,7 @@ from gateway.bus import (
     undeclare_all,
 )
 from gateway.bus_security import OBSERVER
+from gateway.cell_section import CellSection
 from gateway.config import from_mapping, load_toml, require
 from gateway.errors import ConfigError, LinkTimeoutError, MessageError
 from gateway.messages import JointCommand, JointState
@@ -125,6 +126,12 @@ class Ros2Config:
 def ros2_config_from(cell: dict[str, Any], where: str) -> Ros2Config:
     """The ``[ros2]`` section of a parsed cell config (defaults when absent)."""
     return from_mapping(Ros2Config, cell.get("ros2", {}), f"{where} [ros2]")
+
+
+#: the ``[ros2]`` section of the cell config, registered in pyproject.toml
+CELL_SECTION = CellSection(
+    "ros2", lambda path, raw: ros2_config_from(raw, str(path)), Ros2Config, order=7
+)
 
 
 # --- rmw_zenoh's names -------------------------------------------------------------------------

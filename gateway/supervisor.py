@@ -576,9 +576,9 @@ def cli_main(args: argparse.Namespace) -> int:
     def build() -> Gateway:
         cfg, bus = load_gateway_config(args.config)
         if not args.no_spawn:  # the children's sections, reported here once (config_check.py)
-            from gateway.config_check import GATEWAY_START_SECTIONS, problems
+            from gateway.config_check import gateway_start_sections, problems
 
-            errors = problems(args.config, GATEWAY_START_SECTIONS)
+            errors = problems(args.config, gateway_start_sections())
             for message in errors:
                 log.error("cell config refused: %s", message)
             if errors:

@@ -29,6 +29,7 @@ from typing import Any
 
 from drivers.can.seqpacket import address_problem
 from gateway.bus import BusConfig, bus_config_from
+from gateway.cell_section import CellSection
 from gateway.config import from_mapping, load_toml, require, require_count, resolve_path
 
 #: ``lost_cycle_answer`` values (drivers/can/rt/src/lost_cycles.rs)
@@ -405,3 +406,10 @@ def load_can_config(cell_config_path: str | Path) -> tuple[CanDriverConfig, BusC
         eds = str(resolve_path(cell_config_path, can_cfg.cia402.eds))
         can_cfg = dataclasses.replace(can_cfg, cia402=dataclasses.replace(can_cfg.cia402, eds=eds))
     return can_cfg, bus_cfg
+
+
+#: the ``[can]`` section of the cell config, registered in pyproject.toml; the gateway checks
+#: it before it starts the driver
+CELL_SECTION = CellSection(
+    "can", lambda path, raw: load_can_config(path), CanDriverConfig, order=3, checked_at_start=True
+)

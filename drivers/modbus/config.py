@@ -23,6 +23,7 @@ from typing import Any
 
 from drivers.modbus.registermap import Point
 from gateway.bus import check_cell_sections
+from gateway.cell_section import CellSection
 from gateway.config import from_mapping, require
 
 
@@ -79,3 +80,14 @@ class ModbusDriverConfig:
         check_cell_sections(cell, where)
         require("modbus" in cell, where, "has no [modbus] section")
         return from_mapping(cls, cell["modbus"], f"{where} [modbus]")
+
+
+#: the ``[modbus]`` section of the cell config, registered in pyproject.toml; the gateway
+#: checks it before it starts the driver
+CELL_SECTION = CellSection(
+    "modbus",
+    lambda path, raw: ModbusDriverConfig.from_cell_config(raw, str(path)),
+    ModbusDriverConfig,
+    order=4,
+    checked_at_start=True,
+)
