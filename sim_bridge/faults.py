@@ -99,6 +99,11 @@ DRAG = {
 FAST_DRAG = {"path": [[0.0, 0, 0, 0], [0.5, 0, 0, 0], [6.5, 1.8, 0, 0]]}
 #: ... injected once the tool passes this speed [m/s]
 FAST_MOVING_M_S = 0.2
+#: the truth log's newest row may be this old when a fault is injected on its speed [s]: the
+#: tool's speed changes within tens of ms where the speed limit's feedback dips it (to 80 mm/s
+#: for 0.4 s on CiA 402 drives), so a reading older than a few controller cycles (8 ms) does
+#: not tell the speed the fault strikes at
+FRESH_S = 0.05
 #: A robot's controller stops the arm when its commands cease: at rest within 20 ms of the
 #: last one (Universal Robots' default receive timeout; plus one controller cycle, see the
 #: module docstring), the tool moving less than 2 mm once they ceased.
@@ -322,12 +327,16 @@ def _moving(stack: Stack, speed_m_s: float, timeout_s: float) -> None:
     strikes at speed. The hand drags the arm along the speed limit, whose feedback dips the
     speed now and then (to 80 mm/s for 0.4 s on CiA 402 drives): a fault injected as a dip
     begins, after the ~0.1 s a whole read of the truth log took on a loaded machine, found
-    the arm at 94 mm/s. The log is read incrementally, every 10 ms."""
-    tail = TruthTail(stack.truth_log, (*TOOL_COLUMNS, "teaching"))
+    the arm at 94 mm/s. The log is read incrementally, every 10 ms, and its newest row must
+    be :data:`FRESH_S` old at most: the simulator flushes it every ``LOG_FLUSH_CYCLES``
+    (0.2 s), and under ``taskset -c 0`` a fault injected on rows that old found the arm in a
+    dip at 129 mm/s (2026-12-02)."""
+    tail = TruthTail(stack.truth_log, (*TOOL_COLUMNS, "teaching", "wall_s"))
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
         rows = tail.update()
-        if rows.shape[0] > 2 * SPAN and rows[-1, 4] > 0.5:
+        fresh = rows.shape[0] > 0 and time.monotonic() - rows[-1, 5] <= FRESH_S
+        if fresh and rows.shape[0] > 2 * SPAN and rows[-1, 4] > 0.5:
             now, before = tail_tool_speed(rows, SPAN), tail_tool_speed(rows, SPAN, -1 - SPAN)
             if now > speed_m_s and now >= 0.98 * before:
                 return
