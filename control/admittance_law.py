@@ -18,6 +18,7 @@ from control._rt import Admittance, EngageProbe
 from control.config import ControlConfig
 from control.declared_model import DeclaredModel
 from control.load_check import REST_RAD_S
+from control.stick_anchor import StickAnchor
 from control.zero_moment_law import INERTIA_STEP_RAD, ZeroMomentController
 from gateway.errors import MessageError
 from gateway.messages import FLAG_PREV_COAST, FLAG_PREV_HOLD, JointState
@@ -59,6 +60,9 @@ class AdmittanceController(ZeroMomentController):
             cfg.max_velocity_rad_s,
             cfg.admittance_rest_damping_factor,
         )
+        self.admittance.hold_rad_s = cfg.admittance_hold_rad_s
+        #: ``admittance_stick = "anchor"``: the estimate each resting joint settled with
+        self._anchor = StickAnchor(model.n, cfg.admittance_filter_hz)
         if cfg.max_tool_speed_m_s > 0:
             self.admittance.speed_limit = lambda q, dq: self.tool_speed_scale(
                 np.asarray(q), np.asarray(dq)
@@ -197,7 +201,19 @@ class AdmittanceController(ZeroMomentController):
         # a joint at rest: its friction carries any torque up to its static level, which the
         # current cannot tell from a hand (the stick zone, fading out as the joint slides)
         stuck = self._stick * np.maximum(0.0, 1.0 - np.abs(st.dq_rad_s) / STICK_RAD_S)
-        tau_h = np.sign(tau_h) * np.maximum(np.abs(tau_h) - stuck, 0.0)
+        zoned = np.sign(tau_h) * np.maximum(np.abs(tau_h) - stuck, 0.0)
+        if self.cfg.admittance_stick == "anchor":
+            # a joint settled at rest: the push is what moved its estimate off the one it
+            # settled with (control/stick_anchor.py); sliding or settling, the stick zone
+            rel, settled = self._anchor.hand(
+                tau_h, np.abs(st.dq_rad_s) <= REST_RAD_S, np.array(adm.band), dt
+            )
+            # an arm at rest keeps the stick zone about the anchor
+            if not adm.moving:
+                rel = np.sign(rel) * np.maximum(np.abs(rel) - stuck, 0.0)
+            tau_h = np.where(settled, rel, zoned)
+        else:
+            tau_h = zoned
         k = self.cfg.wall_stiffness_nm_per_rad
         walls = -k * np.maximum(q - self.upper, 0.0) + k * np.maximum(self.lower - q, 0.0)
         # constrained guiding's fixture acts on the reference the arm follows
@@ -233,6 +249,7 @@ class AdmittanceController(ZeroMomentController):
 
     def _start_admittance(self, q: np.ndarray, noise: np.ndarray | None) -> None:
         self.admittance.reset(q, noise)
+        self._anchor.reset()
         self._cycle.restart_guide()
         log.info("admittance engaged: dead zone %s N·m, residual b %s N·m",
                  np.round(self.admittance.band, 3).tolist(),

@@ -11,6 +11,8 @@ from gateway.guide_modes import GUIDE_AXES, guide_problem
 
 #: the lead-through laws (``[control].strategy``)
 STRATEGIES = ("zero_moment", "paper", "admittance")
+#: how the admittance keeps the load a resting joint's friction carries from reading as a hand
+ADMITTANCE_STICKS = ("zone", "anchor")
 
 
 @dataclass(frozen=True)
@@ -127,6 +129,15 @@ class ControlConfig:
     #: (control/rt/src/law/admittance.rs, stick zone): its friction then carries any torque up to
     #: its static level, which the current cannot tell from a hand; 0: none
     admittance_stick_zone: float = 1.0
+    #: how a joint at rest keeps the load its friction carries from reading as a hand: "zone"
+    #: (the stick zone above, symmetric about 0) or "anchor" (control/stick_anchor.py: a joint
+    #: settled at rest is pushed by what moved its estimate off the one it settled with while
+    #: the arm is guided, and by that beyond the stick zone while the arm rests)
+    admittance_stick: str = "anchor"
+    #: per-joint hold (control/rt/src/law/admittance.rs): once no joint's estimate exceeds its
+    #: static dead zone (the hand eases or lets go), a joint whose reference is slower than this
+    #: [rad/s] is held, its reference still, until one does again; 0: none
+    admittance_hold_rad_s: float = 4e-3
     #: the speed limit of hand guiding on the tool point and the flange [m/s], kept by the
     #: admittance's reference, and by the zero-moment law's velocity command (scaled down
     #: where it would exceed it, so the vendor loop brakes the arm); 0: none.
@@ -324,6 +335,16 @@ class ControlConfig:
             0.0 <= self.admittance_stick_zone <= 3.0,
             "[control].admittance_stick_zone",
             f"{self.admittance_stick_zone} not in [0, 3]",
+        )
+        require(
+            self.admittance_stick in ADMITTANCE_STICKS,
+            "[control].admittance_stick",
+            f"{self.admittance_stick!r} is not one of {', '.join(ADMITTANCE_STICKS)}",
+        )
+        require(
+            0.0 <= self.admittance_hold_rad_s <= 0.05,
+            "[control].admittance_hold_rad_s",
+            f"{self.admittance_hold_rad_s} not in [0, 0.05]",
         )
         require(
             0.1 <= self.admittance_probe_s <= 2.0,

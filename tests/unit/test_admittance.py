@@ -278,3 +278,16 @@ def test_with_stiction_a_load_share_the_friction_may_carry_is_no_hand(stiction_c
     assert ctl.admittance.moving and dq_cmd[1] > 0.0
     ctl.disengage()
     assert ctl.engagement() == {"phase": "idle"}
+
+
+@pytest.mark.parametrize(
+    ("key", "value", "match"),
+    [
+        ("admittance_stick", "glue", "admittance_stick"),
+        ("admittance_hold_rad_s", -1e-3, "admittance_hold_rad_s"),
+        ("admittance_hold_rad_s", float("nan"), "admittance_hold_rad_s"),
+    ],
+)
+def test_a_bad_stick_or_hold_is_refused_by_name(stiction_cfg, key, value, match):
+    with pytest.raises(ConfigError, match=match):
+        dataclasses.replace(stiction_cfg, **{key: value})

@@ -211,6 +211,25 @@ impl PyAdmittance {
         Ok(self.lock()?.band().to_vec())
     }
 
+    /// Per joint, held: its reference still (law/admittance.rs `held`).
+    #[getter]
+    fn held(&self) -> PyResult<Vec<bool>> {
+        Ok(self.lock()?.held().to_vec())
+    }
+
+    /// The speed below which a joint with no push is held [rad/s]; 0: none (writable).
+    #[getter]
+    fn hold_rad_s(&self) -> PyResult<f64> {
+        Ok(self.lock()?.hold_rad_s())
+    }
+
+    #[setter]
+    fn set_hold_rad_s(&self, hold_rad_s: f64) -> PyResult<()> {
+        self.lock()?
+            .set_hold(hold_rad_s)
+            .map_err(PyValueError::new_err)
+    }
+
     /// The arm is guided (a joint broke away and not every joint is back in `base_band`).
     #[getter]
     fn moving(&self) -> PyResult<bool> {

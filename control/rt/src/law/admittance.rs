@@ -36,7 +36,12 @@
 //! dead zone is no hand: there the damping is `rest_factor` × D, blended in linearly as the
 //! push falls from the band's width above it to nothing, so the arm a painter lets go of stops
 //! in a fraction of a second instead of coasting on its small virtual mass, and a model error
-//! at the edge of the band creeps `rest_factor` times slower. The command sent is the reference
+//! at the edge of the band creeps `rest_factor` times slower. (A2) couples the joints through
+//! M̂, so one joint's deceleration moves the others' references with no push on them, and a
+//! joint stuck under a reference creeping at a few mrad/s sticks and slips: with a hold speed
+//! ([`Admittance::set_hold`]), once no joint's estimate exceeds its static band a joint whose
+//! reference is slower than it is held, its row of (A2) asking for speed 0, until a push
+//! exceeds a static band again. The command sent is the reference
 //! plus the offset at which the vendor loop delivers the model's torque (eq. 21's steady state,
 //! `ω̂ τ / Υ̂_I`).
 //!
@@ -96,6 +101,10 @@ pub struct Admittance {
     moving: bool,
     /// How long the guided reference has been slower than [`SETTLE_RAD_S`] [s].
     slow_s: f64,
+    /// Per-joint hold (0: off) [rad/s]: [`Admittance::update_held`].
+    hold_rad_s: f64,
+    /// The joints held ([`Admittance::held`]).
+    held: Vec<bool>,
     q_r: Vec<f64>,
     dq_r: Vec<f64>,
     ddq_r: Vec<f64>,
@@ -165,6 +174,8 @@ impl Admittance {
             band: band_nm.to_vec(),
             moving: false,
             slow_s: 0.0,
+            hold_rad_s: 0.0,
+            held: vec![false; n],
             q_r: vec![0.0; n],
             dq_r: vec![0.0; n],
             ddq_r: vec![0.0; n],
@@ -205,6 +216,26 @@ impl Admittance {
     pub fn moving(&self) -> bool {
         self.moving
     }
+    /// The speed below which a joint is held once no push exceeds a static band [rad/s];
+    /// 0: no joint is held ([`Admittance::update_held`]).
+    pub fn hold_rad_s(&self) -> f64 {
+        self.hold_rad_s
+    }
+    /// Sets [`Admittance::hold_rad_s`]; Err unless finite and >= 0.
+    pub fn set_hold(&mut self, hold_rad_s: f64) -> Result<(), String> {
+        if !(hold_rad_s.is_finite() && hold_rad_s >= 0.0) {
+            return Err(format!(
+                "admittance hold speed {} must be >= 0",
+                py_float(hold_rad_s)
+            ));
+        }
+        self.hold_rad_s = hold_rad_s;
+        Ok(())
+    }
+    /// Per joint: held, its reference still (none with [`Admittance::hold_rad_s`] 0).
+    pub fn held(&self) -> &[bool] {
+        &self.held
+    }
     pub fn q_r(&self) -> &[f64] {
         &self.q_r
     }
@@ -240,6 +271,7 @@ impl Admittance {
         self.band.copy_from_slice(&self.base_band);
         self.moving = false;
         self.slow_s = 0.0;
+        self.held.fill(self.hold_rad_s > 0.0);
         if let Some(noise) = noise_std_nm {
             for (b, &s) in self.band.iter_mut().zip(noise) {
                 *b = np_max(*b, NOISE_SIGMAS * s);
@@ -295,6 +327,7 @@ impl Admittance {
         );
         self.dead_zone(&tau_h, &mut pushed);
         (self.tau_h, self.pushed) = (tau_h, pushed);
+        self.update_held(tau_walls);
         for i in 0..n {
             let drive = self.pushed[i] + tau_walls[i];
             // the push's share of the band: 0 (no hand) → rest_factor × D, ≥ 1 → D
@@ -309,11 +342,47 @@ impl Admittance {
             }
             self.dq_new[i] = rhs + dt_s * drive;
         }
+        // a held joint's reference stays still: the row asks for speed 0, and the other rows
+        // then take it as 0 (the reduced system of the guided joints, the held ones'
+        // constraint torques absorbing the coupling through M̂)
+        for i in 0..n {
+            if self.held[i] {
+                for j in 0..n {
+                    self.lhs[i * n + j] = if i == j { 1.0 } else { 0.0 };
+                }
+                self.dq_new[i] = 0.0;
+            }
+        }
         solve_in_place(&mut self.lhs, &mut self.dq_new, n)?;
         for (v, &vmax) in self.dq_new.iter_mut().zip(&self.max_velocity) {
             *v = np_clip(*v, -vmax, vmax);
         }
         Ok(())
+    }
+
+    /// Per joint, with a hold speed: while some joint's estimate exceeds its static `band`
+    /// (a hand pushes), every joint is guided, as without one (the reference's coupling
+    /// through M̂ helps a stuck joint break away); once none does (the hand eases or lets
+    /// go), a joint whose reference is slower than the hold speed is held, its reference
+    /// still, so that no joint creeps on the others' deceleration. A joint a wall or a guide's
+    /// fixture pushes beyond its kinetic band (`tau_walls`) is not held: they act as a hand.
+    fn update_held(&mut self, tau_walls: &[f64]) {
+        let active = self.moving && self.tau_h.iter().zip(&self.band).any(|(t, b)| t.abs() > *b);
+        let (hold, off) = (self.hold_rad_s, self.hold_rad_s <= 0.0);
+        let joints = self
+            .held
+            .iter_mut()
+            .zip(tau_walls)
+            .zip(&self.base_band)
+            .zip(&self.dq_r);
+        for (((held, &wall), &band), &speed) in joints {
+            let walled = wall.abs() > band;
+            *held = if off || active || walled {
+                false
+            } else {
+                *held || speed.abs() < hold
+            };
+        }
     }
 
     /// The reference speed [`Admittance::propose`] gave, before any speed limit [rad/s].

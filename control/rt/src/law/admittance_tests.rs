@@ -225,3 +225,111 @@ fn the_probe_bias_is_the_mean_of_the_two_medians_or_the_rest_beyond_friction() {
     assert_eq!(kept, [false, true]);
     assert_eq!(b[1], 2.0);
 }
+
+/// A full mass matrix: J1's deceleration drives J2's reference through the coupling.
+fn coupled() -> Vec<f64> {
+    let mut m = diag(&[50.0, 40.0, 20.0, 1.0, 1.0, 0.3]);
+    m[1] = 15.0; // J1-J2
+    m[N] = 15.0;
+    m
+}
+
+/// Pushes J1 alone for `push_steps`, then lets go for `after_steps`; returns how far J2's
+/// reference moved over the let-go's last 250 steps, after the arm has had time to stop.
+fn let_go(a: &mut Admittance, push_steps: usize, after_steps: usize) -> f64 {
+    a.reset(&[0.0; N], None);
+    let mass = coupled();
+    let push = [30.0, 0.0, 0.0, 0.0, 0.0, 0.0];
+    for _ in 0..push_steps {
+        a.step(&push, &[0.0; N], &mass, DT, None).unwrap();
+    }
+    let mut q2 = 0.0;
+    for k in 0..after_steps {
+        if k == after_steps - 250 {
+            q2 = a.q_r()[1];
+        }
+        a.step(&[0.0; N], &[0.0; N], &mass, DT, None).unwrap();
+    }
+    (a.q_r()[1] - q2).abs()
+}
+
+#[test]
+fn without_a_hold_a_joint_nobody_pushes_still_coasts_seconds_after_the_let_go() {
+    // the behaviour the hold is for: J1's stop moves J2's reference through M̂, and the rest
+    // damping only slows it down (an exponential never ends)
+    let mut a = law(10.0);
+    let travel = let_go(&mut a, 500, 1000);
+    assert!(travel > 0.0, "J2's reference travelled {travel} rad");
+    assert!(a.dq_r()[1] != 0.0);
+    assert!(a.held().iter().all(|h| !h));
+}
+
+#[test]
+fn with_a_hold_every_joint_stops_dead_once_slow_and_stays() {
+    let mut a = law(10.0);
+    a.set_hold(4e-3).unwrap();
+    let travel = let_go(&mut a, 500, 1000);
+    assert_eq!(travel, 0.0, "J2's reference travelled {travel} rad");
+    assert!(a.held().iter().all(|&h| h), "{:?}", a.held());
+    assert_eq!(a.dq_r(), &[0.0; N]);
+}
+
+#[test]
+fn a_push_beyond_the_static_band_releases_every_held_joint() {
+    // while a hand pushes, every joint is guided as without a hold (the coupling helps a
+    // stuck joint break away); a joint is held only once no push exceeds its static band
+    let mut a = law(10.0);
+    a.set_hold(4e-3).unwrap();
+    a.reset(&[0.0; N], None);
+    assert!(a.held().iter().all(|&h| h));
+    let mass = coupled();
+    let push = [30.0, 0.0, 0.0, 0.0, 0.0, 0.0];
+    for _ in 0..200 {
+        a.step(&push, &[0.0; N], &mass, DT, None).unwrap();
+    }
+    assert!(a.held().iter().all(|h| !h), "{:?}", a.held());
+    assert!(a.dq_r()[0] > 0.0 && a.dq_r()[1] != 0.0, "{:?}", a.dq_r());
+    // a push inside the band holds J2-J6 (slow) and lets J1 coast down under the rest damping
+    let inside = [1.0, 0.0, 0.0, 0.0, 0.0, 0.0];
+    a.step(&inside, &[0.0; N], &mass, DT, None).unwrap();
+    a.step(&inside, &[0.0; N], &mass, DT, None).unwrap();
+    assert!(!a.held()[0], "J1 still fast: {:?}", a.dq_r());
+    assert!(a.dq_r()[0] > 4e-3);
+}
+
+#[test]
+fn a_wall_beyond_the_kinetic_band_moves_a_held_joint() {
+    // a push on J1, the let-go until every joint is held, then a wall alone pushes J3 back
+    // (a joint past its limit, or a guide's fixture): it acts as a hand, the hold lets it
+    let mut a = law(10.0);
+    a.set_hold(4e-3).unwrap();
+    let _ = let_go(&mut a, 200, 1000);
+    assert!(a.held().iter().all(|&h| h), "{:?}", a.held());
+    let mass = coupled();
+    let wall = [0.0, 0.0, -5.0, 0.0, 0.0, 0.0];
+    for _ in 0..100 {
+        a.step(&[0.0; N], &wall, &mass, DT, None).unwrap();
+    }
+    assert!(!a.held()[2], "{:?}", a.held());
+    assert!(a.dq_r()[2] < 0.0, "{:?}", a.dq_r());
+    // one inside the kinetic band does not
+    let mut b = law(10.0);
+    b.set_hold(4e-3).unwrap();
+    let _ = let_go(&mut b, 200, 1000);
+    for _ in 0..100 {
+        b.step(&[0.0; N], &[0.0, 0.0, -1.5, 0.0, 0.0, 0.0], &mass, DT, None)
+            .unwrap();
+    }
+    assert!(b.held()[2] && b.dq_r()[2] == 0.0, "{:?}", b.dq_r());
+}
+
+#[test]
+fn the_hold_speed_must_be_finite_and_not_negative() {
+    let mut a = law(1.0);
+    assert!(a.set_hold(-1e-3).is_err());
+    assert!(a.set_hold(f64::NAN).is_err());
+    assert!(a.set_hold(f64::INFINITY).is_err());
+    assert!(a.set_hold(0.0).is_ok());
+    a.reset(&[0.0; N], None);
+    assert!(a.held().iter().all(|h| !h));
+}
