@@ -133,11 +133,13 @@ class ControlConfig:
     #: (the stick zone above, symmetric about 0) or "anchor" (control/stick_anchor.py: a joint
     #: settled at rest is pushed by what moved its estimate off the one it settled with while
     #: the arm is guided, and by that beyond the stick zone while the arm rests)
-    admittance_stick: str = "anchor"
+    admittance_stick: str = "zone"
     #: per-joint hold (control/rt/src/law/admittance.rs): once no joint's estimate exceeds its
     #: static dead zone (the hand eases or lets go), a joint whose reference is slower than this
-    #: [rad/s] is held, its reference still, until one does again; 0: none
-    admittance_hold_rad_s: float = 4e-3
+    #: [rad/s] is held, its reference still, until one does again; 0: none. Off by default
+    #: with the zone: with the anchor and 4 mrad/s, 4 of 51 let-gos after a 20 N push ran on by
+    #: 6-30 mm (J2 kept sliding at ~10 mrad/s on its own estimate; docs/results/teaching.md)
+    admittance_hold_rad_s: float = 0.0
     #: the speed limit of hand guiding on the tool point and the flange [m/s], kept by the
     #: admittance's reference, and by the zero-moment law's velocity command (scaled down
     #: where it would exceed it, so the vendor loop brakes the arm); 0: none.
