@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from sim_bridge.commission import commissioned_stack
+from sim_bridge.faults import tool_xyz
 
 #: the engagement probe's length ([control] admittance_probe_s) and the time its joints take
 #: to stick after it [s]: the hand pushes after it, as a painter waits for it
@@ -29,10 +30,6 @@ PROBE_S = 0.8 + 0.3
 PUSH_S, AFTER_S = 2.0, 2.0
 #: the arm "ran on" when the tool moved this far in those 2 s [m] (the stack test's bound)
 RAN_ON_M = 1e-3
-
-
-def _xyz(truth: dict[str, np.ndarray], rows: np.ndarray) -> np.ndarray:
-    return np.stack([truth[f"tool_{a}"][rows] for a in "xyz"], axis=1)
 
 
 def judge(truth: dict[str, np.ndarray], force_n: float) -> dict[str, Any]:
@@ -46,9 +43,10 @@ def judge(truth: dict[str, np.ndarray], force_n: float) -> dict[str, Any]:
     if t[-1] < end:
         raise ValueError(f"the truth log holds {t[-1]:.1f} s after the probe, not {end:.1f} s")
     at = {s: rows[t <= s][-1] for s in (0.0, PUSH_S + 0.1, PUSH_S + AFTER_S, end)}
-    push = _xyz(truth, [at[PUSH_S + 0.1]])[0] - _xyz(truth, [at[0.0]])[0]
-    after = _xyz(truth, [at[end]])[0] - _xyz(truth, [at[PUSH_S + AFTER_S]])[0]
-    xyz, ts = _xyz(truth, rows), truth["t_s"][rows]
+    every = tool_xyz(truth)
+    push = every[at[PUSH_S + 0.1]] - every[at[0.0]]
+    after = every[at[end]] - every[at[PUSH_S + AFTER_S]]
+    xyz, ts = every[rows], truth["t_s"][rows]
     speed = np.linalg.norm(xyz[5:] - xyz[:-5], axis=1) / (ts[5:] - ts[:-5])
     return {
         "force_n": force_n,
@@ -77,7 +75,7 @@ def run(force_n: float, workdir: Path, plant_seed: int, control: dict[str, Any])
             engagement = stack.request("status").get("engagement") or {}
             phases.append(engagement.get("phase"))
             time.sleep(0.05)
-        truth = stack.wait_teaching(PROBE_S + PUSH_S + AFTER_S + 2.1, 60.0)
+        truth = stack.wait_teaching(PROBE_S + PUSH_S + AFTER_S + 2.1, 40.0)
         stack.request("stop")
     return {**judge(truth, force_n), "phases": phases}
 
