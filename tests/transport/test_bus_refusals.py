@@ -53,9 +53,17 @@ SCRIPT = textwrap.dedent(
     sub = control.declare_subscriber(keys.joint_state, lambda s: got.append(1))
     states = declare_loop_publisher(driver, keys.joint_state)
     time.sleep(0.3)
-    for _ in range(200):
+
+    def delivered(n):  # one message in flight at a time, as on the cycle (one state per period)
+        deadline = time.monotonic() + 2.0
+        while len(got) < n and time.monotonic() < deadline:
+            time.sleep(0.0005)
+
+    for i in range(200):
         states.put(b"state")
+        delivered(2 * i + 1)
         driver.put(keys.joint_state, b"state")
+        delivered(2 * i + 2)
     forger = open_peer(bus, sec.OBSERVER)
     declared = forger.declare_publisher(keys.io_state)
     time.sleep(0.3)
@@ -81,7 +89,11 @@ def test_a_real_routers_refusals_are_counted_and_allowed_traffic_writes_nothing(
     assert out.returncode == 0, out.stderr
     result = json.loads(out.stderr.strip().splitlines()[-1])
     summary = result["summary"]
-    assert result["delivered"] == 400, result  # the allowed states went through
+    # the allowed states went through. The loop's publisher drops on congestion by design
+    # (gateway/bus.py: a slow peer must not stall the loop), and zenoh's real-time queue holds
+    # one batch, so the script sends one state at a time, as the cycle does (one per period);
+    # a burst of 400 lost 25 on a loaded CI machine, a congestion drop, not a refusal.
+    assert result["delivered"] == 400, result
     counts = {(e["identity"], e["action"], e["key"]): e["count"] for e in summary["by"]}
     # put by put on a key the forger did not declare ...
     assert counts[("observer", "Put", "lt/cmd/joints")] == 50, summary
