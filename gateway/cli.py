@@ -17,6 +17,7 @@ from typing import Any
 
 from gateway.errors import EXIT_CONFIG, ConfigError, LeadthroughError
 from gateway.guide_modes import GUIDES
+from gateway.parent_death import die_with_parent_from_env
 
 #: name → (module, one-line help)
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
@@ -214,6 +215,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
+    try:
+        die_with_parent_from_env()  # started by the virtual cell's harness: stop with it
+    except ConfigError as exc:
+        print(f"leadthrough: {exc}", file=sys.stderr)
+        return EXIT_CONFIG
     # Build only the parser needed: importing every subcommand would load MuJoCo for `status`.
     parser = build_parser() if not argv or argv[0] not in SUBCOMMANDS else _single(argv[0])
     args = parser.parse_args(argv)

@@ -35,6 +35,7 @@ from drivers.can.seqpacket import socket_address
 from gateway.bus import BusConfig
 from gateway.config import load_toml
 from gateway.operator_request import OperatorClient
+from gateway.parent_death import ENV as PARENT_ENV
 from sim_bridge.sim import truth_log_columns
 
 REPO = Path(__file__).resolve().parent.parent
@@ -342,7 +343,8 @@ class Stack:
     def _spawn(self, name: str, args: list[str]) -> subprocess.Popen:
         out = (self.workdir / f"{name}.log").open("w")
         self._logs.append(out)
-        env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+        # the simulator and the gateway stop when this process dies (gateway/parent_death.py)
+        env = {**os.environ, "PYTHONUNBUFFERED": "1", PARENT_ENV: str(os.getpid())}
         return subprocess.Popen(
             [sys.executable, "-m", "gateway.cli", *args],
             stdout=out,
