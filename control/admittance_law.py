@@ -19,6 +19,7 @@ from control.config import ControlConfig
 from control.declared_model import DeclaredModel
 from control.load_check import REST_RAD_S
 from control.stick_anchor import StickAnchor
+from control.stribeck_speed import stribeck_speeds
 from control.zero_moment_law import INERTIA_STEP_RAD, ZeroMomentController
 from gateway.errors import MessageError
 from gateway.messages import FLAG_PREV_COAST, FLAG_PREV_HOLD, JointState
@@ -60,7 +61,12 @@ class AdmittanceController(ZeroMomentController):
             cfg.max_velocity_rad_s,
             cfg.admittance_rest_damping_factor,
         )
-        self.admittance.hold_rad_s = cfg.admittance_hold_rad_s
+        #: per joint, the speed below which a joint nobody pushes is held [rad/s]
+        self.hold_rad_s = np.full(model.n, cfg.admittance_hold_rad_s)
+        if cfg.admittance_hold_stribeck:
+            stribeck = stribeck_speeds(model, np.zeros(model.n), np.array(band))
+            self.hold_rad_s = np.maximum(self.hold_rad_s, stribeck)
+        self.admittance.hold_rad_s = self.hold_rad_s.tolist()
         #: ``admittance_stick = "anchor"``: the estimate each resting joint settled with
         self._anchor = StickAnchor(model.n, cfg.admittance_filter_hz)
         if cfg.max_tool_speed_m_s > 0:
@@ -251,9 +257,10 @@ class AdmittanceController(ZeroMomentController):
         self.admittance.reset(q, noise)
         self._anchor.reset()
         self._cycle.restart_guide()
-        log.info("admittance engaged: dead zone %s N·m, residual b %s N·m",
-                 np.round(self.admittance.band, 3).tolist(),
-                 np.round(self._bias, 2).tolist())  # fmt: skip
+        log.info("admittance engaged: dead zone %s N·m, residual b %s N·m, joints nobody "
+                 "pushes held below %s rad/s", np.round(self.admittance.band, 3).tolist(),
+                 np.round(self._bias, 2).tolist(),
+                 np.round(self.hold_rad_s, 4).tolist())  # fmt: skip
         self._sent_ddq.clear()
 
     def _probe_cycle(

@@ -130,16 +130,23 @@ class ControlConfig:
     #: its static level, which the current cannot tell from a hand; 0: none
     admittance_stick_zone: float = 1.0
     #: how a joint at rest keeps the load its friction carries from reading as a hand: "zone"
-    #: (the stick zone above, symmetric about 0) or "anchor" (control/stick_anchor.py: a joint
-    #: settled at rest is pushed by what moved its estimate off the one it settled with while
-    #: the arm is guided, and by that beyond the stick zone while the arm rests)
-    admittance_stick: str = "zone"
+    #: (the stick zone above, symmetric about 0: a push must exceed about twice the static
+    #: level to start a joint, 47-57 N mean force on plant seeds 101-103) or "anchor"
+    #: (control/stick_anchor.py: a joint settled at rest is pushed by what moved its estimate
+    #: off the one it settled with while the arm is guided, and by that beyond the stick zone
+    #: while the arm rests; 8-10 N there; safe with the holds below, docs/results/teaching.md)
+    admittance_stick: str = "anchor"
     #: per-joint hold (control/rt/src/law/admittance.rs): once no joint's estimate exceeds its
-    #: static dead zone (the hand eases or lets go), a joint whose reference is slower than this
-    #: [rad/s] is held, its reference still, until one does again; 0: none. Off by default
-    #: with the zone: with the anchor and 4 mrad/s, 4 of 51 let-gos after a 20 N push ran on by
-    #: 6-30 mm (J2 kept sliding at ~10 mrad/s on its own estimate; docs/results/teaching.md)
-    admittance_hold_rad_s: float = 0.0
+    #: static dead zone (the hand eases or lets go), a joint whose reference is slower than
+    #: this [rad/s] is held, its reference still, until one does again; 0: none. 4 mrad/s:
+    #: the reference creep at which a stuck joint sticks and slips under (A2)'s coupling
+    #: (~1 mrad/s seen; docs/results/teaching.md)
+    admittance_hold_rad_s: float = 0.004
+    #: hold each joint also below the speed where its model's friction has stopped falling
+    #: with speed (control/stribeck_speed.py), where that is faster: below it the model's
+    #: friction is what its fit knows least, and a joint let go of slid on carried by that
+    #: error (4 of 51 let-gos after a 20 N push with the 4 mrad/s hold alone)
+    admittance_hold_stribeck: bool = True
     #: the speed limit of hand guiding on the tool point and the flange [m/s], kept by the
     #: admittance's reference, and by the zero-moment law's velocity command (scaled down
     #: where it would exceed it, so the vendor loop brakes the arm); 0: none.

@@ -41,9 +41,9 @@ def test_without_a_hand_the_admittance_holds_the_arm_within_a_millimetre(tmp_pat
     assert drift_m < 1e-3, f"tool drifted {drift_m * 1e3:.3f} mm after the probe"
 
 
-#: 20 N, a light push. 40-60 N run the tool at the speed limit, where the joints' decelerations
-#: couple most: the zone ran on once in 12 let-gos at 40 N, so that case is the campaign's
-#: (`python -m sim_bridge.letgo`), not a suite test that fails one run in ten
+#: 20 N, a light push: the one that ran on most (4 of 51 let-gos before the Stribeck hold, 0 of
+#: 54 since). 40-60 N run the tool at the speed limit, where the joints' decelerations couple
+#: most; many runs of every force are the campaign's (`python -m sim_bridge.letgo`)
 PUSH_N = 20.0
 
 

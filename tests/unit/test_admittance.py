@@ -291,3 +291,40 @@ def test_with_stiction_a_load_share_the_friction_may_carry_is_no_hand(stiction_c
 def test_a_bad_stick_or_hold_is_refused_by_name(stiction_cfg, key, value, match):
     with pytest.raises(ConfigError, match=match):
         dataclasses.replace(stiction_cfg, **{key: value})
+
+
+def test_the_hold_speed_is_per_joint_a_float_holds_every_joint_and_a_wrong_length_is_refused():
+    a = law()
+    assert a.hold_rad_s == [0.0] * N
+    a.hold_rad_s = 0.004
+    assert a.hold_rad_s == [0.004] * N
+    a.hold_rad_s = [0.0, 0.02, 0.0, 0.0, 0.0, 0.01]
+    assert a.hold_rad_s == [0.0, 0.02, 0.0, 0.0, 0.0, 0.01]
+    with pytest.raises(ValueError, match="2 values for 6 joints"):
+        a.hold_rad_s = [0.01, 0.01]
+    with pytest.raises(ValueError, match="must be >= 0"):
+        a.hold_rad_s = [0.0, -0.01, 0.0, 0.0, 0.0, 0.0]
+
+
+def test_with_the_stribeck_hold_each_joint_is_held_below_its_models_stribeck_speed(
+    cfg, monkeypatch
+):
+    """The controller asks control/stribeck_speed.py (tested on its own) with its model, the
+    home pose and its dead zone, and holds each joint below the faster of that and the floor.
+    The example's declared model has no Stribeck fall (its sign is as wide as its decay)."""
+    model = DeclaredModel.load(cfg.model)
+    floor = dataclasses.replace(cfg, admittance_hold_rad_s=0.004)
+    assert AdmittanceController(floor, model).hold_rad_s.tolist() == [0.004] * N
+    on = dataclasses.replace(floor, admittance_hold_stribeck=True)
+    assert AdmittanceController(on, model).hold_rad_s.tolist() == [0.004] * N
+    asked = []
+
+    def speeds(m, q, band):
+        asked.append((m, q.tolist(), band.tolist()))
+        return np.array([0.0, 0.02, 0.003, 0.0, 0.01, 0.0])
+
+    monkeypatch.setattr("control.admittance_law.stribeck_speeds", speeds)
+    ctl = AdmittanceController(on, model)
+    assert ctl.hold_rad_s.tolist() == [0.004, 0.02, 0.004, 0.004, 0.01, 0.004]
+    assert ctl.admittance.hold_rad_s == ctl.hold_rad_s.tolist()
+    assert asked == [(model, [0.0] * N, ctl.admittance.base_band)]

@@ -217,17 +217,21 @@ impl PyAdmittance {
         Ok(self.lock()?.held().to_vec())
     }
 
-    /// The speed below which a joint with no push is held [rad/s]; 0: none (writable).
+    /// Per joint, the speed below which it is held once no push exceeds a static band
+    /// [rad/s]; 0: never (writable: one value per joint, or one for every joint).
     #[getter]
-    fn hold_rad_s(&self) -> PyResult<f64> {
-        Ok(self.lock()?.hold_rad_s())
+    fn hold_rad_s(&self) -> PyResult<Vec<f64>> {
+        Ok(self.lock()?.hold_rad_s().to_vec())
     }
 
     #[setter]
-    fn set_hold_rad_s(&self, hold_rad_s: f64) -> PyResult<()> {
-        self.lock()?
-            .set_hold(hold_rad_s)
-            .map_err(PyValueError::new_err)
+    fn set_hold_rad_s(&self, hold_rad_s: &Bound<'_, PyAny>) -> PyResult<()> {
+        let mut law = self.lock()?;
+        let speeds = match hold_rad_s.extract::<f64>() {
+            Ok(one) => vec![one; law.n()],
+            Err(_) => hold_rad_s.extract::<Vec<f64>>()?,
+        };
+        law.set_hold(&speeds).map_err(PyValueError::new_err)
     }
 
     /// The arm is guided (a joint broke away and not every joint is back in `base_band`).

@@ -38,10 +38,10 @@
 //! in a fraction of a second instead of coasting on its small virtual mass, and a model error
 //! at the edge of the band creeps `rest_factor` times slower. (A2) couples the joints through
 //! M̂, so one joint's deceleration moves the others' references with no push on them, and a
-//! joint stuck under a reference creeping at a few mrad/s sticks and slips: with a hold speed
-//! ([`Admittance::set_hold`]), once no joint's estimate exceeds its static band a joint whose
-//! reference is slower than it is held, its row of (A2) asking for speed 0, until a push
-//! exceeds a static band again. The command sent is the reference
+//! joint stuck under a reference creeping at a few mrad/s sticks and slips: with hold speeds
+//! per joint ([`Admittance::set_hold`]), once no joint's estimate exceeds its static band a
+//! joint whose reference is slower than its own hold speed is held, its row of (A2) asking for
+//! speed 0, until a push exceeds a static band again. The command sent is the reference
 //! plus the offset at which the vendor loop delivers the model's torque (eq. 21's steady state,
 //! `ω̂ τ / Υ̂_I`).
 //!
@@ -101,8 +101,8 @@ pub struct Admittance {
     moving: bool,
     /// How long the guided reference has been slower than [`SETTLE_RAD_S`] [s].
     slow_s: f64,
-    /// Per-joint hold (0: off) [rad/s]: [`Admittance::update_held`].
-    hold_rad_s: f64,
+    /// Per joint, the hold speed (0: never held) [rad/s]: [`Admittance::update_held`].
+    hold_rad_s: Vec<f64>,
     /// The joints held ([`Admittance::held`]).
     held: Vec<bool>,
     q_r: Vec<f64>,
@@ -174,7 +174,7 @@ impl Admittance {
             band: band_nm.to_vec(),
             moving: false,
             slow_s: 0.0,
-            hold_rad_s: 0.0,
+            hold_rad_s: vec![0.0; n],
             held: vec![false; n],
             q_r: vec![0.0; n],
             dq_r: vec![0.0; n],
@@ -216,20 +216,27 @@ impl Admittance {
     pub fn moving(&self) -> bool {
         self.moving
     }
-    /// The speed below which a joint is held once no push exceeds a static band [rad/s];
-    /// 0: no joint is held ([`Admittance::update_held`]).
-    pub fn hold_rad_s(&self) -> f64 {
-        self.hold_rad_s
+    /// Per joint, the speed below which it is held once no push exceeds a static band
+    /// [rad/s]; 0: that joint is never held ([`Admittance::update_held`]).
+    pub fn hold_rad_s(&self) -> &[f64] {
+        &self.hold_rad_s
     }
-    /// Sets [`Admittance::hold_rad_s`]; Err unless finite and >= 0.
-    pub fn set_hold(&mut self, hold_rad_s: f64) -> Result<(), String> {
-        if !(hold_rad_s.is_finite() && hold_rad_s >= 0.0) {
+    /// Sets [`Admittance::hold_rad_s`]; Err unless one value per joint, each finite and >= 0.
+    pub fn set_hold(&mut self, hold_rad_s: &[f64]) -> Result<(), String> {
+        if hold_rad_s.len() != self.n {
             return Err(format!(
-                "admittance hold speed {} must be >= 0",
-                py_float(hold_rad_s)
+                "admittance hold speeds: {} values for {} joints",
+                hold_rad_s.len(),
+                self.n
             ));
         }
-        self.hold_rad_s = hold_rad_s;
+        if let Some(&bad) = hold_rad_s.iter().find(|v| !(v.is_finite() && **v >= 0.0)) {
+            return Err(format!(
+                "admittance hold speed {} must be >= 0",
+                py_float(bad)
+            ));
+        }
+        self.hold_rad_s.copy_from_slice(hold_rad_s);
         Ok(())
     }
     /// Per joint: held, its reference still (none with [`Admittance::hold_rad_s`] 0).
@@ -271,7 +278,9 @@ impl Admittance {
         self.band.copy_from_slice(&self.base_band);
         self.moving = false;
         self.slow_s = 0.0;
-        self.held.fill(self.hold_rad_s > 0.0);
+        for (held, &hold) in self.held.iter_mut().zip(&self.hold_rad_s) {
+            *held = hold > 0.0;
+        }
         if let Some(noise) = noise_std_nm {
             for (b, &s) in self.band.iter_mut().zip(noise) {
                 *b = np_max(*b, NOISE_SIGMAS * s);
@@ -368,16 +377,16 @@ impl Admittance {
     /// fixture pushes beyond its kinetic band (`tau_walls`) is not held: they act as a hand.
     fn update_held(&mut self, tau_walls: &[f64]) {
         let active = self.moving && self.tau_h.iter().zip(&self.band).any(|(t, b)| t.abs() > *b);
-        let (hold, off) = (self.hold_rad_s, self.hold_rad_s <= 0.0);
         let joints = self
             .held
             .iter_mut()
             .zip(tau_walls)
             .zip(&self.base_band)
-            .zip(&self.dq_r);
-        for (((held, &wall), &band), &speed) in joints {
+            .zip(&self.dq_r)
+            .zip(&self.hold_rad_s);
+        for ((((held, &wall), &band), &speed), &hold) in joints {
             let walled = wall.abs() > band;
-            *held = if off || active || walled {
+            *held = if hold <= 0.0 || active || walled {
                 false
             } else {
                 *held || speed.abs() < hold

@@ -267,7 +267,7 @@ fn without_a_hold_a_joint_nobody_pushes_still_coasts_seconds_after_the_let_go() 
 #[test]
 fn with_a_hold_every_joint_stops_dead_once_slow_and_stays() {
     let mut a = law(10.0);
-    a.set_hold(4e-3).unwrap();
+    a.set_hold(&[4e-3; N]).unwrap();
     let travel = let_go(&mut a, 500, 1000);
     assert_eq!(travel, 0.0, "J2's reference travelled {travel} rad");
     assert!(a.held().iter().all(|&h| h), "{:?}", a.held());
@@ -275,11 +275,22 @@ fn with_a_hold_every_joint_stops_dead_once_slow_and_stays() {
 }
 
 #[test]
+fn each_joint_is_held_below_its_own_hold_speed() {
+    // the let-go with J2's hold speed 0: J2 alone coasts on J1's stop, every other joint stops
+    let mut a = law(10.0);
+    a.set_hold(&[4e-3, 0.0, 4e-3, 4e-3, 4e-3, 4e-3]).unwrap();
+    let travel = let_go(&mut a, 500, 1000);
+    assert!(travel > 0.0, "J2's reference travelled {travel} rad");
+    assert_eq!(a.held(), &[true, false, true, true, true, true]);
+    assert_eq!(a.dq_r()[0], 0.0);
+}
+
+#[test]
 fn a_push_beyond_the_static_band_releases_every_held_joint() {
     // while a hand pushes, every joint is guided as without a hold (the coupling helps a
     // stuck joint break away); a joint is held only once no push exceeds its static band
     let mut a = law(10.0);
-    a.set_hold(4e-3).unwrap();
+    a.set_hold(&[4e-3; N]).unwrap();
     a.reset(&[0.0; N], None);
     assert!(a.held().iter().all(|&h| h));
     let mass = coupled();
@@ -302,7 +313,7 @@ fn a_wall_beyond_the_kinetic_band_moves_a_held_joint() {
     // a push on J1, the let-go until every joint is held, then a wall alone pushes J3 back
     // (a joint past its limit, or a guide's fixture): it acts as a hand, the hold lets it
     let mut a = law(10.0);
-    a.set_hold(4e-3).unwrap();
+    a.set_hold(&[4e-3; N]).unwrap();
     let _ = let_go(&mut a, 200, 1000);
     assert!(a.held().iter().all(|&h| h), "{:?}", a.held());
     let mass = coupled();
@@ -314,7 +325,7 @@ fn a_wall_beyond_the_kinetic_band_moves_a_held_joint() {
     assert!(a.dq_r()[2] < 0.0, "{:?}", a.dq_r());
     // one inside the kinetic band does not
     let mut b = law(10.0);
-    b.set_hold(4e-3).unwrap();
+    b.set_hold(&[4e-3; N]).unwrap();
     let _ = let_go(&mut b, 200, 1000);
     for _ in 0..100 {
         b.step(&[0.0; N], &[0.0, 0.0, -1.5, 0.0, 0.0, 0.0], &mass, DT, None)
@@ -326,10 +337,11 @@ fn a_wall_beyond_the_kinetic_band_moves_a_held_joint() {
 #[test]
 fn the_hold_speed_must_be_finite_and_not_negative() {
     let mut a = law(1.0);
-    assert!(a.set_hold(-1e-3).is_err());
-    assert!(a.set_hold(f64::NAN).is_err());
-    assert!(a.set_hold(f64::INFINITY).is_err());
-    assert!(a.set_hold(0.0).is_ok());
+    assert!(a.set_hold(&[-1e-3; N]).is_err());
+    assert!(a.set_hold(&[f64::NAN; N]).is_err());
+    assert!(a.set_hold(&[f64::INFINITY; N]).is_err());
+    assert!(a.set_hold(&[4e-3; 2]).is_err());
+    assert!(a.set_hold(&[0.0; N]).is_ok());
     a.reset(&[0.0; N], None);
     assert!(a.held().iter().all(|h| !h));
 }
