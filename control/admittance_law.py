@@ -61,12 +61,11 @@ class AdmittanceController(ZeroMomentController):
             cfg.max_velocity_rad_s,
             cfg.admittance_rest_damping_factor,
         )
-        #: per joint, the speed below which a joint nobody pushes is held [rad/s]
-        self.hold_rad_s = np.full(model.n, cfg.admittance_hold_rad_s)
+        # per joint, the speed below which a joint nobody pushes is held [rad/s]
+        hold = np.full(model.n, cfg.admittance_hold_rad_s)
         if cfg.admittance_hold_stribeck:
-            stribeck = stribeck_speeds(model, np.zeros(model.n), np.array(band))
-            self.hold_rad_s = np.maximum(self.hold_rad_s, stribeck)
-        self.admittance.hold_rad_s = self.hold_rad_s.tolist()
+            hold = np.maximum(hold, stribeck_speeds(model, np.zeros(model.n), np.array(band)))
+        self.admittance.hold_rad_s = hold.tolist()
         #: ``admittance_stick = "anchor"``: the estimate each resting joint settled with
         self._anchor = StickAnchor(model.n, cfg.admittance_filter_hz)
         if cfg.max_tool_speed_m_s > 0:
@@ -260,7 +259,7 @@ class AdmittanceController(ZeroMomentController):
         log.info("admittance engaged: dead zone %s N·m, residual b %s N·m, joints nobody "
                  "pushes held below %s rad/s", np.round(self.admittance.band, 3).tolist(),
                  np.round(self._bias, 2).tolist(),
-                 np.round(self.hold_rad_s, 4).tolist())  # fmt: skip
+                 np.round(self.admittance.hold_rad_s, 4).tolist())  # fmt: skip
         self._sent_ddq.clear()
 
     def _probe_cycle(

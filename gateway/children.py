@@ -3,14 +3,11 @@ fork before exec (normal scheduling, SIGTERM when the gateway dies)."""
 
 from __future__ import annotations
 
-import ctypes
-import signal
 import subprocess
 from dataclasses import dataclass, field
 
+from gateway.parent_death import sigterm_on_parent_death
 from gateway.realtime import normal_priority_after_fork
-
-PR_SET_PDEATHSIG = 1
 
 
 @dataclass
@@ -29,8 +26,5 @@ def _die_with_parent() -> None:
     """In the child, before exec: normal scheduling (the gateway's own SCHED_FIFO is not for
     its children, gateway/realtime.py), and ask Linux to SIGTERM us when the gateway dies."""
     normal_priority_after_fork()
-    try:
-        libc = ctypes.CDLL("libc.so.6", use_errno=True)
-        libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
-    except OSError:
-        pass  # not Linux: the gateway's own shutdown path still stops the children
+    # not Linux: the gateway's own shutdown path still stops the children
+    sigterm_on_parent_death()

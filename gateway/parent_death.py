@@ -37,12 +37,20 @@ def die_with_parent_from_env(environ: dict[str, str] | os._Environ = os.environ)
         raise ConfigError(f"environment {ENV}={value!r} is not a process id") from None
     if parent <= 0:
         raise ConfigError(f"environment {ENV}={value!r} is not a process id")
+    # not Linux: the harness's own stop path still stops the stack; else the parent may have
+    # died between the fork and the prctl, and then we are someone else's
+    if sigterm_on_parent_death() and os.getppid() != parent:
+        os.kill(os.getpid(), signal.SIGTERM)
+    return True
+
+
+def sigterm_on_parent_death() -> bool:
+    """Ask Linux to SIGTERM this process when the thread that started it exits
+    (``prctl(PR_SET_PDEATHSIG)``); False where that cannot be asked (not Linux). Also what
+    the gateway's children do before exec (gateway/children.py)."""
     try:
         libc = ctypes.CDLL("libc.so.6", use_errno=True)
         libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
     except OSError:
-        return True  # not Linux: the harness's own stop path still stops the stack
-    # the parent may have died between the fork and the prctl: then we are someone else's
-    if os.getppid() != parent:
-        os.kill(os.getpid(), signal.SIGTERM)
+        return False
     return True

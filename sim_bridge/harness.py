@@ -182,6 +182,24 @@ def pin_process_tree(pid: int, cpus: tuple[int, ...]) -> int:
     return pinned
 
 
+def running_with_argument(arg: str | Path) -> dict[int, str]:
+    """Every live process but this one with ``arg`` as one of its command-line arguments:
+    pid → command line (zombies left out)."""
+    marker = str(arg).encode()
+    found = {}
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit() or int(entry.name) == os.getpid():
+            continue
+        try:
+            argv = (entry / "cmdline").read_bytes()
+            state = (entry / "stat").read_text().rsplit(")", 1)[1].split()[0]
+        except OSError:
+            continue
+        if marker in argv.split(b"\0") and state != "Z":
+            found[int(entry.name)] = argv.replace(b"\0", b" ").decode(errors="replace")
+    return found
+
+
 def _wait_seqpacket(address: str, timeout_s: float, proc: subprocess.Popen) -> None:
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
@@ -397,19 +415,7 @@ class Stack:
     def product_pids(self) -> dict[int, str]:
         """Every running process started with this stack's cell config (the gateway and its
         children, also orphans of a killed gateway): pid → command line."""
-        marker = str(self.cell_path).encode()
-        found = {}
-        for entry in Path("/proc").iterdir():
-            if not entry.name.isdigit() or int(entry.name) == os.getpid():
-                continue
-            try:
-                argv = (entry / "cmdline").read_bytes()
-                state = (entry / "stat").read_text().rsplit(")", 1)[1].split()[0]
-            except OSError:
-                continue
-            if marker in argv.split(b"\0") and state != "Z":
-                found[int(entry.name)] = argv.replace(b"\0", b" ").decode(errors="replace")
-        return found
+        return running_with_argument(self.cell_path)
 
     def wait_gone(self, pids: dict[int, str], timeout_s: float) -> dict[int, str]:
         """Wait up to ``timeout_s`` for ``pids`` to exit; SIGKILL and return those that did

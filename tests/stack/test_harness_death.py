@@ -13,6 +13,8 @@ import textwrap
 import time
 from pathlib import Path
 
+from sim_bridge.harness import running_with_argument
+
 REPO = Path(__file__).resolve().parents[2]
 #: the gateway's stop (brakes, then its children each get SIGTERM) and the simulator's [s]
 GONE_S = 15.0
@@ -31,20 +33,11 @@ HARNESS = textwrap.dedent(
 )
 
 
-def _running(marker: str) -> dict[int, str]:
-    """Every live process whose command line names ``marker``."""
-    found = {}
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit():
-            continue
-        try:
-            argv = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
-            state = (entry / "stat").read_text().rsplit(")", 1)[1].split()[0]
-        except OSError:
-            continue
-        if marker in argv and state != "Z":
-            found[int(entry.name)] = argv
-    return found
+def _running(workdir: Path) -> dict[int, str]:
+    """The harness's processes still alive: those started with the cell's config (the gateway
+    and its children) or its truth file (the simulator)."""
+    return {**running_with_argument(workdir / "cell.toml"),
+            **running_with_argument(workdir / "truth.toml")}  # fmt: skip
 
 
 def test_killing_the_harness_stops_its_simulator_gateway_and_drivers(tmp_path):
@@ -58,12 +51,12 @@ def test_killing_the_harness_stops_its_simulator_gateway_and_drivers(tmp_path):
         os.kill(proc.pid, signal.SIGKILL)
         proc.wait(5)
         deadline = time.monotonic() + GONE_S
-        while _running(str(workdir)) and time.monotonic() < deadline:
+        while _running(workdir) and time.monotonic() < deadline:
             time.sleep(0.1)
-        left = _running(str(workdir))
+        left = _running(workdir)
         assert not left, f"still running {GONE_S} s after the harness was killed: {left}"
     finally:
         proc.kill()
         proc.wait()
-        for pid in _running(str(workdir)):
+        for pid in _running(workdir):
             os.kill(pid, signal.SIGKILL)
