@@ -28,7 +28,9 @@ class DriveSetStats:
     command_sets: int = 0  #: SYNCs in Operation enabled with an RPDO from every drive
     hold_sets: int = 0  #: (CiA 402 has no hold flag: always 0)
     missed_cycles: int = 0  #: SYNCs in Operation enabled missing some drive's RPDOs
-    late_frames: int = 0  #: (CiA 402 has no cycle counter: always 0)
+    #: SYNCs in Operation enabled that came more than half a period late (sim time): a host
+    #: clock that skipped a slot (CiA 402 has no cycle counter to tell a late RPDO by)
+    late_frames: int = 0
     bad_frames: int = 0  #: PDOs shorter than their mapping
     syncs: int = 0  #: SYNC frames received
     following_syncs: int = 0  #: SYNCs with every drive operational, in Operation enabled
@@ -71,6 +73,7 @@ class Cia402DriveSet:
         self._hold_q = np.zeros(self.n)
         self._was_powered = [False] * self.n
         self._tpdo_sent_stamp: float | None = None
+        self._last_sync_s: float | None = None  #: simulated time of the last SYNC [s]
         self.latencies_s: list[float] = []  #: TPDOs sent → the set's last RPDO arriving [s]
 
     def power_on(self) -> None:
@@ -99,8 +102,13 @@ class Cia402DriveSet:
     def _on_sync(self) -> None:
         stats = self.stats
         stats.syncs += 1
+        now_s, last_s = self._clock(), self._last_sync_s
+        self._last_sync_s = now_s
         if self.following:
             stats.following_syncs += 1
+            period_s = self.drives[0].cycle_period_s
+            if last_s is not None and period_s > 0 and now_s - last_s > 1.5 * period_s:
+                stats.late_frames += 1
             stamps = [d.rpdo_stamp_s for d in self.drives]
             if all(s is not None for s in stamps):
                 stats.command_sets += 1

@@ -361,6 +361,11 @@ class Cia402Drive:
             self._od.unpack(pdo, data, self._refused)
 
     @property
+    def cycle_period_s(self) -> float:
+        """The communication cycle period the host configured (0x1006) [s]; 0 if none."""
+        return self._cycle_period_s
+
+    @property
     def setpoint_moving(self) -> bool:
         """The host moved this drive's setpoint within :data:`MOVED_WITHIN_SYNCS` SYNCs."""
         return self._sync_count - self._setpoint_moved_sync <= MOVED_WITHIN_SYNCS
