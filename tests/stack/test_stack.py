@@ -85,7 +85,7 @@ def test_weightless_arm_without_operator_drifts_less_than_1mm_in_5s(tmp_path, pr
     delay allows ([control] friction_ramp_factor), the arm rests."""
     truth, window, drift_m = rest_without_operator(tmp_path, *PROFILES[profile])
     speed = np.abs(np.stack([truth[f"dq{j + 1}"][window] for j in range(6)], axis=1))
-    j, row = np.unravel_index(int(np.argmax(speed.T)), speed.T.shape)
+    row, j = np.unravel_index(int(np.argmax(speed)), speed.shape)
     t_s = truth["t_s"][window]
     print(f"{profile}: tool drift {drift_m * 1e3:.3f} mm, fastest joint J{j + 1} "
           f"{speed.max() * 1e3:.2f} mrad/s at {t_s[row] - t_s[0]:.2f} s, per joint "
