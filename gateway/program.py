@@ -243,8 +243,8 @@ class ProgramWriter:
     """Appends a teaching session to a program file (module docstring); one per session.
 
     ``open`` creates the file (refuses an existing one: a program is never overwritten) and
-    syncs its header and directory entry to disk. Not thread-safe: the gateway calls it with
-    its lock held.
+    syncs its header and directory entry to disk. Not thread-safe: the gateway calls it from
+    the one thread that owns the file (gateway/program_thread.py).
     """
 
     def __init__(self, path: str | Path, joints: list[str], cell: str = "") -> None:
@@ -405,7 +405,8 @@ class TeachRecorder:
     """The gateway's side of a taught program: one program per start → stop session, created
     when teaching first begins (a session that never taught leaves no file), a teaching segment
     per stretch of TEACHING, the newest joint state each gateway tick as the trace, and the
-    operator's marks. The gateway calls it with its lock held."""
+    operator's marks. Not thread-safe: the gateway calls it from the one thread that owns the
+    file (gateway/program_thread.py), never from its tick."""
 
     def __init__(self, cell: str = "") -> None:
         self.cell = cell

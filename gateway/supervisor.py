@@ -11,7 +11,6 @@ fault names it and stays; `reset` starts it again (after the file was mended).
 from __future__ import annotations
 
 import argparse
-import contextlib
 import logging
 import math
 import signal
@@ -19,6 +18,7 @@ import subprocess
 import sys
 import threading
 import time
+from concurrent.futures import Future
 from pathlib import Path
 
 import zenoh
@@ -42,7 +42,8 @@ from gateway.messages import (
     decode_json,
     encode_json,
 )
-from gateway.program import ProgramError, TeachRecorder, program_path
+from gateway.program import ProgramError, program_path
+from gateway.program_thread import STALL_S, ProgramThread
 from gateway.runner import run_service
 from gateway.sd_notify import Notifier
 
@@ -108,9 +109,16 @@ class Gateway:
         self._last_seq = -1
         self._dead: tuple[str, ...] = ()  #: children not running, as of the last tick
         self.program_dir = resolve_path(cell_path, cfg.program_dir)
-        self.teach = TeachRecorder(str(cell_path))
+        #: the taught program, written by a thread of its own (gateway/program_thread.py)
+        self.teach = ProgramThread(str(cell_path))
         self._mark_button = False  #: the teach handle's mark button, as last seen
         self._handle_marks = 0  #: presses of it not yet recorded
+        #: the teach handle's marks on their way to the disk
+        self._handle_marks_written: list[Future] = []
+        #: operator requests answered once their mark is on disk: (query, result, since [s])
+        self._waiting: list[tuple[object, Future, float]] = []
+        #: the program's writes have waited past STALL_S, and that has been reported
+        self._program_stall_reported = False
         #: what the locked bus's access-control list refused (None on an open bus)
         self.refusals: BusRefusals | None = None
 
@@ -334,19 +342,54 @@ class Gateway:
                 self.machine.plan_finished(plan_id, state == "done", str(msg.get("reason", "")))
 
     def _serve_requests(self) -> None:
-        """Answer the operator requests that arrived since the last tick, on the tick's thread:
-        no Python runs in zenoh's threads for them, and a mark's fsync stalls nothing else."""
+        """Answer the operator requests that arrived since the last tick, on the tick's thread
+        (no Python runs in zenoh's threads for them); a mark is answered by a later tick, once
+        the program's thread has it on disk."""
         if self._requests is None:
             return
         while (query := self._requests.try_recv()) is not None:
             try:
                 reply = self._request(query.payload.to_bytes() if query.payload else b"")
+            except BaseException:
+                query.drop()
+                raise
+            if isinstance(reply, Future):
+                self._waiting.append((query, reply, time.monotonic()))
+                continue
+            try:
                 query.reply(query.key_expr, encode_json(reply))
             finally:
                 query.drop()
+        self._answer_marks()
 
-    def _request(self, data: bytes) -> dict:
-        """One operator request (JSON): its reply."""
+    def _answer_marks(self, give_up: bool = False) -> None:
+        """Answer the operator's marks that are on disk now (``give_up``: every one still
+        waiting, as not confirmed; so too one waiting longer than the disk may stall)."""
+        now, waiting = time.monotonic(), []
+        for query, written, since_s in self._waiting:
+            late = give_up or now - since_s > STALL_S + 1.0
+            if not (written.done() or late):
+                waiting.append((query, written, since_s))
+                continue
+            if written.done():
+                ok, message = written.result()
+            else:
+                ok, message = (
+                    False,
+                    f"the disk has not confirmed the mark after {now - since_s:.1f} s",
+                )
+            log.info("operator mark → %s: %s", "ok" if ok else "refused", message)
+            try:
+                with self.lock:
+                    reply = {"ok": ok, "message": message, **self.status(now)}
+                query.reply(query.key_expr, encode_json(reply))
+            finally:
+                query.drop()
+        self._waiting = waiting
+
+    def _request(self, data: bytes) -> dict | Future:
+        """One operator request (JSON): its reply, or for a mark a future of ``(ok,
+        message)`` done once it is on disk (or refused)."""
         now = time.monotonic()
         try:
             req = decode_json(data, "request")
@@ -376,11 +419,8 @@ class Gateway:
                     ok, message = self._command(command, plan, name, obs, guide)
                 except ProgramError as exc:
                     ok, message = False, str(exc)
-        if command == "mark":  # the file's fsync outside the lock: callbacks wait on it
-            try:
-                ok, message = self._mark(label, "cli", st, state)
-            except ProgramError as exc:
-                ok, message = False, str(exc)
+        if command == "mark":
+            return self._mark(label, "cli", st, state)
         log.info("operator %s → %s: %s", command, "ok" if ok else "refused", message)
         with self.lock:
             return {"ok": ok, "message": message, **self.status(now)}
@@ -423,56 +463,72 @@ class Gateway:
             return False, f"restarted {names}; reset again once it runs"
         return m.command(command, obs)
 
-    def _mark(
-        self, label: str, source: str, st: JointState | None, state: Lifecycle
-    ) -> tuple[bool, str]:
-        """Mark a waypoint at joint state ``st`` (lifecycle ``state``); on disk when this
-        returns. The tick's thread, lock not held."""
+    def _mark(self, label: str, source: str, st: JointState | None, state: Lifecycle) -> Future:
+        """Mark a waypoint at joint state ``st`` (lifecycle ``state``): a future of ``(ok,
+        message)``, done once the mark is on disk or refused (a disk that refused it faults
+        the cell at the next tick: :meth:`_follow_program`). The tick's thread, lock not
+        held."""
+        answer: Future = Future()
         if st is None:
-            return False, "no joint state to mark"
+            answer.set_result((False, "no joint state to mark"))
+            return answer
         if state not in (Lifecycle.TEACHING, Lifecycle.READY):
-            return False, f"marks are made while teaching, not {state.name.lower()}"
-        w = self.teach.writer
-        try:
-            mark = self.teach.mark(st.stamp_s, st.cycle, st.q_rad, label, source)
-        except ProgramError as exc:
-            if w is not None and not w.is_open:  # the disk refused it, not the operator's input
-                self._program_failed(exc)
-            raise
-        return True, f"mark {mark.index} recorded in {self.teach.path}"
+            answer.set_result((False, f"marks are made while teaching, not {state.name.lower()}"))
+            return answer
+
+        def written(done: Future) -> None:
+            try:
+                mark, path = done.result()
+            except ProgramError as exc:
+                answer.set_result((False, str(exc)))
+            else:
+                answer.set_result((True, f"mark {mark.index} recorded in {path}"))
+
+        self.teach.mark(st.stamp_s, st.cycle, st.q_rad, label, source).add_done_callback(written)
+        return answer
 
     def _follow_program(self) -> None:
         """The tick's share of the taught program: segment starts and ends, the trace, the
-        teach handle's marks, and closing it when the session ends. The file is written with
-        the lock released (zenoh's threads wait on it in the callbacks)."""
+        teach handle's marks, and closing it when the session ends, handed to the program's
+        thread (the tick never waits for the disk); a disk that refused a write, or has not
+        finished one for STALL_S, ends teaching with a fault."""
         with self.lock:
             m, st = self.machine, self.joint_state
             state, reason, presses = m.state, m.reason, self._handle_marks
             self._handle_marks = 0
         session = state not in (Lifecycle.STOPPED, Lifecycle.FAULT)
-        try:
-            self.teach.follow(
-                state == Lifecycle.TEACHING, session, reason,
-                None if st is None else st.stamp_s, None if st is None else st.cycle,
-                None if st is None else st.q_rad,
-            )  # fmt: skip
-            for _ in range(presses):
-                try:
-                    ok, message = self._mark("", "handle", st, state)
-                except ProgramError as exc:  # no program yet: a press too early, not a fault
-                    ok, message = False, str(exc)  # (a disk that refused it faulted in _mark)
-                (log.info if ok else log.warning)("teach handle mark: %s", message)
-        except ProgramError as exc:
-            self._program_failed(exc)
+        self.teach.follow(
+            state == Lifecycle.TEACHING, session, reason,
+            None if st is None else st.stamp_s, None if st is None else st.cycle,
+            None if st is None else st.q_rad,
+        )  # fmt: skip
+        for _ in range(presses):
+            self._handle_marks_written.append(self._mark("", "handle", st, state))
+        waiting = []
+        for written in self._handle_marks_written:
+            if not written.done():
+                waiting.append(written)
+                continue
+            ok, message = written.result()  # refused: a press too early, not a fault
+            (log.info if ok else log.warning)("teach handle mark: %s", message)
+        self._handle_marks_written = waiting
+        if (failure := self.teach.failure()) is not None:
+            self._program_failed(failure)
+        stalled_s = self.teach.stalled_s(time.monotonic())
+        if stalled_s > STALL_S and not self._program_stall_reported:
+            self._program_stall_reported = True
+            self.teach.abandon()
+            self._program_failed(
+                ProgramError(f"the disk has not finished a write for {stalled_s:.1f} s")
+            )
+        elif stalled_s == 0.0:
+            self._program_stall_reported = False
 
     def _program_failed(self, exc: ProgramError) -> None:
-        """The program cannot be written (disk full, removed): teaching stops with a fault, so
-        the operator does not go on guiding a path that is not being kept."""
+        """The program cannot be written (disk full, removed, stalled): teaching stops with a
+        fault, so the operator does not go on guiding a path that is not being kept (the
+        program's thread has closed it as far as the disk allows)."""
         log.error("taught program: %s", exc)
-        w, self.teach.writer, self.teach.pending = self.teach.writer, None, None
-        if w is not None:
-            with contextlib.suppress(ProgramError):
-                w.close()
         with self.lock:
             self.machine.fault(f"the taught program could not be written: {exc}")
 
@@ -543,8 +599,11 @@ class Gateway:
                         self.machine.command("stop", self.observations(time.monotonic()))
                     self._publish_lifecycle(time.monotonic())
                     st = self.joint_state
-                    self.teach.close(None if st is None else st.stamp_s, "gateway stopped")
-                time.sleep(STOP_GRACE_S)  # let the drivers brake before they are stopped
+                t0 = time.monotonic()
+                self.teach.close(None if st is None else st.stamp_s, "gateway stopped")
+                self._answer_marks(give_up=True)
+                # let the drivers brake before they are stopped
+                time.sleep(max(STOP_GRACE_S - (time.monotonic() - t0), 0.0))
         finally:
             self._stop_children()
             undeclare_all(self._decls)
