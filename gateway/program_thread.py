@@ -55,7 +55,7 @@ class ProgramThread:
 
     def __init__(self, cell: str = "") -> None:
         self._rec = TeachRecorder(cell)
-        self._queue: queue.SimpleQueue[tuple[Callable[[], Any], Future | None] | None] = (
+        self._queue: queue.SimpleQueue[tuple[Callable[[], Any], Future | None]] = (
             queue.SimpleQueue()
         )
         self._lock = threading.Lock()
@@ -64,7 +64,7 @@ class ProgramThread:
         self._active = False
         #: the program's path as the tick last set or learnt it
         self._path: Path | None = None
-        self._snapshot: dict[str, Any] = self._status_of(self._rec)
+        self._snapshot: dict[str, Any] = self._rec.status()
         #: when the call the thread is running began (None: idle) [s, monotonic]
         self._busy_since: float | None = None
         self._failure: ProgramError | None = None
@@ -163,8 +163,6 @@ class ProgramThread:
                 item = self._queue.get(timeout=0.5)
             except queue.Empty:
                 continue
-            if item is None:
-                continue
             call, done = item
             with self._lock:
                 self._busy_since = time.monotonic()
@@ -224,14 +222,10 @@ class ProgramThread:
         self._update()
 
     def _update(self) -> None:
-        status = self._status_of(self._rec)
+        status = self._rec.status()
         with self._lock:
             self._snapshot = status
             if self._rec.path is not None:
                 self._path = self._rec.path
             elif not self._active:
                 self._path = None
-
-    @staticmethod
-    def _status_of(rec: TeachRecorder) -> dict[str, Any]:
-        return rec.status()

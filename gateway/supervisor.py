@@ -378,11 +378,8 @@ class Gateway:
                     False,
                     f"the disk has not confirmed the mark after {now - since_s:.1f} s",
                 )
-            log.info("operator mark → %s: %s", "ok" if ok else "refused", message)
             try:
-                with self.lock:
-                    reply = {"ok": ok, "message": message, **self.status(now)}
-                query.reply(query.key_expr, encode_json(reply))
+                query.reply(query.key_expr, encode_json(self._reply("mark", ok, message, now)))
             finally:
                 query.drop()
         self._waiting = waiting
@@ -421,6 +418,10 @@ class Gateway:
                     ok, message = False, str(exc)
         if command == "mark":
             return self._mark(label, "cli", st, state)
+        return self._reply(command, ok, message, now)
+
+    def _reply(self, command: str, ok: bool, message: str, now: float) -> dict:
+        """An operator command's reply (logged): its verdict and the cell's status."""
         log.info("operator %s → %s: %s", command, "ok" if ok else "refused", message)
         with self.lock:
             return {"ok": ok, "message": message, **self.status(now)}
