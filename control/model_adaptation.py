@@ -385,10 +385,14 @@ def model_sha256(path: str | Path) -> str:
 
 
 def save_state(path: str | Path, adaptation: PayloadAdaptation, model_sha256: str) -> None:
-    """Keep the adapted mass across restarts: written to a temporary file, flushed to disk and
-    renamed over ``path`` (a crash leaves the old file or the new one, never half of one)."""
-    p = Path(path)
-    doc = {
+    """Keep the adapted mass across restarts (:func:`state_document`, :func:`write_state`)."""
+    write_state(path, state_document(adaptation, model_sha256))
+
+
+def state_document(adaptation: PayloadAdaptation, model_sha256: str) -> dict:
+    """What :func:`write_state` keeps of ``adaptation``, as it is now (a copy: the adaptation
+    may go on while another thread writes it)."""
+    return {
         "format": STATE_FORMAT,
         "version": STATE_VERSION,
         "model_sha256": model_sha256,
@@ -398,6 +402,12 @@ def save_state(path: str | Path, adaptation: PayloadAdaptation, model_sha256: st
         "com_m": adaptation.com_m,
         "windows_used": adaptation.windows_used,
     }
+
+
+def write_state(path: str | Path, doc: dict) -> None:
+    """Write ``doc`` to a temporary file, flush it to disk and rename it over ``path`` (a crash
+    leaves the old file or the new one, never half of one)."""
+    p = Path(path)
     tmp = p.with_name(p.name + ".tmp")
     with tmp.open("w") as f:
         f.write(json.dumps(doc, indent=1) + "\n")

@@ -16,6 +16,7 @@ import math
 import threading
 import time
 from collections.abc import Callable, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -32,7 +33,8 @@ from control.model_adaptation import (
     PayloadAdaptation,
     load_state,
     model_sha256,
-    save_state,
+    state_document,
+    write_state,
 )
 from control.plan_builder import PlanBuilder
 from control.plan_player import PlanPlayer
@@ -136,6 +138,9 @@ class ControlProcess:
         #: the latest static-load check and when it was made (monotonic [s])
         self.load_check: LoadCheck | None = None
         self.load_check_s = -1e9
+        #: why the newest held state was not checked (None: it was, or it came too soon after
+        #: the last check): the operator's status names it while teaching waits for a check
+        self.load_waiting: str | None = None
         #: pose-scheduled cylinder set-points (None: the fixed ones), and the last measured
         #: joint positions they are scheduled from
         self.schedule: PressureSchedule | None = None
@@ -157,6 +162,11 @@ class ControlProcess:
         self.adaptation_problem: str | None = None
         #: the mass was kept from before this start (``model_adaptation_file``)
         self._adaptation_restored = False
+        #: writes the adapted mass to disk off the slow loop (an fsync waits for the disk:
+        #: 0.5 s beside a writer here, longer than the gateway waits for control's health),
+        #: one write at a time; the write under way, checked by the slow loop
+        self._saver = ThreadPoolExecutor(max_workers=1, thread_name_prefix="adaptation-save")
+        self._saving: Future | None = None
         model = None if self.ctl is None else self.ctl.model
         if cfg.model_adaptation and isinstance(model, IdentifiedControlModel):
             if model.heldout_rms_nm is None:
@@ -218,6 +228,8 @@ class ControlProcess:
             self.session.close()
             self.session = None
         self.plan_builder.close()
+        self._saver.shutdown(wait=True)  # the adapted mass on disk before the process ends
+        self._check_saved()
 
     # --- callbacks: decode, compute, publish; never block --------------------------------
     def _decode(self, cls, sample):
@@ -319,7 +331,16 @@ class ControlProcess:
                 ctl.disengage()
                 if following:
                     ctl.observe_hold(st)
-            if following and io is not None and now - io.stamp_s <= self.cfg.io_timeout_s:
+            if not following:
+                self.load_waiting = f"the drives do not hold the arm ({st.controller_state.name})"
+            elif io is None:
+                self.load_waiting = "no pressures from the Modbus driver yet"
+            elif now - io.stamp_s > self.cfg.io_timeout_s:
+                self.load_waiting = (
+                    f"the pressures are {now - io.stamp_s:.2f} s old "
+                    f"(over {self.cfg.io_timeout_s:g} s)"
+                )
+            else:
                 self._check_load(st, io, now)
             return
         if mode in PLAYING:
@@ -374,9 +395,17 @@ class ControlProcess:
         """Held by the driver, not commanded: check the static load if the arm is at rest, at
         most every LOAD_CHECK_PERIOD_S (a check costs ~0.3 ms; the cycle is 2–8 ms)."""
         if now - self.load_check_s < LOAD_CHECK_PERIOD_S:
+            self.load_waiting = None
             return
-        if float(np.max(np.abs(st.dq_rad_s))) > REST_RAD_S:
+        speed = np.abs(st.dq_rad_s)
+        if float(np.max(speed)) > REST_RAD_S:
+            j = int(np.argmax(speed))
+            self.load_waiting = (
+                f"the arm is not at rest: J{j + 1} at {speed[j] * 1e3:.1f} mrad/s "
+                f"(rest: below {REST_RAD_S * 1e3:g})"
+            )
             return
+        self.load_waiting = None
         if self.ctl is None:
             zero = (0.0,) * self.n
             reason = self.cfg.uncommissioned or "no model"
@@ -454,6 +483,7 @@ class ControlProcess:
         adapt, ctl = self.adaptation, self.ctl
         if adapt is None or ctl is None:
             return
+        self._check_saved()
         adapt.process()
         if adapt.version == self._adaptation_applied or ctl.engaged:
             return
@@ -481,12 +511,23 @@ class ControlProcess:
         )  # fmt: skip
         path = self.cfg.model_adaptation_file
         if save and path is not None and self._model_sha256:
-            try:
-                save_state(path, adapt, self._model_sha256)
-                self.adaptation_problem = None
-            except OSError as exc:
-                self.adaptation_problem = f"adapted payload not kept: {path}: {exc}"
-                log.error("%s", self.adaptation_problem)
+            doc = state_document(adapt, self._model_sha256)
+            self._saving = self._saver.submit(write_state, path, doc)
+
+    def _check_saved(self) -> None:
+        """The outcome of the last write of the adapted mass, once it has ended."""
+        saving, path = self._saving, self.cfg.model_adaptation_file
+        if saving is None or not saving.done():
+            return
+        self._saving = None
+        exc = saving.exception()
+        if exc is None:
+            self.adaptation_problem = None
+        elif isinstance(exc, OSError):
+            self.adaptation_problem = f"adapted payload not kept: {path}: {exc}"
+            log.error("%s", self.adaptation_problem)
+        else:
+            raise exc
 
     def _adaptation_report(self) -> dict | None:
         """Eq. (29) for the health (the operator's status) and the telemetry: the mass the
@@ -524,6 +565,7 @@ class ControlProcess:
                 "load_check": None
                 if self.load_check is None
                 else {**self.load_check.to_json(), "age_s": round(now - self.load_check_s, 3)},
+                "load_check_waiting": self.load_waiting,
                 "model_adaptation": adapted,
                 "guide": self._guide_report(),
             }

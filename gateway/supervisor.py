@@ -89,6 +89,8 @@ class Gateway:
         self.health_rx_s: dict[str, float] = {}
         #: the control process's static-load check (control/load_check.py) as last reported
         self.load_check: dict | None = None
+        #: why control has not checked the static load lately, from its health (None: no reason)
+        self.load_waiting: str | None = None
         #: the mass eq. (29) added to the model in replay (control/model_adaptation.py)
         self.model_adaptation: dict | None = None
         #: what the control law is doing, from its health (None: not reported)
@@ -212,6 +214,8 @@ class Gateway:
             if name == "control":
                 load_check = body.get("load_check")
                 self.load_check = load_check if isinstance(load_check, dict) else None
+                waiting = body.get("load_check_waiting")
+                self.load_waiting = waiting if isinstance(waiting, str) else None
                 engagement = body.get("engagement")
                 self.engagement = engagement if isinstance(engagement, dict) else None
                 adapted = body.get("model_adaptation")
@@ -267,11 +271,15 @@ class Gateway:
     def _load_problem(self) -> str | None:
         """Why the static-load check does not allow teaching (None: it passed, and recently)."""
         check = self.load_check
+        waiting = "" if self.load_waiting is None else f": {self.load_waiting}"
         if check is None:
-            return "no static-load check from the control process yet (servo on, arm at rest)"
+            return (
+                "no static-load check from the control process yet (servo on, arm at rest)"
+                + waiting
+            )
         age = check.get("age_s")
         if not isinstance(age, int | float) or age > LOAD_CHECK_MAX_AGE_S:
-            return f"the control process's static-load check is {age} s old"
+            return f"the control process's static-load check is {age} s old{waiting}"
         if check.get("ok") is not True:
             return str(check.get("message", "static-load check failed"))
         return None

@@ -537,7 +537,13 @@ class Stack:
             if first is not None and last is not None and last - first >= seconds:
                 return self.truth()
             time.sleep(0.25)
-        raise TimeoutError(f"no {seconds} s of teaching within {timeout_s} s")
+        try:  # why: a fault's reason, or the state teaching ended in
+            last: Any = self.request("status", timeout_s=1.0)
+        except (OSError, RuntimeError, TimeoutError) as exc:
+            last = f"no status: {exc}"
+        raise TimeoutError(
+            f"no {seconds} s of teaching within {timeout_s} s; status: {last}; {self._truth_tail()}"
+        )
 
     def __enter__(self) -> Stack:
         return self

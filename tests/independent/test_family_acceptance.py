@@ -16,12 +16,20 @@ from __future__ import annotations
 from concurrent.futures import ProcessPoolExecutor
 from functools import partial
 
+import pytest
+
 from .family import acceptance, evaluate, format_acceptance, format_record
 
 #: Draws run in CI: seeds 0-11, whatever their case (module docstring).
 SEEDS = tuple(range(12))
+#: pytest-timeout's bound for this test [s]: it is CPU work that scales with the machine (about 5
+#: minutes on two cores of the middle of the class), and the suite runs on one core too
+#: (`taskset -c 0 make test`: the suite's 300 s ended it there, session 73) on machines up to 3×
+#: slower: 5 min × 2 (one core) × 3 (the slowest of the class) = 30 min. A hang still ends.
+TIMEOUT_S = 1800
 
 
+@pytest.mark.timeout(TIMEOUT_S)
 def test_declared_world_draws_meet_the_acceptance_shares(tmp_path):
     declared = partial(evaluate, declared=True)
     with ProcessPoolExecutor(max_workers=2) as pool:

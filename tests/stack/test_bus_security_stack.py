@@ -19,9 +19,12 @@ from sim_bridge.commission import commissioned_stack
 
 pytestmark = pytest.mark.stack
 
-#: forged messages put per second by each rogue session
+#: each rogue session puts each of its three forgeries this many times, at most FORGE_HZ
+#: times a second (a fixed count, not a fixed time: on a starved core the forger's own loop
+#: slows, and a count over time then measured the forger, not the router: 110 puts in 1.5 s
+#: under taskset -c 0 make test, session 73)
+FORGE_N = 150
 FORGE_HZ = 100.0
-FORGE_S = 1.5
 
 
 def _credentials(path):
@@ -31,14 +34,13 @@ def _credentials(path):
 def _forge(bus: BusConfig, identity: str) -> int:
     """Put, as ``identity``, what would end teaching if any of it reached a process: the
     lifecycle STOPPED, the enabling device released with the e-stop pressed, and a joint
-    command. Returns the number of puts."""
+    command, FORGE_N times each. Returns the number of puts."""
     session = open_peer(bus, identity)
     keys, n = bus.keys, 0
     try:
         time.sleep(0.3)
-        end = time.monotonic() + FORGE_S
         seq = 10**9  # ahead of any real lifecycle sequence number
-        while time.monotonic() < end:
+        for _ in range(FORGE_N):
             now = time.monotonic()
             session.put(
                 keys.lifecycle, LifecycleMsg(Lifecycle.STOPPED, seq, now, "forged").to_bytes()
@@ -61,7 +63,9 @@ def test_a_locked_bus_teaches_and_no_other_identity_reaches_a_driver(tmp_path):
         stack.start_teaching()
         truth = stack.wait_teaching(1.0, 30.0)
         # the operator's identity (the harness's requests use it), then the observer's
+        forging_s = time.monotonic()
         forged = sum(_forge(stack.bus, identity) for identity in (sec.OPERATOR, sec.OBSERVER))
+        forging_s = time.monotonic() - forging_s
         status = stack.request("status")
         assert status["state"] == "teaching", status
         # every forged put was refused at the router, and counted there
@@ -73,7 +77,8 @@ def test_a_locked_bus_teaches_and_no_other_identity_reaches_a_driver(tmp_path):
         keys = stack.bus.keys
         for identity in (sec.OPERATOR, sec.OBSERVER):
             for key in (keys.lifecycle, keys.io_state, keys.joint_command):
-                assert refused.get((identity, key), 0) > 0.8 * FORGE_HZ * FORGE_S, refused
+                # zenoh drops a put it cannot send at once (congestion control "drop"): 80 %
+                assert refused.get((identity, key), 0) > 0.8 * FORGE_N, refused
         # and a session without credentials does not get on the bus at all
         with pytest.raises(LinkTimeoutError):
             open_client(BusConfig(endpoint=stack.bus.endpoint), connect_timeout_s=1.0)
@@ -84,12 +89,12 @@ def test_a_locked_bus_teaches_and_no_other_identity_reaches_a_driver(tmp_path):
         assert "the bus refused" in out.stdout, out.stdout
         stack.request("stop")
         truth = stack.truth()
-    assert forged > 0.8 * 3 * FORGE_HZ * FORGE_S * 2
+    assert forged == 3 * FORGE_N * 2
     rows = np.flatnonzero(truth["teaching"] > 0.5)
     t = truth["t_s"][rows]
     # teaching ran on without a gap through the forgeries (a gap: something stopped it)
     assert rows.size and np.max(np.diff(t)) < 0.1, np.max(np.diff(t))
-    assert t[-1] - t[0] > 2 * FORGE_S
+    assert t[-1] - t[0] > forging_s
     # the router counted its decisions in memory: none of them, allowed or refused, went to
     # the gateway's output (the journal on a cell PC)
     assert "authorized" not in (tmp_path / "gateway.log").read_text(errors="replace")

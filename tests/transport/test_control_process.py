@@ -115,6 +115,32 @@ def test_held_arm_at_rest_is_checked_against_the_models_static_load(rig):
     assert commands == []
 
 
+def test_a_held_state_not_checked_says_why(rig):
+    """The operator waits for the static-load check before teaching; while none comes, the
+    control process says why (its health carries it to the status): the arm not at rest,
+    naming the joint, or pressures too old to check against."""
+    bus, client, proc, commands = rig
+    keys = bus.keys
+    p = (6.0, 4.0)
+
+    def held(cycle: int, dq: np.ndarray) -> None:
+        st = make_joint_state(cycle, time.monotonic(), ControllerState.HOLD, 2, Q0, dq,
+                              np.zeros(6), Q0, np.zeros(6), 0.008)  # fmt: skip
+        client.put(keys.joint_state, st.to_bytes())
+        settle()
+
+    client.put(keys.io_state, IoState(time.monotonic(), *p, *p, True, True).to_bytes())
+    time.sleep(0.05)
+    held(20, np.array([0.0, 0.0, 0.0, 0.0, 0.004, 0.0]))  # J5 creeping at 4 mrad/s
+    assert proc.load_check is None
+    assert proc.load_waiting is not None and "J5 at 4.0 mrad/s" in proc.load_waiting
+    time.sleep(proc.cfg.io_timeout_s + 0.05)  # the pressures age past the limit
+    held(21, np.zeros(6))
+    assert proc.load_check is None
+    assert proc.load_waiting is not None and "pressures are" in proc.load_waiting
+    assert commands == []
+
+
 def test_teaching_is_answered_while_python_holds_the_gil(rig):
     """The compiled loop (control/rt/src/py_cycle_loop.rs): a teaching state is answered and
     the command sent while this process's Python is held (a C call that keeps the GIL for

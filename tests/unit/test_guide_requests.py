@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 from example_cell import example_cell
+from recording_session import RecordingSession
 
 from control.cell_config import load_control_config
 from control.process import ControlProcess
@@ -20,19 +21,9 @@ from gateway.messages import Lifecycle, LifecycleMsg, encode_json
 from gateway.supervisor import Gateway
 
 
-class _Session:
-    """What the gateway puts on the bus (its lifecycle), kept for the test."""
-
-    def __init__(self) -> None:
-        self.puts: list[tuple[str, bytes]] = []
-
-    def put(self, key: str, payload: bytes) -> None:
-        self.puts.append((key, payload))
-
-
 def _gateway() -> Gateway:
     gw = Gateway(Path("cell.toml"), BusConfig(), GatewayConfig())
-    gw.session = _Session()
+    gw.session = RecordingSession()
     return gw
 
 

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from recording_session import RecordingSession
 
 from gateway.bus import BusConfig
 from gateway.gateway_config import GatewayConfig
@@ -139,14 +140,6 @@ def test_a_write_the_disk_has_not_finished_shows_how_long_it_waits(tmp_path, mon
     assert prog.stalled_s(time.monotonic()) == 0.0
 
 
-class _Session:
-    def __init__(self) -> None:
-        self.puts: list[tuple[str, bytes]] = []
-
-    def put(self, key: str, payload: bytes) -> None:
-        self.puts.append((key, payload))
-
-
 class _Payload:
     def __init__(self, data: bytes) -> None:
         self._data = data
@@ -186,7 +179,7 @@ def _state() -> JointState:
 
 def test_the_gateways_tick_goes_on_while_a_mark_waits_for_a_slow_disk(tmp_path, slow_disk):
     gw = Gateway(Path("cell.toml"), BusConfig(), GatewayConfig())
-    gw.session = _Session()
+    gw.session = RecordingSession()
     gw.teach.prepare(program_path(tmp_path, "taught"))
     gw.machine._go(Lifecycle.TEACHING, "enabling device held")
     gw.watch._state = _state()  # the newest joint state, as folded from the CAN driver
