@@ -384,11 +384,6 @@ def model_sha256(path: str | Path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
-def save_state(path: str | Path, adaptation: PayloadAdaptation, model_sha256: str) -> None:
-    """Keep the adapted mass across restarts (:func:`state_document`, :func:`write_state`)."""
-    write_state(path, state_document(adaptation, model_sha256))
-
-
 def state_document(adaptation: PayloadAdaptation, model_sha256: str) -> dict:
     """What :func:`write_state` keeps of ``adaptation``, as it is now (a copy: the adaptation
     may go on while another thread writes it)."""

@@ -21,7 +21,8 @@ from control.model_adaptation import (
     AdaptationSettings,
     PayloadAdaptation,
     load_state,
-    save_state,
+    state_document,
+    write_state,
 )
 from gateway.robot.description import load_description
 from gateway.robot.urdf import to_urdf
@@ -227,7 +228,7 @@ def test_the_adapted_mass_is_kept_for_its_model_only(robot, tmp_path):
     adapt.windows_used = 321
     path = tmp_path / "adapted_payload.json"
     assert load_state(path, "a" * 64) is None  # nothing kept yet
-    save_state(path, adapt, "a" * 64)
+    write_state(path, state_document(adapt, "a" * 64))
     assert not (tmp_path / "adapted_payload.json.tmp").exists()
     assert load_state(path, "a" * 64) == ([5.0, 0.1, 0.0, 1.5], 321)
     assert load_state(path, "b" * 64) is None  # re-identified since: not this model's
