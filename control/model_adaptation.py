@@ -159,6 +159,8 @@ class PayloadAdaptation:
         self._sq_identified = np.zeros(n)
         self._sq_adapted = np.zeros(n)
         self._rows = np.zeros(n, dtype=int)
+        #: per joint, the sum of the windows' e_adapted² − e_identified² (:meth:`verdict`)
+        self._sd = np.zeros(n)
         #: bumped whenever :attr:`delta` moved; readers rebuild their model on a change
         self.version = 0
 
@@ -284,6 +286,8 @@ class PayloadAdaptation:
         self._sq_identified += np.where(sliding, e_identified**2, 0.0)
         self._sq_adapted += np.where(sliding, e**2, 0.0)
         self._rows += sliding
+        d = np.where(sliding, e**2 - e_identified**2, 0.0)
+        self._sd += d
         mag = np.maximum(np.abs(e) - self.nu_nm, 0.0)
         e_dz = np.where(sliding, np.sign(e) * mag, 0.0) / self.nu_nm
         if np.any(e_dz):
@@ -337,6 +341,24 @@ class PayloadAdaptation:
 
         return rms(self._sq_identified), rms(self._sq_adapted)
 
+    def verdict(self) -> str | None:
+        """Why the adapted mass must not be taken (None: it may). On the windows of this run,
+        each scored before it moved the estimate, the adapted model must explain the motor
+        torque better than the identified one: the squared errors over ν², summed over the
+        joints, lower with it. A payload that is there lowers J2/J3's error by tens of N·m
+        (and may cost a wrist some of its small error); one learned from an error that is no
+        payload moves the joints' errors either way: the demo's replays showed J2 1.3 → 1.7
+        and J3 0.5 → 1.25 N·m RMS with it."""
+        if not np.any(self._rows):
+            return "no window of free motion scored yet"
+        whitened = self._sd / self.nu_nm**2
+        if float(np.sum(whitened)) < 0.0:
+            return None
+        before, after = self.residual_rms_nm()
+        j = int(np.argmax(whitened))
+        return (f"it does not explain this run's motor torque better (J{j + 1}: {after[j]} N·m "
+                f"RMS with it against {before[j]} without)")  # fmt: skip
+
     def adapted(self) -> IdentifiedModel:
         """The identified model with the adapted point mass as a ``payload`` effect on every
         joint (added to the model's own payload effect if it has one)."""
@@ -364,6 +386,7 @@ class PayloadAdaptation:
             "windows_seen": self.windows_seen,
             "residual_rms_identified_nm": before,
             "residual_rms_adapted_nm": after,
+            "not_taken": self.verdict(),
         }
 
 

@@ -160,6 +160,8 @@ class ControlProcess:
         self._model_sha256 = ""
         #: why the kept adapted mass could not be used (None: no problem)
         self.adaptation_problem: str | None = None
+        #: the adaptation's version last judged for the law (:meth:`_adapt_model`)
+        self._adaptation_judged = -1
         #: the mass was kept from before this start (``model_adaptation_file``)
         self._adaptation_restored = False
         #: writes the adapted mass to disk off the slow loop (an fsync waits for the disk:
@@ -490,6 +492,16 @@ class ControlProcess:
         with self._lock:
             state = self._fresh_state(now)
         if state in (Lifecycle.TEACHING, Lifecycle.REPLAYING):
+            return
+        if adapt.version == self._adaptation_judged:
+            return
+        self._adaptation_judged = adapt.version
+        why = adapt.verdict()
+        if why is not None:  # the law keeps the model it has; the estimate goes on
+            before, after = adapt.residual_rms_nm()
+            log.warning("adapted mass %+.2f kg not taken (eq. 29): %s; motor torque RMS as "
+                        "identified %s, as adapted %s N·m", adapt.mass_kg, why, before,
+                        after)  # fmt: skip
             return
         self._apply_adaptation(save=True)
 

@@ -171,7 +171,12 @@ def adaptation_lines(adapted: dict) -> list[str]:
     if isinstance(mass, int | float) and abs(mass) >= 0.05:
         where = adapted.get("com_m")
         at = f" at {where} m from the flange" if isinstance(where, list) else ""
-        state = "compensated" if adapted.get("applied") else "compensated after this run"
+        if adapted.get("applied"):
+            state = "compensated"
+        elif adapted.get("not_taken"):
+            state = f"not compensated: {adapted['not_taken']}"
+        else:
+            state = "compensated after this run if it explains the run better"
         out.append(f"model: {mass:+.2f} kg{at} learned in replay, {state}")
     if adapted.get("problem"):
         out.append(f"model adaptation: {adapted['problem']}")

@@ -303,6 +303,8 @@ def _adaptation_rows(adapted: dict[str, Any]) -> list[tuple[str, str]]:
          f"{_fmt(adapted['residual_rms_identified_nm'])} N·m RMS"),
         ("model error in the replay, as adapted",
          f"{_fmt(adapted['residual_rms_adapted_nm'])} N·m RMS"),
+        ("the law compensates the learned payload",
+         "yes" if adapted.get("applied") else f"no: {adapted.get('not_taken') or 'not yet'}"),
     ]  # fmt: skip
 
 

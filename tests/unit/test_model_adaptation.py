@@ -132,6 +132,31 @@ def test_a_mounted_gun_is_learned_and_the_model_improves_on_motion_it_did_not_se
     assert adapt.windows_contact == 0
     ident_rms, adapted_rms = adapt.residual_rms_nm()
     assert all(a < b for a, b in zip(adapted_rms[1:3], ident_rms[1:3], strict=True))
+    assert adapt.verdict() is None, adapt.verdict()  # the law takes it
+
+
+def test_a_mass_the_run_does_not_carry_is_not_taken(robot):
+    """A gun kept from an earlier run and taken off since: the replay's windows, each scored
+    before it moves the estimate, show the model worse with the mass than without it, and
+    the verdict says so; the estimate still moves back."""
+    desc, xml, identified = robot
+    rng = np.random.default_rng(7)
+    truth = Truth(xml, desc.gravity_m_s2, 0.0, None)
+    adapt = PayloadAdaptation(identified, desc, HELDOUT_RMS_NM, AdaptationSettings(rate_per_s=1.0))
+    adapt.restore([6.0, 0.0, 0.0, 6.0 * 0.15], 100)
+    t, q, dq, ddq = motion(rng, 250.0, 20.0, 0.35)
+    feed(adapt, truth, rng, t, q, dq, ddq)
+    why = adapt.verdict()
+    print(f"kept 6 kg, learned {adapt.mass_kg:.2f} kg: {why}; {adapt.report()}")
+    assert why is not None and "better" in why, why
+    assert adapt.report()["not_taken"] == why
+    assert abs(adapt.mass_kg) < 6.0  # the law went on towards no mass
+
+
+def test_no_verdict_before_a_window_of_free_motion(robot):
+    desc, _, identified = robot
+    adapt = PayloadAdaptation(identified, desc, HELDOUT_RMS_NM)
+    assert adapt.verdict() == "no window of free motion scored yet"
 
 
 def test_a_push_against_a_stop_is_contact_and_leaves_the_model(robot):
@@ -266,5 +291,7 @@ def test_status_says_what_the_model_learned():
         line
         == "model: +5.70 kg at [0.0, 0.1, 0.3] m from the flange learned in replay, compensated"
     )
+    (line,) = adaptation_lines({"mass_kg": 2.0, "applied": False, "not_taken": "J3 worse"})
+    assert line == "model: +2.00 kg learned in replay, not compensated: J3 worse"
     lines = adaptation_lines({"mass_kg": 0.0, "problem": "x.json: not a readable file"})
     assert lines == ["model adaptation: x.json: not a readable file"]
