@@ -159,8 +159,6 @@ class PayloadAdaptation:
         self._sq_identified = np.zeros(n)
         self._sq_adapted = np.zeros(n)
         self._rows = np.zeros(n, dtype=int)
-        #: per joint, the sum of the windows' e_adapted² − e_identified² (:meth:`verdict`)
-        self._sd = np.zeros(n)
         #: bumped whenever :attr:`delta` moved; readers rebuild their model on a change
         self.version = 0
 
@@ -286,8 +284,6 @@ class PayloadAdaptation:
         self._sq_identified += np.where(sliding, e_identified**2, 0.0)
         self._sq_adapted += np.where(sliding, e**2, 0.0)
         self._rows += sliding
-        d = np.where(sliding, e**2 - e_identified**2, 0.0)
-        self._sd += d
         mag = np.maximum(np.abs(e) - self.nu_nm, 0.0)
         e_dz = np.where(sliding, np.sign(e) * mag, 0.0) / self.nu_nm
         if np.any(e_dz):
@@ -351,7 +347,7 @@ class PayloadAdaptation:
         and J3 0.5 → 1.25 N·m RMS with it."""
         if not np.any(self._rows):
             return "no window of free motion scored yet"
-        whitened = self._sd / self.nu_nm**2
+        whitened = (self._sq_adapted - self._sq_identified) / self.nu_nm**2
         if float(np.sum(whitened)) < 0.0:
             return None
         before, after = self.residual_rms_nm()
