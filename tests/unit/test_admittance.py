@@ -11,12 +11,12 @@ import pytest
 from example_cell import example_cell
 
 from control import _rt
-from control.admittance_law import AdmittanceController
+from control.admittance_law import DRIVE_SETTLE_CYCLES, AdmittanceController
 from control.cell_config import load_control_config
 from control.declared_model import DeclaredModel
 from gateway.errors import ConfigError
 from gateway.message_factories import make_joint_state
-from gateway.messages import ControllerState
+from gateway.messages import FLAG_PREV_COAST, FLAG_PREV_HOLD, ControllerState
 
 N = 6
 DT = 0.004
@@ -105,10 +105,10 @@ def cfg(stiction_cfg):
                                admittance_stick_zone=0.0)  # fmt: skip
 
 
-def state(k: int, q, current, q_cmd=None, dq=None):
+def state(k: int, q, current, q_cmd=None, dq=None, flags=0):
     q = np.asarray(q, dtype=float)
     dq = np.zeros(N) if dq is None else np.asarray(dq, dtype=float)
-    return make_joint_state(k, 0.004 * k, ControllerState.EXTERNAL, 0, q, dq,
+    return make_joint_state(k, 0.004 * k, ControllerState.EXTERNAL, flags, q, dq,
                             np.asarray(current), q if q_cmd is None else q_cmd, np.zeros(N),
                             0.004)  # fmt: skip
 
@@ -148,6 +148,56 @@ def test_the_controller_holds_still_when_the_current_carries_the_model_and_follo
     assert ctl.admittance.q_r[1] > q0[1]
     # never more than the offset limit ahead of the arm (the controller faults beyond it)
     assert np.all(np.abs(np.array(q_cmd) - q0) <= np.array(cfg.max_offset_rad) + 1e-12)
+
+
+def lifted_then(
+    cfg, step_nm: float, flags: int = 0, skip: int = 0, extra_states: int = 0
+) -> tuple[float, float]:
+    """A hand lifts J2 (its current 40 N·m under the model's static load at the arm's pose)
+    for 0.4 s, the arm following its reference; then one state (``flags``; ``skip`` cycles
+    the law never saw before it) and the ``delay + DRIVE_SETTLE_CYCLES`` after it (and
+    ``extra_states`` more) carry ``step_nm`` more on J2 against the motion, as a drive
+    stepping its command's speed to zero does. J2's hand torque estimate τ̂_h before that
+    state and after those [N·m]."""
+    model, ctl, k_nm_per_a, q0, p, _ = at_rest(cfg)
+    adm = ctl.admittance
+    lift = np.zeros(N)
+    lift[1] = 40.0
+
+    def follow(k, extra=0.0, flags=0):
+        q = np.array(adm.q_r) if k > 1 else q0
+        static = model.gravity_nm(q) - model.cylinder_nm(q, np.array(p))
+        current = (static - lift * (k >= 100) + extra) / k_nm_per_a
+        ctl.answer(state(k, q, current, dq=adm.dq_r, flags=flags), p)
+
+    for k in range(1, 200):  # engaged at rest (b is the residual there), lifted from k = 100
+        follow(k)
+    before = adm.tau_h[1]
+    step = np.zeros(N)
+    step[1] = step_nm
+    first = 200 + skip
+    follow(first, step, flags)
+    window = cfg.command_delay_cycles + 1 + DRIVE_SETTLE_CYCLES
+    for k in range(first + 1, first + window + extra_states):
+        follow(k, step)
+    return before, adm.tau_h[1]
+
+
+def test_currents_a_cycle_the_drive_held_or_coasted_drove_are_not_read_as_a_hand(cfg):
+    """A cycle the law did not command in time is one the drive held (or coasted): the hold
+    steps the command's speed to zero, and the vendor loop's answer is tens of N·m against the
+    motion for a few cycles. Read as a hand, it brakes or reverses the reference (on a
+    release, the driver's stop then continued the reversal and ran the arm back 4-14 mm,
+    2026-12-03); the law keeps its estimate over the states the drive's step drove, flagged
+    (FLAG_PREV_HOLD, FLAG_PREV_COAST) or after cycles it never saw, and reads the current
+    again after them."""
+    before, read = lifted_then(cfg, 150.0)
+    assert before > 20.0, "the lift reads as a push up"
+    assert read < before - 50.0, "a law that reads the step's current takes it for a hand"
+    for flags, skip in ((FLAG_PREV_HOLD, 0), (FLAG_PREV_COAST, 0), (0, 3)):
+        assert lifted_then(cfg, 150.0, flags, skip) == (before, before), (flags, skip)
+    # one state later the current counts again
+    assert lifted_then(cfg, 150.0, FLAG_PREV_HOLD, extra_states=1)[1] < before - 10.0
 
 
 def test_a_cell_config_naming_an_unknown_strategy_is_refused(cell, tmp_path):
