@@ -65,6 +65,7 @@ use crate::lifecycle::LifecycleOrder;
 use crate::lost_cycles::LostCycles;
 use crate::messages::Lifecycle;
 use crate::plausibility::{FeedbackPlausibility, DEFAULT_TOLERANCE_RAD};
+use crate::ramp_start::PathHistory;
 use crate::speed_monitor::{SpeedMonitor, DEFAULT_CONFIRM, DEFAULT_WINDOW};
 use crate::stop_ramp::{StandstillMonitor, StopRamp};
 use crate::window::StateWindowBuilder;
@@ -290,6 +291,8 @@ pub struct HostCore {
     /// the last forwarded (or coasted) position since servo-on
     last_forwarded_q: Option<[f64; MAX_JOINTS]>,
     last_forward: Option<LastForward>,
+    /// the forwarded commands' path, for the velocity a ramp starts from (ramp_start.rs)
+    path: PathHistory,
     hold_q: Option<[f64; MAX_JOINTS]>,
     holding: bool,
     /// the controlled stop under way, None when there is none
@@ -467,6 +470,7 @@ impl HostCore {
             last_sent_dq: None,
             last_forwarded_q: None,
             last_forward: None,
+            path: PathHistory::new(),
             hold_q: None,
             holding: false,
             ramp: None,

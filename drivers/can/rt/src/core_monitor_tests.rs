@@ -66,9 +66,13 @@ fn core_a_link_losing_every_other_cycle_trips_the_window_rule_and_the_arm_ramps_
         c.hand_guiding_max_speed_m_s = 0.0;
         c.stop_deceleration_rad_s2 = vec![1.0; N];
     });
-    let q = teach(&mut cell, 0.2);
+    // the commands move along their path at their 0.2 rad/s (the ramp, after the lost
+    // cycles, starts at the path's speed: ramp_start.rs)
+    let mut q = teach(&mut cell, 0.2);
     for _ in 0..4 {
+        q = plus(q, 0.2 * PERIOD_S);
         assert_eq!(miss(&mut cell, q, true), Answer::Coast);
+        q = plus(q, 0.2 * PERIOD_S);
         cell.t += PERIOD_S;
         cell.gateway("teaching");
         let (js, _) = cell.cycle(at(q));

@@ -344,3 +344,57 @@ fn core_a_burst_of_bus_errors_latches_a_fault_and_scattered_ones_do_not() {
         Some("blocked_bus" | "blocked_lifecycle")
     ));
 }
+
+#[test]
+fn core_a_release_just_after_an_uncommanded_cycle_ramps_along_the_path_not_the_spring_back() {
+    // Teaching at 0.2 rad/s; three cycles go by without a command (the driver coasts, then
+    // holds); the law's next command is where the path had got to, with the arm's spring-back
+    // (-0.14 rad/s) as its velocity; the enabling device is released. The ramp starts at the
+    // path's 0.2 rad/s and never goes back past that command (ramp_start.rs).
+    let mut cell = Cell::new(|c| {
+        c.stop_deceleration_rad_s2 = vec![1.0; N];
+        c.hand_guiding_max_speed_m_s = 0.0;
+    });
+    cell.gateway("teaching");
+    cell.tick();
+    let mut q = Q0;
+    for _ in 0..10 {
+        cell.t += PERIOD_S;
+        cell.gateway("teaching");
+        let (js, _) = cell.cycle(at(q));
+        assert_eq!(cell.command(&js, &q, 0.2).0, Answer::Command);
+        q = plus(q, 0.2 * PERIOD_S);
+    }
+    for _ in 0..3 {
+        cell.t += PERIOD_S;
+        cell.gateway("teaching");
+        cell.cycle(at(q));
+        cell.t += 0.0021; // past the answer deadline
+        cell.tick();
+        cell.t -= 0.0021;
+        assert_ne!(cell.answer(), Answer::Command);
+        q = plus(q, 0.2 * PERIOD_S);
+    }
+    cell.t += PERIOD_S;
+    cell.gateway("teaching");
+    let (js, _) = cell.cycle(at(q));
+    assert_eq!(cell.command(&js, &q, -0.14).0, Answer::Command);
+    let last = q;
+    let sets = follow(&mut cell, "teaching", 60, q, false, true);
+    let ramp: Vec<&Set> = sets.iter().filter(|s| s.none_hold()).collect();
+    assert!(!ramp.is_empty(), "a ramp");
+    assert!(
+        (ramp[0].dq[0] - 0.2).abs() < 0.01,
+        "the ramp starts at the path's speed: {}",
+        ramp[0].dq[0]
+    );
+    assert!(
+        ramp.iter().all(|s| s.q[0] >= last[0] - 1e-9),
+        "never back past the last command"
+    );
+    assert!(cell
+        .core
+        .take_notes()
+        .iter()
+        .any(|(_, k, m)| k == "ramp" && m.contains("at the path's speed")));
+}

@@ -26,6 +26,7 @@ mod ltc_enums;
 pub mod ltc_fd_adapter;
 mod ltc_status;
 pub mod plausibility;
+pub mod ramp_start;
 pub mod speed_monitor;
 pub mod stop_ramp;
 pub mod window;

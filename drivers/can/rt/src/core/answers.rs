@@ -85,15 +85,21 @@ impl HostCore {
         {
             return false;
         }
+        // the path's velocity where the last commands followed a cycle nobody commanded
+        // (ramp_start.rs), else the last command's own
+        let mut dq0 = [0.0; MAX_JOINTS];
+        let from_path = self
+            .path
+            .start_velocity(&last.dq[..n], last.period_s, &mut dq0[..n]);
         // where the last command (or its coasting) has got to
         let mut q_now = [0.0; MAX_JOINTS];
-        for ((q, &q0), &dq) in q_now.iter_mut().zip(&last.q).zip(&last.dq).take(n) {
+        for ((q, &q0), &dq) in q_now.iter_mut().zip(&last.q).zip(&dq0).take(n) {
             *q = q0 + dq * age as f64 * last.period_s;
         }
         let ramp = StopRamp::start(
             pending.cycle,
             &q_now[..n],
-            &last.dq[..n],
+            &dq0[..n],
             &self.stop_decel,
             last.period_s,
         );
@@ -101,8 +107,13 @@ impl HostCore {
         self.ramp = Some(ramp);
         self.notes.note(INFO, "ramp", now, || {
             format!(
-                "controlled stop: ramping to standstill in {:.0} ms",
-                duration_s * 1e3
+                "controlled stop: ramping to standstill in {:.0} ms{}",
+                duration_s * 1e3,
+                if from_path {
+                    " at the path's speed (a cycle went uncommanded just before)"
+                } else {
+                    ""
+                }
             )
         });
         true

@@ -123,6 +123,7 @@ impl HostCore {
             self.holding = false;
             self.last_forwarded_q = None;
             self.last_forward = None;
+            self.path.clear();
             self.ramp = None;
         }
         // a lock-step controller waits for the answer; a real one starts its next cycle

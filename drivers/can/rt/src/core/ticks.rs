@@ -45,6 +45,7 @@ impl HostCore {
                 self.holding = false;
                 self.last_forwarded_q = None;
                 self.last_forward = None;
+                self.path.clear();
             }
             if Some(desired) != self.request_sent {
                 self.notes.always(INFO, "request", || {

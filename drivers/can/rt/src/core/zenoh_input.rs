@@ -157,6 +157,7 @@ impl HostCore {
         self.last_sent_dq = Some(dq);
         self.last_forwarded_q = Some(q);
         let period_s = self.feedback.map_or(0.0, |fb| fb.period_s);
+        self.path.push(cycle, &q[..n]);
         self.last_forward = Some(LastForward {
             stamp_s: cmd.state_stamp_s.min(stamp_s),
             cycle,
