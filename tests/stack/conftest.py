@@ -32,5 +32,5 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
 
 @pytest.fixture(scope="session", autouse=True)
 def commissioned_default_plant() -> None:
-    """Plant seed 0's commissioned model, from the cache or built now (about 5 minutes)."""
+    """Plant seed 0's commissioned model, from the cache or built now (about 3 minutes)."""
     commissioned(0)
