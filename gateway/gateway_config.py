@@ -24,6 +24,8 @@ class GatewayConfig:
     io_timeout_s: float = 0.25
     standstill_rad_s: float = 2e-3  #: teaching starts only below this joint speed [rad/s]
     standstill_s: float = 0.3  #: ... held for this long [s]
+    #: ... and the servo on for this long [s] (gateway/lifecycle.py Limits.servo_settle_s)
+    servo_settle_s: float = 1.0
     health_timeout_s: float = 0.5  #: a child whose heartbeat is older is "silent"
     #: a child started this long ago [s] with no heartbeat yet is still booting, not silent.
     #: Measured: control's first log line came 12 s after its start under `taskset -c 0`

@@ -13,6 +13,8 @@ from gateway.messages import LAYOUT_VERSION, ControllerState, JointState, StateW
 
 _STATE_HEAD = JointState._HEAD  #: magic, version, n, cycle, stamp, state, flags, period
 _CONTROLLER_STATES = {int(s): s for s in ControllerState}
+#: the controller states in which the drives hold the arm or follow commands: servo on
+SERVO_ON = (ControllerState.HOLD, ControllerState.EXTERNAL)
 
 
 def joint_state_summary(data: bytes) -> tuple[ControllerState, float, float, np.ndarray]:
@@ -80,6 +82,9 @@ class JointStateWatch:
         self.rx_s: float | None = None
         self.moving_s: float | None = None
         self.controller_state: ControllerState | None = None
+        #: since when the drives hold or follow (servo on) without a break, as seen by the
+        #: folds (a lower bound on the time the servo has been on); None: servo off
+        self.servo_on_s: float | None = None
         self.max_speed_rad_s: float | None = None  #: fastest joint in the newest state
         self._fold_s = start_s
         self._raw: bytes | None = None
@@ -135,6 +140,10 @@ class JointStateWatch:
         self.rx_s = max(since_s, min(stamp_s, now_s))
         if moved or self.moving_s is None:
             self.moving_s = now_s
+        if self.controller_state not in SERVO_ON:
+            self.servo_on_s = None
+        elif self.servo_on_s is None:
+            self.servo_on_s = now_s
         return problems
 
     @property

@@ -49,10 +49,15 @@ class Observations:
     estop_ok: bool
     dead_processes: tuple[str, ...] = ()
     stale_processes: tuple[str, ...] = ()
+    #: started within [gateway].boot_grace_s and no heartbeat yet: not silent, not up either
+    booting_processes: tuple[str, ...] = ()
     max_speed_rad_s: float | None = None  #: fastest joint in the latest joint state
     #: how long the arm has been still: no joint left a band of standstill_rad_s·standstill_s
     #: and none read faster than 10 standstill speeds (gateway/joint_state_watch.py JointStateWatch)
     still_for_s: float = 0.0
+    #: how long the drives have held or followed without a break (servo on) [s]; 0: off or
+    #: not known (gateway/joint_state_watch.py JointStateWatch.servo_on_s)
+    servo_on_for_s: float = 0.0
     #: why the model does not match the arm's static load (control/load_check.py); None: it does
     load_problem: str | None = None
     #: the CAN driver's latched trips, health key → what it measured (:data:`DRIVER_TRIPS`)
@@ -86,6 +91,16 @@ class Limits:
     #: position still to 0.1 mrad), which is why positions, not the newest speed, decide.
     standstill_rad_s: float = 2e-3
     standstill_s: float = 0.3
+    #: teaching starts only once the servo has been on this long [s]. At servo-on the drives
+    #: catch the arm's weight and their current rings before it settles; the zero-moment law
+    #: calibrates ω̂ and its dead zone (the torque's spread at rest) from the hold's last 64
+    #: states when it takes over (control/rt/src/law/zero_moment/engagement.rs), 0.51 s at an
+    #: 8 ms cycle, so those states must all come after the ringing. Measured on the virtual
+    #: cell (seed 0, 8 ms): J2/J3 current spread 0.09 A over 0.1-0.4 s after servo-on, at the
+    #: noise (0.02 A) from 0.3 s; engaged 0.4 s after servo-on, an arm carrying an 8 kg gun on
+    #: its identified model drifted 1.38 and 1.45 mm in 5 s, engaged 1.5 s or more after it
+    #: 0.22-0.29 mm (issue 2's bound: 1 mm). 0.3 s ringing + 0.51 s of states, rounded up.
+    servo_settle_s: float = 1.0
 
 
 #: updates (gateway ticks, 10 ms) a robot controller has to leave FAULT after a reset
@@ -135,6 +150,18 @@ class LifecycleMachine:
                 problems.append(f"{label}: {obs.driver_trips[key]}")
         return problems
 
+    def start_problems(self, obs: Observations) -> list[str]:
+        """Why ``start`` is refused now (empty list: it is accepted): the link's problems, and
+        a process still starting. A booting process is no fault (nothing moves while it
+        boots), but the cell does not servo on before every process it runs is up: on a slow
+        machine control's first heartbeat came 12 s after its start ([gateway].boot_grace_s),
+        and a start accepted meanwhile held the arm at servo-on with teaching blocked for
+        that long."""
+        problems = self.link_problems(obs)
+        if obs.booting_processes:
+            problems.append(f"process(es) still starting: {', '.join(obs.booting_processes)}")
+        return problems
+
     def update(self, obs: Observations) -> Lifecycle:
         """Apply the automatic transitions for the latest observations."""
         if self.state in (Lifecycle.READY, Lifecycle.TEACHING, *PLAYING):
@@ -148,7 +175,8 @@ class LifecycleMachine:
                     self._go(Lifecycle.READY, f"{what} aborted: enabling device released")
                 return self.state
             servo_on = obs.controller_state in (ControllerState.HOLD, ControllerState.EXTERNAL)
-            if self.state == Lifecycle.READY and obs.enabling and servo_on and self._still(obs):
+            settled = servo_on and obs.servo_on_for_s >= self.limits.servo_settle_s
+            if self.state == Lifecycle.READY and obs.enabling and settled and self._still(obs):
                 if obs.load_problem is None:
                     self._go(Lifecycle.TEACHING, "enabling device held")
                 else:
@@ -191,7 +219,7 @@ class LifecycleMachine:
                 return True, f"already {self.state.name.lower()}"
             if self.state == Lifecycle.FAULT:
                 return False, f"in fault ({self.reason}); use reset first"
-            problems = self.link_problems(obs)
+            problems = self.start_problems(obs)
             if problems:
                 return False, "cannot start: " + "; ".join(problems)
             self._go(Lifecycle.READY, "started by operator; hold the enabling device to teach")

@@ -74,6 +74,7 @@ class Gateway:
                 cfg.io_timeout_s,
                 cfg.standstill_rad_s,
                 cfg.standstill_s,
+                cfg.servo_settle_s,
             )
         )
         self.lock = threading.Lock()
@@ -236,21 +237,19 @@ class Gateway:
 
     def observations(self, now: float, dead: tuple[str, ...] = ()) -> Observations:
         w, io = self.watch, self.io
-        stale = []
+        stale, booting = [], []
         for name in self.children:
             key = name.replace("-", "_")
             child = self.children[name]
             rx = self.health_rx_s.get(key)
-            booting = (
+            starting = (
                 child.proc is not None
                 and now - child.started_s < self.cfg.boot_grace_s
                 and rx is None
             )
-            if (
-                child.proc is not None
-                and not booting
-                and (rx is None or now - rx > self.cfg.health_timeout_s)
-            ):
+            if starting:
+                booting.append(name)
+            elif child.proc is not None and (rx is None or now - rx > self.cfg.health_timeout_s):
                 stale.append(name)
         return Observations(
             joint_state_age_s=None if w.rx_s is None else now - w.rx_s,
@@ -261,8 +260,10 @@ class Gateway:
             estop_ok=bool(io.estop_ok) if io else True,
             dead_processes=dead,
             stale_processes=tuple(stale),
+            booting_processes=tuple(booting),
             max_speed_rad_s=w.max_speed_rad_s,
             still_for_s=0.0 if w.moving_s is None else now - w.moving_s,
+            servo_on_for_s=0.0 if w.servo_on_s is None else now - w.servo_on_s,
             load_problem=self._load_problem(),
             driver_trips=dict(self.driver_trips),
             controller_fault_text=self.controller_fault_text,
@@ -291,8 +292,8 @@ class Gateway:
             "state": self.machine.state.name.lower(),
             "reason": self.machine.reason,
             "seq": self.machine.seq,
-            "can_start": not self.machine.link_problems(obs),
-            "problems": self.machine.link_problems(obs),
+            "can_start": not self.machine.start_problems(obs),
+            "problems": self.machine.start_problems(obs),
             "controller_state": None if st is None else st.controller_state.name.lower(),
             "enabling": obs.enabling,
             "estop_ok": obs.estop_ok,

@@ -536,11 +536,11 @@ def test_teaching_is_refused_while_the_arm_carries_a_load_the_model_lacks(tmp_pa
         stack.wait_status(lambda s: s.get("can_start") is True, 40.0, "cell ready to start")
         assert stack.request("start")["ok"]
         stack.wait_status(lambda s: "teaching blocked" in s["reason"], 10.0, "teaching blocked")
-        # The cell may start before the control process has: on one loaded core it took 4.2 s
-        # to import and build, and the reason read "no static-load check ... yet" until then
-        # (2026-12-01). The refusal this test is about is the check's own: wait for it as long
-        # as the gateway waits for a child to start ([gateway] boot_grace_s), leaving READY
-        # on the way (teaching) included.
+        # The cell starts once the control process is up (its first heartbeat), but its first
+        # static-load check waits for servo-on and an arm at rest: the reason reads "no
+        # static-load check ... yet" until then. The refusal this test is about is the check's
+        # own: wait for it as long as the gateway waits for a child to start ([gateway]
+        # boot_grace_s), leaving READY on the way (teaching) included.
         boot_grace_s = GatewayConfig().boot_grace_s
         stack.wait_status(
             lambda s: s["state"] != "ready" or "static-load check from the" not in s["reason"],

@@ -27,6 +27,9 @@ STILL = 5e-4  #: standstill speed [rad/s]
 PERIOD_S = 0.004
 TRANSIT_S = 2e-4  #: CAN driver stamp → arrival at the gateway
 WINDOW_S = 0.02  #: the CAN driver's state window ([can] state_window_s)
+#: the servo-on settle time in the standstill tests: those judge the standstill clock alone
+#: (the settle rule is tests/unit/test_lifecycle.py's)
+NO_SETTLE = 0.0
 
 
 def state(
@@ -162,6 +165,7 @@ class Cell:
             estop_ok=True,
             max_speed_rad_s=w.max_speed_rad_s,
             still_for_s=0.0 if w.moving_s is None else now_s - w.moving_s,
+            servo_on_for_s=0.0 if w.servo_on_s is None else now_s - w.servo_on_s,
         )
         if self.machine.state == Lifecycle.STOPPED:
             self.machine.command("start", obs)
@@ -184,7 +188,12 @@ class Cell:
 
 
 def test_a_motion_between_two_ticks_restarts_the_standstill_clock():
-    limits = Limits(joint_state_timeout_s=0.1, standstill_rad_s=STILL, standstill_s=0.3)
+    limits = Limits(
+        joint_state_timeout_s=0.1,
+        standstill_rad_s=STILL,
+        standstill_s=0.3,
+        servo_settle_s=NO_SETTLE,
+    )
     cell = Cell(limits)
     spike = 26  # one state (t = 0.104 s) moves; the newest state at every tick is still
     history = cell.run(0.0, 1.0, moving={spike})
@@ -195,7 +204,12 @@ def test_a_motion_between_two_ticks_restarts_the_standstill_clock():
 
 
 def test_a_stream_that_stops_faults_within_the_timeout_plus_one_tick_and_one_window():
-    limits = Limits(joint_state_timeout_s=0.1, standstill_rad_s=STILL, standstill_s=0.05)
+    limits = Limits(
+        joint_state_timeout_s=0.1,
+        standstill_rad_s=STILL,
+        standstill_s=0.05,
+        servo_settle_s=NO_SETTLE,
+    )
     cell = Cell(limits)
     history = cell.run(0.0, 0.5)
     assert history[-1][1] == Lifecycle.TEACHING
@@ -297,7 +311,12 @@ def _first_teaching(limits: Limits, duration_s: float, joints) -> float | None:
 def test_a_hold_that_hunts_with_a_noisy_velocity_does_not_keep_teaching_waiting():
     """A vendor loop on a quantised encoder dithers by a few standstill speeds, and the drive's
     velocity is noisy (std = the standstill speed); the position stays within a few µrad."""
-    limits = Limits(joint_state_timeout_s=0.1, standstill_rad_s=STILL, standstill_s=0.3)
+    limits = Limits(
+        joint_state_timeout_s=0.1,
+        standstill_rad_s=STILL,
+        standstill_s=0.3,
+        servo_settle_s=NO_SETTLE,
+    )
     rng = np.random.default_rng(3)
     q0 = np.linspace(-0.5, 0.5, 6)
 
@@ -316,7 +335,12 @@ def test_a_creep_faster_than_the_standstill_speed_is_motion_however_quiet_its_ve
 ):
     """Joint 2 creeps at ``speed_factor`` standstill speeds while its velocity reads near zero
     (a drive that filters it): the positions decide."""
-    limits = Limits(joint_state_timeout_s=0.1, standstill_rad_s=STILL, standstill_s=0.3)
+    limits = Limits(
+        joint_state_timeout_s=0.1,
+        standstill_rad_s=STILL,
+        standstill_s=0.3,
+        servo_settle_s=NO_SETTLE,
+    )
     q0 = np.linspace(-0.5, 0.5, 6)
 
     def creeping(k: int, t: float):
@@ -384,3 +408,22 @@ def test_a_malformed_window_is_refused_naming_what_is_wrong():
     short = StateWindow(1, 0.0, other_n.q_lo_rad[:5], other_n.q_hi_rad[:5], other_n.newest)
     assert "joint count" in w.fold([short.to_bytes()], 0.01)[0]
     assert w.rx_s is None
+
+
+def test_the_servo_on_time_starts_at_the_first_held_state_and_a_servo_off_clears_it():
+    """``servo_on_s`` is the fold that first saw the drives hold (or follow) since they last
+    did not; it stays through holding and following, and any other state clears it."""
+    w = JointStateWatch(STILL, 0.0)
+    assert w.fold([payload(1, 0.0, controller_state=ControllerState.BRAKED)], 0.01) == []
+    assert w.servo_on_s is None
+    w.fold([payload(2, 0.01, controller_state=ControllerState.HOLD)], 0.02)
+    assert w.servo_on_s == 0.02
+    w.fold([payload(3, 0.02, controller_state=ControllerState.EXTERNAL)], 0.03)
+    w.fold([payload(4, 0.03, controller_state=ControllerState.HOLD)], 0.04)
+    assert w.servo_on_s == 0.02
+    w.fold([], 0.05)  # no state: nothing changes
+    assert w.servo_on_s == 0.02
+    w.fold([payload(5, 0.05, controller_state=ControllerState.FAULT)], 0.06)
+    assert w.servo_on_s is None
+    w.fold([payload(6, 0.06, controller_state=ControllerState.HOLD)], 0.07)
+    assert w.servo_on_s == 0.07

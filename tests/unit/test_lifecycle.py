@@ -2,7 +2,7 @@ from dataclasses import replace
 
 import pytest
 
-from gateway.lifecycle import CONTROLLER_RESET_UPDATES, LifecycleMachine, Observations
+from gateway.lifecycle import CONTROLLER_RESET_UPDATES, LifecycleMachine, Limits, Observations
 from gateway.messages import ControllerState, Lifecycle
 
 
@@ -15,6 +15,7 @@ def healthy(**kw) -> Observations:
         estop_ok=True,
         max_speed_rad_s=0.0,
         still_for_s=1.0,
+        servo_on_for_s=5.0,
     )
     return Observations(**{**base, **kw})
 
@@ -105,6 +106,17 @@ def test_teaching_waits_for_standstill_after_servo_on():
         m.update(healthy(enabling=True, max_speed_rad_s=1e-4, still_for_s=0.1)) == Lifecycle.READY
     )
     assert m.update(healthy(enabling=True, max_speed_rad_s=1e-4)) == Lifecycle.TEACHING
+
+
+def test_teaching_waits_until_the_servo_has_been_on_for_the_settle_time():
+    """The drives' hold rings after servo-on; the law calibrates on the hold when it takes
+    over, so teaching waits for ``servo_settle_s`` of servo on however still the arm is, and
+    a servo-off restarts the wait."""
+    m = LifecycleMachine(Limits(servo_settle_s=1.0))
+    m.command("start", healthy())
+    for on_s in (0.0, 0.4, 0.99):
+        assert m.update(healthy(enabling=True, servo_on_for_s=on_s)) == Lifecycle.READY, on_s
+    assert m.update(healthy(enabling=True, servo_on_for_s=1.0)) == Lifecycle.TEACHING
 
 
 def test_teaching_is_blocked_while_the_model_lacks_the_arms_load_but_identify_is_not():
@@ -223,7 +235,7 @@ def test_the_gateway_faults_on_the_trip_and_resets_once_it_is_cleared(field, tri
     the cell with what it measured, and a reset is refused while it stands."""
     machine = LifecycleMachine()
     ok = Observations(0.01, 0.01, ControllerState.EXTERNAL, True, True, max_speed_rad_s=0.0,
-                      still_for_s=5.0)  # fmt: skip
+                      still_for_s=5.0, servo_on_for_s=5.0)  # fmt: skip
     machine.command("start", ok)
     machine.update(ok)
     assert machine.state == Lifecycle.TEACHING

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -107,3 +108,33 @@ def test_a_boot_grace_outside_its_range_is_refused():
     for bad in (0.0, -1.0, 600.0):
         with pytest.raises(ConfigError, match=r"\[gateway\].boot_grace_s"):
             GatewayConfig(boot_grace_s=bad)
+
+
+def test_start_is_refused_while_a_child_boots_and_a_booting_child_faults_nothing():
+    """A child with no heartbeat yet within [gateway].boot_grace_s: ``start`` is refused with
+    its name (the cell does not servo on before control is up), the status says why; READY is
+    not faulted by it (only a silent or dead child faults the cell)."""
+    cfg = GatewayConfig(processes=(), boot_grace_s=20.0)
+    gw = Gateway(Path("cell.toml"), BusConfig(), cfg, spawn=False)
+    child = Child("control", [sys.executable, "-c", "import time; time.sleep(30)"])
+    gw.children[child.name] = child
+    gw._start_child(child)
+    try:
+        obs = gw.observations(child.started_s + 5.0)
+        assert obs.booting_processes == ("control",) and obs.stale_processes == ()
+        assert gw.machine.link_problems(obs) == gw.machine.link_problems(
+            replace(obs, booting_processes=())
+        )
+        problems = gw.machine.start_problems(obs)
+        assert "process(es) still starting: control" in problems
+        ok, message = gw.machine.command("start", obs)
+        assert not ok and "still starting: control" in message
+        assert gw.machine.state == Lifecycle.STOPPED
+        # up: its heartbeat came; the booting entry is gone and nothing else changed
+        gw.health_rx_s["control"] = child.started_s + 5.5
+        up = gw.observations(child.started_s + 5.6)
+        assert up.booting_processes == () and up.stale_processes == ()
+        assert gw.machine.start_problems(up) == gw.machine.link_problems(up)
+    finally:
+        child.proc.kill()
+        _reap(child)
