@@ -272,8 +272,15 @@ class CanDriver:
         loop, self._loop = self._loop, None
         if loop is not None:
             try:
+                began_s = time.monotonic()
                 sent = loop.close()
-                log.info("BRAKE requested on exit (%d frames sent)", sent)
+                # the frames go out first, then the loop thread is joined and its zenoh session
+                # closed: the line's own time is not the send time; the close's start is
+                log.info(
+                    "BRAKE requested on exit (%d frames sent; the close began %.1f ms before)",
+                    sent,
+                    (time.monotonic() - began_s) * 1e3,
+                )
             except OSError as exc:
                 log.error("%s", exc)
             self._drain_notes(loop)
