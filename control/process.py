@@ -55,7 +55,7 @@ from gateway.messages import (
     COMMANDING,
     HEALTH_RATE_HZ,
     PLAYING,
-    ControllerState,
+    SERVO_ON,
     IoState,
     JointCommand,
     JointState,
@@ -326,7 +326,7 @@ class ControlProcess:
             return
         self._last_state = (st.cycle, st.q_rad, st.dq_rad_s)
         ctl = self.ctl
-        following = st.controller_state in (ControllerState.HOLD, ControllerState.EXTERNAL)
+        following = st.controller_state in SERVO_ON
         period = st.cycle_period_s or self.cfg.default_cycle_period_s
         if mode is None or not following:
             if ctl is not None:

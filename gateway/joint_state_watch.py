@@ -9,12 +9,16 @@ from collections.abc import Iterable
 import numpy as np
 
 from gateway.errors import MessageError
-from gateway.messages import LAYOUT_VERSION, ControllerState, JointState, StateWindow
+from gateway.messages import (
+    LAYOUT_VERSION,
+    SERVO_ON,
+    ControllerState,
+    JointState,
+    StateWindow,
+)
 
 _STATE_HEAD = JointState._HEAD  #: magic, version, n, cycle, stamp, state, flags, period
 _CONTROLLER_STATES = {int(s): s for s in ControllerState}
-#: the controller states in which the drives hold the arm or follow commands: servo on
-SERVO_ON = (ControllerState.HOLD, ControllerState.EXTERNAL)
 
 
 def joint_state_summary(data: bytes) -> tuple[ControllerState, float, float, np.ndarray]:

@@ -25,7 +25,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 
-from gateway.messages import PLAYING, ControllerState, Lifecycle
+from gateway.messages import PLAYING, SERVO_ON, ControllerState, Lifecycle
 
 #: The CAN driver's latched trips: the key of its health report → how the gateway names it.
 #: Each faults the cell and refuses a reset while it stands; the driver clears it once the
@@ -174,7 +174,7 @@ class LifecycleMachine:
                     what = self.state.name.lower()
                     self._go(Lifecycle.READY, f"{what} aborted: enabling device released")
                 return self.state
-            servo_on = obs.controller_state in (ControllerState.HOLD, ControllerState.EXTERNAL)
+            servo_on = obs.controller_state in SERVO_ON
             settled = servo_on and obs.servo_on_for_s >= self.limits.servo_settle_s
             if self.state == Lifecycle.READY and obs.enabling and settled and self._still(obs):
                 if obs.load_problem is None:
@@ -256,7 +256,7 @@ class LifecycleMachine:
             return False, f"{verb} needs state ready, not {self.state.name.lower()}"
         if not obs.enabling:
             return False, "hold the enabling device: the robot will move by itself"
-        if obs.controller_state not in (ControllerState.HOLD, ControllerState.EXTERNAL):
+        if obs.controller_state not in SERVO_ON:
             return False, "robot controller is not servo-on yet"
         if self.state == Lifecycle.READY and not self._still(obs):
             return False, "the robot is still settling after servo-on; try again"

@@ -80,6 +80,10 @@ class ControllerState(IntEnum):
     FAULT = 3  #: brakes engaged after a fault; needs a reset request
 
 
+#: the controller states in which the drives hold the arm or follow commands: servo on
+SERVO_ON = (ControllerState.HOLD, ControllerState.EXTERNAL)
+
+
 class Lifecycle(IntEnum):
     """Gateway lifecycle. STOPPED is the default and the state every error path leads back to."""
 

@@ -83,14 +83,21 @@ def test_other_exits_are_restarted(code):
         _reap(child)
 
 
-def test_a_child_without_a_heartbeat_is_booting_for_the_grace_then_silent():
-    """[gateway].boot_grace_s: no heartbeat yet within it is a child still starting (a slow
-    machine took 12 s); past it, or once a heartbeat came and went stale, it is silent."""
-    cfg = GatewayConfig(processes=(), boot_grace_s=20.0)
+def _gateway_with_a_silent_control(boot_grace_s: float) -> tuple[Gateway, Child]:
+    """A gateway (nothing spawned by it) and a started "control" child that never sends a
+    heartbeat; the caller kills and reaps the child."""
+    cfg = GatewayConfig(processes=(), boot_grace_s=boot_grace_s)
     gw = Gateway(Path("cell.toml"), BusConfig(), cfg, spawn=False)
     child = Child("control", [sys.executable, "-c", "import time; time.sleep(30)"])
     gw.children[child.name] = child
     gw._start_child(child)
+    return gw, child
+
+
+def test_a_child_without_a_heartbeat_is_booting_for_the_grace_then_silent():
+    """[gateway].boot_grace_s: no heartbeat yet within it is a child still starting (a slow
+    machine took 12 s); past it, or once a heartbeat came and went stale, it is silent."""
+    gw, child = _gateway_with_a_silent_control(boot_grace_s=20.0)
     try:
         t0 = child.started_s
         assert gw.observations(t0 + 12.0).stale_processes == ()
@@ -114,11 +121,7 @@ def test_start_is_refused_while_a_child_boots_and_a_booting_child_faults_nothing
     """A child with no heartbeat yet within [gateway].boot_grace_s: ``start`` is refused with
     its name (the cell does not servo on before control is up), the status says why; READY is
     not faulted by it (only a silent or dead child faults the cell)."""
-    cfg = GatewayConfig(processes=(), boot_grace_s=20.0)
-    gw = Gateway(Path("cell.toml"), BusConfig(), cfg, spawn=False)
-    child = Child("control", [sys.executable, "-c", "import time; time.sleep(30)"])
-    gw.children[child.name] = child
-    gw._start_child(child)
+    gw, child = _gateway_with_a_silent_control(boot_grace_s=20.0)
     try:
         obs = gw.observations(child.started_s + 5.0)
         assert obs.booting_processes == ("control",) and obs.stale_processes == ()
