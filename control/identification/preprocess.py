@@ -42,9 +42,9 @@ import functools
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from itertools import pairwise
+from types import ModuleType
 
 import numpy as np
-from scipy import signal
 
 from control.identification.datafile import Measurements
 from control.identification.friction_law import rest_log_odds_per_joint
@@ -201,17 +201,26 @@ def keeps_a_stretch(m: Measurements, cutoff_hz: float) -> bool:
     return False
 
 
+def _signal() -> ModuleType:
+    """scipy.signal, imported at the first filter: it costs 1.2-1.5 s to import (2026-12-04,
+    a fast machine), and the control process imports this module through the identified model
+    without ever filtering (its boot was 2.0 s, 1.5 s of it this import)."""
+    from scipy import signal
+
+    return signal
+
+
 @functools.lru_cache(maxsize=64)
 def _butter_sos(cutoff_hz: float, fs_hz: float) -> np.ndarray:
     """The low-pass's second-order sections, designed once per (cutoff, rate): the analysis
     filters thousands of column blocks at a handful of pairs, and the design costs as much as
     filtering a column. Callers get a copy (scipy's filter wants a writable array)."""
-    return signal.butter(FILTER_ORDER, min(cutoff_hz, 0.45 * fs_hz), fs=fs_hz, output="sos")
+    return _signal().butter(FILTER_ORDER, min(cutoff_hz, 0.45 * fs_hz), fs=fs_hz, output="sos")
 
 
 def _lowpass(x: np.ndarray, cutoff_hz: float, fs_hz: float) -> np.ndarray:
     sos = _butter_sos(float(cutoff_hz), float(fs_hz)).copy()
-    return signal.sosfiltfilt(sos, x, axis=0)
+    return _signal().sosfiltfilt(sos, x, axis=0)
 
 
 def lowpass_padded(x: np.ndarray, cutoff_hz: float, fs_hz: float) -> np.ndarray:
@@ -277,7 +286,7 @@ def _lowpass_run_on(x: np.ndarray, cutoff_hz: float, fs_hz: float) -> tuple[np.n
     k = np.arange(-pad, 0, dtype=float)
     head = _run_on(x[:fit], k, EDGE_POLY_DEGREE)
     tail = _run_on(x[::-1][:fit], k, EDGE_POLY_DEGREE)[::-1]
-    return signal.sosfiltfilt(sos, np.concatenate([head, x, tail]), axis=0, padtype=None), pad
+    return _signal().sosfiltfilt(sos, np.concatenate([head, x, tail]), axis=0, padtype=None), pad
 
 
 def _run_on(x: np.ndarray, k: np.ndarray, degree: int) -> np.ndarray:

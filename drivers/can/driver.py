@@ -9,7 +9,8 @@ is not per cycle: it reads the cell config, derives the adapter's tables from th
 (drivers/can/rt_tables.py, rt_cia402_tables.py) and the speed monitor's kinematics from the robot
 description (rt_kinematics.py), runs the adapter's start-up (CANopen's SDO configuration) on a
 python-can bus, then moves the core onto the loop; it publishes the loop's health and logs its
-notes at HEALTH_RATE_HZ, and closes it (BRAKE first).
+notes at HEALTH_RATE_HZ, and closes it (BRAKE first). Run as a process, a stop signal makes the
+loop send the BRAKE itself (:class:`CanDriverProcess`): no Python on the way from SIGTERM to it.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ import argparse
 import dataclasses
 import json
 import logging
+import signal
 import threading
 import time
 from pathlib import Path
@@ -38,6 +40,7 @@ from gateway.current_zero_file import StoredZeroError, read_stored_zero
 from gateway.errors import ConfigError, LinkTimeoutError
 from gateway.messages import HEALTH_RATE_HZ, encode_json
 from gateway.runner import run_service
+from gateway.signals import STOP_SIGNALS
 
 log = logging.getLogger(__name__)
 
@@ -106,8 +109,11 @@ class CanDriver:
         bus_config: BusConfig,
         *,
         adapter: CanAdapter | None = None,
+        brake_on_signals: bool = False,
     ) -> None:
         self.config = config
+        #: the loop brakes by itself on the stop signals this process handles (:meth:`open`)
+        self.brake_on_signals = brake_on_signals
         self.bus_config = bus_config
         self.keys = bus_config.keys
         if adapter is None:
@@ -242,6 +248,7 @@ class CanDriver:
                         "lifecycle": keys.lifecycle,
                         "io_state": keys.io_state,
                     },
+                    self._brake_signals(),
                 )
             except ValueError as exc:
                 raise ConfigError(f"[can]: {exc}") from None
@@ -262,6 +269,15 @@ class CanDriver:
             self.config.transport.get("channel", "?"),
             self.bus_config.endpoint,
         )
+
+    def _brake_signals(self) -> list[int]:
+        """The stop signals the loop brakes on: with :attr:`brake_on_signals`, those this
+        process has a Python handler for (gateway/signals.py's, installed before open). A
+        signal left at its default disposition is not passed: the loop's handler chains to the
+        one before it, and the default action (ending the process) would be lost."""
+        if not self.brake_on_signals:
+            return []
+        return [int(s) for s in STOP_SIGNALS if callable(signal.getsignal(s))]
 
     def close(self) -> None:
         """Ask the controller to brake (and hold) at once, stop, release every link. Never
@@ -354,7 +370,9 @@ class CanDriverProcess:
         stop_event: threading.Event | None = None,
     ) -> None:
         can_cfg, bus_cfg = load_can_config(cell_config_path)
-        self.driver = CanDriver(can_cfg, bus_cfg.with_overrides(bus_endpoint))
+        self.driver = CanDriver(
+            can_cfg, bus_cfg.with_overrides(bus_endpoint), brake_on_signals=True
+        )
         self.stop_event = stop_event or threading.Event()
 
     def open(self) -> None:

@@ -8,7 +8,9 @@ a 10 ms deadline is the binding one.
 from __future__ import annotations
 
 import itertools
+import logging
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -48,6 +50,7 @@ from gateway.messages import (
     Lifecycle,
 )
 from gateway.runner import run_service
+from gateway.signals import StopSignals
 from sim_bridge.can_hub import SeqpacketHubBus
 from sim_bridge.harness import unique_can_address
 
@@ -106,6 +109,7 @@ def make_cell(router: str) -> Iterator[Callable[..., Cell]]:
     def make(
         first_counter: int = 0,
         setup: Callable[[FakeController], None] | None = None,
+        brake_on_signals: bool = False,
         **overrides: Any,
     ) -> Cell:
         bus = BusConfig(endpoint=router, key_prefix=f"t{uuid.uuid4().hex[:8]}")
@@ -124,7 +128,7 @@ def make_cell(router: str) -> Iterator[Callable[..., Cell]]:
         gateway = GatewayStub(session, bus.keys).start()
         cleanups.append(gateway.stop)
         config = driver_config(**overrides)
-        driver = CanDriver(config, bus)
+        driver = CanDriver(config, bus, brake_on_signals=brake_on_signals)
         cleanups.append(driver.close)
         driver.start()
         assert server.wait_for_clients(1, 5.0)
@@ -402,6 +406,74 @@ def test_close_requests_brake_and_holds(make_cell):
     assert all(kind == "set" for kind, _ in events[brake + 1 :])
     assert not any(kind == "request" and v != HostRequest.BRAKE for kind, v in events[brake:])
     cell.driver.close()  # idempotent
+
+
+#: how long the test below keeps this process's Python from running after the signal [s]: far
+#: beyond the 90 ms the Python path once took (drivers/can/rt/src/driver_loop.rs, its docstring)
+PYTHON_HELD_S = 0.3
+#: the loop's BRAKE after the signal [ms]: its longest sleep (MAX_WAIT_S, 5 ms) plus the kernel's
+#: wake-up of a second runnable thread on one CPU (the held thread keeps it busy; CFS/EEVDF give
+#: a woken thread the CPU within its few-ms slice), with room for a slow machine
+LOOP_BRAKE_MAX_MS = 30.0
+
+
+#: how long the braked loop is watched for spinning [s], and the share of a CPU it may use:
+#: a wake-up every MAX_WAIT_S (5 ms) costs tens of microseconds, ~1 %; a spinning loop used
+#: all of one (2026-12-04); the clock ticks at 10 ms, so 0.5 s reads in steps of 2 %
+IDLE_WATCH_S, IDLE_LOOP_MAX_BUSY = 0.5, 0.10
+
+
+def _thread_cpu_s(name: str) -> float:
+    """CPU time [s] of this process's thread called ``name`` (user + system, /proc)."""
+    tick = os.sysconf("SC_CLK_TCK")
+    for task in Path("/proc/self/task").iterdir():
+        if (task / "comm").read_text().strip() == name:
+            fields = (task / "stat").read_text().rsplit(")", 1)[1].split()
+            return (int(fields[11]) + int(fields[12])) / tick
+    raise AssertionError(f"no thread named {name!r}")
+
+
+def test_a_stop_signal_makes_the_loop_brake_while_python_cannot_run(make_cell, caplog):
+    """SIGTERM while this process's Python is held (one thread keeps the GIL for 0.3 s, so
+    neither the signal watcher nor a close can run): the compiled loop sends the BRAKE by
+    itself, within a few ms of the signal, and the controller brakes before anything in
+    Python closed the driver. The gateway, I/O and controller timeouts are set beyond the
+    hold, so that no silence brakes the arm instead."""
+    stop = threading.Event()
+    caplog.set_level(logging.INFO, logger="drivers.can.driver")
+    with StopSignals(stop):
+        cell = make_cell(
+            brake_on_signals=True,
+            lifecycle_timeout_s=5.0,
+            io_timeout_s=5.0,
+            controller_timeout_s=5.0,
+        )
+        cell.teach(follow(offset_rad=0.02))
+        wait_for(at_least(3, lambda: cell.controller.command_sets(hold=False)))
+        assert cell.controller.state != ControllerState.BRAKED
+        previous = sys.getswitchinterval()
+        sys.setswitchinterval(10 * PYTHON_HELD_S)  # no other Python thread gets the GIL
+        try:
+            os.kill(os.getpid(), signal.SIGTERM)
+            held_until = time.perf_counter() + PYTHON_HELD_S
+            while time.perf_counter() < held_until:
+                pass
+            watcher_ran = stop.is_set()
+        finally:
+            sys.setswitchinterval(previous)
+        assert not watcher_ran, "the signal watcher ran: Python was not held, nothing tested"
+        wait_for(stop.is_set, timeout_s=1.0, what="the Python stop path")
+        wait_for(lambda: cell.controller.state == ControllerState.BRAKED, timeout_s=1.0)
+        # braked, the loop waits for the close without spinning (its deadlines are past)
+        before_s = _thread_cpu_s("can-cycle")
+        time.sleep(IDLE_WATCH_S)
+        busy = (_thread_cpu_s("can-cycle") - before_s) / IDLE_WATCH_S
+        cell.driver.close()
+    assert busy <= IDLE_LOOP_MAX_BUSY, f"the braked loop kept {busy:.0%} of a CPU"
+    notes = [r.getMessage() for r in caplog.records if "BRAKE sent by the loop" in r.getMessage()]
+    assert len(notes) == 1, notes
+    after_ms = float(re.search(r"signal 15, ([0-9.]+) ms after it", notes[0]).group(1))
+    assert after_ms <= LOOP_BRAKE_MAX_MS, notes[0]
 
 
 def test_run_entry_point_until_stop_event(make_cell, tmp_path):

@@ -8,8 +8,14 @@
 //!
 //! Python (the driver process) builds this from the cell config, reads health and notes at its
 //! own pace and closes it; nothing it does is on the cycle.
+//!
+//! Asked to stop (SIGTERM: the gateway's stop, or the kernel's when the gateway dies), the loop
+//! sends the BRAKE itself at its next wake-up (within [`MAX_WAIT_S`]): the signal's handler
+//! only sets a flag. The Python shell's close sends it too, whichever comes first, but needs its
+//! main thread and the GIL, which a busy machine gave it 90 ms after the signal once (a killed
+//! gateway's CiA 402 drives ran on until their heartbeat watch stopped them, 2026-12-03).
 
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicI32, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::thread::JoinHandle;
 
@@ -81,6 +87,8 @@ pub struct Locked {
     /// the loop's own notes (send/receive failures), drained with the core's
     notes: Vec<(u8, String, String)>,
     last_io_note_s: f64,
+    /// the exit BRAKE's outcome once sent (frames sent, or why not): sent once
+    exit_brake: Option<Result<usize, String>>,
 }
 
 struct Shared {
@@ -88,12 +96,66 @@ struct Shared {
     socket: CanSocket,
     stop: AtomicBool,
     failed: Mutex<Option<String>>,
+    /// set by a stop signal's handler (async-signal-safe: atomics only); the loop brakes
+    signalled: AtomicBool,
+    /// the signal's number and its CLOCK_MONOTONIC time (f64 bits), for the note
+    signal_number: AtomicI32,
+    signal_s: AtomicU64,
 }
 
 impl Shared {
     fn lock(&self) -> MutexGuard<'_, Locked> {
         // A panic elsewhere poisons the lock; the state is still the best we have to brake.
         self.locked.lock().unwrap_or_else(|p| p.into_inner())
+    }
+}
+
+/// The signals a stop may be asked with; others are refused (SIGKILL/SIGSTOP cannot be
+/// caught, and a fault signal must not be taken for a stop).
+pub const STOP_SIGNALS: [libc::c_int; 4] =
+    [libc::SIGTERM, libc::SIGINT, libc::SIGHUP, libc::SIGQUIT];
+
+/// Send the exit BRAKE (the core's closing frames) unless it went already, then send nothing
+/// more: every send checks `closing` under the lock. Its outcome (frames sent, or why not).
+fn brake_on_exit(shared: &Shared, why: &str) -> Result<usize, String> {
+    let mut l = shared.lock();
+    if let Some(done) = &l.exit_brake {
+        return done.clone();
+    }
+    l.closing = true;
+    let mut out = std::mem::take(&mut l.out);
+    out.clear();
+    l.core.closing_frames(&mut out);
+    l.out = out;
+    let n = l.out.len();
+    let outcome = if l.send_out(&shared.socket) {
+        Ok(n)
+    } else {
+        Err(format!(
+            "could not send the BRAKE request and hold set ({why})"
+        ))
+    };
+    l.exit_brake = Some(outcome.clone());
+    outcome
+}
+
+/// The loop's answer to a stop signal: the BRAKE now, and a note saying how long after the
+/// signal it went.
+fn brake_on_signal(shared: &Shared) {
+    let signum = shared.signal_number.load(Ordering::SeqCst);
+    let at_s = f64::from_bits(shared.signal_s.load(Ordering::SeqCst));
+    let outcome = brake_on_exit(shared, &format!("on signal {signum}"));
+    let after_ms = (monotonic_s() - at_s) * 1e3;
+    let mut l = shared.lock();
+    if l.notes.len() < MAX_NOTES {
+        let (level, msg) = match outcome {
+            Ok(n) => (
+                20,
+                format!("BRAKE sent by the loop on signal {signum}, {after_ms:.1} ms after it ({n} frames)"),
+            ),
+            Err(e) => (40, format!("{e}, {after_ms:.1} ms after the signal")),
+        };
+        l.notes.push((level, "exit_brake".to_string(), msg));
     }
 }
 
@@ -133,18 +195,31 @@ pub struct DriverLoop {
     subscribers: Vec<Subscriber<()>>,
     thread: Option<JoinHandle<()>>,
     closed: bool,
+    /// the stop signals' registrations, removed on close
+    signal_ids: Vec<signal_hook_registry::SigId>,
 }
 
 impl DriverLoop {
     /// Open the CAN socket and the zenoh session (configured by `zenoh_config`: (key, JSON5
     /// value) pairs, the same the Python session gets), declare the publishers and
     /// subscribers and start the loop thread. Err names what failed.
+    ///
+    /// Each of `brake_signals` (of [`STOP_SIGNALS`]) makes the loop send the BRAKE at once.
+    /// The handler is chained after the one installed before (the Python process's, which
+    /// stops it), and a handler must be installed: a signal whose disposition is the default
+    /// would no longer end the process, so pass only signals the process already handles.
     pub fn start(
         core: HostCore,
         transport: &Transport,
         zenoh_config: &[(String, String)],
         keys: &Keys,
+        brake_signals: &[libc::c_int],
     ) -> Result<DriverLoop, String> {
+        if let Some(s) = brake_signals.iter().find(|s| !STOP_SIGNALS.contains(s)) {
+            return Err(format!(
+                "signal {s} is not a stop signal (SIGTERM, SIGINT, SIGHUP, SIGQUIT)"
+            ));
+        }
         let mut cfg = zenoh::Config::default();
         for (k, v) in zenoh_config {
             cfg.insert_json5(k, v)
@@ -166,10 +241,14 @@ impl DriverLoop {
                 recv_errors: 0,
                 notes: Vec::with_capacity(MAX_NOTES),
                 last_io_note_s: f64::NEG_INFINITY,
+                exit_brake: None,
             }),
             socket,
             stop: AtomicBool::new(false),
             failed: Mutex::new(None),
+            signalled: AtomicBool::new(false),
+            signal_number: AtomicI32::new(0),
+            signal_s: AtomicU64::new(0),
         });
         let declared = (|| -> Result<_, String> {
             let z = |e: zenoh::Error| format!("zenoh declaration: {e}");
@@ -215,13 +294,39 @@ impl DriverLoop {
             .name("can-cycle".into())
             .spawn(move || run(&s, &state_pub, &window_pub))
             .map_err(|e| format!("loop thread: {e}"))?;
-        Ok(DriverLoop {
+        let mut started = DriverLoop {
             shared,
             session,
             subscribers,
             thread: Some(thread),
             closed: false,
-        })
+            signal_ids: Vec::new(),
+        };
+        for &signum in brake_signals {
+            let s = started.shared.clone();
+            // SAFETY: the action only stores atomics and reads CLOCK_MONOTONIC
+            // (clock_gettime is async-signal-safe); the signal is not one of FORBIDDEN.
+            let id = unsafe {
+                signal_hook_registry::register(signum, move || {
+                    s.signal_s.store(monotonic_s().to_bits(), Ordering::SeqCst);
+                    s.signal_number.store(signum, Ordering::SeqCst);
+                    s.signalled.store(true, Ordering::SeqCst);
+                })
+            };
+            match id {
+                Ok(id) => started.signal_ids.push(id),
+                Err(e) => {
+                    let _ = started.close();
+                    return Err(format!("signal {signum}: {e}"));
+                }
+            }
+        }
+        Ok(started)
+    }
+
+    /// Whether a stop signal has reached the loop (it then brakes within [`MAX_WAIT_S`]).
+    pub fn signalled(&self) -> bool {
+        self.shared.signalled.load(Ordering::SeqCst)
     }
 
     /// The lock, for health, notes and counters (never held long: the cycle waits for it).
@@ -261,20 +366,10 @@ impl DriverLoop {
             return Ok(0);
         }
         self.closed = true;
-        let sent = {
-            let mut l = self.shared.lock();
-            l.closing = true;
-            l.out.clear();
-            let mut out = std::mem::take(&mut l.out);
-            l.core.closing_frames(&mut out);
-            l.out = out;
-            let n = l.out.len();
-            if l.send_out(&self.shared.socket) {
-                Ok(n)
-            } else {
-                Err("could not send the BRAKE request and hold set on exit".to_string())
-            }
-        };
+        let sent = brake_on_exit(&self.shared, "on exit");
+        for id in self.signal_ids.drain(..) {
+            signal_hook_registry::unregister(id);
+        }
         self.shared.stop.store(true, Ordering::SeqCst);
         if let Some(t) = self.thread.take() {
             let _ = t.join();
@@ -296,10 +391,18 @@ impl Drop for DriverLoop {
 fn run(shared: &Shared, state_pub: &Publisher<'static>, window_pub: &Publisher<'static>) {
     let mut state = Vec::with_capacity(1024);
     let mut window = Vec::with_capacity(2048);
+    let mut braked = false;
     while !shared.stop.load(Ordering::Relaxed) {
         let timeout = {
             let l = shared.lock();
-            (l.core.next_tick_s() - monotonic_s()).clamp(0.0, MAX_WAIT_S)
+            if l.closing {
+                // braked: nothing is due any more (the core's deadlines stay in the past, and
+                // polling on them would spin this thread, at the cycle's priority, until the
+                // close joins it: it starved the closing process on one CPU, 2026-12-04)
+                MAX_WAIT_S
+            } else {
+                (l.core.next_tick_s() - monotonic_s()).clamp(0.0, MAX_WAIT_S)
+            }
         };
         match shared.socket.wait_readable(timeout) {
             Ok(true) => {
@@ -323,6 +426,10 @@ fn run(shared: &Shared, state_pub: &Publisher<'static>, window_pub: &Publisher<'
             }
             Ok(false) => {}
             Err(e) => recv_failed(shared, &e),
+        }
+        if shared.signalled.load(Ordering::Relaxed) && !braked {
+            braked = true;
+            brake_on_signal(shared);
         }
         periodic(shared);
     }

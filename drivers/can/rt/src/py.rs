@@ -253,13 +253,17 @@ impl PyCanLoop {
     /// `[can.transport]` table), the zenoh session (`zenoh_config`: (key, JSON5 value) pairs,
     /// those of gateway/bus.py's session for this process) and declare `keys` (joint_state,
     /// state_window, joint_command, lifecycle, io_state). `core` is unusable afterwards.
+    /// `brake_signals`: stop signals on which the loop sends the BRAKE itself, with no Python
+    /// on the way (only signals this process already handles: driver_loop.rs `start`).
     #[staticmethod]
+    #[pyo3(signature = (core, transport_json, zenoh_config, keys, brake_signals=Vec::new()))]
     fn start(
         py: Python<'_>,
         core: &PyHostCore,
         transport_json: &str,
         zenoh_config: Vec<(String, String)>,
         keys: std::collections::HashMap<String, String>,
+        brake_signals: Vec<i32>,
     ) -> PyResult<PyCanLoop> {
         let transport = Transport::from_json(&json_arg(transport_json, "[can.transport]")?)
             .map_err(PyValueError::new_err)?;
@@ -278,7 +282,8 @@ impl PyCanLoop {
         let host = core.lock()?.take().ok_or_else(|| {
             PyRuntimeError::new_err("this HostCore was already moved onto a CanLoop")
         })?;
-        let started = py.detach(|| DriverLoop::start(host, &transport, &zenoh_config, &keys));
+        let started =
+            py.detach(|| DriverLoop::start(host, &transport, &zenoh_config, &keys, &brake_signals));
         let inner = started.map_err(PyOSError::new_err)?;
         Ok(PyCanLoop {
             inner: Mutex::new(inner),
@@ -310,6 +315,12 @@ impl PyCanLoop {
             let ok = l.lock().core.link_ok(monotonic_s());
             ok
         })
+    }
+
+    /// Whether a stop signal has reached the loop (which then sends the BRAKE by itself).
+    #[getter]
+    fn signalled(&self) -> bool {
+        self.lock().signalled()
     }
 
     #[getter]
