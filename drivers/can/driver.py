@@ -289,13 +289,18 @@ class CanDriver:
         if loop is not None:
             try:
                 began_s = time.monotonic()
+                signal_s = loop.signal_s
                 sent = loop.close()
                 # the frames go out first, then the loop thread is joined and its zenoh session
                 # closed: the line's own time is not the send time; the close's start is
                 log.info(
-                    "BRAKE requested on exit (%d frames sent; the close began %.1f ms before)",
+                    "BRAKE requested on exit (%d frames sent; the close began %.1f ms before%s)",
                     sent,
                     (time.monotonic() - began_s) * 1e3,
+                    ""
+                    if signal_s is None
+                    else f", {(began_s - signal_s) * 1e3:.1f} ms after the stop signal, whose "
+                    "BRAKE the loop had sent",
                 )
             except OSError as exc:
                 log.error("%s", exc)

@@ -409,7 +409,8 @@ def test_close_requests_brake_and_holds(make_cell):
 
 
 #: how long the test below keeps this process's Python from running after the signal [s]: far
-#: beyond the 90 ms the Python path once took (drivers/can/rt/src/driver_loop.rs, its docstring)
+#: beyond the 90 ms a killed gateway's CiA 402 drives once ran on (drivers/can/rt/src/
+#: driver_loop.rs, its docstring)
 PYTHON_HELD_S = 0.3
 #: the loop's BRAKE after the signal [ms]: its longest sleep (MAX_WAIT_S, 5 ms) plus the kernel's
 #: wake-up of a second runnable thread on one CPU (the held thread keeps it busy; CFS/EEVDF give
@@ -472,6 +473,8 @@ def test_a_stop_signal_makes_the_loop_brake_while_python_cannot_run(make_cell, c
     assert busy <= IDLE_LOOP_MAX_BUSY, f"the braked loop kept {busy:.0%} of a CPU"
     notes = [r.getMessage() for r in caplog.records if "BRAKE sent by the loop" in r.getMessage()]
     assert len(notes) == 1, notes
+    closes = [r.getMessage() for r in caplog.records if "BRAKE requested on exit" in r.getMessage()]
+    assert len(closes) == 1 and "after the stop signal, whose BRAKE the loop had sent" in closes[0]
     after_ms = float(re.search(r"signal 15, ([0-9.]+) ms after it", notes[0]).group(1))
     assert after_ms <= LOOP_BRAKE_MAX_MS, notes[0]
 

@@ -12,8 +12,10 @@
 //! Asked to stop (SIGTERM: the gateway's stop, or the kernel's when the gateway dies), the loop
 //! sends the BRAKE itself at its next wake-up (within [`MAX_WAIT_S`]): the signal's handler
 //! only sets a flag. The Python shell's close sends it too, whichever comes first, but needs its
-//! main thread and the GIL, which a busy machine gave it 90 ms after the signal once (a killed
-//! gateway's CiA 402 drives ran on until their heartbeat watch stopped them, 2026-12-03).
+//! main thread and the GIL after a wake-up by the signal's watcher thread: once, beside a busy
+//! suite, a killed gateway's CiA 402 drives ran on for 90 ms after the last command, until
+//! their heartbeat watch stopped them (2026-12-03); the close's line now says how long after
+//! the signal it began.
 
 use std::sync::atomic::{AtomicBool, AtomicI32, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
@@ -324,9 +326,14 @@ impl DriverLoop {
         Ok(started)
     }
 
-    /// Whether a stop signal has reached the loop (it then brakes within [`MAX_WAIT_S`]).
-    pub fn signalled(&self) -> bool {
-        self.shared.signalled.load(Ordering::SeqCst)
+    /// When a stop signal reached the process (CLOCK_MONOTONIC [s]; the loop then brakes
+    /// within [`MAX_WAIT_S`]), or None.
+    pub fn signal_s(&self) -> Option<f64> {
+        if self.shared.signalled.load(Ordering::SeqCst) {
+            Some(f64::from_bits(self.shared.signal_s.load(Ordering::SeqCst)))
+        } else {
+            None
+        }
     }
 
     /// The lock, for health, notes and counters (never held long: the cycle waits for it).

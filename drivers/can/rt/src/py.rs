@@ -317,10 +317,11 @@ impl PyCanLoop {
         })
     }
 
-    /// Whether a stop signal has reached the loop (which then sends the BRAKE by itself).
+    /// When a stop signal reached the process (time.monotonic() [s]; the loop then sends the
+    /// BRAKE by itself), or None.
     #[getter]
-    fn signalled(&self) -> bool {
-        self.lock().signalled()
+    fn signal_s(&self) -> Option<f64> {
+        self.lock().signal_s()
     }
 
     #[getter]
