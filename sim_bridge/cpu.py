@@ -20,23 +20,12 @@ import tempfile
 import time
 from pathlib import Path
 
+from sim_bridge import proc_stat
 from sim_bridge.commission import commissioned_stack
 from sim_bridge.harness import Stack
 
-_CLK_TCK = os.sysconf("SC_CLK_TCK")
 #: the processes of the product (everything but the virtual cell)
 PRODUCT = ("gateway", "can-driver", "modbus-driver", "control")
-
-
-def _cpu_s(pid: int) -> float | None:
-    """utime + stime of process ``pid`` (all its threads) [s], or None if it is gone."""
-    try:
-        stat = Path(f"/proc/{pid}/stat").read_text()
-    except OSError:
-        return None
-    # the command name (field 2) may hold spaces: split after its closing parenthesis
-    fields = stat[stat.rindex(")") + 2 :].split()
-    return (int(fields[11]) + int(fields[12])) / _CLK_TCK  # fields 14, 15 of proc(5)
 
 
 def _children(pid: int) -> dict[str, int]:
@@ -45,12 +34,12 @@ def _children(pid: int) -> dict[str, int]:
     for entry in Path("/proc").iterdir():
         if not entry.name.isdigit():
             continue
+        fields = proc_stat.fields(entry / "stat")
         try:
-            stat = (entry / "stat").read_text()
             argv = (entry / "cmdline").read_bytes().split(b"\0")
         except OSError:
             continue
-        if int(stat[stat.rindex(")") + 2 :].split()[1]) != pid:
+        if fields is None or int(fields[1]) != pid:
             continue
         args = [a.decode(errors="replace") for a in argv]
         if "gateway.cli" in args[:-1]:
@@ -103,10 +92,10 @@ def process_cpu_per_cycle(stack: Stack, seconds: float) -> dict[str, float]:
     """
     period_s = float(stack.truth_cfg["controller"]["cycle_period_s"])
     pids = stack_pids(stack)
-    start = {name: _cpu_s(pid) for name, pid in pids.items()}
+    start = {name: proc_stat.process_cpu_s(pid) for name, pid in pids.items()}
     cycle0, t0 = controller_cycle(stack), time.monotonic()
     time.sleep(seconds)
-    end = {name: _cpu_s(pid) for name, pid in pids.items()}
+    end = {name: proc_stat.process_cpu_s(pid) for name, pid in pids.items()}
     cycle1, elapsed = controller_cycle(stack), time.monotonic() - t0
     if cycle0 is not None and cycle1 is not None and cycle1 > cycle0:
         cycles = float(cycle1 - cycle0)

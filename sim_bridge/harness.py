@@ -36,6 +36,7 @@ from gateway.bus import BusConfig
 from gateway.config import load_toml
 from gateway.operator_request import OperatorClient
 from gateway.parent_death import ENV as PARENT_ENV
+from sim_bridge import proc_stat
 from sim_bridge.sim import truth_log_columns
 
 REPO = Path(__file__).resolve().parent.parent
@@ -192,10 +193,9 @@ def running_with_argument(arg: str | Path) -> dict[int, str]:
             continue
         try:
             argv = (entry / "cmdline").read_bytes()
-            state = (entry / "stat").read_text().rsplit(")", 1)[1].split()[0]
         except OSError:
             continue
-        if marker in argv.split(b"\0") and state != "Z":
+        if marker in argv.split(b"\0") and proc_stat.state(int(entry.name)) not in (None, "Z"):
             found[int(entry.name)] = argv.replace(b"\0", b" ").decode(errors="replace")
     return found
 

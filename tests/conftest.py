@@ -9,11 +9,11 @@ import signal
 import threading
 import time
 import weakref
-from pathlib import Path
 
 import can
 import pytest
 
+from sim_bridge import proc_stat
 from sim_bridge.harness import free_port
 
 HARDWARE_ENV = "LEADTHROUGH_HARDWARE"
@@ -33,18 +33,7 @@ can.BusABC.__init__ = _tracking_init  # type: ignore[method-assign]
 
 def _children(pid: int) -> list[int]:
     """PIDs whose parent is ``pid`` (Linux /proc), zombies excluded."""
-    out = []
-    for entry in os.listdir("/proc"):
-        if not entry.isdigit():
-            continue
-        try:
-            stat = Path(f"/proc/{entry}/stat").read_text()
-        except OSError:
-            continue
-        fields = stat.rsplit(")", 1)[1].split()
-        if int(fields[1]) == pid and fields[0] != "Z":
-            out.append(int(entry))
-    return out
+    return [c for c in proc_stat.children(pid) if proc_stat.state(c) not in (None, "Z")]
 
 
 @pytest.fixture(autouse=True)

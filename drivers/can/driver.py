@@ -293,14 +293,16 @@ class CanDriver:
                 sent = loop.close()
                 # the frames go out first, then the loop thread is joined and its zenoh session
                 # closed: the line's own time is not the send time; the close's start is
+                after = ""
+                if signal_s is not None:
+                    after = f", {(began_s - signal_s) * 1e3:.1f} ms after the stop signal"
+                    if loop.braked_on_signal:
+                        after += ", whose BRAKE the loop had sent"
                 log.info(
                     "BRAKE requested on exit (%d frames sent; the close began %.1f ms before%s)",
                     sent,
                     (time.monotonic() - began_s) * 1e3,
-                    ""
-                    if signal_s is None
-                    else f", {(began_s - signal_s) * 1e3:.1f} ms after the stop signal, whose "
-                    "BRAKE the loop had sent",
+                    after,
                 )
             except OSError as exc:
                 log.error("%s", exc)

@@ -51,6 +51,7 @@ from gateway.messages import (
 )
 from gateway.runner import run_service
 from gateway.signals import StopSignals
+from sim_bridge import proc_stat
 from sim_bridge.can_hub import SeqpacketHubBus
 from sim_bridge.harness import unique_can_address
 
@@ -424,16 +425,6 @@ LOOP_BRAKE_MAX_MS = 30.0
 IDLE_WATCH_S, IDLE_LOOP_MAX_BUSY = 0.5, 0.10
 
 
-def _thread_cpu_s(name: str) -> float:
-    """CPU time [s] of this process's thread called ``name`` (user + system, /proc)."""
-    tick = os.sysconf("SC_CLK_TCK")
-    for task in Path("/proc/self/task").iterdir():
-        if (task / "comm").read_text().strip() == name:
-            fields = (task / "stat").read_text().rsplit(")", 1)[1].split()
-            return (int(fields[11]) + int(fields[12])) / tick
-    raise AssertionError(f"no thread named {name!r}")
-
-
 def test_a_stop_signal_makes_the_loop_brake_while_python_cannot_run(make_cell, caplog):
     """SIGTERM while this process's Python is held (one thread keeps the GIL for 0.3 s, so
     neither the signal watcher nor a close can run): the compiled loop sends the BRAKE by
@@ -466,9 +457,9 @@ def test_a_stop_signal_makes_the_loop_brake_while_python_cannot_run(make_cell, c
         wait_for(stop.is_set, timeout_s=1.0, what="the Python stop path")
         wait_for(lambda: cell.controller.state == ControllerState.BRAKED, timeout_s=1.0)
         # braked, the loop waits for the close without spinning (its deadlines are past)
-        before_s = _thread_cpu_s("can-cycle")
+        before_s = proc_stat.thread_cpu_s("can-cycle")
         time.sleep(IDLE_WATCH_S)
-        busy = (_thread_cpu_s("can-cycle") - before_s) / IDLE_WATCH_S
+        busy = (proc_stat.thread_cpu_s("can-cycle") - before_s) / IDLE_WATCH_S
         cell.driver.close()
     assert busy <= IDLE_LOOP_MAX_BUSY, f"the braked loop kept {busy:.0%} of a CPU"
     notes = [r.getMessage() for r in caplog.records if "BRAKE sent by the loop" in r.getMessage()]

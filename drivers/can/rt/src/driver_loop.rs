@@ -89,18 +89,28 @@ pub struct Locked {
     /// the loop's own notes (send/receive failures), drained with the core's
     notes: Vec<(u8, String, String)>,
     last_io_note_s: f64,
-    /// the exit BRAKE's outcome once sent (frames sent, or why not): sent once
-    exit_brake: Option<Result<usize, String>>,
+    /// the exit BRAKE once sent (sent once, by whichever asked first)
+    exit_brake: Option<ExitBrake>,
 }
+
+/// The exit BRAKE's outcome (frames sent, or why not) and who sent it.
+struct ExitBrake {
+    outcome: Result<usize, String>,
+    /// sent by the loop on a stop signal (else by a close)
+    on_signal: bool,
+}
+
+/// [`Shared::signal_s`] before any stop signal (the bits of a NaN: no time reads as it).
+const NO_SIGNAL: u64 = u64::MAX;
 
 struct Shared {
     locked: Mutex<Locked>,
     socket: CanSocket,
     stop: AtomicBool,
     failed: Mutex<Option<String>>,
-    /// set by a stop signal's handler (async-signal-safe: atomics only); the loop brakes
-    signalled: AtomicBool,
-    /// the signal's number and its CLOCK_MONOTONIC time (f64 bits), for the note
+    /// set by a stop signal's handler (async-signal-safe: atomics only), the number before
+    /// the time: the signal's number, and its CLOCK_MONOTONIC time (f64 bits) or
+    /// [`NO_SIGNAL`]. The loop brakes once it reads a time.
     signal_number: AtomicI32,
     signal_s: AtomicU64,
 }
@@ -110,6 +120,14 @@ impl Shared {
         // A panic elsewhere poisons the lock; the state is still the best we have to brake.
         self.locked.lock().unwrap_or_else(|p| p.into_inner())
     }
+
+    /// When a stop signal reached the process (CLOCK_MONOTONIC [s]), or None.
+    fn signal_s(&self) -> Option<f64> {
+        match self.signal_s.load(Ordering::SeqCst) {
+            NO_SIGNAL => None,
+            bits => Some(f64::from_bits(bits)),
+        }
+    }
 }
 
 /// The signals a stop may be asked with; others are refused (SIGKILL/SIGSTOP cannot be
@@ -118,11 +136,12 @@ pub const STOP_SIGNALS: [libc::c_int; 4] =
     [libc::SIGTERM, libc::SIGINT, libc::SIGHUP, libc::SIGQUIT];
 
 /// Send the exit BRAKE (the core's closing frames) unless it went already, then send nothing
-/// more: every send checks `closing` under the lock. Its outcome (frames sent, or why not).
-fn brake_on_exit(shared: &Shared, why: &str) -> Result<usize, String> {
+/// more: every send checks `closing` under the lock. Its outcome (frames sent, or why not),
+/// and whether this call sent it.
+fn brake_on_exit(shared: &Shared, why: &str, on_signal: bool) -> (Result<usize, String>, bool) {
     let mut l = shared.lock();
     if let Some(done) = &l.exit_brake {
-        return done.clone();
+        return (done.outcome.clone(), false);
     }
     l.closing = true;
     let mut out = std::mem::take(&mut l.out);
@@ -137,16 +156,21 @@ fn brake_on_exit(shared: &Shared, why: &str) -> Result<usize, String> {
             "could not send the BRAKE request and hold set ({why})"
         ))
     };
-    l.exit_brake = Some(outcome.clone());
-    outcome
+    l.exit_brake = Some(ExitBrake {
+        outcome: outcome.clone(),
+        on_signal,
+    });
+    (outcome, true)
 }
 
-/// The loop's answer to a stop signal: the BRAKE now, and a note saying how long after the
-/// signal it went.
-fn brake_on_signal(shared: &Shared) {
+/// The loop's answer to a stop signal that reached the process at `at_s`: the BRAKE now,
+/// unless a close sent it first, and a note saying how long after the signal it went.
+fn brake_on_signal(shared: &Shared, at_s: f64) {
     let signum = shared.signal_number.load(Ordering::SeqCst);
-    let at_s = f64::from_bits(shared.signal_s.load(Ordering::SeqCst));
-    let outcome = brake_on_exit(shared, &format!("on signal {signum}"));
+    let (outcome, sent_now) = brake_on_exit(shared, &format!("on signal {signum}"), true);
+    if !sent_now {
+        return;
+    }
     let after_ms = (monotonic_s() - at_s) * 1e3;
     let mut l = shared.lock();
     if l.notes.len() < MAX_NOTES {
@@ -248,9 +272,8 @@ impl DriverLoop {
             socket,
             stop: AtomicBool::new(false),
             failed: Mutex::new(None),
-            signalled: AtomicBool::new(false),
             signal_number: AtomicI32::new(0),
-            signal_s: AtomicU64::new(0),
+            signal_s: AtomicU64::new(NO_SIGNAL),
         });
         let declared = (|| -> Result<_, String> {
             let z = |e: zenoh::Error| format!("zenoh declaration: {e}");
@@ -310,9 +333,8 @@ impl DriverLoop {
             // (clock_gettime is async-signal-safe); the signal is not one of FORBIDDEN.
             let id = unsafe {
                 signal_hook_registry::register(signum, move || {
-                    s.signal_s.store(monotonic_s().to_bits(), Ordering::SeqCst);
                     s.signal_number.store(signum, Ordering::SeqCst);
-                    s.signalled.store(true, Ordering::SeqCst);
+                    s.signal_s.store(monotonic_s().to_bits(), Ordering::SeqCst);
                 })
             };
             match id {
@@ -329,11 +351,17 @@ impl DriverLoop {
     /// When a stop signal reached the process (CLOCK_MONOTONIC [s]; the loop then brakes
     /// within [`MAX_WAIT_S`]), or None.
     pub fn signal_s(&self) -> Option<f64> {
-        if self.shared.signalled.load(Ordering::SeqCst) {
-            Some(f64::from_bits(self.shared.signal_s.load(Ordering::SeqCst)))
-        } else {
-            None
-        }
+        self.shared.signal_s()
+    }
+
+    /// Whether the exit BRAKE went out from the loop on a stop signal (false before it went,
+    /// or when a close sent it first).
+    pub fn braked_on_signal(&self) -> bool {
+        self.shared
+            .lock()
+            .exit_brake
+            .as_ref()
+            .is_some_and(|b| b.on_signal)
     }
 
     /// The lock, for health, notes and counters (never held long: the cycle waits for it).
@@ -373,7 +401,7 @@ impl DriverLoop {
             return Ok(0);
         }
         self.closed = true;
-        let sent = brake_on_exit(&self.shared, "on exit");
+        let (sent, _) = brake_on_exit(&self.shared, "on exit", false);
         for id in self.signal_ids.drain(..) {
             signal_hook_registry::unregister(id);
         }
@@ -398,7 +426,6 @@ impl Drop for DriverLoop {
 fn run(shared: &Shared, state_pub: &Publisher<'static>, window_pub: &Publisher<'static>) {
     let mut state = Vec::with_capacity(1024);
     let mut window = Vec::with_capacity(2048);
-    let mut braked = false;
     while !shared.stop.load(Ordering::Relaxed) {
         let timeout = {
             let l = shared.lock();
@@ -434,9 +461,8 @@ fn run(shared: &Shared, state_pub: &Publisher<'static>, window_pub: &Publisher<'
             Ok(false) => {}
             Err(e) => recv_failed(shared, &e),
         }
-        if shared.signalled.load(Ordering::Relaxed) && !braked {
-            braked = true;
-            brake_on_signal(shared);
+        if let Some(at_s) = shared.signal_s() {
+            brake_on_signal(shared, at_s);
         }
         periodic(shared);
     }

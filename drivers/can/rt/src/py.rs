@@ -324,6 +324,13 @@ impl PyCanLoop {
         self.lock().signal_s()
     }
 
+    /// Whether the loop sent the exit BRAKE itself on a stop signal (false before the BRAKE
+    /// went, or when a close sent it first).
+    #[getter]
+    fn braked_on_signal(&self) -> bool {
+        self.lock().braked_on_signal()
+    }
+
     #[getter]
     fn running(&self) -> bool {
         self.lock().running()
