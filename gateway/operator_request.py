@@ -1,6 +1,6 @@
 """The operator's side of the gateway's request channel: one command, one JSON reply
 (`leadthrough start|stop|status|...`, the replay, the identification run and the test
-harness send theirs through it). The gateway answers in gateway/supervisor.py.
+harness send theirs through it). The gateway answers in gateway/operator_answers.py.
 
 :func:`operator_request` opens a session for one command (a CLI's single request);
 :class:`OperatorClient` keeps one for a tool that polls (the replay and identification runs

@@ -1,5 +1,5 @@
 """`leadthrough gateway`: hosts the zenoh router, supervises the driver and control processes,
-owns the lifecycle and answers operator requests.
+owns the lifecycle and answers operator requests (gateway/operator_answers.py).
 
 Children are started as ``python -m gateway.cli <process> --config CELL --bus ENDPOINT``. A child
 that exits is a fault (the robot is stopped) and is restarted after a back-off, so that `reset`
@@ -29,7 +29,6 @@ from gateway.children import Child, _die_with_parent
 from gateway.config import resolve_path
 from gateway.errors import EXIT_CONFIG, ConfigError, MessageError
 from gateway.gateway_config import GatewayConfig, load_gateway_config
-from gateway.guide_modes import guide_problem
 from gateway.joint_state_watch import JointStateWatch
 from gateway.lifecycle import DRIVER_TRIPS, LifecycleMachine, Limits, Observations
 from gateway.messages import (
@@ -40,9 +39,9 @@ from gateway.messages import (
     Lifecycle,
     LifecycleMsg,
     decode_json,
-    encode_json,
 )
-from gateway.program import ProgramError, program_path
+from gateway.operator_answers import OperatorAnswers
+from gateway.program import ProgramError
 from gateway.program_thread import STALL_S, ProgramThread
 from gateway.runner import run_service
 from gateway.sd_notify import Notifier
@@ -62,7 +61,7 @@ JOINT_STATE_QUEUE = 64
 REQUEST_QUEUE = 16
 
 
-class Gateway:
+class Gateway(OperatorAnswers):
     def __init__(self, cell_path: Path, bus: BusConfig, cfg: GatewayConfig, spawn: bool = True):
         self.cell_path = cell_path
         self.bus = bus
@@ -349,153 +348,6 @@ class Gateway:
         if state in ("done", "failed"):
             with self.lock:
                 self.machine.plan_finished(plan_id, state == "done", str(msg.get("reason", "")))
-
-    def _serve_requests(self) -> None:
-        """Answer the operator requests that arrived since the last tick, on the tick's thread
-        (no Python runs in zenoh's threads for them); a mark is answered by a later tick, once
-        the program's thread has it on disk."""
-        if self._requests is None:
-            return
-        while (query := self._requests.try_recv()) is not None:
-            try:
-                reply = self._request(query.payload.to_bytes() if query.payload else b"")
-            except BaseException:
-                query.drop()
-                raise
-            if isinstance(reply, Future):
-                self._waiting.append((query, reply, time.monotonic()))
-                continue
-            try:
-                query.reply(query.key_expr, encode_json(reply))
-            finally:
-                query.drop()
-        self._answer_marks()
-
-    def _answer_marks(self, give_up: bool = False) -> None:
-        """Answer the operator's marks that are on disk now (``give_up``: every one still
-        waiting, as not confirmed; so too one waiting longer than the disk may stall)."""
-        now, waiting = time.monotonic(), []
-        for query, written, since_s in self._waiting:
-            late = give_up or now - since_s > STALL_S + 1.0
-            if not (written.done() or late):
-                waiting.append((query, written, since_s))
-                continue
-            if written.done():
-                ok, message = written.result()
-            else:
-                ok, message = (
-                    False,
-                    f"the disk has not confirmed the mark after {now - since_s:.1f} s",
-                )
-            try:
-                query.reply(query.key_expr, encode_json(self._reply("mark", ok, message, now)))
-            finally:
-                query.drop()
-        self._waiting = waiting
-
-    def _request(self, data: bytes) -> dict | Future:
-        """One operator request (JSON): its reply, or for a mark a future of ``(ok,
-        message)`` done once it is on disk (or refused)."""
-        now = time.monotonic()
-        try:
-            req = decode_json(data, "request")
-            command = str(req.get("command", ""))
-            plan = req.get("plan")
-            if command in ("identify", "replay") and not (
-                isinstance(plan, dict) and plan.get("plan_id")
-            ):
-                raise MessageError(f"{command} needs a 'plan' object with a 'plan_id'")
-            name, label = req.get("program"), req.get("label", "")
-            if name is not None and not isinstance(name, str):
-                raise MessageError(f"'program' must be a name (string), not {name!r}")
-            guide = req.get("guide")
-            if guide is not None and (problem := guide_problem(guide)) is not None:
-                raise MessageError(problem)
-            if not isinstance(label, str):
-                raise MessageError(f"'label' must be a string, not {label!r}")
-        except MessageError as exc:
-            log.info("operator request refused: %s", exc)
-            return {"ok": False, "message": str(exc)}
-        with self.lock:
-            self._take_states()
-            obs = self.observations(now, self._dead)
-            st, state = self.joint_state, self.machine.state
-            if command != "mark":
-                try:
-                    ok, message = self._command(command, plan, name, obs, guide)
-                except ProgramError as exc:
-                    ok, message = False, str(exc)
-        if command == "mark":
-            return self._mark(label, "cli", st, state)
-        return self._reply(command, ok, message, now)
-
-    def _reply(self, command: str, ok: bool, message: str, now: float) -> dict:
-        """An operator command's reply (logged): its verdict and the cell's status."""
-        log.info("operator %s → %s: %s", command, "ok" if ok else "refused", message)
-        with self.lock:
-            return {"ok": ok, "message": message, **self.status(now)}
-
-    def _command(
-        self,
-        command: str,
-        plan: dict | None,
-        name: str | None,
-        obs: Observations,
-        guide: str | None = None,
-    ) -> tuple[bool, str]:
-        """One operator command but `mark` (lock held). ``guide``: the constrained guide
-        `start` asks for; a start while ready or teaching changes it (the law takes its
-        reference where the tool is then)."""
-        m = self.machine
-        if command == "start" and m.state in (Lifecycle.READY, Lifecycle.TEACHING) and guide:
-            self.guide = guide
-            return True, f"guide now {guide}"
-        if command == "identify":
-            assert plan is not None
-            return m.identify(plan, obs)
-        if command == "replay":
-            assert plan is not None
-            return m.play(Lifecycle.REPLAYING, plan, obs)
-        if command == "start" and m.state in (Lifecycle.STOPPED,):
-            path = program_path(self.program_dir, name)
-            ok, message = m.command(command, obs)
-            if ok:
-                self.guide = guide
-                self.teach.prepare(path)
-                message += f"; teaching is recorded to {path}"
-            return ok, message
-        if command == "reset" and (refused := [c for c in self.children.values()
-                                                if c.config_refused]):  # fmt: skip
-            for child in refused:  # the operator says the file is mended: try it again
-                child.config_refused = False
-                self._start_child(child)
-            names = ", ".join(c.name for c in refused)
-            return False, f"restarted {names}; reset again once it runs"
-        return m.command(command, obs)
-
-    def _mark(self, label: str, source: str, st: JointState | None, state: Lifecycle) -> Future:
-        """Mark a waypoint at joint state ``st`` (lifecycle ``state``): a future of ``(ok,
-        message)``, done once the mark is on disk or refused (a disk that refused it faults
-        the cell at the next tick: :meth:`_follow_program`). The tick's thread, lock not
-        held."""
-        answer: Future = Future()
-        if st is None:
-            answer.set_result((False, "no joint state to mark"))
-            return answer
-        if state not in (Lifecycle.TEACHING, Lifecycle.READY):
-            answer.set_result((False, f"marks are made while teaching, not {state.name.lower()}"))
-            return answer
-
-        def written(done: Future) -> None:
-            try:
-                mark, path = done.result()
-            except ProgramError as exc:
-                answer.set_result((False, str(exc)))
-            else:
-                answer.set_result((True, f"mark {mark.index} recorded in {path}"))
-
-        self.teach.mark(st.stamp_s, st.cycle, st.q_rad, label, source).add_done_callback(written)
-        return answer
 
     def _follow_program(self) -> None:
         """The tick's share of the taught program: segment starts and ends, the trace, the
