@@ -9,11 +9,30 @@ table (no inertial values: identification needs only the kinematics).
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
 
-DATA = Path(__file__).resolve().parents[2].parent / "shared" / "datasets" / "panda_gaz2019"
+#: Where the recording is looked for when ``LEADTHROUGH_PANDA_DIR`` does not say.
+SHARED_PATH = Path("shared") / "datasets" / "panda_gaz2019"
+
+
+def data_dir() -> Path:
+    """The recording's directory: ``$LEADTHROUGH_PANDA_DIR`` if set, else ``shared/datasets/
+    panda_gaz2019`` beside the repository or beside any directory above it (a clone made
+    elsewhere names it with the variable)."""
+    env = os.environ.get("LEADTHROUGH_PANDA_DIR")
+    if env:
+        return Path(env)
+    repo = Path(__file__).resolve().parents[2]
+    for parent in repo.parents:
+        if (parent / SHARED_PATH).is_dir():
+            return parent / SHARED_PATH
+    return repo.parent / SHARED_PATH
+
+
+DATA = data_dir()
 #: README: plain regressor + QR base parameters + viscous/Coulomb/offset OLS, trained on the
 #: first 70 %, tested on the last 30 % of the run [N·m].
 README_PLAIN_FIT_RMS_NM = np.array([0.38, 0.56, 0.41, 0.50, 0.12, 0.14, 0.07])

@@ -15,19 +15,21 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from independent.panda import DATA
 
 from control.identification.cli import cli_main, configure_parser
 from control.identification.datafile import Measurements, write_measurements
 from control.identification.dh_urdf import PANDA_DH_ROWS, urdf_from_dh
 
-DATA = Path(__file__).resolve().parents[2].parent / "shared" / "datasets" / "panda_gaz2019"
 #: README: plain regressor + QR base parameters + viscous/Coulomb/offset friction OLS,
 #: trained on the first 70 %, tested on the last 30 % [N·m].
 README_SIMPLE_FIT_RMS_NM = np.array([0.38, 0.56, 0.41, 0.50, 0.12, 0.14, 0.07])
 TOLERANCE = 1.5
 TRAIN_FRACTION = 0.7
 
-pytestmark = pytest.mark.skipif(not DATA.is_dir(), reason=f"Panda dataset not found at {DATA}")
+pytestmark = pytest.mark.skipif(
+    not DATA.is_dir(), reason=f"Panda dataset not found at {DATA} (set LEADTHROUGH_PANDA_DIR)"
+)
 
 
 def _load(name: str) -> np.ndarray:
