@@ -296,8 +296,9 @@ class Endpoints:
 
 @dataclass(frozen=True)
 class Scheduling:
-    """OS scheduling of the controller loop's thread (real-time runs). Applied when the OS
-    permits it; when it does not, the loop runs anyway and the log and summary say so."""
+    """OS scheduling of the controller loop's thread (real-time runs; a lock-step loop runs at
+    normal priority) and of the virtual I/O module's process (both). Applied when the OS
+    permits it; when it does not, they run anyway and the log and summary say so."""
 
     #: SCHED_FIFO priority 1..99 of the loop thread (needs CAP_SYS_NICE or an rtprio limit);
     #: 0: normal scheduling

@@ -31,24 +31,19 @@ PRODUCT = ("gateway", "can-driver", "modbus-driver", "control")
 def _children(pid: int) -> dict[str, int]:
     """Child processes of ``pid`` by their `leadthrough` subcommand name (``gateway.cli NAME``)."""
     out = {}
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit():
-            continue
-        fields = proc_stat.fields(entry / "stat")
+    for child in proc_stat.children(pid):
         try:
-            argv = (entry / "cmdline").read_bytes().split(b"\0")
+            argv = Path(f"/proc/{child}/cmdline").read_bytes().split(b"\0")
         except OSError:
-            continue
-        if fields is None or int(fields[1]) != pid:
-            continue
+            continue  # gone since
         args = [a.decode(errors="replace") for a in argv]
         if "gateway.cli" in args[:-1]:
             name = args[args.index("gateway.cli") + 1]
         elif "sim_bridge.modbus_process" in args:
             name = "sim-io"  # the virtual I/O module (sim_bridge/modbus_process.py)
         else:
-            name = entry.name
-        out[name] = int(entry.name)
+            name = str(child)
+        out[name] = child
     return out
 
 

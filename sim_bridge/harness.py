@@ -42,7 +42,8 @@ from sim_bridge.sim import truth_log_columns
 REPO = Path(__file__).resolve().parent.parent
 SIM_CELL = REPO / "deploy" / "config" / "sim_cell.toml"
 TRUTH = Path(__file__).with_name("gr630st_truth.toml")
-#: SCHED_FIFO priority of the virtual controller in real-time runs (Stack.__init__)
+#: SCHED_FIFO priority of the virtual controller in real-time runs and of its I/O module in
+#: all runs (Stack.__init__)
 VIRTUAL_CONTROLLER_FIFO_PRIORITY = 60
 
 SIM_CELL_CIA402 = REPO / "deploy" / "config" / "sim_cell_cia402.toml"
@@ -332,17 +333,18 @@ class Stack:
                 },
             },
         )
-        if not lockstep:
-            # The virtual controller stands for the robot's controller, a computer of its own
-            # that the cell PC's load never delays; sharing the test machine with the product,
-            # it starved with it under load (65 cycles late, 59 ms at worst, the I/O module's
-            # replies 0.1 s late) and the gateway faulted for want of joint states, a fault
-            # no real cell has. So its processes run at SCHED_FIFO above the product's
-            # (deploy/config/cell.toml: 40) where the OS permits; elsewhere it runs on, and its
-            # summary's "scheduling" says what was refused.
-            truth = deep_merge(
-                truth, {"scheduling": {"sched_fifo_priority": VIRTUAL_CONTROLLER_FIFO_PRIORITY}}
-            )
+        # The virtual controller stands for the robot's controller, a computer of its own
+        # that the cell PC's load never delays; sharing the test machine with the product,
+        # it starved with it under load (65 cycles late, 59 ms at worst, the I/O module's
+        # replies 0.1 s late) and the gateway faulted for want of joint states, a fault
+        # no real cell has. So its processes run at SCHED_FIFO above the product's
+        # (deploy/config/cell.toml: 40) where the OS permits; elsewhere it runs on, and its
+        # summary's "scheduling" says what was refused. In lock-step runs only the I/O
+        # module does (sim_bridge/modbus_process.py): the loop there waits for the product's
+        # every answer, so a slow loop only slows the plant.
+        truth = deep_merge(
+            truth, {"scheduling": {"sched_fifo_priority": VIRTUAL_CONTROLLER_FIFO_PRIORITY}}
+        )
         # The virtual controller that speaks the product's adapter (explicit overrides win).
         adapter = self.cell.get("can", {}).get("adapter", "ltc_dbc")
         truth = deep_merge(truth, CAN_PROFILES.get(VIRTUAL_PROFILE.get(adapter, ""), ({},))[0])

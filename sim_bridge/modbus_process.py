@@ -8,6 +8,13 @@ answers from its own process (``python -m sim_bridge.modbus_process``), behind
 :class:`VirtualIoProcess`, which has the simulator-side API of
 :class:`~sim_bridge.modbus_server.VirtualIoServer`.
 
+It runs at the SCHED_FIFO priority it is given (``--fifo-priority``; the harness gives the
+virtual controller's, in lock-step runs too): it answers requests and sleeps otherwise, as a
+module's own processor does, and the test machine's load must not make it late. At normal
+priority beside one busy process on a 2-core machine, lock-step commissioning at 3x saw its
+replies past the driver's 0.1 s four times in 7 s, and the cell faulted on stale I/O before
+the plan began (`tests/stack/test_identify_stack.py` under `make test-loaded`, 2026-12-04).
+
 The two processes share eight doubles in an anonymous memory file (inputs the simulator
 writes, set-points the module's clients write); each is one aligned double, so a reader sees
 the old or the new value of each. The child reports ``ok PORT`` or ``error MESSAGE`` on its
@@ -26,6 +33,7 @@ import subprocess
 import sys
 from typing import IO, Any
 
+from gateway.realtime import apply_scheduling as place
 from sim_bridge.modbus_server import VirtualIoServer, stored_bar
 
 log = logging.getLogger(__name__)
@@ -95,8 +103,12 @@ class VirtualIoProcess:
         *,
         p2_set_bar: float = 0.0,
         p3_set_bar: float = 0.0,
+        fifo_priority: int = 0,
     ) -> None:
+        """``fifo_priority``: the SCHED_FIFO priority the module's process runs at (0: normal
+        scheduling), as :func:`main` takes it."""
         self.host, self.port, self.device_id = host, port, device_id
+        self.fifo_priority = fifo_priority
         self._fd = os.memfd_create("virtual-io", 0)
         os.ftruncate(self._fd, _SIZE)
         self._mm, self._shared = _view(self._fd)
@@ -127,7 +139,8 @@ class VirtualIoProcess:
             raise RuntimeError("VirtualIoProcess already started")
         args = [sys.executable, "-m", "sim_bridge.modbus_process", "--fd", str(self._fd),
                 "--host", self.host, "--port", str(self.port),
-                "--device-id", str(self.device_id)]  # fmt: skip
+                "--device-id", str(self.device_id),
+                "--fifo-priority", str(self.fifo_priority)]  # fmt: skip
         self._proc = subprocess.Popen(
             args, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
             pass_fds=(self._fd,), start_new_session=True,
@@ -187,7 +200,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--host", required=True)
     p.add_argument("--port", type=int, required=True)
     p.add_argument("--device-id", type=int, default=1)
+    p.add_argument("--fifo-priority", type=int, default=0, choices=range(100), metavar="0..99",
+                   help="SCHED_FIFO priority of this process (0: normal scheduling)")  # fmt: skip
     args = p.parse_args(argv)
+    if args.fifo_priority:
+        # Before the server's thread exists, which inherits it. A refusal is logged (to the
+        # simulator's stderr) and the module answers on at normal priority.
+        place((), args.fifo_priority, False, "virtual I/O module")
     mm, shared = _view(args.fd)
     server = _SharedIoServer(
         shared, args.host, args.port, args.device_id,

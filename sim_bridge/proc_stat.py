@@ -54,13 +54,14 @@ def state(pid: int) -> str | None:
     return None if f is None else f[0]
 
 
-def children(pid: int) -> list[int]:
-    """PIDs whose parent is ``pid``, zombies included (see :func:`state`)."""
+def children(pid: int, *, zombies: bool = True) -> list[int]:
+    """PIDs whose parent is ``pid``; ``zombies=False`` leaves out the exited ones not yet
+    reaped (state Z, see :func:`state`)."""
     out = []
     for entry in os.listdir("/proc"):
         if not entry.isdigit():
             continue
         f = fields(Path(f"/proc/{entry}/stat"))
-        if f is not None and int(f[1]) == pid:
+        if f is not None and int(f[1]) == pid and (zombies or f[0] != "Z"):
             out.append(int(entry))
     return out

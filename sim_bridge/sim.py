@@ -185,8 +185,9 @@ class VirtualCell:
         # sag onto its brakes before the first set-point arrives.
         p2_set, p3_set = self.cfg.cylinders.initial_bar
         self.io = VirtualIoProcess(
-            ep.modbus_host, ep.modbus_port, p2_set_bar=p2_set, p3_set_bar=p3_set
-        )
+            ep.modbus_host, ep.modbus_port, p2_set_bar=p2_set, p3_set_bar=p3_set,
+            fifo_priority=self.cfg.scheduling.sched_fifo_priority,
+        )  # fmt: skip
         self.io.start()
         p = self.plant.pressure_bar
         self.io.set_inputs(float(p[0]), float(p[1]), False, True)

@@ -33,7 +33,7 @@ can.BusABC.__init__ = _tracking_init  # type: ignore[method-assign]
 
 def _children(pid: int) -> list[int]:
     """PIDs whose parent is ``pid`` (Linux /proc), zombies excluded."""
-    return [c for c in proc_stat.children(pid) if proc_stat.state(c) not in (None, "Z")]
+    return proc_stat.children(pid, zombies=False)
 
 
 @pytest.fixture(autouse=True)

@@ -15,17 +15,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from independent.panda import DATA
+from independent.panda import DATA, README_PLAIN_FIT_RMS_NM, TRAIN_FRACTION
 
 from control.identification.cli import cli_main, configure_parser
 from control.identification.datafile import Measurements, write_measurements
 from control.identification.dh_urdf import PANDA_DH_ROWS, urdf_from_dh
 
-#: README: plain regressor + QR base parameters + viscous/Coulomb/offset friction OLS,
-#: trained on the first 70 %, tested on the last 30 % [N·m].
-README_SIMPLE_FIT_RMS_NM = np.array([0.38, 0.56, 0.41, 0.50, 0.12, 0.14, 0.07])
+#: before the effect search the fit need only come near the README's plain fit (the bar the
+#: search must reach on every joint is the README's figure itself)
 TOLERANCE = 1.5
-TRAIN_FRACTION = 0.7
 
 pytestmark = pytest.mark.skipif(
     not DATA.is_dir(), reason=f"Panda dataset not found at {DATA} (set LEADTHROUGH_PANDA_DIR)"
@@ -79,14 +77,14 @@ def test_panda_held_out_rms_is_near_the_reference_fit(tmp_path, friction):
     after = np.asarray(s["rms_after"])
     print(f"\nPanda ({friction}) held-out RMS before effects [N·m]: {np.round(before, 3)}")
     print(f"Panda ({friction}) held-out RMS after effects  [N·m]: {np.round(after, 3)}")
-    print(f"README simple-fit reference              [N·m]: {README_SIMPLE_FIT_RMS_NM}")
+    print(f"README simple-fit reference              [N·m]: {README_PLAIN_FIT_RMS_NM}")
     for e in s["effects"]:
         print(f"effect {e['name']} joints {e['joints']} ({e['appeared']}): {e['parameters']}")
     assert s["base_parameters"] == 48  # 43 (Gaz et al.) + 5 separable armatures
-    assert np.all(before <= TOLERANCE * README_SIMPLE_FIT_RMS_NM), before / README_SIMPLE_FIT_RMS_NM
+    assert np.all(before <= TOLERANCE * README_PLAIN_FIT_RMS_NM), before / README_PLAIN_FIT_RMS_NM
     # the acceptance: at or below the README's plain fit on all seven joints, and never worse
     # than the summary's own plain least squares (per joint, an offset column: a harder bar)
-    assert np.all(after <= README_SIMPLE_FIT_RMS_NM), after / README_SIMPLE_FIT_RMS_NM
+    assert np.all(after <= README_PLAIN_FIT_RMS_NM), after / README_PLAIN_FIT_RMS_NM
     plain = np.asarray(s["rms_plain_ls"])
     assert np.all(after <= plain * (1 + 1e-3)), after / plain
     assert all(s["after_le_plain_ls"])
@@ -116,7 +114,7 @@ def test_panda_through_the_leadthrough_command(tmp_path):
     )
     assert done.returncode == 0, done.stderr
     s = json.loads((out / "summary.json").read_text())
-    assert np.all(np.asarray(s["rms_before"]) <= TOLERANCE * README_SIMPLE_FIT_RMS_NM)
+    assert np.all(np.asarray(s["rms_before"]) <= TOLERANCE * README_PLAIN_FIT_RMS_NM)
 
 
 def test_panda_predicted_on_the_raw_test_torque_is_at_or_below_the_readme_fit(tmp_path):
@@ -145,5 +143,5 @@ def test_panda_predicted_on_the_raw_test_torque_is_at_or_below_the_readme_fit(tm
     assert answered.mean() >= 0.95
     rms = np.sqrt(np.mean(err[answered] ** 2, axis=0))
     print(f"\nPanda, predict on raw test torque [N·m]: {np.round(rms, 3)}")
-    print(f"README plain fit                   [N·m]: {README_SIMPLE_FIT_RMS_NM}")
-    assert np.all(rms <= README_SIMPLE_FIT_RMS_NM), rms / README_SIMPLE_FIT_RMS_NM
+    print(f"README plain fit                   [N·m]: {README_PLAIN_FIT_RMS_NM}")
+    assert np.all(rms <= README_PLAIN_FIT_RMS_NM), rms / README_PLAIN_FIT_RMS_NM

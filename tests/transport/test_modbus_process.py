@@ -41,6 +41,29 @@ def test_the_module_answers_from_its_process_with_the_simulators_values():
     assert io.exit_code == 0, "the module stopped cleanly (its shared memory released)"
 
 
+def _fifo_permitted() -> bool:
+    """This process may put a child at SCHED_FIFO (root, or an rtprio limit)."""
+    code = "import os; os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))"
+    return subprocess.run([sys.executable, "-c", code], capture_output=True).returncode == 0
+
+
+def test_the_module_answers_at_the_fifo_priority_it_is_given_on_every_thread():
+    if not _fifo_permitted():
+        pytest.skip("this OS refuses SCHED_FIFO to this user")
+    with VirtualIoProcess("127.0.0.1", 0, fifo_priority=7) as io:
+        assert io._proc is not None
+        tids = [int(t) for t in os.listdir(f"/proc/{io._proc.pid}/task")]
+        assert len(tids) >= 2, "the server's thread exists once the module listens"
+        for tid in tids:
+            assert os.sched_getscheduler(tid) == os.SCHED_FIFO, tid
+            assert os.sched_getparam(tid).sched_priority == 7, tid
+        with ModbusLink("127.0.0.1", io.port, timeout_s=1.0) as link:
+            assert link.read_discrete_inputs(0, 3) == [False, False, False]
+    with VirtualIoProcess("127.0.0.1", 0) as io:  # default: normal scheduling
+        assert io._proc is not None
+        assert os.sched_getscheduler(io._proc.pid) == os.SCHED_OTHER
+
+
 def test_a_port_in_use_is_an_error_naming_it():
     with VirtualIoServer("127.0.0.1", 0) as taken:
         io = VirtualIoProcess("127.0.0.1", taken.port)

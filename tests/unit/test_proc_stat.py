@@ -64,3 +64,16 @@ def test_children_and_their_state():
     assert child.pid not in proc_stat.children(os.getpid())
     assert proc_stat.state(child.pid) is None
     assert not Path(f"/proc/{child.pid}").exists()
+
+
+def test_an_exited_child_not_yet_reaped_is_listed_only_with_zombies():
+    child = subprocess.Popen([sys.executable, "-c", "pass"])
+    try:
+        deadline = time.monotonic() + 10
+        while proc_stat.state(child.pid) != "Z" and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert proc_stat.state(child.pid) == "Z"
+        assert child.pid in proc_stat.children(os.getpid())
+        assert child.pid not in proc_stat.children(os.getpid(), zombies=False)
+    finally:
+        child.wait()

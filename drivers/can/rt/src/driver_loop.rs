@@ -137,8 +137,13 @@ pub const STOP_SIGNALS: [libc::c_int; 4] =
 
 /// Send the exit BRAKE (the core's closing frames) unless it went already, then send nothing
 /// more: every send checks `closing` under the lock. Its outcome (frames sent, or why not),
-/// and whether this call sent it.
-fn brake_on_exit(shared: &Shared, why: &str, on_signal: bool) -> (Result<usize, String>, bool) {
+/// and whether this call sent it. `why` (the occasion, for a failed send's message) is only
+/// called when this call sends: a braked loop asks again on every wake-up.
+fn brake_on_exit(
+    shared: &Shared,
+    why: impl FnOnce() -> String,
+    on_signal: bool,
+) -> (Result<usize, String>, bool) {
     let mut l = shared.lock();
     if let Some(done) = &l.exit_brake {
         return (done.outcome.clone(), false);
@@ -153,7 +158,8 @@ fn brake_on_exit(shared: &Shared, why: &str, on_signal: bool) -> (Result<usize, 
         Ok(n)
     } else {
         Err(format!(
-            "could not send the BRAKE request and hold set ({why})"
+            "could not send the BRAKE request and hold set ({})",
+            why()
         ))
     };
     l.exit_brake = Some(ExitBrake {
@@ -167,7 +173,7 @@ fn brake_on_exit(shared: &Shared, why: &str, on_signal: bool) -> (Result<usize, 
 /// unless a close sent it first, and a note saying how long after the signal it went.
 fn brake_on_signal(shared: &Shared, at_s: f64) {
     let signum = shared.signal_number.load(Ordering::SeqCst);
-    let (outcome, sent_now) = brake_on_exit(shared, &format!("on signal {signum}"), true);
+    let (outcome, sent_now) = brake_on_exit(shared, || format!("on signal {signum}"), true);
     if !sent_now {
         return;
     }
@@ -401,7 +407,7 @@ impl DriverLoop {
             return Ok(0);
         }
         self.closed = true;
-        let (sent, _) = brake_on_exit(&self.shared, "on exit", false);
+        let (sent, _) = brake_on_exit(&self.shared, || "on exit".to_string(), false);
         for id in self.signal_ids.drain(..) {
             signal_hook_registry::unregister(id);
         }
