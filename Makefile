@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test test-loaded bench faults soak lint format clean
+.PHONY: demo test test-loaded test-slow bench faults soak lint format clean
 
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -44,7 +44,7 @@ test: $(STAMP) $(RT_SO)
 	$(BIN)/lint-imports
 	$(CARGO) fmt --all --check
 	$(CARGO) test --locked --quiet -p leadthrough-bus-rt -p leadthrough-router-rt -p leadthrough-can-rt -p leadthrough-control-rt
-	$(BIN)/pytest -q
+	$(BIN)/pytest -q --durations=20  # the slowest twenty: where the suite's time goes (issue 49)
 
 # The stack tier beside a competing CPU load: a busy process pinned to CPU 0 at the product's
 # priority (tests/cpu_load.py). LOAD_ARGS="--taskset 0" also pins the product to CPU 0 beside
@@ -52,6 +52,13 @@ test: $(STAMP) $(RT_SO)
 LOAD_ARGS ?=
 test-loaded: $(STAMP) $(RT_SO)
 	$(BIN)/python tests/cpu_load.py $(LOAD_ARGS) -- $(BIN)/pytest -q -m stack
+
+# The stack tier on an emulated slower machine: every CPU SLOW_FACTOR times slower, the
+# product's SCHED_FIFO threads included (tests/slow_machine.py; what a factor does to the
+# guide's 10 M-iteration loop is measured in its docstring).
+SLOW_FACTOR ?= 3
+test-slow: $(STAMP) $(RT_SO)
+	$(BIN)/python tests/slow_machine.py --factor $(SLOW_FACTOR) -- $(BIN)/pytest -q -m stack
 
 bench: $(STAMP) $(RT_SO)
 	$(BIN)/leadthrough bench --rates 250 500 --cycles 10000 --json bench_out/bench.json
