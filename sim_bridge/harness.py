@@ -492,12 +492,15 @@ class Stack:
         if self._client is not None:
             self._client.close()
             self._client = None
-        for proc in (self.gateway, self.sim):
-            if proc is not None and proc.poll() is None:
-                proc.send_signal(signal.SIGTERM)
+        # One after the other, as a cell is switched off: the virtual controller outlives the
+        # product's stop, so the CAN driver's exit BRAKE reaches it. (Signalled together, the
+        # simulator closed the CAN hub under the stopping driver, whose every exit logged
+        # "CAN socket closed by the peer" and "could not send the BRAKE request".)
         for name, proc in (("gateway", self.gateway), ("sim", self.sim)):
             if proc is None:
                 continue
+            if proc.poll() is None:
+                proc.send_signal(signal.SIGTERM)
             try:
                 proc.wait(timeout=10.0)
             except subprocess.TimeoutExpired:

@@ -44,6 +44,7 @@ from sim_bridge.can_endpoint import SocketcandServerBus
 from sim_bridge.can_hub import SeqpacketHubBus
 from sim_bridge.config import Endpoints, Scheduling, SimConfig
 from sim_bridge.controller import VirtualController, controller_protocol
+from sim_bridge.lockstep_pace import LockstepPace
 from sim_bridge.modbus_process import VirtualIoProcess
 from sim_bridge.operator import Operator
 from sim_bridge.plant import Plant
@@ -145,6 +146,7 @@ class VirtualCell:
         self.teaching_cycles = 0
         self.teaching_missed = 0
         self.overruns = 0  #: real time: cycles that started late
+        self.pace: LockstepPace | None = None  #: lock-step: the plant's pace, once running
         #: real time: how late each cycle started after its deadline [s]
         self.wake_late_s = array("d")
         self.scheduling: dict[str, Any] = {}  #: what [scheduling] achieved
@@ -432,15 +434,14 @@ class VirtualCell:
     def _run_lockstep(self, duration_s: float | None) -> None:
         clock = time.monotonic
         ctrl = self.ctrl
-        wall0, sim0 = clock(), self.plant.t_s
         speedup = self.cfg.lockstep_max_speedup
+        # no faster than lockstep_max_speedup × real time (the I/O's sampling, config.py)
+        self.pace = LockstepPace(speedup, self.period_s / speedup, clock(), self.plant.t_s)
         while not self.stop_event.is_set():
             if duration_s is not None and self.plant.t_s >= duration_s:
                 break
-            # no faster than lockstep_max_speedup × real time (the I/O's sampling, config.py)
-            ahead = (self.plant.t_s - sim0) / speedup - (clock() - wall0)
-            if ahead > 0:
-                self.stop_event.wait(ahead)
+            if (wait := self.pace.wait_s(self.plant.t_s, clock())) > 0:
+                self.stop_event.wait(wait)
             self._cycle()
             self._heartbeat(clock())
             deadline = clock() + self.cfg.lockstep_timeout_s
@@ -476,6 +477,7 @@ class VirtualCell:
             "teaching_cycles": self.teaching_cycles,
             "teaching_missed_cycles": self.teaching_missed,
             "overruns": self.overruns,
+            "lockstep_pace_restarts": None if self.pace is None else self.pace.restarts,
             "latency_p50_s": pct(50),
             "latency_p99_s": pct(99),
             "latency_p999_s": pct(99.9),
