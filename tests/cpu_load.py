@@ -24,7 +24,8 @@ import subprocess
 import sys
 
 
-def _cpus(text: str) -> list[int]:
+def cpu_list(text: str) -> list[int]:
+    """An argparse type: a comma-separated list of CPUs this process may use."""
     try:
         cpus = sorted({int(c) for c in text.split(",") if c.strip()})
     except ValueError:
@@ -44,9 +45,9 @@ def _busy(cpu: int) -> subprocess.Popen:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--cores", type=_cpus, default=[min(os.sched_getaffinity(0))],
+    p.add_argument("--cores", type=cpu_list, default=[min(os.sched_getaffinity(0))],
                    help="CPUs to load, one busy process each (default: the first)")  # fmt: skip
-    p.add_argument("--taskset", type=_cpus, default=None, help="pin the command to these CPUs")
+    p.add_argument("--taskset", type=cpu_list, default=None, help="pin the command to these CPUs")
     p.add_argument("command", nargs=argparse.REMAINDER, help="-- then the command to run")
     args = p.parse_args(argv)
     command = args.command[1:] if args.command[:1] == ["--"] else args.command

@@ -34,6 +34,8 @@ import subprocess
 import sys
 import time
 
+from cpu_load import cpu_list  # this script's folder is on the path, as for the tests
+
 #: The emulation's slice [s]: each CPU is taken for the first 1 - 1/factor of every period.
 #: Shorter than the product's control cycle (4-8 ms) and the virtual controller's answer window,
 #: so a cycle's work is spread over several periods as on a slower CPU, not stopped for a whole
@@ -43,18 +45,6 @@ PERIOD_S = 0.001
 #: the virtual controller (60), as a slower CPU slows them all.
 STEAL_PRIORITY = 99
 MAX_FACTOR = 20.0
-
-
-def _cpus(text: str) -> list[int]:
-    try:
-        cpus = sorted({int(c) for c in text.split(",") if c.strip()})
-    except ValueError:
-        why = f"{text!r}: a comma-separated list of CPU numbers"
-        raise argparse.ArgumentTypeError(why) from None
-    allowed = os.sched_getaffinity(0)
-    if not cpus or not set(cpus) <= allowed:
-        raise argparse.ArgumentTypeError(f"{text!r}: this process may use CPUs {sorted(allowed)}")
-    return cpus
 
 
 def _factor(text: str) -> float:
@@ -118,7 +108,7 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--factor", type=_factor, default=3.0,
                    help="how many times slower every CPU is to be (default 3)")  # fmt: skip
-    p.add_argument("--cpus", type=_cpus, default=sorted(os.sched_getaffinity(0)),
+    p.add_argument("--cpus", type=cpu_list, default=sorted(os.sched_getaffinity(0)),
                    help="CPUs to slow (default: all this process may use)")  # fmt: skip
     p.add_argument("command", nargs=argparse.REMAINDER, help="-- then the command to run")
     args = p.parse_args(argv)
