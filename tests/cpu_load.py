@@ -22,6 +22,7 @@ import os
 import signal
 import subprocess
 import sys
+from collections.abc import Callable
 
 
 def cpu_list(text: str) -> list[int]:
@@ -43,6 +44,30 @@ def _busy(cpu: int) -> subprocess.Popen:
     return subprocess.Popen([sys.executable, "-c", code], stdin=subprocess.DEVNULL)
 
 
+def run_beside(
+    command: list[str],
+    helpers: list[subprocess.Popen],
+    preexec_fn: Callable[[], None] | None = None,
+) -> int:
+    """Run ``command`` to its end (Ctrl-C passes to it as SIGINT) and return its exit status;
+    the ``helpers`` (load or spinning processes already started) are killed and reaped after
+    it, also when it could not start."""
+    try:
+        child = subprocess.Popen(command, preexec_fn=preexec_fn)
+        try:
+            return child.wait()
+        except KeyboardInterrupt:
+            child.send_signal(signal.SIGINT)
+            return child.wait()
+    finally:
+        for h in helpers:
+            h.kill()
+        for h in helpers:
+            h.wait()
+            if h.stdout is not None:
+                h.stdout.close()
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--cores", type=cpu_list, default=[min(os.sched_getaffinity(0))],
@@ -57,20 +82,8 @@ def main(argv: list[str] | None = None) -> int:
     pin = None if args.taskset is None else set(args.taskset)
     print(f"cpu_load: {len(busy)} busy process(es) on CPU(s) {args.cores}; command on "
           f"{'any CPU' if pin is None else f'CPU(s) {sorted(pin)}'}", flush=True)  # fmt: skip
-    try:
-        child = subprocess.Popen(
-            command, preexec_fn=None if pin is None else lambda: os.sched_setaffinity(0, pin)
-        )
-        try:
-            return child.wait()
-        except KeyboardInterrupt:
-            child.send_signal(signal.SIGINT)
-            return child.wait()
-    finally:
-        for b in busy:
-            b.kill()
-        for b in busy:
-            b.wait()
+    preexec = None if pin is None else lambda: os.sched_setaffinity(0, pin)
+    return run_beside(command, busy, preexec_fn=preexec)
 
 
 if __name__ == "__main__":

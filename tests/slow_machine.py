@@ -16,7 +16,11 @@ does not slow: memory and I/O bandwidth. What it adds: the other
 threads run in windows of ``1/factor`` ms (plus the spinner's wake-up latency), so a thread
 that needs a CPU at once waits up to ``1 - 1/factor`` ms more than on a slower CPU.
 
-    python tests/slow_machine.py [--factor 3] [--cpus 0,1] -- COMMAND ...
+    python tests/slow_machine.py [--factor 3 | --as-slow-as 1.62] [--cpus 0,1] -- COMMAND ...
+
+Without ``--factor`` the factor is what this machine's own loop time says it lacks to be the
+slowest machine of the class (:data:`SLOWEST_LOOP_S`), measured before the emulation starts;
+the loop is timed again under it and both are printed.
 
 SCHED_FIFO needs root or an rtprio limit; without it the emulation is refused (exit 2), never
 silently skipped. The kernel's real-time throttling (``/proc/sys/kernel/sched_rt_runtime_us``,
@@ -29,12 +33,11 @@ from __future__ import annotations
 
 import argparse
 import os
-import signal
 import subprocess
 import sys
 import time
 
-from cpu_load import cpu_list  # this script's folder is on the path, as for the tests
+from cpu_load import cpu_list, run_beside  # this script's folder is on the path, as for the tests
 
 #: The emulation's slice [s]: each CPU is taken for the first 1 - 1/factor of every period.
 #: Shorter than the product's control cycle (4-8 ms) and the virtual controller's answer window,
@@ -45,6 +48,30 @@ PERIOD_S = 0.001
 #: the virtual controller (60), as a slower CPU slows them all.
 STEAL_PRIORITY = 99
 MAX_FACTOR = 20.0
+#: The guide's measure of a machine of this class: a 10 M-iteration Python loop, 0.56 s on the
+#: fastest and 1.62 s on the slowest. ``--as-slow-as`` (default: the slowest) slows this
+#: machine by what its own loop time says it lacks, so the same make target tries the slowest
+#: machine of the class on whichever machine runs it, whatever that machine's speed today.
+SLOWEST_LOOP_S = 1.62
+#: the loop, at module level as `python -c` runs it; prints its own time
+_LOOP = "import time\nt = time.perf_counter()\nfor i in range(10_000_000): pass\n"
+_LOOP += "print(time.perf_counter() - t)\n"
+
+
+def loop_time_s(runs: int = 3) -> float:
+    """This machine's 10 M-iteration loop [s]: the best of ``runs`` (the machine's speed; a
+    slower run only saw other work)."""
+    out = [subprocess.run([sys.executable, "-c", _LOOP], capture_output=True, text=True,
+                          check=True).stdout for _ in range(runs)]  # fmt: skip
+    return min(float(o) for o in out)
+
+
+def factor_for(loop_s: float, target_s: float) -> float:
+    """How many times slower a machine whose loop takes ``loop_s`` must be to take
+    ``target_s`` (1 when it is already that slow; at most :data:`MAX_FACTOR`)."""
+    if not (loop_s > 0 and target_s > 0):
+        raise ValueError(f"loop times must be > 0 (got {loop_s}, {target_s})")
+    return min(max(target_s / loop_s, 1.0), MAX_FACTOR)
 
 
 def _factor(text: str) -> float:
@@ -106,8 +133,12 @@ def fifo_permitted() -> bool:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--factor", type=_factor, default=3.0,
-                   help="how many times slower every CPU is to be (default 3)")  # fmt: skip
+    how = p.add_mutually_exclusive_group()
+    how.add_argument("--factor", type=_factor, default=None,
+                     help="how many times slower every CPU is to be")  # fmt: skip
+    how.add_argument("--as-slow-as", type=float, default=SLOWEST_LOOP_S, metavar="SECONDS",
+                     help="slow it until the 10 M-iteration loop takes this long (default "
+                          f"{SLOWEST_LOOP_S}, the slowest machine of the class)")  # fmt: skip
     p.add_argument("--cpus", type=cpu_list, default=sorted(os.sched_getaffinity(0)),
                    help="CPUs to slow (default: all this process may use)")  # fmt: skip
     p.add_argument("command", nargs=argparse.REMAINDER, help="-- then the command to run")
@@ -118,6 +149,13 @@ def main(argv: list[str] | None = None) -> int:
     if not fifo_permitted():
         p.exit(2, f"{p.prog}: SCHED_FIFO {STEAL_PRIORITY} refused: run as root or raise the "
                   "rtprio limit; no emulation without it\n")  # fmt: skip
+    if args.factor is None:
+        if not args.as_slow_as > 0:
+            p.error(f"--as-slow-as {args.as_slow_as}: a loop time > 0 s")
+        own = loop_time_s()
+        args.factor = factor_for(own, args.as_slow_as)
+        print(f"slow_machine: this machine's 10 M-iteration loop {own:.2f} s; "
+              f"{args.as_slow_as:g} s asks for {args.factor:.2f}x", flush=True)  # fmt: skip
     share = 1.0 - 1.0 / args.factor
     spinners = [_spinner(cpu, share) for cpu in args.cpus] if share > 0 else []
     if not all(_ready(s) for s in spinners):  # the command starts on the slowed machine
@@ -128,20 +166,9 @@ def main(argv: list[str] | None = None) -> int:
     print(f"slow_machine: CPU(s) {args.cpus} {args.factor:g}x slower "
           f"({share:.0%} of every {PERIOD_S * 1e3:g} ms taken at SCHED_FIFO {STEAL_PRIORITY})",
           flush=True)  # fmt: skip
-    try:
-        child = subprocess.Popen(command)
-        try:
-            return child.wait()
-        except KeyboardInterrupt:
-            child.send_signal(signal.SIGINT)
-            return child.wait()
-    finally:
-        for s in spinners:
-            s.kill()
-        for s in spinners:
-            s.wait()
-            if s.stdout is not None:
-                s.stdout.close()
+    if spinners:
+        print(f"slow_machine: the loop now takes {loop_time_s(1):.2f} s", flush=True)
+    return run_beside(command, spinners)
 
 
 if __name__ == "__main__":

@@ -51,6 +51,22 @@ def test_cpu_work_takes_factor_times_as_long_whatever_its_priority_and_cpu(fifo,
     assert FACTOR * WORK_S * 0.9 <= wall <= FACTOR * WORK_S * 1.25, wall
 
 
+def test_as_slow_as_a_loop_time_slows_this_machine_until_its_loop_takes_that_long():
+    own = slow_machine.loop_time_s()
+    target = 2.0 * own  # twice as slow as this machine is today, whatever its speed
+    out = subprocess.run(
+        [sys.executable, str(SCRIPT), "--as-slow-as", f"{target:.3f}", "--", sys.executable,
+         "-c", "pass"],
+        capture_output=True, text=True, timeout=120, check=True,
+    )  # fmt: skip
+    lines = [line for line in out.stdout.splitlines() if "the loop now takes" in line]
+    assert lines, out.stdout
+    emulated = float(lines[0].split("takes")[1].split()[0])
+    # one run of the loop: the same bounds as the CPU-work test, a tenth below and a quarter
+    # above for this machine's other load and its own spread between runs
+    assert 0.9 * target <= emulated <= 1.25 * target, (own, target, out.stdout)
+
+
 def test_no_spinner_outlives_the_command_even_when_the_wrapper_is_killed():
     # the command exits at its stdin's end: when this test closes the pipe it inherited
     command = [sys.executable, "-c", "import sys; sys.stdin.read()"]
