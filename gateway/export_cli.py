@@ -13,8 +13,9 @@ the arm was commanded in (not held by a stopped cell), and writes ``F_train.csv`
 session only (or replaying, identifying). ``--urdf-out`` writes the robot description's URDF
 beside them, so that the three files go straight into ``leadthrough analyze``. Motor currents
 become torques with the robot description's drive gains (``--description``, default the packaged
-GR630ST) or ``--gains``. Cycles the CAN driver answered with a hold or a coast are left out as
-in every export (gateway/recorder.py :func:`~gateway.recorder.export_csv`).
+GR630ST) or ``--gains``. Cycles the CAN driver answered with a hold or a run of coasts are left
+out as in every export (gateway/recorder.py :func:`~gateway.recorder.export_csv`,
+gateway/disturbed_cycles.py).
 """
 
 from __future__ import annotations

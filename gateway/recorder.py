@@ -17,7 +17,8 @@ JointState, ``t`` counted from the first exported cycle in controller time
 (cycle × cycle period, so lock-step recordings keep their true time base), ``q``, ``dq``, motor
 currents ``i`` (interpolated to the instant of ``q``), and the latest cylinder pressures ``p2``,
 ``p3``; a sidecar ``<stem>.json`` carries the drive gains that turn currents into torques.
-Cycles disturbed by a hold or coast of the CAN driver are left out (:func:`export_csv`).
+Cycles disturbed by a hold or coast of the CAN driver are left out (:func:`export_csv`,
+gateway/disturbed_cycles.py).
 """
 
 from __future__ import annotations
@@ -45,14 +46,9 @@ from gateway import mcap_json
 from gateway.bus import BusConfig, bus_config_from, open_client, undeclare_all
 from gateway.bus_security import OBSERVER
 from gateway.config import load_toml
+from gateway.disturbed_cycles import disturbed_cycles
 from gateway.errors import ConfigError, DataFileError, MessageError
-from gateway.messages import (
-    FLAG_PREV_COAST,
-    FLAG_PREV_HOLD,
-    IoState,
-    JointState,
-    Keys,
-)
+from gateway.messages import IoState, JointState, Keys
 from gateway.signals import StopSignals
 
 log = logging.getLogger("leadthrough.recorder")
@@ -300,10 +296,11 @@ def _iter_cut(fh: Any, path: Path, topics: list[str] | None) -> Iterator[tuple[s
         yield topic, t_ns, data
 
 
-#: After a cycle the CAN driver answered with something other than the control process's
-#: command (a hold or a coast, PROTOCOL.md §3), the vendor loop answers with a current transient
-#: the kinematics sampled once per cycle cannot follow; so many seconds of cycles are left out
-#: of the export [s] (the inner loop of eq. 19 settles in ~4/(ζ ω_n) ≈ 0.08 s).
+#: After a cycle the CAN driver's answer disturbed (a hold, or a coast that resumed with a step
+#: the law does not take: gateway/disturbed_cycles.py, PROTOCOL.md §3), the vendor loop answers
+#: with a current transient the kinematics sampled once per cycle cannot follow; so many seconds
+#: of cycles are left out of the export [s] (the inner loop of eq. 19 settles in
+#: ~4/(ζ ω_n) ≈ 0.08 s).
 DISTURBANCE_SETTLE_S = 0.15
 #: How far the motor current of a JointState lags its q and dq [cycles]: LTC-1 drives report
 #: the current averaged over the cycle (PROTOCOL.md §2.1), centred half a cycle earlier.
@@ -360,10 +357,11 @@ def export_csv(
     ``recorded``: the recording as :func:`read_states` read it (else it is read here).
 
     ``cycle_range`` keeps only the controller cycles ``first..last`` (inclusive). Cycles the
-    CAN driver answered with a hold or a coast instead of the control process's command (the
-    next JointState's flags say so) are *disturbed*: they and the cycles up to ``settle_s``
-    after them are left out, which leaves a time gap that the analysis treats as a segment
-    boundary; the sidecar lists them.
+    CAN driver answered with a hold, or with a coast the law's next command stepped away from
+    (the next JointState's flags and echoed command say so:
+    :func:`gateway.disturbed_cycles.disturbed_cycles`), are *disturbed*: they and the cycles up
+    to ``settle_s`` after them are left out, which leaves a time gap that the analysis treats
+    as a segment boundary; the sidecar lists them.
 
     The reported current describes ``current_lag_cycles`` of a cycle before the kinematics
     (LTC-1 reports its mean over the cycle: 0.5, PROTOCOL.md §2.1); each row gets the current
@@ -373,7 +371,7 @@ def export_csv(
     """
     rec = recorded if recorded is not None else read_states(mcap_path, keys)
     states, n, bad = rec.states, rec.n, rec.bad
-    disturbed = _disturbed_cycles(states, cycle_range)
+    disturbed = disturbed_cycles([st for st, _ in states], cycle_range)
     excluded: set[int] = set()
     for cycle, period in disturbed:
         excluded.update(range(cycle, cycle + 1 + int(np.ceil(settle_s / period))))
@@ -414,8 +412,8 @@ def export_csv(
     csv_path.with_suffix(".json").write_text(json.dumps(sidecar))
     if disturbed:
         log.info(
-            "%s: %d cycles answered with a hold or coast instead of the command; %d cycles "
-            "after them left out",
+            "%s: %d cycles answered with a hold, or a coast the command stepped away from; "
+            "%d cycles after them left out",
             csv_path,
             len(disturbed),
             len(excluded),
@@ -423,21 +421,6 @@ def export_csv(
     if bad:
         log.warning("%d malformed messages skipped", bad)
     return len(rows)
-
-
-def _disturbed_cycles(
-    states: list[tuple[JointState, np.ndarray]], cycle_range: tuple[int, int] | None
-) -> list[tuple[int, float]]:
-    """(cycle, period) of the cycles in range that the CAN driver answered with a hold or a
-    coast, or not at all: the next JointState's FLAG_PREV_HOLD / FLAG_PREV_COAST."""
-    out = []
-    for st, _ in states:
-        cycle = st.cycle - 1
-        if cycle_range and not cycle_range[0] <= cycle <= cycle_range[1]:
-            continue
-        if st.flags & (FLAG_PREV_HOLD | FLAG_PREV_COAST):
-            out.append((cycle, st.cycle_period_s))
-    return out
 
 
 def configure_parser(p: argparse.ArgumentParser) -> None:

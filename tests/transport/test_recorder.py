@@ -13,6 +13,7 @@ from gateway.bus import open_client
 from gateway.errors import DataFileError
 from gateway.message_factories import make_joint_state
 from gateway.messages import (
+    FLAG_PREV_COAST,
     FLAG_PREV_HOLD,
     FLAG_SERVO_POWER,
     ControllerState,
@@ -54,9 +55,10 @@ def test_records_every_message_and_exports_the_measurement_csv(router, tmp_path)
     np.testing.assert_allclose(m.p[0], [6.0, 4.0])
 
 
-def test_export_leaves_out_the_cycles_after_a_hold_or_coast(router, tmp_path):
+def test_export_leaves_out_the_cycles_after_a_hold(router, tmp_path):
     """The driver answered cycle 140 with a hold: the JointState of cycle 141 says so. That
-    cycle and those settling after it are left out (a gap in t)."""
+    cycle and those settling after it are left out (a gap in t). Cycle 170's single coast,
+    followed by the command, is kept (gateway/disturbed_cycles.py)."""
     keys = router.keys
     rec = BusRecorder(router, tmp_path / "run.mcap")
     rec.start()
@@ -67,7 +69,8 @@ def test_export_leaves_out_the_cycles_after_a_hold_or_coast(router, tmp_path):
         pub.put(keys.io_state, IoState(1.0, 6.0, 4.0, 6.0, 4.0, True, True).to_bytes())
         for cycle in range(100, 200):
             q = np.full(6, 0.001 * cycle)
-            flags = FLAG_SERVO_POWER | (FLAG_PREV_HOLD if cycle == 141 else 0)
+            answered = {141: FLAG_PREV_HOLD, 171: FLAG_PREV_COAST}.get(cycle, 0)
+            flags = FLAG_SERVO_POWER | answered
             st = make_joint_state(cycle, 1.0, ControllerState.EXTERNAL, flags, q, q * 0 + 0.25,
                                   np.ones(6), q, q * 0 + 0.25, period)  # fmt: skip
             pub.put(keys.joint_state, st.to_bytes())
