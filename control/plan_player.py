@@ -1,7 +1,9 @@
 """The plan player (:class:`PlanPlayer`): an excitation plan (control/experiments.py) or a
 taught program's replay path played as position/velocity commands, one sample per controller
-cycle, built off the cycle (control/plan_builder.py); and the speed limits of a replay. The
-control process (control/process.py) runs it while the gateway identifies or replays.
+cycle, built off the cycle (control/plan_builder.py) and played by compiled code
+(control/rt/src/law/plan_play.rs); and the speed limits of a replay. The control process
+(control/process.py) runs it while the gateway identifies or replays: its compiled loop plays
+the built plan from zenoh's thread (control/rt/src/py_cycle_loop.rs, issue 48).
 """
 
 from __future__ import annotations
@@ -12,8 +14,9 @@ from collections.abc import Callable
 
 import numpy as np
 
+from control import _rt
 from control.plan_builder import Parts, PlanBuilder, PlanRefused, build_parts
-from gateway.messages import FLAG_PREV_HOLD, JointState
+from gateway.messages import JointState
 from gateway.program import MAX_JOINT_SPEED_RAD_S as MAX_REPLAY_JOINT_SPEED_RAD_S
 from gateway.program import MAX_SPEED_MM_S
 from gateway.robot.description import RobotDescription
@@ -31,8 +34,6 @@ MAX_REPLAY_POINT_SPEED_M_S = 0.2
 #: [rad/s²]: the CAN driver's controlled stop brakes at 2 rad/s² ([can]
 #: stop_deceleration_rad_s2), and a resumption is no harder than an ordinary stop
 RESUME_ACCEL_RAD_S2 = 2.0
-#: a fractional plan index this close to a sample is that sample
-_INDEX_TOLERANCE = 1e-9
 
 
 class PlanPlayer:
@@ -43,7 +44,10 @@ class PlanPlayer:
     The plan is built off the cycle (control/plan_builder.py) when a ``builder`` is given:
     meanwhile the player is ``planning`` and answers every cycle with the plan's first sample,
     the pose the robot holds, at rest. A plan not built within :attr:`MAX_PLANNING_S` fails.
-    Without a builder (pure tests) :meth:`start` builds it in place.
+    Without a builder (pure tests) :meth:`start` builds it in place. A built plan goes into
+    :attr:`play` (``control._rt.PlanPlay``), which plays it as described below: from the
+    control process's compiled loop, which answers the states with it, or from
+    :meth:`command`.
 
     The plan waits for the robot: a sample the CAN driver answered with a hold (its command
     came late or out of range; the next JointState's FLAG_PREV_HOLD says so) is sent again
@@ -89,29 +93,66 @@ class PlanPlayer:
         self.desc = desc  #: the robot, for a taught program's tool path (plan key "replay")
         self.builder = builder
         self.plan_id: str | None = None
-        self.state = "idle"  # idle | planning | running | done | failed
-        self.reason = ""
+        #: idle | planning | failed (before a plan was built) | played (:attr:`play` has it)
+        self._phase = "idle"
+        self._reason = ""
         self.start_cycle = 0
         self.period_s = 0.0
         self.q = self.dq = np.zeros((0, len(lower_rad)))
-        self.segments: list[dict] = []
-        self._bounds: list[tuple[int, int]] = []  #: first and last sample of each segment
-        self.k = 0  #: the plan sample to play next
-        self._s = 0.0  #: where along the samples the last command was (a fractional index)
-        self._sigma = 1.0  #: speed along the plan (1: its own timing; 0 after a hold)
-        self._sent_cycle: int | None = None  #: cycle the last sample was sent for
-        self.held_s = 0.0  #: how long the plan's commands have been held in a row [s]
-        self.repeats = 0  #: samples sent again after a hold
+        self._labels: list[tuple[str, str]] = []  #: each segment's (label, role)
+        #: the built plan, played here or by the compiled loop (control/rt/src/py_plan_play.rs)
+        self.play = _rt.PlanPlay()
+        self._logged = "idle"  #: the state last logged (the compiled play changes it silently)
         self._q0 = np.zeros(len(lower_rad))  #: where the plan starts, held while planning
         self._job: int | None = None  #: the builder's job of the plan being built
         self._planning_since = 0.0  #: when planning began, on :attr:`clock` [s]
         self.planning_s = 0.0  #: how long the plan took to build [s] (reported)
 
+    # --- where the plan is: the compiled play's once it has the plan --------------------------
+    def _status(self) -> tuple | None:
+        return self.play.status() if self._phase == "played" else None
+
+    @property
+    def state(self) -> str:
+        """idle | planning | running | done | failed."""
+        status = self._status()
+        return self._phase if status is None else status[0]
+
+    @property
+    def reason(self) -> str:
+        status = self._status()
+        return self._reason if status is None else status[1]
+
+    @property
+    def k(self) -> int:
+        """The plan sample to play next."""
+        status = self._status()
+        return 0 if status is None else status[2]
+
+    @property
+    def repeats(self) -> int:
+        """Samples sent again after a hold."""
+        status = self._status()
+        return 0 if status is None else status[4]
+
+    @property
+    def segments(self) -> list[dict]:
+        """Each segment's label, role and the cycles that carried out its first and last
+        sample (None: not yet), for the export."""
+        status = self._status()
+        cycles = [(-1, -1)] * len(self._labels) if status is None else status[5]
+        return [
+            {"label": label, "role": role, "start_cycle": None if a < 0 else a,
+             "end_cycle": None if b < 0 else b}
+            for (label, role), (a, b) in zip(self._labels, cycles, strict=True)
+        ]  # fmt: skip
+
     def start(self, plan: dict, st: JointState, period_s: float) -> None:
-        self.plan_id, self.k, self._sent_cycle, self.held_s = str(plan.get("plan_id")), 0, None, 0.0
-        self._s, self._sigma = 0.0, 1.0
-        self.start_cycle, self.period_s, self.repeats = st.cycle, period_s, 0
-        self.segments, self._bounds, self.planning_s = [], [], 0.0
+        self.play.clear()  # the compiled loop plays nothing until this plan is built
+        self.plan_id, self._phase, self._reason = str(plan.get("plan_id")), "idle", ""
+        self._logged = "idle"
+        self.start_cycle, self.period_s = st.cycle, period_s
+        self._labels, self.planning_s = [], 0.0
         self._q0 = st.q_cmd_rad.copy()
         limits = {
             "max_speed_m_s": MAX_REPLAY_SPEED_M_S,
@@ -121,7 +162,7 @@ class PlanPlayer:
         args = (plan, self._q0.copy(), self.lower, self.upper, period_s, self.LIMIT_MARGIN_RAD,
                 self.desc, limits)  # fmt: skip
         if self.builder is not None:
-            self.state, self.reason = "planning", ""
+            self._phase = self._logged = "planning"
             self._job, self._planning_since = self.builder.submit(*args), self.clock()
             log.info("excitation plan %s: planning", self.plan_id)
             return
@@ -132,21 +173,41 @@ class PlanPlayer:
 
     def fail(self, why: str) -> None:
         """The plan ends here, failed, with ``why``; nothing more is sent for it."""
-        self.state, self.reason, self._job = "failed", why, None
-        log.error("excitation plan %s failed: %s", self.plan_id, why)
+        self._job = None
+        if self._phase == "played":
+            self.play.fail(why)
+        else:
+            self._phase, self._reason = "failed", why
+        self._log_state()
 
     def _install(self, parts: Parts) -> None:
-        self.segments, self._bounds, offset = [], [], 0
-        for label, role, q, _dq in parts:
-            self.segments.append({"label": label, "role": role,
-                                  "start_cycle": None, "end_cycle": None})  # fmt: skip
-            self._bounds.append((offset, offset + len(q) - 1))
-            offset += len(q)
+        self._labels = [(label, role) for label, role, _q, _dq in parts]
         self.q = np.vstack([p[2] for p in parts])
         self.dq = np.vstack([p[3] for p in parts])
-        self.state, self.reason, self._job = "running", "", None
+        self._job = None
+        try:
+            self.play.install(
+                self.q.ravel().tolist(), self.dq.ravel().tolist(), self.q.shape[1],
+                [len(p[2]) for p in parts], self.period_s, self.MAX_PAUSE_S, RESUME_ACCEL_RAD_S2,
+            )  # fmt: skip
+        except ValueError as exc:
+            self.fail(f"the plan cannot be played: {exc}")
+            return
+        self._phase = self._logged = "played"
         log.info("excitation plan %s: %d segments, %.1f s (built in %.2f s)", self.plan_id,
                  len(parts), len(self.q) * self.period_s, self.planning_s)  # fmt: skip
+
+    def _log_state(self) -> None:
+        """Log the plan's end (done or failed) once, whoever played it."""
+        state = self.state
+        if state == self._logged or state not in ("done", "failed"):
+            return
+        self._logged = state
+        if state == "done":
+            log.info("excitation plan %s done (%d samples sent again after a hold)",
+                     self.plan_id, self.repeats)  # fmt: skip
+        else:
+            log.error("excitation plan %s failed: %s", self.plan_id, self.reason)
 
     def _planned(self, st: JointState) -> None:
         """While planning: take the builder's outcome if it came, or fail the plan when it
@@ -167,79 +228,20 @@ class PlanPlayer:
         else:
             self.fail(value if kind == "refused" else f"planning failed: {value}")
 
-    def _played(self, cycle: int) -> None:
-        """Sample ``self.k`` was carried out in ``cycle``: note segment bounds, move on."""
-        for seg, (first, last) in zip(self.segments, self._bounds, strict=True):
-            if self.k == first:
-                seg["start_cycle"] = cycle
-            if self.k == last:
-                seg["end_cycle"] = cycle
-        self.k += 1
-        if self.k >= len(self.q):
-            self.state = "done"
-            log.info("excitation plan %s done (%d samples sent again after a hold)",
-                     self.plan_id, self.repeats)  # fmt: skip
-
     def command(self, st: JointState) -> tuple[np.ndarray, np.ndarray] | None:
         """This cycle's sample (q [rad], dq [rad/s]), or None when nothing is to be sent."""
-        if self.state == "planning":
+        if self._phase == "planning":
             self._planned(st)
-            if self.state == "planning":
+            if self._phase == "planning":
                 return self._q0, np.zeros_like(self._q0)  # held where the plan will start
-        if self.state == "running" and self._sent_cycle is not None:
-            if st.flags & FLAG_PREV_HOLD:
-                self.repeats += 1
-                self.held_s += self.period_s * max(1, st.cycle - self._sent_cycle)
-                if self.held_s > self.MAX_PAUSE_S:
-                    self.state = "failed"
-                    self.reason = (
-                        f"the robot did not follow: the CAN driver held the plan's commands for "
-                        f"{self.held_s:.2f} s at sample {self.k} of {len(self.q)} (its log says "
-                        f"why: late or out-of-range commands)"
-                    )
-                    log.error("excitation plan %s failed: %s", self.plan_id, self.reason)
-                    return None
-                self._sigma = 0.0  # the arm was stopped: the plan resumes from rest
-            else:
-                self.held_s = 0.0
-                self._advance(self._sent_cycle)
-        if self.state == "done":
-            return self.q[-1], np.zeros_like(self.dq[-1])
-        if self.state != "running":
+        if self._phase != "played":
             return None
-        self._sent_cycle = st.cycle
-        return self._sample()
-
-    def _advance(self, cycle: int) -> None:
-        """The command sent for ``cycle`` was carried out: every sample up to where it was is
-        played; the next command is further along by σ, which recovers towards 1."""
-        while self.state == "running" and self.k <= self._s + _INDEX_TOLERANCE:
-            self._played(cycle)
-        if self.state != "running":
-            return
-        self._sigma = min(1.0, self._sigma + self._sigma_step())
-        self._s = min(self._s + self._sigma, len(self.q) - 1.0)
-
-    def _sigma_step(self) -> float:
-        """How much σ may rise in one cycle: a joint's commanded velocity σ·dq rises by at
-        most RESUME_ACCEL_RAD_S2 per second."""
-        fastest = float(np.max(np.abs(self._interpolate(self.dq, self._s))))
-        if fastest <= 0.0:
-            return 1.0
-        return self.period_s * RESUME_ACCEL_RAD_S2 / fastest
-
-    def _interpolate(self, samples: np.ndarray, s: float) -> np.ndarray:
-        i = min(int(np.floor(s + _INDEX_TOLERANCE)), len(samples) - 1)
-        frac = s - i
-        if i + 1 >= len(samples) or frac <= _INDEX_TOLERANCE:
-            return samples[i]
-        return samples[i] + frac * (samples[i + 1] - samples[i])
-
-    def _sample(self) -> tuple[np.ndarray, np.ndarray]:
-        """The command at the plan's current place: its position, its velocity times σ."""
-        return self._interpolate(self.q, self._s), self._sigma * self._interpolate(self.dq, self._s)
+        sample = self.play.command(st.cycle, st.flags)
+        self._log_state()
+        return None if sample is None else (np.array(sample[0]), np.array(sample[1]))
 
     def report(self) -> dict:
+        self._log_state()
         return {
             "plan_id": self.plan_id,
             "state": self.state,

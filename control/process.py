@@ -152,11 +152,15 @@ class ControlProcess(ProcessAdaptation):
         self.session = open_peer(self.bus, security.CONTROL)
         s = self.session
         self._pub_cmd = declare_loop_publisher(s, self.keys.joint_command)
-        compiled = type(self.ctl) is ZeroMomentController  # the admittance's law is Python's
+        # The admittance's law is Python's: its teaching and its replays (which disengage it)
+        # stay in Python. Without a model, an identification's plan plays compiled.
+        compiled = type(self.ctl) is ZeroMomentController
+        plays = compiled or self.ctl is None
         self._loop = _rt.CycleLoop(
             peer_config_entries(self.bus, security.CONTROL), self.keys.joint_state,
             self.keys.joint_command, self.ctl._cycle if compiled else None,
-            self._on_state_bytes,
+            self._on_state_bytes, self.player.play if plays else None,
+            compiled and self.adaptation is not None,
         )  # fmt: skip
         self._subs = [
             s.declare_subscriber(self.keys.io_state, self._on_io),
@@ -207,13 +211,25 @@ class ControlProcess(ProcessAdaptation):
                     if self._loop is not None:
                         self._loop.set_lifecycle(
                             msg.state == Lifecycle.TEACHING, self.lifecycle_rx_s,
-                            self.cfg.lifecycle_timeout_s,
+                            self.cfg.lifecycle_timeout_s, self._playing(msg),
                         )  # fmt: skip
             if dropped is not None:
                 self._ratelog(
                     logging.WARNING, f"lifecycle_{dropped}", "lifecycle seq %d %s dropped: %s",
                     msg.seq, msg.state.name, dropped,
                 )  # fmt: skip
+
+    def _playing(self, msg: LifecycleMsg) -> str | None:
+        """What the compiled loop may play under ``msg``: "identifying" or "replaying" while
+        the plan the player has is the one ``msg`` names, else None. A new plan clears the
+        player's compiled slot, so that the next state comes to :meth:`_on_state_bytes`,
+        which starts it (lock held)."""
+        if msg.state not in PLAYING:
+            return None
+        plan = msg.extra.get("plan")
+        if isinstance(plan, dict) and str(plan.get("plan_id")) != self.player.plan_id:
+            self.player.play.clear()
+        return msg.state.name.lower()
 
     def _apply_guide(self, msg: LifecycleMsg) -> None:
         """The constrained guide the gateway's lifecycle names (``guide``, the operator's

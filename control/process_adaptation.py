@@ -12,6 +12,8 @@ from __future__ import annotations
 import logging
 from concurrent.futures import Future, ThreadPoolExecutor
 
+import numpy as np
+
 from control.declared_model import IdentifiedControlModel
 from control.model_adaptation import (
     AdaptationSettings,
@@ -87,6 +89,15 @@ class ProcessAdaptation:
         self._apply_adaptation(save=False)
         self._adaptation_restored = True
 
+    def _take_loop_samples(self) -> None:
+        """The replay's states the compiled loop kept for eq. (29) (it plays the replay:
+        control/rt/src/py_cycle_loop.rs), into the adaptation's batch."""
+        loop, adapt = self._loop, self.adaptation
+        if loop is None or adapt is None:
+            return
+        for cycle, stamp_s, q, dq, tau, p_bar in loop.take_samples():
+            adapt.add(cycle, stamp_s, np.array(q), np.array(dq), tau, p_bar)
+
     def _adapt_model(self, now: float) -> None:
         """Eq. (29) on the replay's states collected since the last call; the law takes the
         adapted model once the arm is neither taught nor replayed (a model never changes
@@ -95,6 +106,7 @@ class ProcessAdaptation:
         if adapt is None or ctl is None:
             return
         self._check_saved()
+        self._take_loop_samples()
         adapt.process()
         if adapt.version == self._adaptation_applied or ctl.engaged:
             return

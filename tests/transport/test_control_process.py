@@ -5,6 +5,7 @@ import math
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -56,6 +57,40 @@ def state(cycle: int) -> bytes:
 
 def settle() -> None:
     time.sleep(0.3)
+
+
+def state_while_the_gil_is_held(
+    endpoint: str, cycle: int, refresh: Callable[[], None]
+) -> tuple[float, float]:
+    """A joint state of ``cycle`` arrives while this process holds its GIL: a publisher
+    process, once ready, is told to publish it DELAY_S later, ``refresh`` having made the
+    lifecycle and pressures fresh, and this process holds the GIL for HOLD_US (a C call that
+    keeps it). Returns when the hold began and ended (monotonic [s]).
+
+    The state comes from another process, DELAY_S after this one holds its GIL: put from here,
+    it could be answered before the hold began (a fast machine did, 52 us after the put,
+    before the next line ran), and the test would prove nothing."""
+    import ctypes
+
+    publisher = subprocess.Popen(
+        [sys.executable, str(PUBLISHER), endpoint, str(cycle), str(DELAY_S)],
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, cwd=ROOT,
+    )  # fmt: skip
+    try:
+        assert publisher.stdout is not None and publisher.stdin is not None
+        assert publisher.stdout.readline().strip() == "ready"
+        refresh()
+        time.sleep(0.05)
+        publisher.stdin.write("go\n")
+        publisher.stdin.flush()
+        held_from = time.monotonic()
+        ctypes.PyDLL(None).usleep(HOLD_US)  # PyDLL: the GIL stays held through the call
+        held_until = time.monotonic()
+        assert publisher.wait(timeout=10) == 0
+    finally:
+        publisher.kill()
+        publisher.wait()
+    return held_from, held_until
 
 
 def test_commands_only_while_teaching_with_fresh_pressures(rig):
@@ -145,8 +180,6 @@ def test_teaching_is_answered_while_python_holds_the_gil(rig):
     """The compiled loop (control/rt/src/py_cycle_loop.rs): a teaching state is answered and
     the command sent while this process's Python is held (a C call that keeps the GIL for
     0.3 s): no Python on the path from the joint state to the command."""
-    import ctypes
-
     bus, client, proc, commands = rig
     keys = bus.keys
     client.put(keys.io_state, IoState(time.monotonic(), 6.0, 4.0, 6.0, 4.0, True, True).to_bytes())
@@ -155,30 +188,13 @@ def test_teaching_is_answered_while_python_holds_the_gil(rig):
     client.put(keys.joint_state, state(1))  # engages (the example cell engages at once)
     settle()
     assert [c.cycle for c in commands] == [1]
-    # The state comes from another process, DELAY_S after this one holds its GIL: put from
-    # here, it could be answered before the hold began (a fast machine did, 52 us after the
-    # put, before the next line ran), and the test would prove nothing.
-    publisher = subprocess.Popen(
-        [sys.executable, str(PUBLISHER), bus.endpoint, "2", str(DELAY_S)],
-        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, cwd=ROOT,
-    )  # fmt: skip
-    try:
-        assert publisher.stdout is not None and publisher.stdin is not None
-        assert publisher.stdout.readline().strip() == "ready"
-        client.put(
-            keys.io_state, IoState(time.monotonic(), 6.0, 4.0, 6.0, 4.0, True, True).to_bytes()
-        )
-        client.put(keys.lifecycle, LifecycleMsg(Lifecycle.TEACHING, 2, time.monotonic()).to_bytes())
-        time.sleep(0.05)
-        publisher.stdin.write("go\n")
-        publisher.stdin.flush()
-        held_from = time.monotonic()
-        ctypes.PyDLL(None).usleep(HOLD_US)  # PyDLL: the GIL stays held through the call
-        held_until = time.monotonic()
-        assert publisher.wait(timeout=10) == 0
-    finally:
-        publisher.kill()
-        publisher.wait()
+
+    def refresh() -> None:
+        now = time.monotonic()
+        client.put(keys.io_state, IoState(now, 6.0, 4.0, 6.0, 4.0, True, True).to_bytes())
+        client.put(keys.lifecycle, LifecycleMsg(Lifecycle.TEACHING, 2, now).to_bytes())
+
+    held_from, held_until = state_while_the_gil_is_held(bus.endpoint, 2, refresh)
     settle()
     assert [c.cycle for c in commands] == [1, 2]
     # sent while held, with the state's delay before it and room after it
@@ -188,3 +204,61 @@ def test_teaching_is_answered_while_python_holds_the_gil(rig):
         held_until,
     )
     assert proc._loop_report()["compiled_commands"] == 2
+
+
+#: A short identification-like plan played under REPLAYING (the lifecycle's ``plan``).
+REPLAY_PLAN = {
+    "plan_id": "gil",
+    "multisine": [
+        {"seed": 1, "duration_s": 2.0, "amplitude_rad": 0.01, "base_hz": 0.5, "harmonics": 2}
+    ],
+    "pause_s": 0.0,
+}
+#: How long the plan builder (a worker process) may take to build it [s].
+BUILD_TIMEOUT_S = 30.0
+
+
+def test_a_replay_is_played_while_python_holds_the_gil(rig):
+    """The compiled loop plays a built plan (control/rt/src/law/plan_play.rs): once the
+    builder has built it, a replaying state is answered with the plan's sample and the
+    command sent while this process's Python is held, as teaching's is."""
+    bus, client, proc, commands = rig
+    keys = bus.keys
+
+    def replaying(seq: int) -> None:
+        now = time.monotonic()
+        client.put(keys.io_state, IoState(now, 6.0, 4.0, 6.0, 4.0, True, True).to_bytes())
+        msg = LifecycleMsg(Lifecycle.REPLAYING, seq, now, "", {"plan": REPLAY_PLAN})
+        client.put(keys.lifecycle, msg.to_bytes())
+
+    cycle, deadline = 1, time.monotonic() + BUILD_TIMEOUT_S
+    while proc.player.state != "running" and time.monotonic() < deadline:
+        replaying(cycle)  # the lifecycle stays fresh
+        time.sleep(0.02)
+        client.put(keys.joint_state, state(cycle))  # Python holds the arm while it plans
+        cycle += 1
+        time.sleep(0.03)
+    assert proc.player.state == "running", proc.player.report()
+    settle()
+    assert proc._loop_report().get("compiled_commands", 0) == 0  # the plan came on Python's
+    replaying(cycle)
+    time.sleep(0.05)
+    client.put(keys.joint_state, state(cycle))  # the plan's first compiled cycle
+    settle()
+    assert proc._loop_report()["compiled_commands"] == 1
+    held_from, held_until = state_while_the_gil_is_held(
+        bus.endpoint, cycle + 1, lambda: replaying(cycle + 1)
+    )
+    settle()
+    last = commands[-1]
+    assert last.cycle == cycle + 1
+    assert held_from + DELAY_S < last.sent_stamp_s < held_until - 0.1, (
+        held_from,
+        last.sent_stamp_s,
+        held_until,
+    )
+    assert proc._loop_report()["compiled_commands"] == 2
+    # sample 0 went out on the cycle that found the plan built (Python's), the next ones
+    # compiled
+    report = proc.player.report()
+    assert report["state"] == "running" and report["segments"][0]["start_cycle"] == cycle - 1

@@ -30,6 +30,8 @@ mod py_module;
 #[cfg(feature = "python")]
 mod py_outer_loop;
 #[cfg(feature = "python")]
+mod py_plan_play;
+#[cfg(feature = "python")]
 mod py_rest_hold;
 #[cfg(feature = "python")]
 mod py_zero_moment;

@@ -10,8 +10,13 @@
 //!   following, the cylinders' pressures fresh): the compiled law answers it
 //!   ([`PyZeroMomentCycle`], its pieces borrowed without the GIL) and the command is encoded and
 //!   published from that thread, stamped at receipt and at sending as the Python did;
-//! - anything else (a hold to observe, a plan to play, stale pressures, a malformed payload, the
-//!   admittance law): the payload and its receipt time go to the Python callback
+//! - identifying or replaying with a built plan ([`PyPlanPlay`], installed by
+//!   control/plan_player.py once its worker built it): the plan's sample answers it, with the
+//!   law's hold offset on a replay's (eq. 21's steady state: a taught path is where the tool
+//!   must be), and a replay's state goes to a buffer for eq. (29), which Python's slow loop
+//!   drains ([`PyCycleLoop::take_samples`]);
+//! - anything else (a hold to observe, a plan being built, stale pressures, a malformed
+//!   payload, the admittance law): the payload and its receipt time go to the Python callback
 //!   (`ControlProcess._on_state_bytes`), under the GIL, as the Python subscription did.
 //!
 //! Python tells the loop what it needs to decide ([`PyCycleLoop::set_lifecycle`],
@@ -32,10 +37,34 @@ use zenoh::{Session, Wait};
 
 use crate::chain::MAX_JOINTS;
 use crate::law::zero_moment::State;
+use crate::py_plan_play::{playable, PyPlanPlay};
 use crate::py_zero_moment::PyZeroMomentCycle;
 
 /// Notes kept for Python at most (the oldest go first).
 const MAX_NOTES: usize = 64;
+/// A replay's states kept for eq. (29) until the slow loop takes them (16 s at 125 Hz, 4 s at
+/// 500 Hz; the slow loop takes them several times a second): the newest wait when it is full.
+const MAX_SAMPLES: usize = 2048;
+
+/// What the lifecycle lets the loop play (set by Python).
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Playing {
+    Nothing,
+    Identifying,
+    Replaying,
+}
+
+/// A replay's state for eq. (29): cycle, stamp [s], q [rad], dq [rad/s], motor torque [N·m],
+/// pressures [bar], joints.
+type Sample = (
+    i64,
+    f64,
+    [f64; MAX_JOINTS],
+    [f64; MAX_JOINTS],
+    [f64; MAX_JOINTS],
+    [f64; 2],
+    usize,
+);
 
 /// CLOCK_MONOTONIC [s]: Python's `time.monotonic()`, one clock for every process.
 fn monotonic_s() -> f64 {
@@ -52,6 +81,8 @@ fn monotonic_s() -> f64 {
 struct Mode {
     /// The gateway's last lifecycle is TEACHING (and the law is the compiled one).
     teaching: bool,
+    /// ... or IDENTIFYING or REPLAYING.
+    playing: Playing,
     lifecycle_rx_s: f64,
     lifecycle_timeout_s: f64,
     /// The cylinders' pressures [bar] and when the Modbus driver read them.
@@ -62,6 +93,10 @@ struct Mode {
 
 struct Shared {
     law: Option<Py<PyZeroMomentCycle>>,
+    player: Option<Py<PyPlanPlay>>,
+    /// Collect a replay's states for eq. (29).
+    sampling: bool,
+    samples: Mutex<Vec<Sample>>,
     forward: Py<PyAny>,
     mode: Mutex<Mode>,
     publisher: Publisher<'static>,
@@ -111,23 +146,35 @@ impl Shared {
     fn on_state(&self, payload: &[u8]) {
         let now = monotonic_s();
         self.states.fetch_add(1, Ordering::Relaxed);
-        let Some(law) = self.law.as_ref().map(Py::get) else {
+        if self.law.is_none() && self.player.is_none() {
             return self.forward(payload, now);
-        };
+        }
         let Ok(st) = JointState::from_bytes(payload) else {
             return self.forward(payload, now); // Python decodes it again, counts and logs it
         };
-        let Some(p_bar) = self.answers(&st, law, now) else {
-            return self.forward(payload, now);
-        };
-        let n = st.q_rad.len();
-        {
-            let mut last = self.last.lock().unwrap_or_else(|p| p.into_inner());
-            last.0 = st.cycle;
-            last.1[..n].copy_from_slice(&st.q_rad);
-            last.2[..n].copy_from_slice(&st.dq_rad_s);
-            last.3 = n;
+        if let Some(law) = self.law.as_ref().map(Py::get) {
+            if let Some(p_bar) = self.answers(&st, law, now) {
+                return self.teach(&st, law, &p_bar, now);
+            }
         }
+        if !self.play(&st, now) {
+            self.forward(payload, now);
+        }
+    }
+
+    fn remember(&self, st: &JointState) {
+        let n = st.q_rad.len();
+        let mut last = self.last.lock().unwrap_or_else(|p| p.into_inner());
+        last.0 = st.cycle;
+        last.1[..n].copy_from_slice(&st.q_rad);
+        last.2[..n].copy_from_slice(&st.dq_rad_s);
+        last.3 = n;
+    }
+
+    /// Teaching: the law answers `st`.
+    fn teach(&self, st: &JointState, law: &PyZeroMomentCycle, p_bar: &[f64; 2], now: f64) {
+        let n = st.q_rad.len();
+        self.remember(st);
         let state = State {
             cycle: st.cycle,
             flags: u32::from(st.flags),
@@ -140,7 +187,7 @@ impl Shared {
         };
         let mut q_cmd = [0.0; MAX_JOINTS];
         let mut dq_cmd = [0.0; MAX_JOINTS];
-        if let Err(e) = law.answer_state(&state, &p_bar, &mut q_cmd[..n], &mut dq_cmd[..n]) {
+        if let Err(e) = law.answer_state(&state, p_bar, &mut q_cmd[..n], &mut dq_cmd[..n]) {
             law.disengage_now();
             self.errors.fetch_add(1, Ordering::Relaxed);
             return self.note(format!(
@@ -148,26 +195,134 @@ impl Shared {
                 st.cycle
             ));
         }
+        if let Err((e, unencodable)) = self.publish(st, &q_cmd[..n], &dq_cmd[..n], now) {
+            if unencodable {
+                law.disengage_now();
+            }
+            self.note(e);
+        }
+    }
+
+    /// Encode and publish the command answering `st`, received at `rx_s` and stamped as sent
+    /// now. Err: why it was not sent, and whether it could not be encoded (counted as an error:
+    /// the law disengages) rather than not published.
+    fn publish(
+        &self,
+        st: &JointState,
+        q_cmd: &[f64],
+        dq_cmd: &[f64],
+        rx_s: f64,
+    ) -> Result<(), (String, bool)> {
         let mut buf = self.buf.lock().unwrap_or_else(|p| p.into_inner());
-        let packed = JointCommand::pack(
-            &mut buf,
-            st.cycle,
-            st.stamp_s,
-            monotonic_s(),
-            &q_cmd[..n],
-            &dq_cmd[..n],
-            now,
-        );
+        let tx_s = monotonic_s();
+        let packed = JointCommand::pack(&mut buf, st.cycle, st.stamp_s, tx_s, q_cmd, dq_cmd, rx_s);
         if let Err(e) = packed {
-            law.disengage_now();
             self.errors.fetch_add(1, Ordering::Relaxed);
-            return self.note(format!("command not sent: {e}"));
+            return Err((format!("command not sent: {e}"), true));
         }
         match self.publisher.put(buf.as_slice()).wait() {
             Ok(()) => {
                 self.commands.fetch_add(1, Ordering::Relaxed);
+                Ok(())
             }
-            Err(e) => self.note(format!("command not published: {e}")),
+            Err(e) => Err((format!("command not published: {e}"), false)),
+        }
+    }
+
+    /// Identifying or replaying with a built plan: its sample answers `st` (true), else
+    /// Python does (false). Module docs.
+    fn play(&self, st: &JointState, now: f64) -> bool {
+        let Some(player) = self.player.as_ref().map(Py::get) else {
+            return false;
+        };
+        let (playing, p_bar, io_seen, io_fresh) = {
+            let m = self.mode.lock().unwrap_or_else(|p| p.into_inner());
+            let fresh = now - m.lifecycle_rx_s <= m.lifecycle_timeout_s;
+            let playing = if fresh { m.playing } else { Playing::Nothing };
+            let io_seen = m.io_stamp_s > f64::NEG_INFINITY;
+            (
+                playing,
+                m.p_bar,
+                io_seen,
+                now - m.io_stamp_s <= m.io_timeout_s,
+            )
+        };
+        if playing == Playing::Nothing || !st.controller_state.servoing() {
+            return false;
+        }
+        let n = st.q_rad.len();
+        let mut q_cmd = [0.0; MAX_JOINTS];
+        let mut dq_cmd = [0.0; MAX_JOINTS];
+        {
+            let Ok(mut slot) = player.slot() else {
+                return false; // Python reports the poisoned lock
+            };
+            if !playable(&slot, n) {
+                return false;
+            }
+            let Some(plan) = slot.as_mut() else {
+                return false;
+            };
+            let law = self.law.as_ref().map(Py::get);
+            if let Some(law) = law {
+                law.disengage_now(); // a plan plays: the law follows no hand
+            }
+            if !plan.command(
+                st.cycle,
+                u32::from(st.flags),
+                &mut q_cmd[..n],
+                &mut dq_cmd[..n],
+            ) {
+                return true; // the plan failed: nothing more is sent for it
+            }
+            if playing == Playing::Replaying && io_seen {
+                if let Some(law) = law {
+                    // a taught path is where the tool must be: the load's offset on top
+                    let mut offset = [0.0; MAX_JOINTS];
+                    let got = law.offset_at(&q_cmd[..n], &dq_cmd[..n], &p_bar, &mut offset[..n]);
+                    if let Err(e) = got {
+                        plan.fail(format!("the model is undefined on the path: {e}"));
+                        return true;
+                    }
+                    for j in 0..n {
+                        q_cmd[j] += offset[j];
+                    }
+                }
+            }
+        }
+        self.remember(st);
+        if let Err((e, unencodable)) = self.publish(st, &q_cmd[..n], &dq_cmd[..n], now) {
+            if unencodable {
+                if let Ok(mut slot) = player.slot() {
+                    if let Some(plan) = slot.as_mut() {
+                        plan.fail(e.clone()); // a sample that cannot be sent ends the plan
+                    }
+                }
+            }
+            self.note(e);
+            return true;
+        }
+        if playing == Playing::Replaying && self.sampling && io_fresh {
+            if let Some(law) = self.law.as_ref().map(Py::get) {
+                self.sample(st, law, p_bar);
+            }
+        }
+        true
+    }
+
+    /// Keep a replay's state for eq. (29) (free motion), with the motor torque it reports.
+    fn sample(&self, st: &JointState, law: &PyZeroMomentCycle, p_bar: [f64; 2]) {
+        let n = st.q_rad.len();
+        let mut tau = [0.0; MAX_JOINTS];
+        if law.motor_torque_at(&st.current_a, &mut tau[..n]).is_err() {
+            return;
+        }
+        let (mut q, mut dq) = ([0.0; MAX_JOINTS], [0.0; MAX_JOINTS]);
+        q[..n].copy_from_slice(&st.q_rad);
+        dq[..n].copy_from_slice(&st.dq_rad_s);
+        let mut samples = self.samples.lock().unwrap_or_else(|p| p.into_inner());
+        if samples.len() < MAX_SAMPLES {
+            samples.push((st.cycle, st.stamp_s, q, dq, tau, p_bar, n));
         }
     }
 }
@@ -183,9 +338,12 @@ pub struct PyCycleLoop {
 impl PyCycleLoop {
     /// Open the session (`zenoh_config`: (key, JSON5 value) pairs), declare the command
     /// publisher and the joint-state subscriber. `law`: the zero-moment law's compiled cycle,
-    /// or None (every state goes to `forward(payload: bytes, rx_s: float)`).
+    /// or None; `player`: the slot of the plan being played, or None; without either every
+    /// state goes to `forward(payload: bytes, rx_s: float)`. `sampling`: keep a replay's states
+    /// for eq. (29) ([`PyCycleLoop::take_samples`]).
     #[new]
-    #[pyo3(signature = (zenoh_config, joint_state_key, joint_command_key, law, forward))]
+    #[pyo3(signature = (zenoh_config, joint_state_key, joint_command_key, law, forward, player=None, sampling=false))]
+    #[allow(clippy::too_many_arguments)]
     fn new(
         py: Python<'_>,
         zenoh_config: Vec<(String, String)>,
@@ -193,6 +351,8 @@ impl PyCycleLoop {
         joint_command_key: String,
         law: Option<Py<PyZeroMomentCycle>>,
         forward: Py<PyAny>,
+        player: Option<Py<PyPlanPlay>>,
+        sampling: bool,
     ) -> PyResult<Self> {
         if !forward.bind(py).is_callable() {
             return Err(PyValueError::new_err("forward must be callable"));
@@ -224,9 +384,13 @@ impl PyCycleLoop {
         let (session, publisher) = opened.map_err(PyRuntimeError::new_err)?;
         let shared = Arc::new(Shared {
             law,
+            player,
+            sampling,
+            samples: Mutex::new(Vec::with_capacity(MAX_SAMPLES)),
             forward,
             mode: Mutex::new(Mode {
                 teaching: false,
+                playing: Playing::Nothing,
                 lifecycle_rx_s: f64::NEG_INFINITY,
                 lifecycle_timeout_s: 0.0,
                 p_bar: [0.0; 2],
@@ -265,12 +429,32 @@ impl PyCycleLoop {
     }
 
     /// The gateway's lifecycle as the control process received it: TEACHING with the
-    /// compiled law (`teaching`), when [s], and how long it stays fresh [s].
-    fn set_lifecycle(&self, teaching: bool, rx_s: f64, timeout_s: f64) {
+    /// compiled law (`teaching`), or the plan it plays (`playing`: "identifying",
+    /// "replaying" or None), when [s], and how long it stays fresh [s].
+    #[pyo3(signature = (teaching, rx_s, timeout_s, playing=None))]
+    fn set_lifecycle(
+        &self,
+        teaching: bool,
+        rx_s: f64,
+        timeout_s: f64,
+        playing: Option<&str>,
+    ) -> PyResult<()> {
+        let playing = match playing {
+            None => Playing::Nothing,
+            Some("identifying") => Playing::Identifying,
+            Some("replaying") => Playing::Replaying,
+            Some(other) => {
+                return Err(PyValueError::new_err(format!(
+                    "playing {other:?}: neither \"identifying\" nor \"replaying\""
+                )))
+            }
+        };
         let mut m = self.shared.mode.lock().unwrap_or_else(|p| p.into_inner());
         m.teaching = teaching;
+        m.playing = playing;
         m.lifecycle_rx_s = rx_s;
         m.lifecycle_timeout_s = timeout_s;
+        Ok(())
     }
 
     /// The cylinders' pressures [bar], when they were read [s] and how long they stay fresh.
@@ -299,6 +483,32 @@ impl PyCycleLoop {
         let last = self.shared.last.lock().unwrap_or_else(|p| p.into_inner());
         let n = last.3;
         (n > 0).then(|| (last.0, last.1[..n].to_vec(), last.2[..n].to_vec()))
+    }
+
+    /// A replay's states kept for eq. (29) since the last call, oldest first: `(cycle, stamp_s,
+    /// q, dq, motor torque [N·m], (p2, p3) [bar])` each.
+    #[allow(clippy::type_complexity)]
+    fn take_samples(&self) -> Vec<(i64, f64, Vec<f64>, Vec<f64>, Vec<f64>, (f64, f64))> {
+        let taken = std::mem::take(
+            &mut *self
+                .shared
+                .samples
+                .lock()
+                .unwrap_or_else(|p| p.into_inner()),
+        );
+        taken
+            .into_iter()
+            .map(|(c, t, q, dq, tau, p, n)| {
+                (
+                    c,
+                    t,
+                    q[..n].to_vec(),
+                    dq[..n].to_vec(),
+                    tau[..n].to_vec(),
+                    (p[0], p[1]),
+                )
+            })
+            .collect()
     }
 
     /// The notes since the last call (oldest first).

@@ -157,6 +157,28 @@ impl PyZeroMomentCycle {
         self.locked(|law, parts| law.answer(parts, st, p_bar, q_cmd, dq_cmd))
     }
 
+    /// The command offset at (q, dq) with pressures `p_bar`, for the compiled loop (no GIL):
+    /// as [`PyZeroMomentCycle::hold_offset`].
+    pub(crate) fn offset_at(
+        &self,
+        q: &[f64],
+        dq: &[f64],
+        p_bar: &[f64],
+        out: &mut [f64],
+    ) -> Result<(), String> {
+        self.locked(|law, parts| law.hold_offset(parts.model, parts.outer, q, dq, p_bar, out))
+    }
+
+    /// The motor torque `current_a` reports [N·m], for the compiled loop (no GIL).
+    pub(crate) fn motor_torque_at(&self, current_a: &[f64], out: &mut [f64]) -> Result<(), String> {
+        let law = self
+            .law
+            .lock()
+            .map_err(|_| "the law's lock is poisoned".to_string())?;
+        law.motor_torque(current_a, out);
+        Ok(())
+    }
+
     /// Stop following (the loop's error path).
     pub(crate) fn disengage_now(&self) {
         if let Ok(mut law) = self.law.lock() {
