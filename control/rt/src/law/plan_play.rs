@@ -11,8 +11,8 @@
 //! Between samples, positions and velocities are interpolated. Each segment's first and last
 //! sample are recorded with the cycle that carried them out, for the export.
 
-/// `FLAG_PREV_HOLD` of a JointState (gateway/rt/src/messages.rs).
-const FLAG_PREV_HOLD: u32 = 4;
+/// A JointState's flag: the CAN driver held the cycle before it (the bus contract's).
+const FLAG_PREV_HOLD: u32 = bus_rt::messages::FLAG_PREV_HOLD as u32;
 /// A fractional plan index this close to a sample is that sample.
 const INDEX_TOLERANCE: f64 = 1e-9;
 
