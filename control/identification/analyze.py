@@ -159,6 +159,9 @@ def _analyze(
     window_s = 1.0 / options.torque_cutoff_hz
     sliding_train = sliding_mask(train, options.stick_velocity_rad_s, window_s)
     sliding_test = sliding_mask(test, options.stick_velocity_rad_s, window_s)
+    # the rows the guard's second look judges on: every row but a stop's (a joint that stays
+    # below the stick velocity for one filter period), reversals included
+    moving_test = sliding_mask(test, options.stick_velocity_rad_s, window_s, window_s)
     ls = BlockLS(train.tau, folds, sliding_train)
     beta_nominal = reg.base.base_values(reg.parameters())
     ls.set_prior("rigid", beta_nominal, RIGID_PRIOR_RIDGE)
@@ -298,7 +301,7 @@ def _analyze(
     # The guard's second look: on the leading test rows, what extrapolates worse than plain
     # least squares or zero is replaced there too (the figures are then those of the rest).
     kinds_now = [MODEL if j not in plain else plain[j].kind for j in range(reg.n)]
-    second = guard_on_test(test.tau, pred_after, pred_plain, sliding_test, fit_rows, kinds_now)
+    second = guard_on_test(test.tau, pred_after, pred_plain, moving_test, fit_rows, kinds_now)
     switched = []
     if second is not None:
         pred_after = pred_after.copy()
