@@ -20,9 +20,9 @@ that needs a CPU at once waits up to ``1 - 1/factor`` ms more than on a slower C
 
 Without ``--factor`` the factor is what this machine's own loop time says it lacks to be the
 slowest machine of the class (:data:`SLOWEST_LOOP_S`), measured before the emulation starts;
-the loop is then timed under the emulation and the factor scaled by what it missed (the
-spinners' own switching slows it further: 5.74x gave 2.18 s for 1.62 s, session 84), up to
-:data:`CALIBRATION_STEPS` times; every timing is printed.
+the loop is then timed under the emulation and the factor corrected by what it missed (the
+spinners' own switching slows it further: 5.74x gave 2.18 s for 1.62 s, session 84;
+:func:`corrected_factor`), up to :data:`CALIBRATION_STEPS` times; every timing is printed.
 
 SCHED_FIFO needs root or an rtprio limit; without it the emulation is refused (exit 2), never
 silently skipped. The kernel's real-time throttling (``/proc/sys/kernel/sched_rt_runtime_us``,
@@ -81,15 +81,26 @@ def factor_for(loop_s: float, target_s: float) -> float:
     return min(max(target_s / loop_s, 1.0), MAX_FACTOR)
 
 
-def corrected_factor(factor: float, loop_s: float, target_s: float) -> float | None:
-    """The factor to try next when the loop took ``loop_s`` under ``factor`` and should take
-    ``target_s``: the factor scaled by what the loop missed (1 to :data:`MAX_FACTOR`); None
-    when it is within :data:`CALIBRATION_TOLERANCE` of the target already."""
-    if not (loop_s > 0 and target_s > 0):
-        raise ValueError(f"loop times must be > 0 (got {loop_s}, {target_s})")
+def corrected_factor(factor: float, loop_s: float, target_s: float, own_s: float) -> float | None:
+    """The factor to try next when this machine's loop, ``own_s`` alone, took ``loop_s`` under
+    ``factor`` and should take ``target_s``; None when it is within
+    :data:`CALIBRATION_TOLERANCE` of the target already.
+
+    Each period of the emulation costs the other threads a fixed stretch of their window
+    besides the spinner's share (the two switches and the caches the spinner cooled), so the
+    loop runs at ``1/factor - c`` of the machine's speed, not ``1/factor``: ``c`` is read from
+    this timing, ``1/factor - own/loop``, and the next factor is the one whose window less ``c``
+    gives the target, ``1 / (own/target + c)`` (1 to :data:`MAX_FACTOR`). Scaling the factor by
+    what the loop missed instead overshot both ways (5.46x: 1.83 s, 4.83x: 1.42 s for 1.62 s,
+    this machine's loop 0.30 s alone, 2026-12-05)."""
+    if not (loop_s > 0 and target_s > 0 and own_s > 0):
+        raise ValueError(f"loop times must be > 0 (got {loop_s}, {target_s}, {own_s})")
     if abs(loop_s / target_s - 1.0) <= CALIBRATION_TOLERANCE:
         return None
-    return min(max(factor * target_s / loop_s, 1.0), MAX_FACTOR)
+    window = own_s / target_s + (1.0 / factor - own_s / loop_s)
+    if window <= 1.0 / MAX_FACTOR:
+        return MAX_FACTOR
+    return min(max(1.0 / window, 1.0), MAX_FACTOR)
 
 
 def _factor(text: str) -> float:
@@ -167,7 +178,7 @@ def main(argv: list[str] | None = None) -> int:
     if not fifo_permitted():
         p.exit(2, f"{p.prog}: SCHED_FIFO {STEAL_PRIORITY} refused: run as root or raise the "
                   "rtprio limit; no emulation without it\n")  # fmt: skip
-    calibrate = args.factor is None
+    calibrate, own = args.factor is None, 0.0
     if args.factor is None:
         if not args.as_slow_as > 0:
             p.error(f"--as-slow-as {args.as_slow_as}: a loop time > 0 s")
@@ -181,10 +192,10 @@ def main(argv: list[str] | None = None) -> int:
         p.exit(2, f"{p.prog}: a spinning thread did not start\n")
     for _ in range(CALIBRATION_STEPS if spinners and target is not None else 0):
         # the emulation's own switching slows the loop beyond the factor (session 84: 5.74x
-        # gave 2.18 s for 1.62 s): scale the factor by what the loop missed, and try again
+        # gave 2.18 s for 1.62 s): correct the factor by what the loop missed, and try again
         now = loop_time_s()
         print(f"slow_machine: at {args.factor:.2f}x the loop takes {now:.2f} s", flush=True)
-        factor = corrected_factor(args.factor, now, target)
+        factor = corrected_factor(args.factor, now, target, own)
         if factor is None:
             break
         _stop(spinners)
