@@ -56,8 +56,10 @@ MAX_FACTOR = 20.0
 #: machine of the class on whichever machine runs it, whatever that machine's speed today.
 SLOWEST_LOOP_S = 1.62
 #: ``--as-slow-as``: the factor is corrected by the loop timed under the emulation at most this
-#: many times, until the loop is within :data:`CALIBRATION_TOLERANCE` of the target (the best of
-#: three runs of this machine's loop varies by about that much from one minute to the next)
+#: many times, until the loop is within :data:`CALIBRATION_TOLERANCE` of the target. The
+#: emulated loop's best of three scatters about as much at one factor (1.71 and 1.88 s at
+#: 5.49x here, 2026-12-05): a closer tolerance would chase that scatter; the steps are bounded
+#: so that it stops whatever the scatter.
 CALIBRATION_STEPS = 3
 CALIBRATION_TOLERANCE = 0.07
 #: the loop, at module level as `python -c` runs it; prints its own time
