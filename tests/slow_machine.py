@@ -180,15 +180,15 @@ def main(argv: list[str] | None = None) -> int:
     if not fifo_permitted():
         p.exit(2, f"{p.prog}: SCHED_FIFO {STEAL_PRIORITY} refused: run as root or raise the "
                   "rtprio limit; no emulation without it\n")  # fmt: skip
-    calibrate, own = args.factor is None, 0.0
+    target, own = None, 0.0  # --as-slow-as: the loop time the calibration aims at [s]
     if args.factor is None:
         if not args.as_slow_as > 0:
             p.error(f"--as-slow-as {args.as_slow_as}: a loop time > 0 s")
         own = loop_time_s()
-        args.factor = factor_for(own, args.as_slow_as)
+        target = args.as_slow_as
+        args.factor = factor_for(own, target)
         print(f"slow_machine: this machine's 10 M-iteration loop {own:.2f} s; "
               f"{args.as_slow_as:g} s asks for {args.factor:.2f}x", flush=True)  # fmt: skip
-    target = args.as_slow_as if calibrate else None
     spinners = _start(args.cpus, args.factor)
     if spinners is None:
         p.exit(2, f"{p.prog}: a spinning thread did not start\n")
