@@ -110,18 +110,33 @@ class PlanPlayer:
 
     # --- where the plan is: the compiled play's once it has the plan --------------------------
     def _status(self) -> tuple | None:
+        """One reading of the compiled play's status (None: the plan is not played there).
+        It is played on the compiled loop's thread: what one answer reports comes from one
+        reading, so its state, sample and segment cycles agree."""
         return self.play.status() if self._phase == "played" else None
+
+    def _state_of(self, status: tuple | None) -> str:
+        return self._phase if status is None else status[0]
+
+    def _reason_of(self, status: tuple | None) -> str:
+        return self._reason if status is None else status[1]
+
+    def _segments_of(self, status: tuple | None) -> list[dict]:
+        cycles = [(-1, -1)] * len(self._labels) if status is None else status[5]
+        return [
+            {"label": label, "role": role, "start_cycle": None if a < 0 else a,
+             "end_cycle": None if b < 0 else b}
+            for (label, role), (a, b) in zip(self._labels, cycles, strict=True)
+        ]  # fmt: skip
 
     @property
     def state(self) -> str:
         """idle | planning | running | done | failed."""
-        status = self._status()
-        return self._phase if status is None else status[0]
+        return self._state_of(self._status())
 
     @property
     def reason(self) -> str:
-        status = self._status()
-        return self._reason if status is None else status[1]
+        return self._reason_of(self._status())
 
     @property
     def k(self) -> int:
@@ -139,13 +154,7 @@ class PlanPlayer:
     def segments(self) -> list[dict]:
         """Each segment's label, role and the cycles that carried out its first and last
         sample (None: not yet), for the export."""
-        status = self._status()
-        cycles = [(-1, -1)] * len(self._labels) if status is None else status[5]
-        return [
-            {"label": label, "role": role, "start_cycle": None if a < 0 else a,
-             "end_cycle": None if b < 0 else b}
-            for (label, role), (a, b) in zip(self._labels, cycles, strict=True)
-        ]  # fmt: skip
+        return self._segments_of(self._status())
 
     def start(self, plan: dict, st: JointState, period_s: float) -> None:
         self.play.clear()  # the compiled loop plays nothing until this plan is built
@@ -171,6 +180,12 @@ class PlanPlayer:
         except PlanRefused as exc:
             self.fail(str(exc))
 
+    def drop(self) -> None:
+        """Forget the plan (another is coming): the compiled loop plays nothing of it, and
+        the player is idle until :meth:`start`."""
+        self.play.clear()
+        self._job, self._phase, self._reason = None, "idle", ""
+
     def fail(self, why: str) -> None:
         """The plan ends here, failed, with ``why``; nothing more is sent for it."""
         self._job = None
@@ -178,7 +193,7 @@ class PlanPlayer:
             self.play.fail(why)
         else:
             self._phase, self._reason = "failed", why
-        self._log_state()
+        self._log_state(self._status())
 
     def _install(self, parts: Parts) -> None:
         self._labels = [(label, role) for label, role, _q, _dq in parts]
@@ -197,17 +212,18 @@ class PlanPlayer:
         log.info("excitation plan %s: %d segments, %.1f s (built in %.2f s)", self.plan_id,
                  len(parts), len(self.q) * self.period_s, self.planning_s)  # fmt: skip
 
-    def _log_state(self) -> None:
-        """Log the plan's end (done or failed) once, whoever played it."""
-        state = self.state
+    def _log_state(self, status: tuple | None) -> None:
+        """Log the plan's end (done or failed) once, whoever played it (``status``: a reading
+        of :meth:`_status`)."""
+        state = self._state_of(status)
         if state == self._logged or state not in ("done", "failed"):
             return
         self._logged = state
         if state == "done":
             log.info("excitation plan %s done (%d samples sent again after a hold)",
-                     self.plan_id, self.repeats)  # fmt: skip
+                     self.plan_id, 0 if status is None else status[4])  # fmt: skip
         else:
-            log.error("excitation plan %s failed: %s", self.plan_id, self.reason)
+            log.error("excitation plan %s failed: %s", self.plan_id, self._reason_of(status))
 
     def _planned(self, st: JointState) -> None:
         """While planning: take the builder's outcome if it came, or fail the plan when it
@@ -237,18 +253,20 @@ class PlanPlayer:
         if self._phase != "played":
             return None
         sample = self.play.command(st.cycle, st.flags)
-        self._log_state()
+        self._log_state(self._status())
         return None if sample is None else (np.array(sample[0]), np.array(sample[1]))
 
     def report(self) -> dict:
-        self._log_state()
+        """Where the plan is, from one reading of the compiled play's status."""
+        status = self._status()
+        self._log_state(status)
         return {
             "plan_id": self.plan_id,
-            "state": self.state,
-            "reason": self.reason,
-            "progress": self.k / max(len(self.q), 1),
+            "state": self._state_of(status),
+            "reason": self._reason_of(status),
+            "progress": (0 if status is None else status[2]) / max(len(self.q), 1),
             "start_cycle": self.start_cycle,
-            "repeated_samples": self.repeats,
+            "repeated_samples": 0 if status is None else status[4],
             "planning_s": round(self.planning_s, 3),
-            "segments": self.segments,
+            "segments": self._segments_of(status),
         }

@@ -208,6 +208,7 @@ class ControlProcess(ProcessAdaptation):
                 if dropped is None:
                     self.lifecycle, self.lifecycle_rx_s = msg, self.clock()
                     self._apply_guide(msg)
+                    self._drop_stale_plan(msg)
                     if self._loop is not None:
                         self._loop.set_lifecycle(
                             msg.state == Lifecycle.TEACHING, self.lifecycle_rx_s,
@@ -219,17 +220,19 @@ class ControlProcess(ProcessAdaptation):
                     msg.seq, msg.state.name, dropped,
                 )  # fmt: skip
 
-    def _playing(self, msg: LifecycleMsg) -> str | None:
-        """What the compiled loop may play under ``msg``: "identifying" or "replaying" while
-        the plan the player has is the one ``msg`` names, else None. A new plan clears the
-        player's compiled slot, so that the next state comes to :meth:`_on_state_bytes`,
-        which starts it (lock held)."""
-        if msg.state not in PLAYING:
-            return None
-        plan = msg.extra.get("plan")
+    def _drop_stale_plan(self, msg: LifecycleMsg) -> None:
+        """``msg`` names a plan other than the player's: the player drops its own, so that
+        the compiled loop plays nothing of it and the next state comes to
+        :meth:`_on_state_bytes`, which starts the new one (lock held)."""
+        plan = msg.extra.get("plan") if msg.state in PLAYING else None
         if isinstance(plan, dict) and str(plan.get("plan_id")) != self.player.plan_id:
-            self.player.play.clear()
-        return msg.state.name.lower()
+            self.player.drop()
+
+    @staticmethod
+    def _playing(msg: LifecycleMsg) -> str | None:
+        """What the compiled loop may play under ``msg``: "identifying" or "replaying" (it
+        plays only what its slot holds: :meth:`_drop_stale_plan`), else None."""
+        return msg.state.name.lower() if msg.state in PLAYING else None
 
     def _apply_guide(self, msg: LifecycleMsg) -> None:
         """The constrained guide the gateway's lifecycle names (``guide``, the operator's

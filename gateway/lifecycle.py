@@ -247,19 +247,31 @@ class LifecycleMachine:
         """Start an excitation plan (operator command `identify`)."""
         return self.play(Lifecycle.IDENTIFYING, plan, obs)
 
+    def play_problems(self, obs: Observations, verb: str = "a plan") -> list[str]:
+        """Why ``verb`` (identify, replay) would be refused now, most basic first (empty: it
+        would start). The status publishes them, so that a client waits for exactly what
+        :meth:`play` checks: on one CPU the arm was still (brakes) 1.7 s before the
+        controller reported servo-on, and an identify sent on the standstill alone was
+        refused."""
+        if self.state not in (Lifecycle.READY, Lifecycle.TEACHING):
+            return [f"{verb} needs state ready, not {self.state.name.lower()}"]
+        problems = []
+        if not obs.enabling:
+            problems.append("hold the enabling device: the robot will move by itself")
+        if obs.controller_state not in SERVO_ON:
+            problems.append("robot controller is not servo-on yet")
+        elif self.state == Lifecycle.READY and not self._still(obs):
+            problems.append("the robot is still settling after servo-on; try again")
+        return problems
+
     def play(self, state: Lifecycle, plan: dict, obs: Observations) -> tuple[bool, str]:
         """Start playing ``plan`` in ``state`` (IDENTIFYING: an excitation plan, operator
         command `identify`; REPLAYING: a taught program, `replay`)."""
         assert state in PLAYING
         verb = "identify" if state == Lifecycle.IDENTIFYING else "replay"
-        if self.state not in (Lifecycle.READY, Lifecycle.TEACHING):
-            return False, f"{verb} needs state ready, not {self.state.name.lower()}"
-        if not obs.enabling:
-            return False, "hold the enabling device: the robot will move by itself"
-        if obs.controller_state not in SERVO_ON:
-            return False, "robot controller is not servo-on yet"
-        if self.state == Lifecycle.READY and not self._still(obs):
-            return False, "the robot is still settling after servo-on; try again"
+        problems = self.play_problems(obs, verb)
+        if problems:
+            return False, problems[0]
         self.plan = plan
         self.plan_result = {"plan_id": plan.get("plan_id"), "state": "running", "reason": ""}
         what = "excitation plan" if state == Lifecycle.IDENTIFYING else "taught program"

@@ -293,6 +293,8 @@ class Gateway(OperatorAnswers):
             "seq": self.machine.seq,
             "can_start": not self.machine.start_problems(obs),
             "problems": self.machine.start_problems(obs),
+            # why identify or replay would be refused now (empty: they would start)
+            "play_problems": self.machine.play_problems(obs),
             "controller_state": None if st is None else st.controller_state.name.lower(),
             "enabling": obs.enabling,
             "estop_ok": obs.estop_ok,

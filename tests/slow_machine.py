@@ -189,10 +189,12 @@ def main(argv: list[str] | None = None) -> int:
         args.factor = factor_for(own, target)
         print(f"slow_machine: this machine's 10 M-iteration loop {own:.2f} s; "
               f"{args.as_slow_as:g} s asks for {args.factor:.2f}x", flush=True)  # fmt: skip
-    spinners = _start(args.cpus, args.factor)
-    if spinners is None:
-        p.exit(2, f"{p.prog}: a spinning thread did not start\n")
-    for _ in range(CALIBRATION_STEPS if spinners and target is not None else 0):
+    for step in range(CALIBRATION_STEPS + 1):
+        spinners = _start(args.cpus, args.factor)
+        if spinners is None:
+            p.exit(2, f"{p.prog}: a spinning thread did not start\n")
+        if not spinners or target is None or step == CALIBRATION_STEPS:
+            break
         # the emulation's own switching slows the loop beyond the factor (session 84: 5.74x
         # gave 2.18 s for 1.62 s): correct the factor by what the loop missed, and try again
         now = loop_time_s()
@@ -202,9 +204,6 @@ def main(argv: list[str] | None = None) -> int:
             break
         _stop(spinners)
         args.factor = factor
-        spinners = _start(args.cpus, args.factor)
-        if spinners is None:
-            p.exit(2, f"{p.prog}: a spinning thread did not start\n")
     share = 1.0 - 1.0 / args.factor
     print(f"slow_machine: CPU(s) {args.cpus} {args.factor:.2f}x slower "
           f"({share:.0%} of every {PERIOD_S * 1e3:g} ms taken at SCHED_FIFO {STEAL_PRIORITY})",

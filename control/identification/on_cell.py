@@ -138,24 +138,31 @@ def _last_report(mcap: Path, key: str, plan_id: str) -> dict[str, Any]:
     return last
 
 
-#: identification starts from standstill (the gateway refuses it before): wait this long for
-#: the arm to be still this long [s]. After servo-on a joint with stiction can hunt around the
-#: hold for a second or two before it sticks.
+#: identification starts from standstill after servo-on (the gateway refuses it before): wait
+#: this long for the gateway to accept a plan and the arm to be still this long [s]. After
+#: servo-on a joint with stiction can hunt around the hold for a second or two before it sticks.
 SETTLE_WAIT_S, SETTLED_S = 20.0, 0.5
 
 
-def wait_for_standstill(bus: BusConfig, wait_s: float = SETTLE_WAIT_S) -> None:
-    """Wait until the gateway has seen the arm still for :data:`SETTLED_S` (its status's
-    ``standstill``), at most ``wait_s``; the request that follows says why if it never was."""
+def wait_until_playable(bus: BusConfig, wait_s: float = SETTLE_WAIT_S) -> None:
+    """Wait until the gateway would start a plan (its status's ``play_problems`` empty: ready,
+    enabling held, servo on, still) and has seen the arm still for :data:`SETTLED_S`, at most
+    ``wait_s``; the request that follows says why if it never was. The standstill alone is not
+    enough: the arm is still on its brakes before the controller reports servo-on (1.7 s
+    between them on one CPU)."""
     deadline = time.monotonic() + wait_s
-    told = False
+    told = None
     while time.monotonic() < deadline:
-        still = operator_request(bus, "status").get("standstill") or {}
-        if float(still.get("still_for_s") or 0.0) >= SETTLED_S:
+        status = operator_request(bus, "status")
+        problems = status.get("play_problems")
+        still = status.get("standstill") or {}
+        settled = float(still.get("still_for_s") or 0.0) >= SETTLED_S
+        if problems == [] and settled:
             return
-        if not told:
-            print("waiting for the robot to settle after servo-on ...")
-            told = True
+        why = problems[0] if isinstance(problems, list) and problems else "the robot is settling"
+        if why != told:
+            print(f"waiting: {why} ...")
+            told = why
         time.sleep(0.2)
 
 
@@ -221,7 +228,7 @@ def run_plan(
     rec.start()
     try:
         time.sleep(0.5)  # let the recorder's subscription reach the router
-        wait_for_standstill(bus)
+        wait_until_playable(bus)
         reply = operator_request(bus, "identify", plan=plan)
         if not reply.get("ok"):
             raise LeadthroughError(f"the gateway refused to identify: {reply.get('message')}")

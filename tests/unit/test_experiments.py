@@ -153,6 +153,19 @@ def test_plan_plays_one_sample_per_cycle_and_records_segment_cycles():
     assert second["start_cycle"] == first["end_cycle"] + 1
 
 
+def test_a_report_is_one_reading_and_a_dropped_plan_plays_nothing_more():
+    player = _player()
+    play(player, set(), 110)
+    report = player.report()
+    assert (report["state"], report["plan_id"]) == ("running", PLAYER_PLAN["plan_id"])
+    assert report["progress"] == player.k / len(player.q) > 0  # nothing played between
+    assert report["segments"][0]["start_cycle"] == 100
+    player.drop()  # another plan is coming
+    assert player.play.status() is None
+    assert (player.state, player.reason) == ("idle", "")
+    assert player.command(_state(111)) is None
+
+
 def test_a_held_sample_is_sent_again_and_the_plan_waits():
     player = _player()
     n = len(player.q)

@@ -154,6 +154,19 @@ def test_identify_needs_enabling_and_ends_back_in_ready():
     assert m.update(healthy(enabling=False)) == Lifecycle.READY
 
 
+def test_play_problems_name_a_still_arm_on_its_brakes_until_servo_on():
+    """The arm is still on its brakes before the controller reports servo-on: the status's
+    play problems name the servo until then, and are empty exactly when identify starts."""
+    m = LifecycleMachine()
+    braked = healthy(enabling=True, controller_state=ControllerState.BRAKED, servo_on_for_s=0.0)
+    assert m.play_problems(braked) == ["a plan needs state ready, not stopped"]
+    m.command("start", healthy())
+    assert m.play_problems(braked) == ["robot controller is not servo-on yet"]
+    assert m.identify({"plan_id": "p"}, braked) == (False, "robot controller is not servo-on yet")
+    assert m.play_problems(healthy(enabling=True)) == []
+    assert m.identify({"plan_id": "p"}, healthy(enabling=True))[0]
+
+
 def test_replay_needs_enabling_stops_on_release_and_ends_back_in_ready():
     m = LifecycleMachine()
     ok, msg = m.play(Lifecycle.REPLAYING, {"plan_id": "r"}, healthy(enabling=True))

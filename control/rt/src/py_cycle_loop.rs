@@ -253,6 +253,7 @@ impl Shared {
         let n = st.q_rad.len();
         let mut q_cmd = [0.0; MAX_JOINTS];
         let mut dq_cmd = [0.0; MAX_JOINTS];
+        let law = self.law.as_ref().map(Py::get);
         {
             let Ok(mut slot) = player.slot() else {
                 return false; // Python reports the poisoned lock
@@ -263,7 +264,6 @@ impl Shared {
             let Some(plan) = slot.as_mut() else {
                 return false;
             };
-            let law = self.law.as_ref().map(Py::get);
             if let Some(law) = law {
                 law.disengage_now(); // a plan plays: the law follows no hand
             }
@@ -303,7 +303,7 @@ impl Shared {
             return true;
         }
         if playing == Playing::Replaying && self.sampling && io_fresh {
-            if let Some(law) = self.law.as_ref().map(Py::get) {
+            if let Some(law) = law {
                 self.sample(st, law, p_bar);
             }
         }
