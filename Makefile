@@ -35,6 +35,13 @@ $(ROUTER_SO): Cargo.toml Cargo.lock gateway/router/Cargo.toml $(shell find gatew
 	$(CARGO_BUILD) -p leadthrough-router-rt --features python
 	cp target/release/librouter_rt.so $@
 
+# Two pytest workers (pytest-xdist): one runs the tests that need the machine to themselves (the
+# stack tier, real time on the virtual cell, and what loads every CPU on purpose: the
+# "machine" group, tests/conftest.py) one at a time, the other the pure and in-process tiers
+# beside it, as a competing CPU load the stack tier must stand (issue 45). TEST_WORKERS=0 runs
+# everything in one process, one test at a time.
+TEST_WORKERS ?= 2
+
 demo: $(STAMP) $(RT_SO)
 	$(BIN)/leadthrough demo --out demo_out
 
@@ -44,7 +51,7 @@ test: $(STAMP) $(RT_SO)
 	$(BIN)/lint-imports
 	$(CARGO) fmt --all --check
 	$(CARGO) test --locked --quiet -p leadthrough-bus-rt -p leadthrough-router-rt -p leadthrough-can-rt -p leadthrough-control-rt
-	$(BIN)/pytest -q --durations=20  # the slowest twenty: where the suite's time goes (issue 49)
+	$(BIN)/pytest -q -n $(TEST_WORKERS) --dist loadgroup --durations=20  # the slowest twenty: where the suite's time goes (issue 49)
 
 # The stack tier beside a competing CPU load: a busy process pinned to CPU 0 at the product's
 # priority (tests/cpu_load.py). LOAD_ARGS="--taskset 0" also pins the product to CPU 0 beside

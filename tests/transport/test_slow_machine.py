@@ -18,9 +18,13 @@ SCRIPT = Path(slow_machine.__file__)
 WORK_S = 0.3
 FACTOR = 3.0
 
-pytestmark = pytest.mark.skipif(
-    not slow_machine.fifo_permitted(), reason="this OS refuses SCHED_FIFO to this user"
-)
+pytestmark = [
+    pytest.mark.skipif(
+        not slow_machine.fifo_permitted(), reason="this OS refuses SCHED_FIFO to this user"
+    ),
+    # its spinners take every CPU at SCHED_FIFO: never beside the stack tier (tests/conftest.py)
+    pytest.mark.exclusive,
+]
 
 
 def _timed(fifo: int, pinned: bool, wrap: list[str]) -> float:
