@@ -61,6 +61,10 @@ FLUSH_PERIOD_S = 1.0
 #: driver (2026-11-30); on a slow cell PC whose cores the cycle needs, the writer waits and the
 #: queue holds the messages (10: half of the 0..19 range, as control/plan_builder.py's worker)
 WRITER_NICENESS = 10
+#: stop() gives the writer up when it has written nothing for so long [s]: a message costs
+#: ~0.4 ms and an fsync of a slow disk well under a second, so only a hung disk or a dead
+#: thread is this quiet
+WRITER_STALL_S = 30.0
 
 
 class BusRecorder:
@@ -163,8 +167,11 @@ class BusRecorder:
                     "start_monotonic_ns": str(mono0_ns), "part": str(self._parts)}  # fmt: skip
         return _McapFile(path, metadata)
 
-    def stop(self) -> None:
-        """Undeclare, close the session, flush and close the file (never loses queued data)."""
+    def stop(self, stall_s: float = WRITER_STALL_S) -> None:
+        """Undeclare, close the session, then wait until the writer has put every queued
+        message on disk and closed the file (never loses queued data, and never returns while
+        the file is still being written: a reader would find it cut). A writer that writes
+        nothing for ``stall_s`` is given up on: :attr:`error` says so."""
         try:
             undeclare_all([self._sub])
             self._sub = None
@@ -173,8 +180,25 @@ class BusRecorder:
                 self._session = None
         finally:
             self._queue.put(_STOP)
-            if self._thread.is_alive():
-                self._thread.join(30.0)
+            self._join_writer(stall_s)
+
+    def _join_writer(self, stall_s: float) -> None:
+        """Wait for the writer while it makes progress (a backlog of a lock-step run on a busy
+        machine takes minutes to write: session 88's CI lost a plan's end to a 30 s join)."""
+        if not self._thread.ident:
+            return  # never started
+        written, since = self.count, time.monotonic()
+        while self._thread.is_alive():
+            self._thread.join(min(1.0, stall_s))
+            if self.count != written:
+                written, since = self.count, time.monotonic()
+            elif self._thread.is_alive() and time.monotonic() - since > stall_s:
+                self.error = self.error or RuntimeError(
+                    f"the MCAP writer of {self.path} wrote nothing for {stall_s:.0f} s with "
+                    f"{self._queue.qsize()} messages queued; the file is incomplete"
+                )
+                log.error("%s", self.error)
+                return
 
 
 class _McapFile:

@@ -3,12 +3,14 @@
 import json
 import subprocess
 import sys
+import threading
 import time
 
 import numpy as np
 import pytest
 
 from control.identification.datafile import read_measurements
+from gateway import recorder as recorder_module
 from gateway.bus import open_client
 from gateway.errors import DataFileError
 from gateway.message_factories import make_joint_state
@@ -222,3 +224,70 @@ def test_a_rotating_recorder_keeps_the_newest_files_each_readable(router, tmp_pa
         assert part, path
         cycles += part
     assert cycles == list(range(cycles[0], cycle)), "the kept files continue one another"
+
+
+def _publish_states(router, pub, count: int) -> None:
+    for k in range(count):
+        q = np.full(6, 0.001 * k)
+        st = make_joint_state(k, 1.0, ControllerState.EXTERNAL, 2, q, q * 0, np.ones(6), q,
+                              q * 0, 0.004)  # fmt: skip
+        pub.put(router.keys.joint_state, st.to_bytes())
+
+
+def test_stop_returns_only_once_a_backlog_longer_than_the_stall_limit_is_on_disk(
+    router, tmp_path, monkeypatch
+):
+    """A writer behind the bus (a lock-step run on a busy machine) still writes: stop() waits
+    for all of it, however long, and the file it leaves is complete (session 88: a 30 s join
+    returned mid-write and the plan's end was read as missing)."""
+    slow = recorder_module._McapFile.add
+
+    def add_slowly(self, *args):
+        time.sleep(0.01)
+        slow(self, *args)
+
+    monkeypatch.setattr(recorder_module._McapFile, "add", add_slowly)
+    path = tmp_path / "backlog.mcap"
+    rec = BusRecorder(router, path)
+    rec.start()
+    pub = open_client(router)
+    try:
+        time.sleep(0.5)  # let the subscription reach the router
+        _publish_states(router, pub, 300)  # 3 s of writing, six times the stall limit
+        time.sleep(0.3)  # let the last samples reach the recorder's queue
+    finally:
+        pub.close()
+        started = time.monotonic()
+        rec.stop(stall_s=0.5)
+    assert rec.error is None
+    assert time.monotonic() - started > 1.0, "the backlog was not behind the bus"
+    assert rec.count == 300
+    cycles = [JointState.from_bytes(p).cycle for _, _, p in iter_mcap(path)]
+    assert cycles == list(range(300))
+
+
+def test_a_writer_that_writes_nothing_is_given_up_on_with_an_error(router, tmp_path, monkeypatch):
+    release = threading.Event()
+    fast = recorder_module._McapFile.add
+
+    def add_hung(self, *args):
+        release.wait(30.0)
+        fast(self, *args)
+
+    monkeypatch.setattr(recorder_module._McapFile, "add", add_hung)
+    rec = BusRecorder(router, tmp_path / "hung.mcap")
+    rec.start()
+    pub = open_client(router)
+    try:
+        time.sleep(0.5)
+        _publish_states(router, pub, 5)
+        time.sleep(0.3)
+    finally:
+        pub.close()
+        started = time.monotonic()
+        rec.stop(stall_s=0.5)
+        waited = time.monotonic() - started
+        release.set()  # let the thread end: no thread outlives the test
+        rec._thread.join(10.0)
+    assert waited < 5.0
+    assert rec.error is not None and "incomplete" in str(rec.error)
