@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test test-loaded test-slow bench faults soak lint format clean
+.PHONY: demo test acceptance test-loaded test-slow bench faults soak lint format clean
 
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -35,13 +35,6 @@ $(ROUTER_SO): Cargo.toml Cargo.lock gateway/router/Cargo.toml $(shell find gatew
 	$(CARGO_BUILD) -p leadthrough-router-rt --features python
 	cp target/release/librouter_rt.so $@
 
-# Two pytest workers (pytest-xdist): one runs the tests that need the machine to themselves (the
-# stack tier, real time on the virtual cell, and what loads every CPU on purpose: the
-# "machine" group, tests/conftest.py) one at a time, the other the pure and in-process tiers
-# beside it, as a competing CPU load the stack tier must stand (issue 45). TEST_WORKERS=0 runs
-# everything in one process, one test at a time.
-TEST_WORKERS ?= 2
-
 demo: $(STAMP) $(RT_SO)
 	$(BIN)/leadthrough demo --out demo_out
 
@@ -51,7 +44,14 @@ test: $(STAMP) $(RT_SO)
 	$(BIN)/lint-imports
 	$(CARGO) fmt --all --check
 	$(CARGO) test --locked --quiet -p leadthrough-bus-rt -p leadthrough-router-rt -p leadthrough-can-rt -p leadthrough-control-rt
-	$(BIN)/pytest -q -n $(TEST_WORKERS) --dist loadgroup --durations=20  # the slowest twenty: where the suite's time goes (issue 49)
+	# the stack tier beside the other tiers, which yield to it (tests/run_suite.py); the slowest
+	# twenty tests of each: where the suite's time goes (issue 49)
+	$(BIN)/python tests/run_suite.py -- -q --durations=20
+
+# The acceptance campaigns `make test` leaves out for its time (tests marked campaign: the
+# commissioning of plants 1 and 2).
+acceptance: $(STAMP) $(RT_SO)
+	$(BIN)/pytest -q -m campaign --durations=20
 
 # The stack tier beside a competing CPU load: a busy process pinned to CPU 0 at the product's
 # priority (tests/cpu_load.py). LOAD_ARGS="--taskset 0" also pins the product to CPU 0 beside

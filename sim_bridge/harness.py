@@ -339,9 +339,10 @@ class Stack:
         # replies 0.1 s late) and the gateway faulted for want of joint states, a fault
         # no real cell has. So its processes run at SCHED_FIFO above the product's
         # (deploy/config/cell.toml: 40) where the OS permits; elsewhere it runs on, and its
-        # summary's "scheduling" says what was refused. In lock-step runs only the I/O
-        # module does (sim_bridge/modbus_process.py): the loop there waits for the product's
-        # every answer, so a slow loop only slows the plant.
+        # summary's "scheduling" says what was refused. Lock-step runs too: their loop waits
+        # for the product's every answer, but the product's wall-clock watchdogs do not wait
+        # for the loop (at normal priority it stalled 1.06 s beside two busy processes,
+        # session 88; sim_bridge/sim.py VirtualCell.open).
         truth = deep_merge(
             truth, {"scheduling": {"sched_fifo_priority": VIRTUAL_CONTROLLER_FIFO_PRIORITY}}
         )

@@ -177,10 +177,14 @@ class VirtualCell:
 
     # --- endpoints ----------------------------------------------------------------------
     def open(self) -> None:
-        if self.cfg.realtime:
-            # first: the CAN hub's thread and the I/O module's process started below inherit it
-            self.scheduling = apply_scheduling(self.cfg.scheduling)
-            self._scheduled = True
+        # first: the CAN hub's thread and the I/O module's process started below inherit it.
+        # Lock-step too: its loop waits for the product's every answer, but the product's
+        # wall-clock watchdogs do not wait for it, and a loop at normal priority beside a busy
+        # machine stalled 1.06 s between two cycles (the gateway faulted on "no fresh joint
+        # state from the CAN driver": 3 of 3 identifications beside two busy processes,
+        # session 88). The controller it stands for is a computer of its own.
+        self.scheduling = apply_scheduling(self.cfg.scheduling)
+        self._scheduled = True
         ep = self.cfg.endpoints
         self.can = open_can_endpoint(ep, fd=self._can_fd)
         # The valves power up holding the initial pressures: a 0 bar set-point would let the arm
@@ -389,15 +393,15 @@ class VirtualCell:
     def run(self, duration_s: float | None = None) -> None:
         """Run cycles until ``duration_s`` of simulated time or :meth:`stop`.
 
-        Real time applies ``[scheduling]`` to the calling thread first, unless :meth:`open`
-        did (to the whole process: the thread that calls both).
+        Applies ``[scheduling]`` to the calling thread first, unless :meth:`open` did (to the
+        whole process: the thread that calls both).
         """
         assert self.can is not None
         self._next_heartbeat_s = -math.inf
+        if not self._scheduled:
+            self.scheduling = apply_scheduling(self.cfg.scheduling)
+            self._scheduled = True
         if self.cfg.realtime:
-            if not self._scheduled:
-                self.scheduling = apply_scheduling(self.cfg.scheduling)
-                self._scheduled = True
             self._run_realtime(duration_s)
         else:
             self._run_lockstep(duration_s)

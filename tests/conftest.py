@@ -90,18 +90,7 @@ def router(port):
     session.close()
 
 
-#: The pytest-xdist group of the tests that need the machine to themselves (`make test` runs
-#: two workers, ``--dist loadgroup``): one worker runs them one at a time while the other runs
-#: the rest. The stack tier is real time on a virtual cell that shares this machine; a test
-#: marked ``exclusive`` loads every CPU on purpose (tests/slow_machine.py's spinners at
-#: SCHED_FIFO), which beside the stack tier is a fault injected into another test.
-MACHINE_GROUP = pytest.mark.xdist_group("machine")
-
-
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    for item in items:
-        if "stack" in item.keywords or "exclusive" in item.keywords:
-            item.add_marker(MACHINE_GROUP)
     if os.environ.get(HARDWARE_ENV) == "1":
         return
     skip = pytest.mark.skip(reason=f"needs the real cell: set {HARDWARE_ENV}=1")

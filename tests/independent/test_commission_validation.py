@@ -22,6 +22,11 @@ from sim_bridge.commission import COMMISSION_LIMIT_S, commissioned
 from .referee import heldout_figures, read_predictions, run_predict
 
 N = 6
+#: It may commission plant 0 (a fresh clone, or changed code): the whole stack as processes,
+#: lock-step, so it is of the stack tier (tests/run_suite.py runs it with the tests that need
+#: the machine to themselves, never beside one of them).
+pytestmark = pytest.mark.stack
+
 #: teaching speeds: what the validation motion must stay within on its strokes [rad/s]
 TEACHING_RAD_S = np.radians(2.0)
 

@@ -95,8 +95,19 @@ def assert_inner_loop_within_20_percent(inner_loop: Path, plant_seed: int) -> No
     np.testing.assert_allclose(upsilon, ki / kp, rtol=0.2)
 
 
+#: Plants 1 and 2 are commissioned by `make acceptance` only: each is a fresh commissioning
+#: (2.5-3.5 minutes of the stack tier's one worker, which `make test` on a fresh clone runs
+#: one after the other: issue 49's 10 minutes), where plant 0's is the one `make demo` and the
+#: other stack tests teach with, built once and shared. The hidden checks and `make acceptance`
+#: run the others.
+ACCEPTANCE_ONLY = pytest.mark.campaign
+
+
 @pytest.mark.timeout(COMMISSION_LIMIT_S)
-@pytest.mark.parametrize("plant_seed", [0, 1, 2])
+@pytest.mark.parametrize(
+    "plant_seed",
+    [0, pytest.param(1, marks=ACCEPTANCE_ONLY), pytest.param(2, marks=ACCEPTANCE_ONLY)],
+)
 def test_commissioning_a_drawn_plant_reaches_the_noise_floor_and_its_inner_loop(plant_seed):
     """Issue 22's acceptance: the virtual cell of a drawn plant, commissioned by `leadthrough
     identify` (the cache `make demo` and the stack tests teach with, built here when missing),

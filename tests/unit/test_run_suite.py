@@ -1,0 +1,43 @@
+"""tests/run_suite.py: the stack tier's pytest beside the other tiers', which yield to it."""
+
+from __future__ import annotations
+
+import os
+import sys
+
+from run_suite import MACHINE, REST, REST_NICENESS, run_two
+
+#: a stand-in for pytest: prints its niceness and its -m expression, exits 3 for the rest
+FAKE = [
+    sys.executable,
+    "-c",
+    "import os, sys\n"
+    "marks = sys.argv[sys.argv.index('-m') + 1]\n"
+    "print('nice', os.nice(0), 'marks', marks, 'extra', sys.argv[-1])\n"
+    "sys.exit(3 if marks.startswith('not stack') else 0)\n",
+]
+
+
+def test_the_rest_runs_niced_beside_the_machine_and_a_failure_of_either_fails_the_run(capsys):
+    code = run_two(FAKE, ["--durations=20"])
+    out = capsys.readouterr().out.splitlines()
+    base = os.nice(0)
+    assert f"[machine] nice {base} marks {MACHINE} extra --durations=20" in out
+    assert f"[rest] nice {min(base + REST_NICENESS, 19)} marks {REST} extra --durations=20" in out
+    assert code == 3
+    assert "run_suite: machine: pytest exit status 0" in out
+    assert "run_suite: rest: pytest exit status 3" in out
+
+
+def test_no_test_belongs_to_both_processes_and_campaigns_to_neither():
+    """The two -m expressions split what `make test` runs: a stack or exclusive test only in
+    the machine's, every other test only in the rest's, a campaign in neither."""
+
+    def selects(expr: str, marks: set[str]) -> bool:
+        names = {"stack", "exclusive", "campaign"}
+        return bool(eval(expr, {}, {m: m in marks for m in names}))
+
+    for marks in ({"stack"}, {"exclusive"}, set(), {"stack", "campaign"}, {"campaign"}):
+        both = (selects(MACHINE, marks), selects(REST, marks))
+        want = (False, False) if "campaign" in marks else (bool(marks), not marks)
+        assert both == want, (marks, both)
