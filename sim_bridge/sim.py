@@ -150,7 +150,6 @@ class VirtualCell:
         #: real time: how late each cycle started after its deadline [s]
         self.wake_late_s = array("d")
         self.scheduling: dict[str, Any] = {}  #: what [scheduling] achieved
-        self._scheduled = False  #: [scheduling] applied (by open(), or run())
         self._next_heartbeat_s = -math.inf  #: monotonic [s]
         self._fb_sent_wall: float | None = None
         self._set_arrival_wall: float | None = None
@@ -184,7 +183,6 @@ class VirtualCell:
         # state from the CAN driver": 3 of 3 identifications beside two busy processes,
         # session 88). The controller it stands for is a computer of its own.
         self.scheduling = apply_scheduling(self.cfg.scheduling)
-        self._scheduled = True
         ep = self.cfg.endpoints
         self.can = open_can_endpoint(ep, fd=self._can_fd)
         # The valves power up holding the initial pressures: a 0 bar set-point would let the arm
@@ -391,16 +389,10 @@ class VirtualCell:
             self._next_heartbeat_s = now_s + HEARTBEAT_PERIOD_S
 
     def run(self, duration_s: float | None = None) -> None:
-        """Run cycles until ``duration_s`` of simulated time or :meth:`stop`.
-
-        Applies ``[scheduling]`` to the calling thread first, unless :meth:`open` did (to the
-        whole process: the thread that calls both).
-        """
+        """Run cycles until ``duration_s`` of simulated time or :meth:`stop`, on the thread
+        that called :meth:`open` (which applied ``[scheduling]`` to it)."""
         assert self.can is not None
         self._next_heartbeat_s = -math.inf
-        if not self._scheduled:
-            self.scheduling = apply_scheduling(self.cfg.scheduling)
-            self._scheduled = True
         if self.cfg.realtime:
             self._run_realtime(duration_s)
         else:

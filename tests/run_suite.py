@@ -9,12 +9,12 @@ Two pytest processes on a machine with two CPUs or more:
 - **rest**: the pure and in-process tiers, at niceness :data:`REST_NICENESS`.
 
 The rest is a competing CPU load the stack tier must stand (issue 45), but one that yields: the
-product's cycle runs at SCHED_FIFO and is not touched by niceness, while the threads of the cell
-at normal priority (zenoh's runtime, the lock-step virtual controller, which stands for a
-controller that no load on the cell PC delays) get about ten times the CPU of the rest's
-(CFS weights 1024 : 110). With the rest at the same priority the stack tier faulted twice on
-"no fresh joint state from the CAN driver" in runs of two pytest-xdist workers (sessions 87,
-88), once 80 s into a lock-step commissioning.
+product's cycle and the virtual controller run at SCHED_FIFO and are not touched by niceness,
+while the cell's threads at normal priority (zenoh's runtime, the `identify` recorder) get about
+ten times the CPU of the rest's (CFS weights 1024 : 110). The niceness did not mend the faults
+of two pytest-xdist workers (sessions 87, 88, "no fresh joint state from the CAN driver"): those
+came from the lock-step virtual controller at normal priority, which stalled beside the family
+acceptance at niceness 10 as at 0, and now runs at SCHED_FIFO (sim_bridge/sim.py).
 
 On one CPU (``taskset -c 0 make test``; the affinity is counted) a second process adds no CPU,
 only a load on the one the stack tier runs on: one pytest process runs everything, one test at
