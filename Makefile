@@ -49,7 +49,7 @@ test: $(STAMP) $(RT_SO)
 	$(BIN)/python tests/run_suite.py -- -q --durations=20
 
 # The acceptance campaigns `make test` leaves out for its time (tests marked campaign: the
-# commissioning of plants 1 and 2).
+# commissioning of plants 1 and 2, the declared world's family draws 0-11).
 acceptance: $(STAMP) $(RT_SO)
 	$(BIN)/pytest -q -m campaign --durations=20
 
