@@ -208,3 +208,44 @@ def friction_basis(
         s = smooth_sign(dq, q_e) if direction is None else direction
         return np.column_stack([s, dq, np.ones_like(dq)])
     raise ValueError(f"unknown friction model {kind!r}")
+
+
+def qe_columns(kind: str, sign_width: float | None, direction: bool) -> tuple[int, ...] | None:
+    """The columns of :func:`friction_basis` that depend on q_e, or None where every one does
+    (eq. 15's sign tied to q_e). The others are the same for every q_e, so a search over q_e
+    computes them once (:meth:`.terms.FrictionTerm.columns`). ``direction``: a direction with
+    memory stands for the sign."""
+    if kind == "eq15":
+        return (0,) if sign_width is not None or direction else None
+    if kind == "eq14":
+        return (5,)
+    if kind == "simple":
+        return () if direction else (0,)
+    raise ValueError(f"unknown friction model {kind!r}")
+
+
+def qe_part(
+    kind: str,
+    dq: np.ndarray,
+    q_e: float,
+    sign_width: float | None = None,
+    direction: np.ndarray | None = None,
+) -> np.ndarray:
+    """The columns :func:`qe_columns` names, (T, k): the same numbers as those columns of
+    :func:`friction_basis`, by the same arithmetic."""
+    if not (np.isfinite(q_e) and q_e > 0):
+        raise ValueError(f"q_e_rad_s must be a finite number > 0, got {q_e!r}")
+    v = np.atleast_1d(np.asarray(dq, dtype=float))
+    if kind == "simple":
+        return np.empty((v.size, 0)) if direction is not None else smooth_sign(v, q_e)[:, None]
+    if direction is not None:
+        sign = np.broadcast_to(np.asarray(direction, dtype=float), v.shape)
+    elif kind == "eq15":
+        if sign_width is None:
+            raise ValueError("eq. (15) with its sign tied to q_e has no q_e part apart")
+        sign = smooth_sign(v, sign_width)
+    elif kind == "eq14":
+        sign = np.sign(v)
+    else:
+        raise ValueError(f"unknown friction model {kind!r}")
+    return (np.exp(-np.abs(v) / q_e) * sign)[:, None]

@@ -51,9 +51,8 @@ it, not on the decimated grid.
   ``t dq_j`` (t each file's own clock [s]): the Coulomb and viscous levels drift linearly in
   time; parameters ``rate_nm_per_s`` (Coulomb level change per second, negative when the
   friction drops) and ``viscous_rate_nm_per_rad`` (viscous coefficient change per second,
-  [N·m·s/rad per s]). A drift of the friction *level* multiplies the sign of the velocity: a
-  plain ``t`` column (a torque offset growing in time) is not what a warming gear does, and
-  left the drift to be half-absorbed by spurious negative Stribeck terms.
+  [N·m·s/rad per s]). A warming gear's drift multiplies the sign of the velocity; a plain
+  ``t`` column (a growing offset) left it half-absorbed by spurious negative Stribeck terms.
 - ``wrist_coupling`` on joint j from joint k (k ≠ j, both among the last three): joint k's
   model torque (rigid + friction, ``source = "torque"``) or its friction torque
   (``source = "friction"``); parameters ``from_joint`` k, ``coefficient``, ``source``.
@@ -75,6 +74,8 @@ from control.identification.friction_law import (
     friction_basis,
     friction_direction,
     gaussian_stribeck,
+    qe_columns,
+    qe_part,
     rest_log_odds_per_joint,
     rest_probability,
 )
@@ -183,6 +184,8 @@ class Context:
     _directions: dict[tuple[int, float], np.ndarray] = field(
         default_factory=dict, repr=False, compare=False
     )
+    #: :meth:`FrictionTerm.columns`' last, by what they depend on but q_e (one entry)
+    _friction_at: dict[tuple, np.ndarray] = field(default_factory=dict, repr=False, compare=False)
 
     @property
     def n_rows(self) -> int:
@@ -250,6 +253,8 @@ class Context:
 
         sigma = 0.0 if self.dq_noise is None else float(self.dq_noise[j])
         odds = self.rest_log_odds(j) if np.isfinite(sigma) and sigma > 0.0 else None
+        # ``fn`` at rest is the same for every recorded sample a kept one stands for: once
+        at_rest = None if odds is None else exact(np.zeros_like(dq))
 
         def at(v: np.ndarray) -> np.ndarray:
             """``fn`` in expectation over whether the joint moves (class docstring). A joint
@@ -259,10 +264,10 @@ class Context:
             :func:`rest_probability` under the prior :meth:`rest_log_odds`, and there
             friction is ``fn`` at 0 (no sign, nothing a function of the velocity can know of
             the torque a stuck joint holds); it moves with the rest, at v̂."""
-            if odds is None:
+            if odds is None or at_rest is None:
                 return exact(v)
             rest = rest_probability(v, sigma, odds)[:, None]
-            return rest * exact(np.zeros_like(v)) + (1.0 - rest) * exact(v)
+            return rest * at_rest + (1.0 - rest) * exact(v)
 
         if self.sample_hz is None or self.raw_hz is None or dq.size == 0:
             return at(dq)
@@ -381,14 +386,33 @@ class FrictionTerm:
         v_s = self.stribeck_rad_s
 
         def basis(dq: np.ndarray) -> np.ndarray:
-            out = friction_basis(
+            return friction_basis(
                 self.kind, q, dq, self.q_e_rad_s, self.gear_ratio, self.sign_width_rad_s, direction
             )
-            if v_s is None:
-                return out
-            return np.column_stack([out, gaussian_stribeck(dq, v_s, direction)])
 
-        return {j: ctx.filtered(ctx.sample_mean(j, basis))}
+        def columns(fn: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
+            return ctx.filtered(ctx.sample_mean(j, fn))
+
+        # Every step is column by column, so the columns that do not depend on q_e are those
+        # of the last call that differed only in q_e, to the last bit (a search over q_e).
+        moving = qe_columns(self.kind, self.sign_width_rad_s, direction is not None)
+        memory = self.presliding_rad if direction is not None else None
+        key = (j, self.kind, self.gear_ratio, self.sign_width_rad_s, memory)
+        kept = None if moving is None else ctx._friction_at.get(key)
+        if kept is None:
+            out = columns(basis)
+            if moving is not None:
+                ctx._friction_at.clear()
+                ctx._friction_at[key] = out.copy()
+        else:
+            out, w = kept.copy(), self.sign_width_rad_s
+            if moving:
+                out[:, moving] = columns(
+                    lambda v: qe_part(self.kind, v, self.q_e_rad_s, w, direction)
+                )
+        if v_s is not None:
+            out = np.column_stack([out, columns(lambda dq: gaussian_stribeck(dq, v_s, direction))])
+        return {j: out}
 
     @property
     def parameter_names(self) -> tuple[str, ...]:
