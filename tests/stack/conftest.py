@@ -21,9 +21,15 @@ from sim_bridge.commission import commissioned
 HERE = Path(__file__).parent
 
 
+@pytest.hookimpl(tryfirst=True)
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     for item in items:
         if HERE in item.path.parents:
+            # every test here runs the stack as separate processes: the stack tier, in the
+            # machine's pytest process (tests/run_suite.py), before `-m` selects; one unmarked
+            # ran niced beside the machine's commissioning and waited 52 s on it (session 89)
+            if item.get_closest_marker("stack") is None:
+                item.add_marker(pytest.mark.stack)
             # keeps the limit a test names (or the suite's), on the test's body alone
             limit = item.get_closest_marker("timeout")
             timeout = limit.args[0] if limit is not None and limit.args else None

@@ -13,7 +13,11 @@ import textwrap
 import time
 from pathlib import Path
 
+import pytest
+
 from sim_bridge.harness import running_with_argument
+
+pytestmark = pytest.mark.stack
 
 REPO = Path(__file__).resolve().parents[2]
 #: the gateway's stop (brakes, then its children each get SIGTERM) and the simulator's [s]

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import os
+import subprocess
 import sys
+from pathlib import Path
 
 from run_suite import MACHINE, REST, REST_NICENESS, run_two
 
@@ -41,3 +43,16 @@ def test_no_test_belongs_to_both_processes_and_campaigns_to_neither():
         both = (selects(MACHINE, marks), selects(REST, marks))
         want = (False, False) if "campaign" in marks else (bool(marks), not marks)
         assert both == want, (marks, both)
+
+
+def test_every_test_of_the_stack_directory_is_in_the_machines_process():
+    """tests/stack/conftest.py marks what runs the whole stack, whatever its file says: none of
+    it is left for the niced process."""
+    root = Path(__file__).resolve().parents[1]
+    done = subprocess.run(
+        [sys.executable, "-m", "pytest", "--collect-only", "-q", "-p", "no:cacheprovider",
+         "-m", REST, str(root / "stack")],
+        capture_output=True, text=True, cwd=root.parent, timeout=120,
+    )  # fmt: skip
+    assert done.returncode == 5, done.stdout + done.stderr  # 5: no test selected
+    assert "deselected" in done.stdout
