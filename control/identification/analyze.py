@@ -72,6 +72,7 @@ from control.identification.heldout import per_file_rms, residuals, rms_answered
 from control.identification.load import _load
 from control.identification.lsq import BlockLS, contiguous_folds
 from control.identification.model import MODEL, PLAIN_LS, PlainJoint, plain_key
+from control.identification.parallel import map_forked
 from control.identification.preprocess import FILTER_ORDER, sliding_mask
 from control.identification.report import write_report
 from control.identification.speed_regimes import (
@@ -341,9 +342,9 @@ def _analyze(
         },
     )
     rows = scored_rows(run.test_files, test.t, scored.start)
-    errors = [
-        residuals(m, run.test_files, rows, run.desc) for m in (model_before, model, plain_model)
-    ]
+    # three independent predictions of every raw test row, side by side (.parallel)
+    three = (model_before, model, plain_model)
+    errors = map_forked(lambda i: residuals(three[i], run.test_files, rows, run.desc), range(3))
     (raw_before, raw_after, raw_plain), answered = rms_answered(errors)
     named = dict(zip(("rms_before", "rms_after", "rms_plain_ls"), errors, strict=True))
     by_speed = raw_by_speed(

@@ -4,10 +4,9 @@
 //! the CAN socket until a frame arrives or the core's next deadline (an answer, a heartbeat) is
 //! due; zenoh's receiving threads run the subscribers' callbacks directly, which decode, decide
 //! and send under the one lock and never wait for anything else. A callback that answers a
-//! cycle sends its frames itself, so the answer leaves as soon as the command arrives.
-//!
-//! Python (the driver process) builds this from the cell config, reads health and notes at its
-//! own pace and closes it; nothing it does is on the cycle.
+//! cycle sends its frames itself, so the answer leaves as soon as the command arrives. Python
+//! (the driver process) builds this from the cell config, reads health and notes at its own
+//! pace and closes it; nothing it does is on the cycle.
 //!
 //! Asked to stop (SIGTERM: the gateway's stop, or the kernel's when the gateway dies), the loop
 //! sends the BRAKE itself at its next wake-up (within [`MAX_WAIT_S`]): the signal's handler
