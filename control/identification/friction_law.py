@@ -28,6 +28,7 @@ from control.model.friction import (
     eq14_basis,
     eq15_basis,
     smooth_sign,
+    stribeck_column,
 )
 
 FRICTION_MODELS = ("simple", "eq14", "eq15")
@@ -248,4 +249,4 @@ def qe_part(
         sign = np.sign(v)
     else:
         raise ValueError(f"unknown friction model {kind!r}")
-    return (np.exp(-np.abs(v) / q_e) * sign)[:, None]
+    return stribeck_column(v, q_e, sign)[:, None]

@@ -264,7 +264,7 @@ class Context:
             :func:`rest_probability` under the prior :meth:`rest_log_odds`, and there
             friction is ``fn`` at 0 (no sign, nothing a function of the velocity can know of
             the torque a stuck joint holds); it moves with the rest, at v̂."""
-            if odds is None or at_rest is None:
+            if at_rest is None:  # no velocity noise: the joint moves at v
                 return exact(v)
             rest = rest_probability(v, sigma, odds)[:, None]
             return rest * at_rest + (1.0 - rest) * exact(v)

@@ -149,6 +149,13 @@ def smooth_sign(dq_rad_s: np.ndarray, q_e_rad_s: np.ndarray | float) -> np.ndarr
     return np.tanh(np.asarray(dq_rad_s, dtype=float) / (2.0 * np.asarray(q_e_rad_s)))
 
 
+def stribeck_column(dq_rad_s: np.ndarray, q_e_rad_s: float, sign: np.ndarray) -> np.ndarray:
+    """The Stribeck column of eqs. (14) and (15), ``exp(-|dq| / q_e) · sign``, (T,): the one
+    column of either that depends on q_e (a search over q_e computes only it again,
+    :func:`control.identification.friction_law.qe_part`)."""
+    return np.exp(-np.abs(dq_rad_s) / q_e_rad_s) * sign
+
+
 def _per_joint(params_list: Sequence[object], names: Sequence[str]) -> dict[str, np.ndarray]:
     return {name: np.array([getattr(p, name) for p in params_list], dtype=float) for name in names}
 
@@ -259,7 +266,7 @@ def eq15_basis(
     qr = q / gear_ratio
     return np.column_stack(
         [
-            np.exp(-np.abs(dq) / q_e_rad_s) * s,
+            stribeck_column(dq, q_e_rad_s, s),
             s,
             np.sin(qr) * s,
             np.cos(qr) * s,
@@ -322,7 +329,7 @@ def eq14_basis(
             np.sin(2.0 * q),
             np.cos(2.0 * q),
             sgn,
-            np.exp(-np.abs(dq) / q_e_rad_s) * sgn,
+            stribeck_column(dq, q_e_rad_s, sgn),
             dq,
         ]
     )
