@@ -56,7 +56,7 @@ from control.identification.families import (
     _predict,
     _settle_cylinders,
 )
-from control.identification.fit import FrictionFit, model_from_solution
+from control.identification.fit import FrictionFit, model_from_solution, rechoose_options
 from control.identification.folds import CONTIGUOUS, plan_folds
 from control.identification.friction_law import FRICTION_MODELS
 from control.identification.guard import (
@@ -211,9 +211,19 @@ def _analyze(
                     ls.add(swap[term.key], plain.columns(ctx_train))
             return [swap.get(k, k) for k in names]
 
+        def rechoose(joints: Sequence[int], names: list[str]) -> list[int]:
+            now = refit[-1] if refit else base_fit
+            terms = list(now.terms)
+            for j in joints:
+                terms[j] = rechoose_options(ls, ctx_train, names, now.weights, terms[j])
+            changed = [j for j in joints if terms[j] != now.terms[j]]
+            if changed:
+                refit.append(replace(now, terms=terms))
+            return changed
+
         state = fx.search_all_along(
             ls, ctx_train, train, base_fit.names, base_fit.weights, options.search, clock.say,
-            refit_friction, plain_sse, without_memory,
+            refit_friction, plain_sse, without_memory, rechoose,
         )  # fmt: skip
         base_fit = refit[-1] if refit else base_fit
         kind = base_fit.kind

@@ -154,6 +154,7 @@ def search_all_along(
     refit_friction: Callable[[], list[str]] | None = None,
     rival_sse: Callable[[np.ndarray], np.ndarray] | None = None,
     sliding: Callable[[list[str]], list[str]] | None = None,
+    rechoose: Callable[[Sequence[int], list[str]], list[int]] | None = None,
 ) -> SearchState:
     """Case (A) greedy search on the training data in ``ls`` (groups ``names`` fitted there).
 
@@ -175,6 +176,12 @@ def search_all_along(
     leaves the rest below the margin (a 7 ms delay found at +56 % without memory, refused at
     +31 % with it). Once a delay is accepted, ``refit_friction`` chooses the friction, memory
     included, again on the shifted torque.
+
+    ``rechoose(joints, names)``: the friction options (memory, Gaussian Stribeck rise) of
+    ``joints`` chosen again on ``ls`` with the groups ``names``
+    (:func:`.fit.rechoose_options`); it returns the joints whose options changed. It is
+    called on the joints an accepted effect improved: the options were chosen on a residual
+    that still held that effect.
     """
     progress = progress or _quiet
     noise = NoiseFloor.of(data)
@@ -240,6 +247,13 @@ def search_all_along(
         else:
             ls.add(term.key, term.columns(ctx))
             state.names.append(term.key)
+            if rechoose is not None:
+                changed = rechoose(best.improved, state.names)
+                if changed:
+                    progress(
+                        f"friction options of joints {[j + 1 for j in changed]} chosen again "
+                        f"with {term.name} in the model"
+                    )
         state.effects.append(term)
         new = ls.evaluate(state.names, weights)
         state.accepted.append(

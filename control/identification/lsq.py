@@ -446,6 +446,27 @@ class BlockLS:
             out[k] = self.fold_sse(sol, k)[0]
         return out
 
+    def cv_joint(
+        self, names: Sequence[str], weights: np.ndarray, j: int
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`cv_fold_sse` (K, n) and joint ``j``'s held-out prediction (T,) (each fold's
+        rows from the fit on the other folds), from the same K fits."""
+        names = list(names)
+        if len(self.folds) < 2 or not names:
+            raise ValueError("held-out errors per fold need at least two folds and one group")
+        grams, rhss = self._fold_normals(names, weights)
+        gram, rhs = grams.sum(axis=0), rhss.sum(axis=0)
+        out = np.zeros((len(self.folds), self.n))
+        pred = np.zeros(self.n_rows)
+        for k, s in enumerate(self.folds):
+            sol = self._solve_normal(names, gram - grams[k], rhs - rhss[k])
+            out[k] = self.fold_sse(sol, k)[0]
+            for name, x in sol.coef.items():
+                c = self.cols[name].get(j)
+                if c is not None:
+                    pred[s] += c[s] @ x
+        return out, pred
+
     def predict(self, sol: Solution, rows: slice | None = None) -> np.ndarray:
         """Model output of ``sol`` on this object's rows (or a slice), shape (T, n)."""
         s = rows if rows is not None else slice(0, self.n_rows)

@@ -214,13 +214,17 @@ def test_a_rotating_recorder_keeps_the_newest_files_each_readable(router, tmp_pa
         # gives depends on how many states this loop publishes and when the writer (niced)
         # flushes; 4.5 s gave three on an idle machine and two once in the niced half of
         # `make test` beside the stack tier (session 89; not reproduced beside a busy process)
-        end, cycle = time.monotonic() + ROTATIONS_WITHIN_S, 0
-        while time.monotonic() < end and _part(rec.files[-1]) < 4:
+        # Then 20 states more (about 3 kB, far below the 20 kB that rotates): they land in
+        # the fourth file, which would otherwise hold none when the loop stops just after it
+        # opened (make test of session 90: run-0004.mcap without a state).
+        end, cycle, after = time.monotonic() + ROTATIONS_WITHIN_S, 0, 20
+        while time.monotonic() < end and after > 0:
             q = np.full(6, 0.001 * cycle)
             st = make_joint_state(cycle, 1.0, ControllerState.EXTERNAL, 2, q, q * 0,
                                   np.ones(6), q, q * 0, 0.004)  # fmt: skip
             pub.put(keys.joint_state, st.to_bytes())
             cycle += 1
+            after -= _part(rec.files[-1]) >= 4
             time.sleep(0.002)
         time.sleep(0.5)
     finally:

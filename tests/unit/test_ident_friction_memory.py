@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from control.identification.fit import fit_rigid_friction
+from control.identification.fit import fit_rigid_friction, rechoose_options
 from control.identification.friction_law import friction_direction, linear_recurrence
 from control.identification.lsq import BlockLS, contiguous_folds
 from control.identification.terms import (
@@ -130,3 +130,31 @@ def test_a_motion_cut_in_pieces_carries_its_direction_across_the_cut():
     second = friction_direction(q[1200:], dq[1200:], 1e-3, 2e-4, first[-1], q[1199])
     np.testing.assert_allclose(np.r_[first, second], whole, atol=1e-12)
     assert not np.allclose(friction_direction(q[1200:], dq[1200:], 1e-3, 2e-4), whole[1200:])
+
+
+def _with_ripple(tau: np.ndarray, q: np.ndarray, dq: np.ndarray) -> tuple:
+    """The fit of ``tau`` (a gear ripple in it the fit does not know), then the ripple's columns
+    added to its least squares and the options chosen again: (first term, term after)."""
+    y_base = np.sin(q)[None, :, None]
+    ctx = Context(q[:, None], dq[:, None], np.zeros((q.size, 1)), y_base=y_base)
+    ls = BlockLS(tau[:, None], contiguous_folds(q.size, 5))
+    fit = fit_rigid_friction(ls, ctx, "simple", np.ones(1))
+    ls.add("ripple", {0: np.column_stack([np.sin(51 * q), np.cos(51 * q)])})
+    names = [*fit.names, "ripple"]
+    again = rechoose_options(ls, ctx, names, fit.weights, fit.terms[0])
+    # the least squares holds the chosen term's columns
+    np.testing.assert_array_equal(ls.cols[again.key][0], again.columns(ctx)[0])
+    return fit.terms[0], again
+
+
+def test_options_are_chosen_again_once_an_effect_takes_its_share_of_the_residual():
+    rng = np.random.default_rng(11)
+    q, dq = _teaching_motion()
+    noise = 0.05 * rng.standard_normal(q.size)
+    ripple = 6.0 * np.sin(51 * q + 0.7)
+    base = 12.0 * np.sin(q) + ripple + noise
+    _, again = _with_ripple(base + _dahl_loop(q, 3.0, 5e-4), q, dq)
+    assert again.presliding_rad is not None
+    assert 1.5e-4 <= again.presliding_rad <= 1.5e-3
+    _, again = _with_ripple(base + 3.0 * np.sign(dq), q, dq)
+    assert again.presliding_rad is None
