@@ -20,10 +20,10 @@ is a few large stretches (a pause held at the static level) among many reversals
 changes the prediction by a noise-level amount (hard world draw 15, J4 Dahl: the held-out
 error 31 % lower with memory, lower in only 41 of 79 stretches, which a sign test refuses, and
 Wilcoxon's signed-rank test too at this level). Stretches that are not independent (a long
-pause cut by one noisy row) only make the test stricter: fewer trials. An option that changes
-the law over most of the motion (a wide Stribeck rise) gives few stretches and so little power
-here; the fold test stays beside this one for it (:func:`.fit._choose_option` takes a value
-either test holds).
+pause cut by one noisy row) only make the test stricter: fewer trials. :func:`.fit._choose_option`
+takes memory where either this test or the fold test holds, and a Gaussian Stribeck rise where
+the fold test holds: a rise acts on every slow passage of the motion, and through this test it
+took narrow rises fitted at the stuck mask's edge that were worse on the holdout.
 """
 
 from __future__ import annotations
