@@ -404,6 +404,11 @@ def _choose_option(
         None,
         None,
     )
+
+    def stretch_test(pred: np.ndarray, cand_cols: np.ndarray) -> bool:
+        changed = changed_rows(plain, cand_cols)
+        return option_holds(y, base_pred, pred, changed, len(grid), mask)[0]
+
     for value in grid:
         cand = replace(term, **{field_name: float(value)})
         cols = _thin(cand.columns(ctx), step)
@@ -412,12 +417,7 @@ def _choose_option(
         total = float(folds[:, j].sum())
         if total < best[0] and (
             np.all(folds[:, j] < base_folds[:, j])
-            or (
-                field_name in LOCALIZED_OPTIONS
-                and option_holds(y, base_pred, pred, changed_rows(plain, cols[j]), len(grid), mask)[
-                    0
-                ]
-            )
+            or (field_name in LOCALIZED_OPTIONS and stretch_test(pred, cols[j]))
         ):
             best = (total, cand, cols)
     if best[1] is None or best[2] is None:

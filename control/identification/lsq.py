@@ -23,7 +23,7 @@ directions is the effective parameter count used by BIC.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from itertools import pairwise
 from typing import Any
@@ -435,31 +435,32 @@ class BlockLS:
     def cv_fold_sse(self, names: Sequence[str], weights: np.ndarray) -> np.ndarray:
         """:meth:`cv_sse` fold by fold, (K, n): each fold's SSE per joint predicted by the fit
         on the other folds (at least two folds)."""
+        out = np.zeros((len(self.folds), self.n))
+        for k, sol in self._held_out_fits(names, weights):
+            out[k] = self.fold_sse(sol, k)[0]
+        return out
+
+    def _held_out_fits(
+        self, names: Sequence[str], weights: np.ndarray
+    ) -> Iterator[tuple[int, Solution]]:
+        """Each fold k with the fit of ``names`` on the other folds (at least two folds)."""
         names = list(names)
         if len(self.folds) < 2 or not names:
             raise ValueError("held-out errors per fold need at least two folds and one group")
         grams, rhss = self._fold_normals(names, weights)
         gram, rhs = grams.sum(axis=0), rhss.sum(axis=0)
-        out = np.zeros((len(self.folds), self.n))
         for k in range(len(self.folds)):
-            sol = self._solve_normal(names, gram - grams[k], rhs - rhss[k])
-            out[k] = self.fold_sse(sol, k)[0]
-        return out
+            yield k, self._solve_normal(names, gram - grams[k], rhs - rhss[k])
 
     def cv_joint(
         self, names: Sequence[str], weights: np.ndarray, j: int
     ) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`cv_fold_sse` (K, n) and joint ``j``'s held-out prediction (T,) (each fold's
         rows from the fit on the other folds), from the same K fits."""
-        names = list(names)
-        if len(self.folds) < 2 or not names:
-            raise ValueError("held-out errors per fold need at least two folds and one group")
-        grams, rhss = self._fold_normals(names, weights)
-        gram, rhs = grams.sum(axis=0), rhss.sum(axis=0)
         out = np.zeros((len(self.folds), self.n))
         pred = np.zeros(self.n_rows)
-        for k, s in enumerate(self.folds):
-            sol = self._solve_normal(names, gram - grams[k], rhs - rhss[k])
+        for k, sol in self._held_out_fits(names, weights):
+            s = self.folds[k]
             out[k] = self.fold_sse(sol, k)[0]
             for name, x in sol.coef.items():
                 c = self.cols[name].get(j)
