@@ -43,12 +43,17 @@ training and test* are described) is accepted only if
     difference is a better repair than the guard's fallback to a fit without physics.
 
 (vii) *its parameters are physical*: a payload has a positive mass; a Stribeck rise and
-    load-dependent friction add friction (positive amplitude, positive coefficient); a
-    spring's rest angle lies within the training range of its joint widened by that range on
-    each side. Otherwise the term is fitting something else the declared model lacks (a
-    spring whose rest angle is tens of radians away is a constant offset, such as the
-    direction-dependent part of a Coulomb friction, with a small slope), and naming it would
-    be false.
+    load-dependent friction add friction (positive amplitude, positive coefficient); a spring
+    pulls towards its rest angle (k > 0: a hose, a cable or a balancer is a passive elastic
+    element), and its rest angle lies within the training range of its joint widened by that
+    range on each side. Otherwise the term is fitting something else the declared model lacks
+    (a spring whose rest angle is tens of radians away is a constant offset, such as the
+    direction-dependent part of a Coulomb friction, with a small slope; a negative one the
+    gravity of a mass the model lacks, or its extrapolation), and naming it would be false.
+    In case (B), where the model is fixed, a candidate must also pass (i) and (ii) against a
+    constant on each joint it acts on, with that constant beside it
+    (:func:`.effects._only_a_moved_mean`): a joint whose mean torque moved between the runs
+    is not a spring (whose own constant that is: its slope is judged) nor a coupling.
 
 (viii) case (A), *the backward look*: on the final fit (the measurement chain settled, every
     effect in), each accepted effect is judged again by (i)-(iii), (vi) and (vii) against
@@ -233,6 +238,11 @@ def implausible(term: EffectTerm, coef: np.ndarray, envelope: Envelope | None) -
         return f"a Stribeck rise of {p['amplitude_nm']:.3g} N·m (friction falling at low speed)"
     if term.name == "load_dependent_friction" and p["coefficient"] <= 0.0:
         return f"load-dependent friction {p['coefficient']:.3g} (friction falling under load)"
+    if term.name == "spring" and p["k_nm_per_rad"] <= 0.0:
+        return (
+            f"a spring of {p['k_nm_per_rad']:.3g} N·m/rad (pushing away from its rest angle: "
+            "a mass's gravity the model lacks, or its extrapolation)"
+        )
     if term.name == "spring" and envelope is not None:
         (j,) = term.joints
         lo, hi = float(envelope.q_min[j]), float(envelope.q_max[j])

@@ -24,7 +24,7 @@ A candidate is accepted only by the rules (i)-(vii) of :mod:`.effect_rules`.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import partial
 from operator import methodcaller
 from typing import Any
@@ -105,11 +105,13 @@ def _judge_all(
     options: Options,
     envelope: Envelope | None,
     delay: Callable[[BlockLS], Verdict] | None = None,
+    moved_mean: bool = False,
 ) -> list[Verdict]:
     """The verdict on each candidate of a round (``columns(term)`` added to the fit of
     ``names`` on ``ls``), then the delay's (``delay(fork of ls)``) if asked: each on a fork
     of ``ls`` (left as it was), side by side in worker processes (:mod:`.parallel`), the
-    delay's scan first (it costs a dozen fits)."""
+    delay's scan first (it costs a dozen fits). ``moved_mean`` (case B): a candidate is also
+    judged against a moved mean torque on its joints (:func:`_only_a_moved_mean`)."""
 
     def one(i: int) -> Verdict:
         own = ls.fork()
@@ -117,13 +119,52 @@ def _judge_all(
             assert delay is not None
             return delay(own)
         term = terms[i]
-        own.add(term.key, columns(term))
+        cols = columns(term)
+        own.add(term.key, cols)
         new = own.evaluate([*names, term.key], weights)
-        return judge(term, current, new, weights, noise, tried, options, 0, envelope)
+        verdict = judge(term, current, new, weights, noise, tried, options, 0, envelope)
+        if moved_mean and verdict.accepted:
+            why = _only_a_moved_mean(own, term, cols, names, weights, noise, tried, options)
+            if why:
+                verdict = replace(verdict, accepted=False, implausible=why)
+        return verdict
 
     order = ([-1] if delay is not None else []) + list(range(len(terms)))
     done = dict(zip(order, map_forked(one, order), strict=True))
     return [done[i] for i in sorted(order, key=lambda i: (i < 0, i))]
+
+
+def _only_a_moved_mean(
+    ls: BlockLS,
+    term: EffectTerm,
+    cols: dict[int, np.ndarray],
+    names: Sequence[str],
+    weights: np.ndarray,
+    noise: NoiseFloor,
+    tried: int,
+    options: Options,
+) -> str:
+    """Why a candidate of case B is refused as a change of its joints' mean torque ("" if it
+    is not): fitted where the model is fixed, its columns may take any change of a joint's
+    mean torque between the runs (the model's extrapolation where the test run leaves the
+    training envelope, a sensor's zero), so it must pass rules (i) and (ii) against a constant
+    per joint it acts on, with that constant beside it. A spring's own constant is that
+    constant, and what is judged is its slope: a moved mean torque gave "springs" of a few
+    thousandths of the joint's noise per radian, and "couplings" of a few thousandths.
+    ``ls`` holds the candidate's columns under ``term.key``."""
+    key = f"{term.key}:mean"
+    ls.add(key, {j: np.ones((c.shape[0], 1)) for j, c in cols.items()})
+    mean = ls.evaluate([*names, key], weights)
+    both = ls.evaluate([*names, key, term.key], weights)
+    beyond = judge(term, mean, both, weights, noise, tried, options)
+    if beyond.accepted:
+        return ""
+    js = list(term.joints) if len(term.joints) == 1 else list(cols)
+    return (
+        "it is not told from a moved mean torque (held-out RMS "
+        f"{np.array2string(-beyond.rel[js], precision=3)} against a constant alone, held-out "
+        f"drop {beyond.chi2:.3g} noise dof, threshold {beyond.chi2_threshold:.3g})"
+    )
 
 
 # --------------------------------------------------------------------------------------------
@@ -426,6 +467,7 @@ def search_between(
             partial(_delay_verdict, target=lambda d: (tau - shifted(d))[fit_rows], names=names,
                     weights=weights, current=current, noise=noise, tried=tried, options=options)
             if with_delay else None,
+            moved_mean=True,
         )  # fmt: skip
         _log_round(progress, "test", verdicts)
         _note_implausible(verdicts, BETWEEN, refused, progress)

@@ -32,7 +32,9 @@ def _search(seed: int, own: float) -> tuple[BlockLS, SearchState, list[EffectTer
     y = 3.0 * base + 2.0 * b + own * other + NOISE * rng.standard_normal(T)
     ls = BlockLS(y[:, None], contiguous_folds(T, 5))
     a_term = EffectTerm("position_ripple", (0,), {"cycles_per_rev": 7})
-    b_term = EffectTerm("spring", (0,))
+    # (two columns without a sign rule: with own 1, b's coefficient comes out negative, which
+    # rule (vii) refuses for a spring's stiffness)
+    b_term = EffectTerm("position_ripple", (0,), {"cycles_per_rev": 11})
     ls.add("base", {0: base[:, None]})
     ls.add(a_term.key, {0: np.column_stack([b + 0.3 * other, np.zeros(T)])})
     ls.add(b_term.key, {0: np.column_stack([b, np.ones(T)])})
