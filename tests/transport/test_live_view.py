@@ -59,7 +59,8 @@ def test_a_websocket_client_gets_the_channels_and_the_joint_states(router):
             assert "q_rad" in schema["properties"]
             subscribe = {"op": "subscribe", "subscriptions": [{"id": 7, "channelId": joints["id"]}]}
             ws.send(json.dumps(subscribe))
-            got = []
+            got: list[dict] = []
+            early: list[dict] = []
             cycle = 100
             deadline = time.monotonic() + 5.0
             while len(got) < 3 and time.monotonic() < deadline:
@@ -72,9 +73,19 @@ def test_a_websocket_client_gets_the_channels_and_the_joint_states(router):
                 if isinstance(msg, bytes) and msg[0] == 1:  # MessageData
                     sub_id, log_ns = struct.unpack_from("<IQ", msg, 1)
                     assert sub_id == 7 and abs(log_ns - time.time_ns()) < 60e9
-                    got.append(json.loads(msg[13:]))
+                    state = json.loads(msg[13:])
+                    assert len(state["q_rad"]) == 6, state
+                    # The view advertises a channel when it creates it and logs the first
+                    # message (cycle 1) just after, on zenoh's thread; on a loaded machine our
+                    # subscription can reach the server between the two, and then cycle 1 is
+                    # delivered too. It may come once, first; every other state is one we put
+                    # after subscribing.
+                    if state["cycle"] == 1 and not got and not early:
+                        early.append(state)
+                        continue
+                    assert state["cycle"] >= 100, state
+                    got.append(state)
             assert len(got) == 3, "no joint states after subscribing"
-            assert all(len(s["q_rad"]) == 6 and s["cycle"] >= 100 for s in got)
     finally:
         pub.close()
         view.stop()
