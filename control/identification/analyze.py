@@ -298,6 +298,10 @@ def _analyze(
     fit_rows = slice(0, split)
     accepted_b: list[fx.Accepted] = []
     pred_after = pred_a
+    # what the effects that appeared between the runs add to every joint they act on, whatever
+    # predicts the rest of its torque: they were fitted on the residual of ``pred_a``, plain
+    # joints' own prediction included, and a tool mounted weighs on those joints too
+    between_torque = np.zeros_like(pred_a)
     if options.find_effects:
         gain = fx.training_gain_fn(ls, ctx_train, train, names, base_fit.weights, delay_a)
         done = [a.term for a in accepted_a]
@@ -307,12 +311,16 @@ def _analyze(
         )  # fmt: skip
         accepted_b = between.accepted
         pred_after = between.prediction
+        assert between.effects_torque is not None
+        between_torque = between.effects_torque
         refused += between.refused
     accepted = [*accepted_a, *accepted_b]
     # The guard's second look: on the leading test rows, what extrapolates worse than plain
     # least squares or zero is replaced there too (the figures are then those of the rest).
     kinds_now = [MODEL if j not in plain else plain[j].kind for j in range(reg.n)]
-    second = guard_on_test(test.tau, pred_after, pred_plain, moving_test, fit_rows, kinds_now)
+    second = guard_on_test(
+        test.tau, pred_after, pred_plain, moving_test, fit_rows, kinds_now, between_torque
+    )
     switched = []
     if second is not None:
         pred_after = pred_after.copy()
@@ -322,7 +330,8 @@ def _analyze(
             switched.append(j)
             coef = plain_ref.solution.coef[plain_key(j)]
             plain[j] = PlainJoint.from_coef(j, coef if now == PLAIN_LS else 0.0 * coef, now)
-            pred_after[:, j] = pred_plain[:, j] if now == PLAIN_LS else 0.0
+            base = pred_plain[:, j] if now == PLAIN_LS else 0.0
+            pred_after[:, j] = base + between_torque[:, j]
             r = second.rms[j]
             clock.say(
                 f"joint {j + 1}: on the first {split} test rows {was.replace('_', ' ')} "
@@ -330,7 +339,8 @@ def _analyze(
                 f"({r[now]:.4g} N·m): {now} kept"
             )
     effects_a = _restricted(accepted_a, set(plain))
-    effects_b = _restricted(accepted_b, set(plain))
+    # not restricted: the model adds them to a plain joint's own prediction, as above
+    effects_b = [(a.term, a.coef, a.appeared) for a in accepted_b]
     model = model_from_solution(
         reg, base_fit, train_eval.solution, [*effects_a, *effects_b], urdf, meta,
         run.envelope, plain, chain,

@@ -396,13 +396,16 @@ class TestSearch:
     """Result of case (B): accepted effects with coefficients fitted on the ``fit_rows`` of
     the test data, the delay, and the prediction of the fixed model shifted by that delay plus
     the accepted effects on *all* test samples, (T, n) [N·m]; only the rows after
-    ``fit_rows`` are held out."""
+    ``fit_rows`` are held out. ``effects_torque`` (T, n) [N·m] is the accepted linear effects'
+    torque alone: what a joint carries whatever predicts the rest of its torque (a tool
+    mounted between the runs weighs on a joint kept on plain least squares too)."""
 
     accepted: list[Accepted]
     delay_s: float
     prediction: np.ndarray
     fit_rows: slice
     refused: list[dict[str, Any]] = field(default_factory=list)
+    effects_torque: np.ndarray | None = None
 
 
 def _rows(cols: dict[int, np.ndarray], rows: slice) -> dict[int, np.ndarray]:
@@ -554,10 +557,11 @@ def search_between(
         case = appeared.replace("_", " ")
         progress(f"accepted ({case}, fitted on the first part of the test run) {_describe(best)}")
         current = new
-    prediction = shifted(delay).copy()
+    effects_torque = np.zeros_like(model_prediction)
     for acc in accepted:
         acc.coef = current.solution.coef.get(acc.term.key, np.zeros(0))
         if acc.term.is_linear:
             for j, cols in acc.term.columns(ctx).items():
-                prediction[:, j] += cols @ acc.coef
-    return TestSearch(accepted, delay, prediction, fit_rows, refused)
+                effects_torque[:, j] += cols @ acc.coef
+    prediction = shifted(delay) + effects_torque
+    return TestSearch(accepted, delay, prediction, fit_rows, refused, effects_torque)

@@ -221,10 +221,14 @@ def guard_on_test(
     mask: np.ndarray,
     rows: slice,
     chosen_kinds: Sequence[str],
+    between: np.ndarray | None = None,
 ) -> LeadGuard | None:
     """Per joint, what the training guard kept (``chosen`` (T, n) its prediction, of kind
     ``chosen_kinds[j]``) against plain least squares (``plain``) and zero, on the test run's
-    ``rows`` (where ``mask`` is 1). The training folds cannot show how a model extrapolates
+    ``rows`` (where ``mask`` is 1). ``between`` (T, n): the torque of effects that appeared
+    between the runs, in ``chosen`` already and carried by each fallback too (they were
+    fitted on those rows; a fallback without them would be judged without a load every
+    model of the arm now carries). The training folds cannot show how a model extrapolates
     to where the test run goes (outside the training envelope, a shared rigid-body fit can
     lose to a joint's own least squares, and an effect nobody declared can grow there); the
     leading test rows can, and no fit has seen them. The lowest error there is kept (the
@@ -235,10 +239,11 @@ def guard_on_test(
     if not enough.any():
         return None
     n = tau.shape[1]
+    rest = tau if between is None else tau - between
     err = {
         "chosen": (((tau - chosen)[rows] ** 2) * m).sum(axis=0),
-        PLAIN_LS: (((tau - plain)[rows] ** 2) * m).sum(axis=0),
-        ZERO: ((tau[rows] ** 2) * m).sum(axis=0),
+        PLAIN_LS: (((rest - plain)[rows] ** 2) * m).sum(axis=0),
+        ZERO: ((rest[rows] ** 2) * m).sum(axis=0),
     }
     count = np.maximum(m.sum(axis=0), 1.0)
     rms_rows, kept = [], []

@@ -142,3 +142,29 @@ def test_the_second_look_on_the_test_run_keeps_what_extrapolates_best():
     assert g is not None and g.kept[1] == "nominal"
     mask[:, :] = 0.0
     assert guard_on_test(tau, chosen, plain, mask, rows, ["model"] * 3) is None
+
+
+def test_the_second_look_judges_each_fallback_with_the_load_that_appeared_between_the_runs():
+    """An effect fitted between the runs (a tool mounted) is in the model's prediction and
+    weighs on the joint whatever predicts the rest: plain least squares and zero are judged
+    with it. Without it they would be judged without the tool's weight, and a joint whose own
+    plain fit extrapolates better would keep the model."""
+    from control.identification.guard import TEST_GUARD_MIN_ROWS, guard_on_test
+
+    rng = np.random.default_rng(3)
+    t = 3 * TEST_GUARD_MIN_ROWS
+    rigid = rng.standard_normal((t, 2)) * [10.0, 1.0]
+    tool = np.column_stack([np.full(t, 30.0), np.zeros(t)])  # [N·m] on joint 1 only
+    noise = 0.1 * rng.standard_normal((t, 2))
+    tau = rigid + tool + noise
+    plain = rigid + 0.2 * rng.standard_normal((t, 2))  # a better fit of the arm alone
+    chosen = rigid + tool + 1.0 * rng.standard_normal((t, 2))  # the model, tool included
+    mask = np.ones((t, 2))
+    rows = slice(0, 2 * TEST_GUARD_MIN_ROWS)
+    blind = guard_on_test(tau, chosen, plain, mask, rows, ["model"] * 2)
+    assert blind is not None and blind.kept == ["model", "plain_ls"]
+    g = guard_on_test(tau, chosen, plain, mask, rows, ["model"] * 2, tool)
+    assert g is not None and g.kept == ["plain_ls", "plain_ls"]
+    # plain's error is judged on what is left once the tool is carried: about its own 0.2
+    assert 0.15 < g.rms[0]["plain_ls"] < 0.3
+    assert g.rms[0]["zero"] > 5.0  # zero carries the tool too, not the arm's own torque
