@@ -136,6 +136,13 @@ class Chain:
         }
 
 
+#: Largest offset the chain takes for a sensor's zero, as a share of the largest torque the
+#: joint's channel read on the training files. A drive's current sensor is specified to ~1 %
+#: of its full scale (Hall sensors: 0.5-1 %), and a test motion reaches a good part of that
+#: scale; a constant column that takes more is trading with the model's own columns (within a
+#: training range, gravity's ``cos q`` is nearly a constant, and the URDF prior holds the mass
+#: moments back) and extrapolates apart from them outside it.
+MAX_OFFSET_SHARE = 0.05
 #: Gauss-Newton steps at most, and the relative gain change at which they stop.
 MAX_STEPS = 20
 STEP_TOLERANCE = 1e-7
@@ -276,8 +283,20 @@ def estimate(
             cv_free[best] = current[best]
         if dropped_offset is not None:
             threshold = chi2_threshold(1, n, alpha)
-            for j, (group, _) in list(offsets.items()):
+            reach = np.max(np.abs(y_meas), axis=0)
+            for j, (group, col) in list(offsets.items()):
                 if not dropped_offset(j):
+                    continue
+                value = float(fit.k[j] * fit.solution.coef[group][col])
+                if abs(value) > MAX_OFFSET_SHARE * reach[j]:
+                    say(
+                        f"measurement chain: offset of joint {j + 1} left out: {value:.4g} N·m "
+                        f"is {abs(value) / reach[j]:.0%} of the largest torque its channel "
+                        f"read ({reach[j]:.4g} N·m), no sensor's zero (at most "
+                        f"{MAX_OFFSET_SHARE:.0%}): the constant trades with the model's columns"
+                    )
+                    del offsets[j]
+                    names.remove(group)
                     continue
                 without = _Fit(ls, y_meas, [g for g in fit.names if g != group], weights, fit.k)
                 if (without.cv_sse()[j] - current[j]) / noise.dof_nm2[j] < threshold:
