@@ -71,7 +71,7 @@ from control.identification.guard import (
 from control.identification.heldout import per_file_rms, residuals, rms_answered, scored_rows
 from control.identification.load import _load
 from control.identification.lsq import BlockLS, contiguous_folds
-from control.identification.model import MODEL, PLAIN_LS, PlainJoint, plain_key
+from control.identification.model import MODEL, PLAIN_LS, ZERO, PlainJoint, plain_key
 from control.identification.parallel import map_forked
 from control.identification.preprocess import FILTER_ORDER, sliding_mask
 from control.identification.report import write_report
@@ -160,9 +160,6 @@ def _analyze(
     window_s = 1.0 / options.torque_cutoff_hz
     sliding_train = sliding_mask(train, options.stick_velocity_rad_s, window_s)
     sliding_test = sliding_mask(test, options.stick_velocity_rad_s, window_s)
-    # the rows the guard's second look judges on: every row but a stop's (a joint that stays
-    # below the stick velocity for one filter period), reversals included
-    moving_test = sliding_mask(test, options.stick_velocity_rad_s, window_s, window_s)
     ls = BlockLS(train.tau, folds, sliding_train)
     beta_nominal = reg.base.base_values(reg.parameters())
     ls.set_prior("rigid", beta_nominal, RIGID_PRIOR_RIDGE)
@@ -317,10 +314,35 @@ def _analyze(
     accepted = [*accepted_a, *accepted_b]
     # The guard's second look: on the leading test rows, what extrapolates worse than plain
     # least squares or zero is replaced there too (the figures are then those of the rest).
+    # Judged on the raw torque of every row there, as every figure is (.heldout): three whole
+    # models, each with the effects that appeared between the runs.
     kinds_now = [MODEL if j not in plain else plain[j].kind for j in range(reg.n)]
-    second = guard_on_test(
-        test.tau, pred_after, pred_plain, moving_test, fit_rows, kinds_now, between_torque
+    effects_b = [(a.term, a.coef, a.appeared) for a in accepted_b]
+    every = set(range(reg.n))
+
+    def assembled(joints: dict[int, PlainJoint]) -> Any:
+        return model_from_solution(
+            reg, base_fit, train_eval.solution,
+            [*_restricted(accepted_a, set(joints)), *effects_b], urdf, meta, run.envelope,
+            joints, chain,
+        )  # fmt: skip
+
+    def fallback(j: int, kind: str) -> PlainJoint:
+        coef = plain_ref.solution.coef[plain_key(j)]
+        return PlainJoint.from_coef(j, coef if kind == PLAIN_LS else 0.0 * coef, kind)
+
+    lead = [~r for r in scored_rows(run.test_files, test.t, split)]
+    candidates = {
+        "chosen": assembled(dict(plain)),
+        PLAIN_LS: assembled({j: fallback(j, PLAIN_LS) for j in every}),
+        ZERO: assembled({j: fallback(j, ZERO) for j in every}),
+    }
+    names_lead = list(candidates)
+    lead_errors = map_forked(
+        lambda i: residuals(candidates[names_lead[i]], run.test_files, lead, run.desc),
+        range(len(names_lead)),
     )
+    second = guard_on_test(dict(zip(names_lead, lead_errors, strict=True)), (0, split), kinds_now)
     switched = []
     if second is not None:
         pred_after = pred_after.copy()
@@ -328,23 +350,17 @@ def _analyze(
             if now == was:
                 continue
             switched.append(j)
-            coef = plain_ref.solution.coef[plain_key(j)]
-            plain[j] = PlainJoint.from_coef(j, coef if now == PLAIN_LS else 0.0 * coef, now)
+            plain[j] = fallback(j, now)
             base = pred_plain[:, j] if now == PLAIN_LS else 0.0
             pred_after[:, j] = base + between_torque[:, j]
             r = second.rms[j]
             clock.say(
-                f"joint {j + 1}: on the first {split} test rows {was.replace('_', ' ')} "
-                f"({r[was]:.4g} N·m) extrapolates worse than {now.replace('_', ' ')} "
-                f"({r[now]:.4g} N·m): {now} kept"
+                f"joint {j + 1}: on the raw rows of the first {split} test samples "
+                f"{was.replace('_', ' ')} ({r[was]:.4g} N·m) predicts worse than "
+                f"{now.replace('_', ' ')} ({r[now]:.4g} N·m): {now} kept"
             )
-    effects_a = _restricted(accepted_a, set(plain))
-    # not restricted: the model adds them to a plain joint's own prediction, as above
-    effects_b = [(a.term, a.coef, a.appeared) for a in accepted_b]
-    model = model_from_solution(
-        reg, base_fit, train_eval.solution, [*effects_a, *effects_b], urdf, meta,
-        run.envelope, plain, chain,
-    )  # fmt: skip
+    # effects_b not restricted: the model adds them to a plain joint's own prediction
+    model = assembled(plain)
     scored = slice(split, test.n_samples) if accepted_b or switched else slice(0, test.n_samples)
     on = sliding_test[scored]
     # figures in the torque channel's units: a physical residual r reads k r (.chain)

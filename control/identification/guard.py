@@ -190,7 +190,7 @@ def guard_joints(
     return out
 
 
-#: Fewest rows of the test run's leading part on which the guard's second look decides.
+#: Fewest raw rows of the test run's leading part on which the guard's second look decides.
 TEST_GUARD_MIN_ROWS = 200
 
 
@@ -215,42 +215,32 @@ class LeadGuard:
 
 
 def guard_on_test(
-    tau: np.ndarray,
-    chosen: np.ndarray,
-    plain: np.ndarray,
-    mask: np.ndarray,
-    rows: slice,
-    chosen_kinds: Sequence[str],
-    between: np.ndarray | None = None,
+    errors: dict[str, np.ndarray], rows: tuple[int, int], chosen_kinds: Sequence[str]
 ) -> LeadGuard | None:
-    """Per joint, what the training guard kept (``chosen`` (T, n) its prediction, of kind
-    ``chosen_kinds[j]``) against plain least squares (``plain``) and zero, on the test run's
-    ``rows`` (where ``mask`` is 1). ``between`` (T, n): the torque of effects that appeared
-    between the runs, in ``chosen`` already and carried by each fallback too (they were
-    fitted on those rows; a fallback without them would be judged without a load every
-    model of the arm now carries). The training folds cannot show how a model extrapolates
-    to where the test run goes (outside the training envelope, a shared rigid-body fit can
-    lose to a joint's own least squares, and an effect nobody declared can grow there); the
-    leading test rows can, and no fit has seen them. The lowest error there is kept (the
-    training guard's choice on a tie; on a joint with fewer than :data:`TEST_GUARD_MIN_ROWS`
-    rows there, that choice). None when no joint has enough."""
-    m = mask[rows]
-    enough = m.sum(axis=0) >= TEST_GUARD_MIN_ROWS
-    if not enough.any():
+    """Per joint, what the training guard kept (of kind ``chosen_kinds[j]``) against plain
+    least squares and zero on the test run's leading part (analysis rows ``rows``), judged as
+    every figure of the analysis is: ``errors`` maps "chosen", :data:`PLAIN_LS` and
+    :data:`ZERO` to the raw measured torque minus each whole model's prediction on the raw
+    rows of that part (R, n), NaN where it declines (:func:`.heldout.residuals`), every row
+    counted, stops and reversals too. Each model carries the effects that appeared between the
+    runs (fitted on those rows: a tool mounted weighs on every joint whatever predicts the
+    rest of its torque). The training folds cannot show how a model extrapolates to where the
+    test run goes (outside the training envelope, a shared rigid-body fit can lose to a
+    joint's own least squares, and an effect nobody declared can grow there); the leading
+    test rows can, and no fit has seen them. The lowest error there is kept (the training
+    guard's choice on a tie). None when fewer than :data:`TEST_GUARD_MIN_ROWS` rows are
+    answered by all three."""
+    answered = np.logical_and.reduce([np.isfinite(e).all(axis=1) for e in errors.values()])
+    count = int(answered.sum())
+    if count < TEST_GUARD_MIN_ROWS:
         return None
-    n = tau.shape[1]
-    rest = tau if between is None else tau - between
-    err = {
-        "chosen": (((tau - chosen)[rows] ** 2) * m).sum(axis=0),
-        PLAIN_LS: (((rest - plain)[rows] ** 2) * m).sum(axis=0),
-        ZERO: ((rest[rows] ** 2) * m).sum(axis=0),
-    }
-    count = np.maximum(m.sum(axis=0), 1.0)
+    sse = {k: np.sum(e[answered] ** 2, axis=0) for k, e in errors.items()}
+    n = next(iter(errors.values())).shape[1]
     rms_rows, kept = [], []
     for j in range(n):
-        sse = {k: float(v[j]) for k, v in err.items()}
-        best = min(sse, key=lambda k: (sse[k], k != "chosen")) if enough[j] else "chosen"
-        named = {(chosen_kinds[j] if k == "chosen" else k): v for k, v in sse.items()}
-        rms_rows.append({k: float(np.sqrt(v / count[j])) for k, v in named.items()})
+        own = {k: float(v[j]) for k, v in sse.items()}
+        best = min(own, key=lambda k: (own[k], k != "chosen"))
+        named = {(chosen_kinds[j] if k == "chosen" else k): v for k, v in own.items()}
+        rms_rows.append({k: float(np.sqrt(v / count)) for k, v in named.items()})
         kept.append(chosen_kinds[j] if best == "chosen" else best)
-    return LeadGuard((rows.start, rows.stop), rms_rows, kept)
+    return LeadGuard(rows, rms_rows, kept)

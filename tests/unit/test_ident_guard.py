@@ -119,52 +119,53 @@ def test_fallback_kind_is_saved_and_loaded(tmp_path):
 
 
 def test_the_second_look_on_the_test_run_keeps_what_extrapolates_best():
-    """On the leading test rows a joint keeps the lowest error of what the training guard
-    kept, plain least squares and zero; ties keep the training guard's choice, and a joint
-    with too few rows there is not judged."""
+    """On the raw rows of the test run's leading part a joint keeps the lowest error of what
+    the training guard kept, plain least squares and zero, every row counted; ties keep the
+    training guard's choice; a row one model declines counts for none; too few rows that all
+    answer decide nothing."""
     from control.identification.guard import TEST_GUARD_MIN_ROWS, guard_on_test
 
     rng = np.random.default_rng(2)
-    t = 3 * TEST_GUARD_MIN_ROWS
+    t = 2 * TEST_GUARD_MIN_ROWS
     tau = rng.standard_normal((t, 3)) * [10.0, 1.0, 0.01]
-    chosen = tau + rng.standard_normal((t, 3)) * [0.1, 3.0, 0.0]
-    plain = tau + rng.standard_normal((t, 3)) * [1.0, 0.5, 0.0]
-    mask = np.ones((t, 3))
-    rows = slice(0, 2 * TEST_GUARD_MIN_ROWS)
-    g = guard_on_test(tau, chosen, plain, mask, rows, ["model", "nominal", "model"])
+    chosen = rng.standard_normal((t, 3)) * [0.1, 3.0, 0.0]  # residuals: measured - predicted
+    plain = rng.standard_normal((t, 3)) * [1.0, 0.5, 0.0]
+    errors = {"chosen": chosen, "plain_ls": plain, "zero": tau}
+    g = guard_on_test(errors, (0, 100), ["model", "nominal", "model"])
     assert g is not None and g.kept == ["model", "plain_ls", "model"]  # joint 3: a tie
     assert g.rms[1]["nominal"] > g.rms[1]["plain_ls"]
-    assert g.to_json()["joints"][1]["kept"] == "plain_ls"
-    zero_wins = guard_on_test(tau, 5 * tau, 3 * tau, mask, rows, ["model"] * 3)
+    assert g.to_json()["joints"][1]["kept"] == "plain_ls" and g.to_json()["rows"] == [0, 100]
+    zero_wins = guard_on_test(
+        {"chosen": 5 * tau, "plain_ls": 3 * tau, "zero": tau}, (0, 1), ["model"] * 3
+    )
     assert zero_wins is not None and zero_wins.kept == ["zero"] * 3
-    mask[: TEST_GUARD_MIN_ROWS + 10, 1] = 0.0  # joint 2 stuck over most of those rows
-    g = guard_on_test(tau, chosen, plain, mask, rows, ["model", "nominal", "model"])
-    assert g is not None and g.kept[1] == "nominal"
-    mask[:, :] = 0.0
-    assert guard_on_test(tau, chosen, plain, mask, rows, ["model"] * 3) is None
+    # joint 2's plain least squares, best where it moves, misses a stop by 20 N·m: counted,
+    # that stop hands the joint to zero (1 N·m off everywhere)
+    plain[: TEST_GUARD_MIN_ROWS // 4, 1] += 20.0
+    assert guard_on_test(errors, (0, 100), ["model"] * 3).kept[1] == "zero"
+    declined = plain.copy()
+    declined[: t - TEST_GUARD_MIN_ROWS + 1, 0] = np.nan
+    assert guard_on_test({**errors, "plain_ls": declined}, (0, 100), ["model"] * 3) is None
 
 
 def test_the_second_look_judges_each_fallback_with_the_load_that_appeared_between_the_runs():
-    """An effect fitted between the runs (a tool mounted) is in the model's prediction and
-    weighs on the joint whatever predicts the rest: plain least squares and zero are judged
-    with it. Without it they would be judged without the tool's weight, and a joint whose own
-    plain fit extrapolates better would keep the model."""
+    """An effect fitted between the runs (a tool mounted) weighs on a joint whatever predicts
+    the rest of its torque: the second look compares whole models that each carry it. A
+    plain fit of the arm alone that is better than the model then wins on that joint; judged
+    without the tool it would lose, and the joint would keep the model."""
     from control.identification.guard import TEST_GUARD_MIN_ROWS, guard_on_test
 
     rng = np.random.default_rng(3)
     t = 3 * TEST_GUARD_MIN_ROWS
     rigid = rng.standard_normal((t, 2)) * [10.0, 1.0]
     tool = np.column_stack([np.full(t, 30.0), np.zeros(t)])  # [N·m] on joint 1 only
-    noise = 0.1 * rng.standard_normal((t, 2))
-    tau = rigid + tool + noise
-    plain = rigid + 0.2 * rng.standard_normal((t, 2))  # a better fit of the arm alone
-    chosen = rigid + tool + 1.0 * rng.standard_normal((t, 2))  # the model, tool included
-    mask = np.ones((t, 2))
-    rows = slice(0, 2 * TEST_GUARD_MIN_ROWS)
-    blind = guard_on_test(tau, chosen, plain, mask, rows, ["model"] * 2)
-    assert blind is not None and blind.kept == ["model", "plain_ls"]
-    g = guard_on_test(tau, chosen, plain, mask, rows, ["model"] * 2, tool)
+    tau = rigid + tool + 0.1 * rng.standard_normal((t, 2))
+    plain_arm = rigid + 0.2 * rng.standard_normal((t, 2))  # a better fit of the arm alone
+    model = rigid + tool + 1.0 * rng.standard_normal((t, 2))  # the model, tool included
+    with_tool = {"chosen": tau - model, "plain_ls": tau - plain_arm - tool, "zero": tau - tool}
+    blind = {**with_tool, "plain_ls": tau - plain_arm, "zero": tau}
+    assert guard_on_test(blind, (0, t), ["model"] * 2).kept == ["model", "plain_ls"]
+    g = guard_on_test(with_tool, (0, t), ["model"] * 2)
     assert g is not None and g.kept == ["plain_ls", "plain_ls"]
-    # plain's error is judged on what is left once the tool is carried: about its own 0.2
-    assert 0.15 < g.rms[0]["plain_ls"] < 0.3
+    assert 0.15 < g.rms[0]["plain_ls"] < 0.3  # about its own 0.2 once the tool is carried
     assert g.rms[0]["zero"] > 5.0  # zero carries the tool too, not the arm's own torque
