@@ -308,7 +308,6 @@ def _analyze(
         )  # fmt: skip
         accepted_b = between.accepted
         pred_after = between.prediction
-        assert between.effects_torque is not None
         between_torque = between.effects_torque
         refused += between.refused
     accepted = [*accepted_a, *accepted_b]

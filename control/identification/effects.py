@@ -404,8 +404,8 @@ class TestSearch:
     delay_s: float
     prediction: np.ndarray
     fit_rows: slice
+    effects_torque: np.ndarray
     refused: list[dict[str, Any]] = field(default_factory=list)
-    effects_torque: np.ndarray | None = None
 
 
 def _rows(cols: dict[int, np.ndarray], rows: slice) -> dict[int, np.ndarray]:
@@ -564,4 +564,4 @@ def search_between(
             for j, cols in acc.term.columns(ctx).items():
                 effects_torque[:, j] += cols @ acc.coef
     prediction = shifted(delay) + effects_torque
-    return TestSearch(accepted, delay, prediction, fit_rows, refused, effects_torque)
+    return TestSearch(accepted, delay, prediction, fit_rows, effects_torque, refused)
