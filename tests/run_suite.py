@@ -23,14 +23,17 @@ a time. ``--serial`` asks for that anywhere.
     python tests/run_suite.py [--serial] [-- PYTEST_ARGS ...]
 
 Each process's output is printed line by line with its name in front; the exit status is the
-first non-zero of the two (0 when both passed). Both get ``PYTEST_ARGS`` and
-``-m 'not campaign'`` (the long campaigns are `make acceptance`).
+first non-zero of the two (0 when both passed). At the end each process's failures and its
+summary line are printed again (:data:`RECAP`): the process that finished first printed them many
+minutes before, and a log read from its tail (CI's) must still name the failing test.
+Both get ``PYTEST_ARGS`` and ``-m 'not campaign'`` (the long campaigns are `make acceptance`).
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import re
 import subprocess
 import sys
 import threading
@@ -43,13 +46,19 @@ REST_NICENESS = 10
 MACHINE = "(stack or exclusive) and not campaign"
 REST = "not stack and not exclusive and not campaign"
 ALL = "not campaign"
+#: the start of a line printed again at the end: pytest's short summary of each failure and error
+RECAP = ("FAILED ", "ERROR ")
+#: pytest's last line: "N passed, M failed ... in S s", between rows of "=" when not quiet
+SUMMARY = re.compile(r"^=* ?(\d+ [a-z]+|no tests ran)\b.* in [0-9.]+s\b")
 
 
-def _forward(name: str, stream: IO[str], lock: threading.Lock) -> None:
+def _forward(name: str, stream: IO[str], lock: threading.Lock, recap: list[str]) -> None:
     for line in stream:
         with lock:
             sys.stdout.write(f"[{name}] {line}")
             sys.stdout.flush()
+        if line.startswith(RECAP) or SUMMARY.match(line):
+            recap.append(f"[{name}] {line.rstrip()}")
 
 
 def _niced() -> None:
@@ -59,6 +68,7 @@ def _niced() -> None:
 def run_two(pytest: list[str], extra: list[str]) -> int:
     """The machine and rest processes side by side; the first non-zero exit status."""
     lock = threading.Lock()
+    recap: list[str] = []
     procs: list[tuple[str, subprocess.Popen[str]]] = []
     threads = []
     try:
@@ -73,7 +83,9 @@ def run_two(pytest: list[str], extra: list[str]) -> int:
             )
             procs.append((name, proc))
             assert proc.stdout is not None
-            t = threading.Thread(target=_forward, args=(name, proc.stdout, lock), daemon=True)
+            t = threading.Thread(
+                target=_forward, args=(name, proc.stdout, lock, recap), daemon=True
+            )
             t.start()
             threads.append(t)
         codes = [proc.wait() for _, proc in procs]
@@ -84,6 +96,9 @@ def run_two(pytest: list[str], extra: list[str]) -> int:
                 proc.wait(30.0)
         for t in threads:
             t.join(5.0)
+    print("run_suite: each process's failures and summary, again:")
+    for line in recap:
+        print(line)
     for (name, _), code in zip(procs, codes, strict=True):
         print(f"run_suite: {name}: pytest exit status {code}")
     return next((c for c in codes if c != 0), 0)

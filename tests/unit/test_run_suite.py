@@ -9,14 +9,19 @@ from pathlib import Path
 
 from run_suite import MACHINE, REST, REST_NICENESS, run_two
 
-#: a stand-in for pytest: prints its niceness and its -m expression, exits 3 for the rest
+#: a stand-in for pytest: prints its niceness and its -m expression, exits 3 for the rest after
+#: a failure's short summary and pytest's closing line, then more lines
 FAKE = [
     sys.executable,
     "-c",
     "import os, sys\n"
     "marks = sys.argv[sys.argv.index('-m') + 1]\n"
     "print('nice', os.nice(0), 'marks', marks, 'extra', sys.argv[-1])\n"
-    "sys.exit(3 if marks.startswith('not stack') else 0)\n",
+    "rest = marks.startswith('not stack')\n"
+    "print('FAILED tests/unit/test_x.py::test_y - assert 1 == 2' if rest else 'ok')\n"
+    "print('1 failed, 2 passed in 0.10s' if rest else '3 passed in 0.10s')\n"
+    "print('a line after the summary')\n"
+    "sys.exit(3 if rest else 0)\n",
 ]
 
 
@@ -29,6 +34,20 @@ def test_the_rest_runs_niced_beside_the_machine_and_a_failure_of_either_fails_th
     assert code == 3
     assert "run_suite: machine: pytest exit status 0" in out
     assert "run_suite: rest: pytest exit status 3" in out
+
+
+def test_the_tail_of_the_output_names_each_process_failures_and_counts(capsys):
+    """CI shows the end of the log; the process that finished first printed its failures long
+    before: they come again after both ended, and only they and the counts."""
+    run_two(FAKE, ["--durations=20"])
+    out = capsys.readouterr().out.splitlines()
+    tail = out[out.index("run_suite: each process's failures and summary, again:") + 1 :]
+    assert sorted(tail[:3]) == [
+        "[machine] 3 passed in 0.10s",
+        "[rest] 1 failed, 2 passed in 0.10s",
+        "[rest] FAILED tests/unit/test_x.py::test_y - assert 1 == 2",
+    ]
+    assert [line for line in tail[3:] if not line.startswith("run_suite: ")] == []
 
 
 def test_no_test_belongs_to_both_processes_and_campaigns_to_neither():
