@@ -46,6 +46,7 @@ from threadpoolctl import threadpool_limits
 
 from control.identification import cylinders as cyl
 from control.identification import effects as fx
+from control.identification.assembly import Assembly
 from control.identification.chain import settle as settle_chain
 from control.identification.effect_rules import NoiseFloor
 from control.identification.families import (
@@ -56,14 +57,13 @@ from control.identification.families import (
     _predict,
     _settle_cylinders,
 )
-from control.identification.fit import FrictionFit, model_from_solution, rechoose_options
+from control.identification.fit import FrictionFit, rechoose_options
 from control.identification.folds import CONTIGUOUS, plan_folds
 from control.identification.friction_law import FRICTION_MODELS
 from control.identification.guard import (
     GuardFolds,
     _evaluate_on,
     _plain_prediction,
-    _restricted,
     guard_joints,
     guard_on_test,
     plain_least_squares,
@@ -71,7 +71,7 @@ from control.identification.guard import (
 from control.identification.heldout import per_file_rms, residuals, rms_answered, scored_rows
 from control.identification.load import _load
 from control.identification.lsq import BlockLS, contiguous_folds
-from control.identification.model import MODEL, PLAIN_LS, ZERO, PlainJoint, plain_key
+from control.identification.model import MODEL, PLAIN_LS, PlainJoint, plain_key
 from control.identification.parallel import map_forked
 from control.identification.preprocess import FILTER_ORDER, sliding_mask
 from control.identification.report import write_report
@@ -281,14 +281,14 @@ def _analyze(
     for j, g in guard.items():
         if g.fallback is not None:
             clock.say(f"joint {j + 1}: {g.reason}")
-    effects_a = _restricted(accepted_a, set(plain))
-    model_a = model_from_solution(
-        reg, base_fit, train_eval.solution, effects_a, urdf, meta, run.envelope, plain, chain
-    )
-    pred_a = model_a.torque_from_context(ctx_test)
+    plain_ref = plain_least_squares(ctx_train, train.tau, folds, sliding_train)
+    parts = Assembly(
+        reg, base_fit, train_eval.solution, urdf, meta, run.envelope, chain,
+        plain_ref.solution.coef, accepted_a,
+    )  # fmt: skip
+    pred_a = parts.model(plain, between=False).torque_from_context(ctx_test)
     if delay_a:
         pred_a = shift_signal(test.t, test.segment, pred_a, -delay_a)
-    plain_ref = plain_least_squares(ctx_train, train.tau, folds, sliding_train)
     pred_plain = _plain_prediction(ctx_test, plain_ref.solution.coef)
 
     split = round(TEST_FIT_FRACTION * test.n_samples)
@@ -316,26 +316,9 @@ def _analyze(
     # Judged on the raw torque of every row there, as every figure is (.heldout): three whole
     # models, each with the effects that appeared between the runs.
     kinds_now = [MODEL if j not in plain else plain[j].kind for j in range(reg.n)]
-    effects_b = [(a.term, a.coef, a.appeared) for a in accepted_b]
-    every = set(range(reg.n))
-
-    def assembled(joints: dict[int, PlainJoint]) -> Any:
-        return model_from_solution(
-            reg, base_fit, train_eval.solution,
-            [*_restricted(accepted_a, set(joints)), *effects_b], urdf, meta, run.envelope,
-            joints, chain,
-        )  # fmt: skip
-
-    def fallback(j: int, kind: str) -> PlainJoint:
-        coef = plain_ref.solution.coef[plain_key(j)]
-        return PlainJoint.from_coef(j, coef if kind == PLAIN_LS else 0.0 * coef, kind)
-
+    parts = replace(parts, between=accepted_b)
     lead = [~r for r in scored_rows(run.test_files, test.t, split)]
-    candidates = {
-        "chosen": assembled(dict(plain)),
-        PLAIN_LS: assembled({j: fallback(j, PLAIN_LS) for j in every}),
-        ZERO: assembled({j: fallback(j, ZERO) for j in every}),
-    }
+    candidates = parts.second_look(plain)
     names_lead = list(candidates)
     lead_errors = map_forked(
         lambda i: residuals(candidates[names_lead[i]], run.test_files, lead, run.desc),
@@ -349,7 +332,7 @@ def _analyze(
             if now == was:
                 continue
             switched.append(j)
-            plain[j] = fallback(j, now)
+            plain[j] = parts.fallback(j, now)
             base = pred_plain[:, j] if now == PLAIN_LS else 0.0
             pred_after[:, j] = base + between_torque[:, j]
             r = second.rms[j]
@@ -358,8 +341,8 @@ def _analyze(
                 f"{was.replace('_', ' ')} ({r[was]:.4g} N·m) predicts worse than "
                 f"{now.replace('_', ' ')} ({r[now]:.4g} N·m): {now} kept"
             )
-    # effects_b not restricted: the model adds them to a plain joint's own prediction
-    model = assembled(plain)
+    # case (B)'s effects stay on a plain joint, added to its own prediction (.assembly)
+    model = parts.model(plain)
     scored = slice(split, test.n_samples) if accepted_b or switched else slice(0, test.n_samples)
     on = sliding_test[scored]
     # figures in the torque channel's units: a physical residual r reads k r (.chain)

@@ -7,8 +7,8 @@ on the training files is lower, measured on fold schemes mixed as the test run's
 relative to the training rows (:mod:`.folds`; :func:`guard_joints`); then a second look on the
 leading rows of the test run, those case (B) of :mod:`.effects` searched
 (:func:`guard_on_test`). A joint replaced is a :class:`.model.PlainJoint`;
-:func:`plain_least_squares` fits the first fallback for every joint, and the training-fitted
-effects leave the joints on a fallback (:func:`_restricted`).
+:func:`plain_least_squares` fits the first fallback for every joint. The whole models these
+choices make, and the second look's candidates, are assembled in :mod:`.assembly`.
 """
 
 from __future__ import annotations
@@ -19,7 +19,6 @@ from typing import Any
 
 import numpy as np
 
-from control.identification import effects as fx
 from control.identification.folds import Scheme, gcv_factor
 from control.identification.lsq import BlockLS, Evaluation
 from control.identification.model import (
@@ -34,7 +33,10 @@ from control.identification.model import (
 )
 from control.identification.rigid import RobotRegressor
 from control.identification.stages import AnalyzeOptions
-from control.identification.terms import Context, EffectTerm
+from control.identification.terms import Context
+
+#: The second look's name for the training guard's choice (beside PLAIN_LS and ZERO)
+CHOSEN = "chosen"
 
 
 def plain_least_squares(
@@ -54,20 +56,6 @@ def _plain_prediction(ctx: Context, sol_coef: dict[str, np.ndarray]) -> np.ndarr
     out = np.zeros_like(ctx.q)
     for j in range(ctx.q.shape[1]):
         out[:, j] = plain_columns(ctx, j)[j] @ sol_coef[plain_key(j)]
-    return out
-
-
-def _restricted(effects: Sequence[fx.Accepted], plain: set[int]) -> list[tuple[Any, Any, str]]:
-    """Training-fitted effects without the joints kept on plain least squares (their columns
-    were fitted with the full model's parameters, which those joints no longer use)."""
-    out = []
-    for a in effects:
-        joints = tuple(j for j in a.term.joints if j not in plain)
-        if not a.term.is_linear:
-            out.append((a.term, a.coef, a.appeared))
-        elif joints:
-            term = EffectTerm(a.term.name, joints, dict(a.term.setting))
-            out.append((term, a.coef, a.appeared))
     return out
 
 
@@ -219,7 +207,7 @@ def guard_on_test(
 ) -> LeadGuard | None:
     """Per joint, what the training guard kept (of kind ``chosen_kinds[j]``) against plain
     least squares and zero on the test run's leading part (analysis rows ``rows``), judged as
-    every figure of the analysis is: ``errors`` maps "chosen", :data:`PLAIN_LS` and
+    every figure of the analysis is: ``errors`` maps :data:`CHOSEN`, :data:`PLAIN_LS` and
     :data:`ZERO` to the raw measured torque minus each whole model's prediction on the raw
     rows of that part (R, n), NaN where it declines (:func:`.heldout.residuals`), every row
     counted, stops and reversals too. Each model carries the effects that appeared between the
@@ -239,8 +227,8 @@ def guard_on_test(
     rms_rows, kept = [], []
     for j in range(n):
         own = {k: float(v[j]) for k, v in sse.items()}
-        best = min(own, key=lambda k: (own[k], k != "chosen"))
-        named = {(chosen_kinds[j] if k == "chosen" else k): v for k, v in own.items()}
+        best = min(own, key=lambda k: (own[k], k != CHOSEN))
+        named = {(chosen_kinds[j] if k == CHOSEN else k): v for k, v in own.items()}
         rms_rows.append({k: float(np.sqrt(v / count)) for k, v in named.items()})
-        kept.append(chosen_kinds[j] if best == "chosen" else best)
+        kept.append(chosen_kinds[j] if best == CHOSEN else best)
     return LeadGuard(rows, rms_rows, kept)
