@@ -185,6 +185,9 @@ def host(cell: VirtualCell):
         h.close()
 
 
+#: heartbeats both ways on wall time inside this process (the drives' from the cell's thread,
+#: the host's from this one): it keeps them only with the CPU when they fall due
+@pytest.mark.deadline
 def test_a_canopen_host_starts_maps_enables_drives_and_loses_them_by_heartbeat(cell, host):
     host.boot()
     for node in host.nodes.values():

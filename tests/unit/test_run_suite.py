@@ -51,14 +51,17 @@ def test_the_tail_of_the_output_names_each_process_failures_and_counts(capsys):
 
 
 def test_no_test_belongs_to_both_processes_and_campaigns_to_neither():
-    """The two -m expressions split what `make test` runs: a stack or exclusive test only in
+    """The two -m expressions split what `make test` runs: a stack, exclusive or deadline test in
     the machine's, every other test only in the rest's, a campaign in neither."""
 
     def selects(expr: str, marks: set[str]) -> bool:
-        names = {"stack", "exclusive", "campaign"}
+        names = {"stack", "exclusive", "deadline", "campaign"}
         return bool(eval(expr, {}, {m: m in marks for m in names}))
 
-    for marks in ({"stack"}, {"exclusive"}, set(), {"stack", "campaign"}, {"campaign"}):
+    for marks in (
+        {"stack"}, {"exclusive"}, {"deadline"}, set(), {"stack", "campaign"}, {"campaign"},
+        {"deadline", "campaign"},
+    ):  # fmt: skip
         both = (selects(MACHINE, marks), selects(REST, marks))
         want = (False, False) if "campaign" in marks else (bool(marks), not marks)
         assert both == want, (marks, both)
