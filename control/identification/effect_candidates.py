@@ -18,6 +18,7 @@ Bonferroni count of rule (ii) (:mod:`.effect_rules`).
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from typing import Any
 
 import numpy as np
 from scipy.optimize import minimize_scalar
@@ -83,11 +84,20 @@ def _peaks(scores: np.ndarray, lo: int, k: int) -> list[int]:
 
 
 def candidates(
-    ctx: Context, residual: np.ndarray, done: Sequence[EffectTerm], options: Options
+    ctx: Context,
+    residual: np.ndarray,
+    done: Sequence[EffectTerm],
+    options: Options,
+    session: str | None = None,
 ) -> list[EffectTerm]:
-    """Linear candidate effects on this data (module docstring), minus those already taken."""
+    """Linear candidate effects on this data (module docstring), minus those already taken.
+
+    ``session`` (case B: "test") makes a thermal drift that session's own (its setting): a
+    drift is not the robot's but the session's, and one the training files took (fitted over
+    their time, e.g. a viscous friction warming up) says nothing of how the test run drifts, so
+    it does not stand in for a drift there. Every other effect taken is the robot's."""
     n = residual.shape[1]
-    taken = {(t.name, t.joints) for t in done if t.name != "position_ripple"}
+    taken = {_taken_key(t) for t in done if t.name != "position_ripple"}
     ripples = {
         (t.joints, t.setting.get("cycles_per_rev")) for t in done if t.name == "position_ripple"
     }
@@ -108,7 +118,8 @@ def candidates(
         if ctx.rigid is not None:
             out.append(EffectTerm("load_dependent_friction", (j,)))
         if ctx.t is not None:
-            out.append(EffectTerm("thermal_drift", (j,)))
+            drift = {} if session is None else {"session": session}
+            out.append(EffectTerm("thermal_drift", (j,), drift))
     if ctx.y_payload is not None:
         out.append(EffectTerm("payload", tuple(range(n))))
     if ctx.rigid is not None and ctx.friction is not None and n >= 2:
@@ -120,7 +131,12 @@ def candidates(
                         out.append(
                             EffectTerm("wrist_coupling", (j,), {"from_joint": k, "source": source})
                         )
-    return [t for t in out if (t.name, t.joints) not in taken or t.name == "position_ripple"]
+    return [t for t in out if _taken_key(t) not in taken or t.name == "position_ripple"]
+
+
+def _taken_key(t: EffectTerm) -> tuple[str, tuple[int, ...], Any]:
+    """What makes two candidates the same effect: name and joints, and a drift's session."""
+    return t.name, t.joints, t.setting.get("session") if t.name == "thermal_drift" else None
 
 
 #: how far :func:`best_ripple_neighbour` walks from the periodogram's peak [cycles per rev]

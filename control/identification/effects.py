@@ -461,7 +461,7 @@ def search_between(
 
     while len(accepted) + len(done) < options.max_effects:
         residual = ls.y - ls.predict(current.solution) if names else ls.y
-        terms = candidates(screen, residual, [*done, *effects], options)
+        terms = candidates(screen, residual, [*done, *effects], options, session="test")
         with_delay = allow_delay and delay == 0.0
         tried = scanned_settings(terms, options, with_delay)
         verdicts = _judge_all(

@@ -236,6 +236,37 @@ def test_spring_on_joint_2_is_found(bench):
     assert s["rms_after"][1] < 0.5 * s["rms_before"][1]
 
 
+def _drift_on_joint(j: int, rate_nm_per_s: float) -> ExtraTorque:
+    """A Coulomb level changing in time on joint j (the recording's own clock from 0)."""
+
+    def extra(q, dq, ddq, t):
+        out = np.zeros_like(q)
+        out[:, j] = rate_nm_per_s * np.asarray(t) * np.sign(dq[:, j])
+        return out
+
+    return extra
+
+
+#: Coulomb drift rates of joint 3 [N·m/s]: slow through the 60 s of training (3 N·m in all,
+#: twice its noise), six times faster through the 30 s of the test run (another thermal state)
+TRAIN_DRIFT, TEST_DRIFT = -0.05, -0.3
+
+
+def test_a_drift_of_the_test_run_is_its_own_beside_one_the_training_files_took(bench):
+    """A thermal drift belongs to a session, not to the robot: the training files' drift, taken
+    in case (A), does not keep case (B) from the test run's own (another rate)."""
+    train = bench.record("drift_train", 61, TRAIN_S, 0.05, extra=[_drift_on_joint(2, TRAIN_DRIFT)])
+    test = bench.record("drift_test", 62, TEST_S, 0.07, extra=[_drift_on_joint(2, TEST_DRIFT)])
+    s = bench.analyze("drift", train, test)
+    drifts = {e["appeared"]: e for e in s["effects"] if e["name"] == "thermal_drift"}
+    assert set(drifts) == {ALL_ALONG, BETWEEN}, s["effects"]
+    assert drifts[ALL_ALONG]["joints"] == drifts[BETWEEN]["joints"] == [3]
+    assert drifts[ALL_ALONG]["parameters"]["rate_nm_per_s"] == pytest.approx(TRAIN_DRIFT, rel=0.2)
+    # the test run's drift less what the training's, carried into it, already predicts
+    between = drifts[BETWEEN]["parameters"]["rate_nm_per_s"]
+    assert between == pytest.approx(TEST_DRIFT - TRAIN_DRIFT, rel=0.2)
+
+
 def test_time_delay_is_found(bench):
     train = bench.record("delay_train", 51, TRAIN_S, 0.05, delay_s=0.02)
     test = bench.record("delay_test", 52, TEST_S, 0.07, delay_s=0.02)
