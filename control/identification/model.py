@@ -341,7 +341,7 @@ class IdentifiedModel:
             if not term.is_linear or (term.name == "thermal_drift" and ctx.t is None):
                 continue
             # every effect acts on its own joints: the training-fitted ones were taken off the
-            # plain joints when the model was built (guard._restricted); one that appeared
+            # plain joints when the model was built (assembly.restricted); one that appeared
             # between training and test was fitted on the residual of the plain joints' own
             # prediction and belongs on them too (a tool mounted weighs on every joint)
             for j, cols in term.columns(ctx).items():
