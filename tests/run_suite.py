@@ -7,8 +7,9 @@ Two pytest processes on a machine with two CPUs or more:
   ``-m stack``), what loads every CPU on purpose (``-m exclusive``: tests/slow_machine.py's
   spinners, which beside the stack tier would be a fault injected into another test) and what
   keeps wall-clock deadlines of about 0.1 s inside its own process (``-m deadline``: a virtual
-  CiA 402 drive's heartbeat, sent from a thread of the test's process, which niced beside the
-  stack tier went 0.16-0.18 s without the CPU and the host rightly called the drives lost);
+  CiA 402 drive's heartbeat, sent from a thread of the test's process: once, niced beside
+  the stack tier and a referee at normal priority, it went 0.16-0.18 s without the CPU and the
+  host rightly called the drives lost);
 - **rest**: the pure and in-process tiers, at niceness :data:`REST_NICENESS`.
 
 The rest is a competing CPU load the stack tier must stand (issue 45), but one that yields: the

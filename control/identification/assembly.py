@@ -17,7 +17,7 @@ included, and a tool mounted between the runs weighs on a joint whatever predict
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -61,7 +61,7 @@ class Assembly:
     #: case (A): fitted on the training files with the model's parameters
     trained: Sequence[fx.Accepted] = ()
     #: case (B): appeared between the training and the test run
-    between: Sequence[fx.Accepted] = field(default=())
+    between: Sequence[fx.Accepted] = ()
 
     def model(self, joints: dict[int, PlainJoint], between: bool = True) -> IdentifiedModel:
         """The model with ``joints`` (index → fallback) on their fallback; ``between`` False

@@ -532,9 +532,7 @@ def _cat_optional(arrays: Sequence[np.ndarray | None]) -> np.ndarray | None:
 DEFAULT_STICK_VELOCITY_RAD_S = 2e-3
 
 
-def sliding_mask(
-    data: Prepared, stick_velocity_rad_s: float, window_s: float, min_stop_s: float = 0.0
-) -> np.ndarray:
+def sliding_mask(data: Prepared, stick_velocity_rad_s: float, window_s: float) -> np.ndarray:
     """(T, n) 1.0 where joint j slides at sample t, 0.0 where it is stuck or was within
     ``window_s`` of being stuck (in the same segment).
 
@@ -543,15 +541,6 @@ def sliding_mask(
     the motion. No friction model of (q, dq) predicts those rows, so they neither fit the model
     nor score it. The window covers the torque filter's smearing of the breakaway transient
     (about one period of the cutoff frequency). ``stick_velocity_rad_s`` 0 keeps every row.
-
-    A joint is stuck where it *stays* below the stick velocity for at least ``min_stop_s``
-    (0: every sample below it). A joint that passes through zero velocity on its way from one
-    direction to the other does not stop: its friction turns round at the crossing as the
-    friction law says (the columns are filtered like the torque, so the fit sees the turn as
-    the measurement shows it), and the rows around it are where a model's sign and low-speed
-    shape are decided. Left out, the fit never sees the low speeds the model is then scored on
-    (a multi-sine's reversals: the model's friction below a few hundredths of a rad/s was an
-    extrapolation, 6 N·m off a joint whose noise is 0.24 N·m).
     """
     n_rows, n = data.dq.shape
     if stick_velocity_rad_s <= 0:
@@ -562,9 +551,6 @@ def sliding_mask(
     bounds = np.flatnonzero(np.diff(data.segment) != 0) + 1
     for a, b in pairwise(np.r_[0, bounds, n_rows]):
         seg = stuck[a:b]
-        shortest = int(np.ceil(min_stop_s * float(rates[a]) - 1e-9))
-        if shortest > 1:
-            seg = _runs_at_least(seg, shortest)
         half = int(np.ceil(window_s * float(rates[a])))
         if half > 0:
             # dilate: a row is out when any row within ``half`` of it is stuck (any length)
@@ -572,16 +558,4 @@ def sliding_mask(
             counts = np.cumsum(np.vstack([np.zeros((1, n), np.int64), padded]), axis=0)
             seg = (counts[2 * half + 1 :] - counts[: -2 * half - 1]) > 0
         out[a:b] = ~seg
-    return out
-
-
-def _runs_at_least(flags: np.ndarray, length: int) -> np.ndarray:
-    """``flags`` (T, n) bool with every run of True shorter than ``length`` rows cleared."""
-    out = np.zeros_like(flags)
-    for j in range(flags.shape[1]):
-        edges = np.diff(np.r_[0, flags[:, j].astype(np.int8), 0])
-        starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
-        for s, e in zip(starts, ends, strict=True):
-            if e - s >= length:
-                out[s:e, j] = True
     return out

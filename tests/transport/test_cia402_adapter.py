@@ -83,7 +83,8 @@ class Host:
 
 #: the drives' heartbeats come from the cell's thread in this process on wall time, as a real
 #: drive's do, and the adapter calls a drive lost 0.15 s after its last (3 × 0x1017): niced
-#: beside the stack tier this process went 0.16-0.18 s without the CPU (tests/run_suite.py)
+#: beside the stack tier and a referee, this process once went 0.16-0.18 s without the CPU
+#: (tests/run_suite.py)
 @pytest.mark.deadline
 def test_the_adapter_starts_enables_commands_brakes_and_loses_the_drives(cell, bus):
     adapter = Cia402Adapter.from_config(_config(cycle_period_s=SYNC_PERIOD_S))
