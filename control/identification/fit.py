@@ -120,6 +120,7 @@ def make_context(
         sample_hz=data.sample_hz,
         raw_hz=data.raw_hz,
         dq_noise=data.dq_noise_rad_s,
+        dq_friction=data.dq_friction,
     )
 
 

@@ -193,6 +193,7 @@ class IdentifiedModel:
         sequence: bool = True,
         directions: np.ndarray | None = None,
         rest_odds: np.ndarray | None = None,
+        dq_friction: np.ndarray | None = None,
     ) -> Context:
         reg = self.regressor
         payload = any(term.name == "payload" for term, _, _ in self.effects)
@@ -203,6 +204,7 @@ class IdentifiedModel:
             q, dq, ddq, t_s, y[:, :, :nb], y[:, :, nb:] if payload else None, None, None,
             self.envelope, dq_noise=dq_noise, sequence=sequence, directions=directions,
             rest_odds=None if rest_odds is None else np.asarray(rest_odds, dtype=float),
+            dq_friction=dq_friction,
         )  # fmt: skip
 
     def _rigid(self, y_base: np.ndarray) -> np.ndarray:
@@ -252,6 +254,7 @@ class IdentifiedModel:
         dq_noise_rad_s: np.ndarray | None = None,
         directions: np.ndarray | None = None,
         rest_odds: np.ndarray | None = None,
+        dq_friction_rad_s: np.ndarray | None = None,
     ) -> np.ndarray:
         """Rigid body + friction + accepted effect terms [N·m]; (n,) or (T, n).
 
@@ -267,7 +270,10 @@ class IdentifiedModel:
         """
         single, (q, dq, ddq) = self._arrays(q_rad, dq_rad_s, ddq_rad_s2)
         t = None if t_s is None else np.broadcast_to(np.asarray(t_s, dtype=float), (q.shape[0],))
-        ctx = self._context(q, dq, ddq, t, dq_noise_rad_s, not single, directions, rest_odds)
+        v_fr = None
+        if dq_friction_rad_s is not None:
+            v_fr = np.asarray(dq_friction_rad_s, dtype=float).reshape(-1, self.n)
+        ctx = self._context(q, dq, ddq, t, dq_noise_rad_s, not single, directions, rest_odds, v_fr)
         out = self.torque_from_context(ctx)
         return out[0] if single else out
 
@@ -288,11 +294,14 @@ class IdentifiedModel:
         dq_noise_rad_s: np.ndarray | None = None,
         directions: np.ndarray | None = None,
         rest_odds: np.ndarray | None = None,
+        dq_friction_rad_s: np.ndarray | None = None,
     ) -> np.ndarray:
         """:meth:`torque_nm` through the measurement chain (:meth:`measured`) [N·m]."""
-        return self.measured(
-            self.torque_nm(q_rad, dq_rad_s, ddq_rad_s2, t_s, dq_noise_rad_s, directions, rest_odds)
-        )
+        tau = self.torque_nm(
+            q_rad, dq_rad_s, ddq_rad_s2, t_s, dq_noise_rad_s, directions, rest_odds,
+            dq_friction_rad_s,
+        )  # fmt: skip
+        return self.measured(tau)
 
     def friction_directions(
         self,
@@ -366,8 +375,9 @@ class IdentifiedModel:
         (:meth:`.preprocess.Prepared.lowpass`), delayed by :attr:`delay_s` when a time_delay
         effect was accepted; through the measurement chain (:meth:`measured`)."""
         ctx = self._context(
-            data.q, data.dq, data.ddq, data.t, data.dq_noise_rad_s, rest_odds=data.dq_rest_odds
-        )
+            data.q, data.dq, data.ddq, data.t, data.dq_noise_rad_s, rest_odds=data.dq_rest_odds,
+            dq_friction=data.dq_friction,
+        )  # fmt: skip
         ctx.sample_hz, ctx.raw_hz = data.sample_hz, data.raw_hz
         tau = self.measured(data.lowpass(self.torque_from_context(ctx)))
         return shift_signal(data.t, data.segment, tau, -self.delay_s) if self.delay_s else tau

@@ -35,6 +35,7 @@ import numpy as np
 from control.identification.datafile import Measurements
 from control.identification.fit import cylinder_joint_map
 from control.identification.friction_law import rest_log_odds_per_joint
+from control.identification.friction_velocity import friction_velocity
 from control.identification.model import IdentifiedModel
 from control.identification.preprocess import (
     FILTER_ORDER,
@@ -43,6 +44,7 @@ from control.identification.preprocess import (
     lowpass_to_the_edges,
     states_to_the_edges,
     velocity_noise_std,
+    white_noise_std,
 )
 from control.model.cylinders import torque_per_pa
 from gateway.errors import ConfigError, DataFileError
@@ -63,9 +65,11 @@ def _states(
     dq: np.ndarray | None,
     cutoff_hz: float,
     at: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Filtered q, dq, ddq of one gap-free stretch, read at the times ``at`` (within it)."""
-    step = float(np.median(np.diff(t)))
+    torque_cutoff_hz: float = np.inf,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Filtered q, dq, ddq of one gap-free stretch, friction's velocity (the window bounded by
+    ``torque_cutoff_hz``'s period), read at the times ``at`` (within it), and its noise."""
+    step = raw_step = float(np.median(np.diff(t)))
     fs = 1.0 / step
     signals = [q] if dq is None else [q, dq]
     grid = t
@@ -79,9 +83,22 @@ def _states(
     q_f, dq_f, ddq_f = states_to_the_edges(
         signals[0], None if dq is None else signals[1], cutoff_hz, fs
     )
+    # friction's velocity and its noise (:mod:`.friction_velocity`); from positions alone,
+    # the states' velocity is made of them already
+    if dq is None:
+        v_fr, s_fr = dq_f, velocity_noise_std(q, None, raw_step, cutoff_hz)
+    else:
+        v_fr, s_fr = friction_velocity(
+            signals[0], q, white_noise_std(signals[0]), dq_f,
+            velocity_noise_std(signals[0], signals[1], step, cutoff_hz),
+            min(torque_cutoff_hz, 0.4 * fs), fs,
+        )  # fmt: skip
     if grid is t and at.size == t.size and np.array_equal(at, t):
-        return q_f, dq_f, ddq_f
-    return _interp(at, grid, q_f), _interp(at, grid, dq_f), _interp(at, grid, ddq_f)
+        return q_f, dq_f, ddq_f, v_fr, s_fr
+    return (
+        _interp(at, grid, q_f), _interp(at, grid, dq_f), _interp(at, grid, ddq_f),
+        _interp(at, grid, v_fr), s_fr,
+    )  # fmt: skip
 
 
 def _interp(at: np.ndarray, t: np.ndarray, x: np.ndarray) -> np.ndarray:
@@ -129,6 +146,7 @@ def predict_rows(
     cutoff = float(model.metadata.get("position_cutoff_hz", 0.0))
     if not (np.isfinite(cutoff) and cutoff > 0):
         raise DataFileError(f"model: analysis.position_cutoff_hz {cutoff!r} is not > 0")
+    torque_cut = float(model.metadata.get("torque_cutoff_hz", np.inf))
     delay = model.delay_s
     gain = model.chain_arrays()[0]
     out = np.full((m.n_samples, model.n), np.nan)
@@ -143,18 +161,18 @@ def predict_rows(
         at = t - delay
         ok = at >= t[0]
         dq = None if m.dq is None else m.dq[a:b]
-        q_f, dq_f, ddq_f = _states(t, m.q[a:b], dq, cutoff, at[ok])
-        # this stretch's own velocity noise, which friction is taken in expectation over
-        noise = velocity_noise_std(m.q[a:b], dq, float(np.median(np.diff(t))), cutoff)
+        # friction's velocity and this stretch's own noise on it, which friction is taken in
+        # expectation over (:mod:`.friction_velocity`)
+        q_f, dq_f, ddq_f, v_fr, noise = _states(t, m.q[a:b], dq, cutoff, at[ok], torque_cut)
         # and how much of it the joint rests, from the stretch's velocities as a whole
-        odds = rest_log_odds_per_joint(dq_f, noise)
+        odds = rest_log_odds_per_joint(v_fr, noise)
         rows = np.flatnonzero(ok) + a
-        directions, direction = model.friction_directions(q_f, dq_f, noise, direction, q_last, odds)
+        directions, direction = model.friction_directions(q_f, v_fr, noise, direction, q_last, odds)
         q_last = q_f[-1] if len(q_f) else q_last
         for c in range(0, rows.size, CHUNK_ROWS):
             r = slice(c, c + CHUNK_ROWS)
             out[rows[r]] = model.measured_torque_nm(
-                q_f[r], dq_f[r], ddq_f[r], at[ok][r], noise, directions[r], odds
+                q_f[r], dq_f[r], ddq_f[r], at[ok][r], noise, directions[r], odds, v_fr[r]
             )
         if desc_measured is not None:
             # the cylinders push at the time of the row itself: only the drive's torque lags

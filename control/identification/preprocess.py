@@ -48,6 +48,7 @@ import numpy as np
 
 from control.identification.datafile import Measurements
 from control.identification.friction_law import rest_log_odds_per_joint
+from control.identification.friction_velocity import friction_velocity
 from gateway.errors import ConfigError, DataFileError
 
 DEFAULT_RATE_HZ = 200.0
@@ -107,15 +108,18 @@ class Prepared:
     #: taken as ``sample_hz``): a kept sample stands for ``raw_hz / sample_hz`` recorded ones
     #: (:meth:`.terms.Context.sample_mean`)
     raw_hz: np.ndarray | None = None
-    #: (n,) the std of the noise left on ``dq`` after its low-pass [rad/s]
-    #: (:func:`velocity_noise_std`; None: unknown): friction's sign is taken in expectation
-    #: over it (:meth:`.terms.Context.sample_mean`)
+    #: (n,) the std of the noise on friction's velocity [rad/s] (:attr:`dq_friction`, else
+    #: ``dq``; None: unknown): friction's sign is taken in expectation over it
+    #: (:meth:`.terms.Context.sample_mean`)
     dq_noise_rad_s: np.ndarray | None = None
     #: (T, n) the log prior odds that each joint rests (:func:`.friction_law.rest_log_odds`),
     #: estimated per gap-free stretch from its own filtered velocities (None: unknown): a
     #: multi-sine that only crosses 0 and a teaching motion that dwells differ in them, and
     #: the training and test files may be one of each
     dq_rest_odds: np.ndarray | None = None
+    #: (T, n) the velocity friction is taken of [rad/s] (:mod:`.friction_velocity`; None:
+    #: ``dq``); ``dq_noise_rad_s`` and ``dq_rest_odds`` are its noise and odds
+    dq_friction: np.ndarray | None = None
 
     @property
     def n_samples(self) -> int:
@@ -133,7 +137,7 @@ class Prepared:
         """The samples where ``mask`` (T,) is true (a boolean array or index array)."""
         per_sample = ("t", "q", "dq", "ddq", "tau", "segment")
         changes = {k: getattr(self, k)[mask] for k in per_sample}
-        for k in ("p", "filter_hz", "sample_hz", "raw_hz", "dq_rest_odds"):
+        for k in ("p", "filter_hz", "sample_hz", "raw_hz", "dq_rest_odds", "dq_friction"):
             v = getattr(self, k)
             changes[k] = None if v is None else v[mask]
         return replace(self, **changes)
@@ -382,9 +386,6 @@ def prepare(
         step = float(np.median(np.diff(t)))
         fs = 1.0 / step
         raw_noise = white_noise_std(m.tau[a:b])
-        raw_dq_noise = velocity_noise_std(
-            m.q[a:b], None if m.dq is None else m.dq[a:b], step, position_cutoff_hz
-        )
         signals = {"q": m.q[a:b], "tau": m.tau[a:b]}
         if m.dq is not None:
             signals["dq"] = m.dq[a:b]
@@ -408,18 +409,29 @@ def prepare(
             else np.gradient(q, step, axis=0)
         )
         ddq = np.gradient(dq, step, axis=0)
+        # friction's velocity and its noise, over which friction is taken in expectation
+        if "dq" in signals:
+            dq_fr, raw_dq_noise = friction_velocity(
+                signals["q"], m.q[a:b], white_noise_std(signals["q"]), dq,
+                velocity_noise_std(signals["q"], signals["dq"], step, position_cutoff_hz),
+                tau_cut, fs,
+            )  # fmt: skip
+        else:  # positions alone: the states' velocity is made of them already
+            dq_fr = dq
+            raw_dq_noise = velocity_noise_std(m.q[a:b], None, step, position_cutoff_hz)
         tau = _lowpass(signals["tau"], tau_cut, fs)
         p = _lowpass(signals["p"], tau_cut, fs) if "p" in signals else None
         factor = max(1, round(fs / rate_hz))
         keep = slice(edge, t.size - edge, factor)
         part = {"t": t[keep], "q": q[keep], "dq": dq[keep], "ddq": ddq[keep], "tau": tau[keep]}
+        part["dq_friction"] = dq_fr[keep]
         if p is not None:
             part["p"] = p[keep]
         part["segment"] = np.full(part["t"].size, seg_id)
         part["filter_hz"] = np.full(part["t"].size, tau_cut)
         part["sample_hz"] = np.full(part["t"].size, fs / factor)
         part["raw_hz"] = np.full(part["t"].size, fs)
-        odds = rest_log_odds_per_joint(part["dq"], raw_dq_noise)
+        odds = rest_log_odds_per_joint(part["dq_friction"], raw_dq_noise)
         part["rest_odds"] = np.tile(odds, (part["t"].size, 1))
         parts.append(part)
         rates.append(fs / factor)
@@ -452,6 +464,7 @@ def prepare(
         noise_dof_nm2=_squared(_pooled([(k, d) for k, _, _, d in noise])),
         dq_noise_rad_s=_pooled(dq_noise),
         dq_rest_odds=cat["rest_odds"],
+        dq_friction=cat["dq_friction"],
     )
 
 
@@ -512,6 +525,7 @@ def concatenate(parts: Sequence[Prepared]) -> Prepared:
         noise_dof_nm2=_squared(_pooled([(p.n_samples, _sqrt(p.noise_dof_nm2)) for p in parts])),
         dq_noise_rad_s=_pooled([(p.n_samples, p.dq_noise_rad_s) for p in parts]),
         dq_rest_odds=_cat_optional([p.dq_rest_odds for p in parts]),
+        dq_friction=_cat_optional([p.dq_friction for p in parts]),
     )
 
 

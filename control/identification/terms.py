@@ -16,11 +16,10 @@ outside the envelope it holds its value at the envelope's edge. That is every ve
 the friction families' Fourier terms) are bounded by their amplitude everywhere and stay
 periodic — clipping them would cut a gear ripple off wherever the test motion leaves the
 training range. The rigid-body and payload columns are physics and are not clipped, nor is the
-spring's position: Hooke's law is physics too, and a balancer spring held at the envelope's
-edge was off by k times the distance beyond it (a 223 N·m/rad spring named within 1 %, yet
-21.6 N·m held-out error where the test run left the joint's training range; the guard's check
-on the first half of the test run still falls back where a spring extrapolates worse than plain
-least squares). ``thermal_drift`` is linear in time by definition.
+spring's position: Hooke's law is physics too (a balancer spring held at the envelope's edge,
+named within 1 %, was 21.6 N·m off where the test run left the joint's range; the guard still
+falls back where a spring extrapolates worse than plain least squares). ``thermal_drift`` is
+linear in time by definition.
 
 Filtering: when the :class:`Context` carries the measured torque's low-pass (``lowpass``),
 every column is passed through it, so the model is fitted to and judged on the filtered
@@ -33,9 +32,9 @@ it, not on the decimated grid.
 - ``position_ripple`` on joint j: ``sin(c q_j)``, ``cos(c q_j)``, c scanned; parameters
   ``cycles_per_rev`` c, ``amplitude_nm`` A, ``phase_rad`` φ (``A sin(c q_j + φ)``).
 - ``payload``, all joints (or those listed: a joint kept on plain least squares drops out):
-  the last link's ten regressor columns [m, mcx, mcy, mcz, Ixx, Ixy,
-  Iyy, Ixz, Iyz, Izz]; parameters ``mass_kg``, ``com_m`` (in the last link's frame, as the
-  URDF/pinocchio defines it) and ``inertia_at_origin_kgm2`` (about that frame's origin).
+  the last link's ten regressor columns [m, mcx, mcy, mcz, Ixx, Ixy, Iyy, Ixz, Iyz, Izz];
+  parameters ``mass_kg``, ``com_m`` (in the last link's frame, as the URDF/pinocchio defines
+  it) and ``inertia_at_origin_kgm2`` (about that frame's origin).
 - ``spring`` on joint j: ``q_j``, ``1``; parameters ``k_nm_per_rad``, ``q0_rad`` and
   ``torque_at_zero_nm`` (= -k q0). A restoring spring (k > 0) pushes with ``-k (q - q0)``, which
   the motor must add: ``+k (q_j - q0)``. With k ≈ 0 it is a constant torque offset.
@@ -165,9 +164,8 @@ class Context:
     lowpass: Callable[[np.ndarray], np.ndarray] | None = None
     sample_hz: np.ndarray | None = None
     raw_hz: np.ndarray | None = None
-    #: (n,) the std of the noise on ``dq`` [rad/s] (:func:`.preprocess.velocity_noise_std`;
-    #: None or 0: exact velocities): :meth:`sample_mean` takes each function of the velocity
-    #: in expectation over it
+    #: (n,) the std of the noise on friction's velocity [rad/s] (None or 0: exact): each
+    #: function of it is taken in expectation over it (:meth:`sample_mean`)
     dq_noise: np.ndarray | None = None
     #: (T, n) the log prior odds that each joint rests (:func:`.friction_law.rest_log_odds`,
     #: :attr:`.preprocess.Prepared.dq_rest_odds`) with which :meth:`sample_mean` and
@@ -175,12 +173,13 @@ class Context:
     #: these rows' own velocities, all taken as one motion
     rest_odds: np.ndarray | None = None
     #: True: the rows are one motion in time order, whose history a friction with memory
-    #: follows (:meth:`direction`); False: unrelated states (one sample evaluated at run time),
-    #: where it slides (its direction is the velocity's sign)
+    #: follows (:meth:`direction`); False: unrelated states (one sample at run time): it slides
     sequence: bool = True
     #: (T, n) friction directions given by a caller that follows the motion across several
     #: contexts (:meth:`.model.IdentifiedModel.friction_directions`); None: computed here
     directions: np.ndarray | None = None
+    #: (T, n) friction's velocity (:mod:`.friction_velocity`; None: ``dq``)
+    dq_friction: np.ndarray | None = None
     _directions: dict[tuple[int, float], np.ndarray] = field(
         default_factory=dict, repr=False, compare=False
     )
@@ -196,16 +195,15 @@ class Context:
         q = self.q[:, j]
         return q if self.envelope is None else self.envelope.clip_q(j, q)
 
-    def dq_of(self, j: int) -> np.ndarray:
-        """Joint j's velocities [rad/s], clipped to the envelope."""
-        dq = self.dq[:, j]
-        return dq if self.envelope is None else self.envelope.clip_dq(j, dq)
+    @property
+    def v_friction(self) -> np.ndarray:  # :attr:`dq_friction`, else ``dq``
+        return self.dq if self.dq_friction is None else self.dq_friction
 
     def _odds(self) -> np.ndarray:
         """:attr:`rest_odds`, estimated from the rows' velocities under :attr:`dq_noise` the
         first time when none were given, and kept."""
         if self.rest_odds is None:
-            self.rest_odds = rest_log_odds_per_joint(self.dq, self.dq_noise)
+            self.rest_odds = rest_log_odds_per_joint(self.v_friction, self.dq_noise)
         return np.asarray(self.rest_odds, dtype=float)
 
     def rest_log_odds(self, j: int) -> np.ndarray:
@@ -222,7 +220,7 @@ class Context:
         if key not in self._directions:
             sigma = 0.0 if self.dq_noise is None else float(self.dq_noise[j])
             self._directions[key] = friction_direction(
-                self.q[:, j], self.dq[:, j], sigma, presliding_rad,
+                self.q[:, j], self.v_friction[:, j], sigma, presliding_rad,
                 log_odds=self.rest_log_odds(j),
             )  # fmt: skip
         return self._directions[key]
@@ -244,7 +242,7 @@ class Context:
         in the measurement. One recorded sample per kept one (or no rates known) is ``fn``
         of the velocity itself.
         """
-        dq = self.dq[:, j]
+        dq = self.v_friction[:, j]
         env = self.envelope
 
         def exact(v: np.ndarray) -> np.ndarray:
@@ -322,6 +320,7 @@ class Context:
             self._rest_odds_of(index),
             self.sequence,
             take(self.directions),
+            take(self.dq_friction),
         )
 
 
