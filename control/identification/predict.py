@@ -35,16 +35,14 @@ import numpy as np
 from control.identification.datafile import Measurements
 from control.identification.fit import cylinder_joint_map
 from control.identification.friction_law import rest_log_odds_per_joint
-from control.identification.friction_velocity import friction_velocity
 from control.identification.model import IdentifiedModel
 from control.identification.preprocess import (
     FILTER_ORDER,
     JITTER_TOLERANCE,
+    friction_states,
     gap_free_segments,
     lowpass_to_the_edges,
     states_to_the_edges,
-    velocity_noise_std,
-    white_noise_std,
 )
 from control.model.cylinders import torque_per_pa
 from gateway.errors import ConfigError, DataFileError
@@ -83,16 +81,10 @@ def _states(
     q_f, dq_f, ddq_f = states_to_the_edges(
         signals[0], None if dq is None else signals[1], cutoff_hz, fs
     )
-    # friction's velocity and its noise (:mod:`.friction_velocity`); from positions alone,
-    # the states' velocity is made of them already
-    if dq is None:
-        v_fr, s_fr = dq_f, velocity_noise_std(q, None, raw_step, cutoff_hz)
-    else:
-        v_fr, s_fr = friction_velocity(
-            signals[0], q, white_noise_std(signals[0]), dq_f,
-            velocity_noise_std(signals[0], signals[1], step, cutoff_hz),
-            min(torque_cutoff_hz, 0.4 * fs), fs,
-        )  # fmt: skip
+    v_fr, s_fr = friction_states(
+        signals[0], q, None if dq is None else signals[1], dq_f, step, raw_step, cutoff_hz,
+        min(torque_cutoff_hz, 0.4 * fs),
+    )  # fmt: skip
     if grid is t and at.size == t.size and np.array_equal(at, t):
         return q_f, dq_f, ddq_f, v_fr, s_fr
     return (

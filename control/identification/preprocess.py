@@ -335,6 +335,33 @@ def velocity_noise_std(
     return white_noise_std(raw) * np.sqrt(filter_noise_gain(cutoff_hz, 1.0 / step_s))
 
 
+def friction_states(
+    q: np.ndarray,
+    q_raw: np.ndarray,
+    dq: np.ndarray | None,
+    dq_f: np.ndarray,
+    step_s: float,
+    raw_step_s: float,
+    position_cutoff_hz: float,
+    torque_cutoff_hz: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Friction's velocity (T, n) [rad/s] of one gap-free stretch and its noise's std (n,), over
+    which friction is taken in expectation (:mod:`.friction_velocity`).
+
+    ``q`` and ``dq`` (None without a velocity column) are the stretch's samples on its uniform
+    grid of ``step_s``, ``q_raw`` the recorded positions taken every ``raw_step_s``, ``dq_f``
+    the states' velocity low-passed at ``position_cutoff_hz``; ``torque_cutoff_hz`` is the
+    torque's low-pass, whose period bounds the positions' window. From positions alone the
+    states' velocity is made of them already and is friction's own.
+    """
+    if dq is None:
+        return dq_f, velocity_noise_std(q_raw, None, raw_step_s, position_cutoff_hz)
+    return friction_velocity(
+        q, q_raw, white_noise_std(q), dq_f,
+        velocity_noise_std(q, dq, step_s, position_cutoff_hz), torque_cutoff_hz, 1.0 / step_s,
+    )  # fmt: skip
+
+
 def filter_noise_gain(cutoff_hz: float, fs_hz: float) -> float:
     """Variance gain of the torque filter on white noise: sum of its squared impulse response.
 
@@ -410,15 +437,9 @@ def prepare(
         )
         ddq = np.gradient(dq, step, axis=0)
         # friction's velocity and its noise, over which friction is taken in expectation
-        if "dq" in signals:
-            dq_fr, raw_dq_noise = friction_velocity(
-                signals["q"], m.q[a:b], white_noise_std(signals["q"]), dq,
-                velocity_noise_std(signals["q"], signals["dq"], step, position_cutoff_hz),
-                tau_cut, fs,
-            )  # fmt: skip
-        else:  # positions alone: the states' velocity is made of them already
-            dq_fr = dq
-            raw_dq_noise = velocity_noise_std(m.q[a:b], None, step, position_cutoff_hz)
+        dq_fr, raw_dq_noise = friction_states(
+            signals["q"], m.q[a:b], signals.get("dq"), dq, step, step, position_cutoff_hz, tau_cut
+        )
         tau = _lowpass(signals["tau"], tau_cut, fs)
         p = _lowpass(signals["p"], tau_cut, fs) if "p" in signals else None
         factor = max(1, round(fs / rate_hz))
