@@ -46,7 +46,15 @@ training and test* are described) is accepted only if
     load-dependent friction add friction (positive amplitude, positive coefficient); a spring
     pulls towards its rest angle (k > 0: a hose, a cable or a balancer is a passive elastic
     element), and its rest angle lies within the training range of its joint widened by that
-    range on each side. Otherwise the term is fitting something else the declared model lacks
+    range on each side, and its torque over that training range stays within
+    :data:`SPRING_TORQUE_FACTOR` times the joint's torque room (:attr:`.terms.Envelope.
+    torque_room_nm`: the largest torque the joint's channel read plus the largest the URDF's
+    rigid body asks of it). The motor holds the arm against gravity and the spring together,
+    so a spring far stronger than both needs an opposite torque as large that neither the
+    measurement nor the URDF shows: a steep line fitted through a periodic torque over a short
+    range (a gear ripple of 52 N·m at 10 cycles per revolution on a 0.9 rad motion came out a
+    spring of 4e5 N·m/rad, 100× the joint's largest torque; refused, the ripple is named).
+    Otherwise the term is fitting something else the declared model lacks
     (a spring whose rest angle is tens of radians away is a constant offset, such as the
     direction-dependent part of a Coulomb friction, with a small slope; a negative one the
     gravity of a mass the model lacks, or its extrapolation), and naming it would be false.
@@ -94,6 +102,11 @@ WORSEN_TOLERANCE = 0.05
 RIVAL = "plain least squares"
 #: Rule (vii): the narrowest joint range [rad] a spring's rest angle is judged against.
 SPRING_MIN_RANGE_RAD = 0.2
+#: Rule (vii): a spring's largest torque over its joint's training range, at most this many
+#: times the joint's torque room. A balancer carries at most the arm's weight, and the URDF's
+#: weight is off by its masses' and centres' errors (tens of per cent, not a factor of two);
+#: a twofold room leaves a spring that cancels the whole gravity the URDF gives, and more.
+SPRING_TORQUE_FACTOR = 2.0
 #: Rule (v): least share of the scored test rows inside the training envelope.
 MIN_INSIDE_SHARE = 0.1
 #: Rule (v) with fewer rows inside: a candidate takes the test error of its improved joints
@@ -252,6 +265,16 @@ def implausible(term: EffectTerm, coef: np.ndarray, envelope: Envelope | None) -
                 f"a spring at rest at {p['q0_rad']:.3g} rad, far outside the joint's range "
                 f"[{lo:.3g}, {hi:.3g}] rad (a constant offset with a slope)"
             )
+        room = envelope.torque_room_nm
+        if room is not None:
+            peak = abs(p["k_nm_per_rad"]) * max(abs(lo - p["q0_rad"]), abs(hi - p["q0_rad"]))
+            if peak > SPRING_TORQUE_FACTOR * float(room[j]):
+                return (
+                    f"a spring of {p['k_nm_per_rad']:.3g} N·m/rad whose torque reaches "
+                    f"{peak:.3g} N·m over the joint's range, more than {SPRING_TORQUE_FACTOR:g}× "
+                    f"the {float(room[j]):.3g} N·m the joint's torque and the URDF's rigid body "
+                    "span there (a steep line through a periodic or rigid-body torque)"
+                )
     return ""
 
 

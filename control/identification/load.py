@@ -160,8 +160,11 @@ def _load(
     )
     clock.lap("preprocess")
 
-    envelope = Envelope.of(train.q, train.dq)
-    ctx_train = make_context(reg, train, clock.say, envelope=envelope)
+    ctx_train = make_context(reg, train, clock.say)
+    nominal = np.einsum("jtb,b->tj", ctx_train.y_base, reg.base.base_values(reg.parameters()))
+    room = np.max(np.abs(train.tau), axis=0) + np.max(np.abs(nominal), axis=0)
+    envelope = Envelope.of(train.q, train.dq, room)
+    ctx_train = replace(ctx_train, envelope=envelope)
     ctx_test = make_context(reg, test, clock.say, envelope=envelope)
     clock.say("regressor done")
     clock.lap("regressor")

@@ -101,15 +101,23 @@ class Envelope:
     q_max: np.ndarray
     dq_min: np.ndarray
     dq_max: np.ndarray
+    #: (n,) the joint's torque room on the fitted samples [N·m]: the largest torque its channel
+    #: read plus the largest the URDF's rigid body asks of it (rule (vii) of
+    #: :mod:`.effect_rules` bounds a spring by it); None where not known (a model read back
+    #: from its file: only the analysis judges effects)
+    torque_room_nm: np.ndarray | None = None
 
     @classmethod
-    def of(cls, q: np.ndarray, dq: np.ndarray) -> Envelope:
+    def of(
+        cls, q: np.ndarray, dq: np.ndarray, torque_room_nm: np.ndarray | None = None
+    ) -> Envelope:
         """The envelope of samples ``q``, ``dq`` (T, n); the velocity range always holds 0."""
         return cls(
             q.min(axis=0),
             q.max(axis=0),
             np.minimum(dq.min(axis=0), 0.0),
             np.maximum(dq.max(axis=0), 0.0),
+            torque_room_nm,
         )
 
     def clip_q(self, j: int, q: np.ndarray) -> np.ndarray:
