@@ -49,6 +49,7 @@ from control.identification import effects as fx
 from control.identification.assembly import Assembly
 from control.identification.chain import settle as settle_chain
 from control.identification.effect_rules import NoiseFloor
+from control.identification.envelope import Envelope
 from control.identification.families import (
     RIGID_PRIOR_RIDGE,
     _excitation_report,
@@ -81,7 +82,7 @@ from control.identification.speed_regimes import (
     scored_velocity,
 )
 from control.identification.stages import AUTO, AnalyzeOptions, Progress, _Clock, _Run
-from control.identification.terms import Context, Envelope, shift_signal
+from control.identification.terms import Context, shift_signal
 from control.identification.validate import (
     import_plotting,
     masked_rms,

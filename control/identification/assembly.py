@@ -23,12 +23,13 @@ from typing import Any
 import numpy as np
 
 from control.identification import effects as fx
+from control.identification.envelope import Envelope
 from control.identification.fit import FrictionFit, model_from_solution
 from control.identification.guard import CHOSEN
 from control.identification.lsq import Solution
 from control.identification.model import PLAIN_LS, ZERO, IdentifiedModel, PlainJoint, plain_key
 from control.identification.rigid import RobotRegressor
-from control.identification.terms import EffectTerm, Envelope
+from control.identification.terms import EffectTerm
 
 
 def restricted(effects: Sequence[fx.Accepted], plain: set[int]) -> list[tuple[Any, Any, str]]:

@@ -47,13 +47,13 @@ training and test* are described) is accepted only if
     pulls towards its rest angle (k > 0: a hose, a cable or a balancer is a passive elastic
     element), and its rest angle lies within the training range of its joint widened by that
     range on each side, and its torque over that training range stays within
-    :data:`SPRING_TORQUE_FACTOR` times the joint's torque room (:attr:`.terms.Envelope.
+    :data:`SPRING_TORQUE_FACTOR` times the joint's torque room (:attr:`.envelope.Envelope.
     torque_room_nm`: the largest torque the joint's channel read plus the largest the URDF's
     rigid body asks of it). The motor holds the arm against gravity and the spring together,
     so a spring far stronger than both needs an opposite torque as large that neither the
     measurement nor the URDF shows: a steep line fitted through a periodic torque over a short
     range (a gear ripple of 52 N·m at 10 cycles per revolution on a 0.9 rad motion came out a
-    spring of 4e5 N·m/rad, 100× the joint's largest torque; refused, the ripple is named).
+    spring of 4e5 N·m/rad, over 100× the joint's largest torque; refused, the ripple is named).
     Otherwise the term is fitting something else the declared model lacks
     (a spring whose rest angle is tens of radians away is a constant offset, such as the
     direction-dependent part of a Coulomb friction, with a small slope; a negative one the
@@ -90,9 +90,10 @@ from typing import Any, NamedTuple
 import numpy as np
 from scipy.special import chdtri
 
+from control.identification.envelope import Envelope
 from control.identification.lsq import BlockLS, Evaluation, Solution, contiguous_folds
 from control.identification.preprocess import Prepared
-from control.identification.terms import EffectTerm, Envelope
+from control.identification.terms import EffectTerm
 
 MARGIN = 0.10
 #: Family-wise probability, per search round, of accepting a candidate that only fits noise.

@@ -43,6 +43,7 @@ from typing import Any
 
 import numpy as np
 
+from control.identification.envelope import Envelope
 from control.identification.friction_law import FRICTION_MODELS
 from control.identification.lsq import BlockLS, Evaluation, Solution, contiguous_folds
 from control.identification.model import IdentifiedModel, PlainJoint
@@ -52,7 +53,6 @@ from control.identification.rigid import RobotRegressor
 from control.identification.terms import (
     Context,
     EffectTerm,
-    Envelope,
     FrictionTerm,
     RigidTerm,
 )
@@ -102,7 +102,7 @@ def make_context(
     The regressor columns are passed through the torque's low-pass
     (:meth:`.preprocess.Prepared.lowpass`) and the context keeps that filter for the friction
     and effect columns, so every column is filtered like the measured torque; ``envelope``
-    (the training data's, :class:`.terms.Envelope`) bounds the friction and effect terms.
+    (the training data's, :class:`.envelope.Envelope`) bounds the friction and effect terms.
     """
     nb = reg.base.n_base
     cols = np.concatenate([reg.base.independent, reg.payload_indices if payload else []])

@@ -19,6 +19,7 @@ import numpy as np
 
 from control.identification.cutoff import CutoffChoice, candidates, choose_cutoff
 from control.identification.datafile import Measurements, read_measurements
+from control.identification.envelope import Envelope
 from control.identification.fit import cylinder_columns, make_context, remove_cylinders
 from control.identification.heldout import TestFile
 from control.identification.preprocess import (
@@ -32,7 +33,6 @@ from control.identification.preprocess import (
 )
 from control.identification.rigid import RobotRegressor
 from control.identification.stages import AnalyzeOptions, _Clock, _Run
-from control.identification.terms import Envelope
 from gateway.errors import ConfigError, DataFileError
 from gateway.robot.description import RobotDescription, load_description
 

@@ -19,6 +19,7 @@ import numpy as np
 
 from control.identification import preprocess
 from control.identification.datafile import Measurements
+from control.identification.envelope import Envelope
 from control.identification.friction_law import (
     FRICTION_PARAM_NAMES,
     friction_direction,
@@ -29,7 +30,6 @@ from control.identification.rigid import BaseParameters, RobotRegressor
 from control.identification.terms import (
     Context,
     EffectTerm,
-    Envelope,
     FrictionTerm,
     shift_signal,
 )

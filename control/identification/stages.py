@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from control.identification import effect_rules
+from control.identification.envelope import Envelope
 from control.identification.friction_law import FRICTION_MODELS
 from control.identification.heldout import TestFile
 from control.identification.preprocess import (
@@ -26,7 +27,7 @@ from control.identification.preprocess import (
     Prepared,
 )
 from control.identification.rigid import DEFAULT_GRAVITY_M_S2, RobotRegressor
-from control.identification.terms import Context, Envelope
+from control.identification.terms import Context
 from gateway.errors import ConfigError
 from gateway.progress import ProgressBar, progress_bar
 from gateway.robot.description import RobotDescription

@@ -16,13 +16,13 @@ from example_cell import EXAMPLE_MODEL
 
 from control import _rt
 from control.declared_model import DeclaredModel, IdentifiedControlModel
+from control.identification.envelope import Envelope
 from control.identification.friction_law import FRICTION_MODELS, FRICTION_PARAM_NAMES
 from control.identification.model import IdentifiedModel, PlainJoint
 from control.identification.rigid import RobotRegressor
 from control.identification.terms import (
     EFFECT_NAMES,
     EffectTerm,
-    Envelope,
     FrictionTerm,
 )
 from control.rt_tables import NOT_AT_RUN_TIME, point_model_table, to_json

@@ -12,13 +12,14 @@ from scipy.integrate import quad
 from control.identification.datafile import Measurements
 from control.identification.dh_urdf import PANDA_DH_ROWS, urdf_from_dh
 from control.identification.effect_rules import chi2_threshold
+from control.identification.envelope import Envelope
 from control.identification.families import choose_family
 from control.identification.fit import FrictionFit
 from control.identification.lsq import Evaluation, Solution
 from control.identification.model import IdentifiedModel, PlainJoint, plain_columns
 from control.identification.preprocess import filter_noise_gain, prepare, white_noise_std
 from control.identification.rigid import RobotRegressor
-from control.identification.terms import Context, EffectTerm, Envelope, FrictionTerm
+from control.identification.terms import Context, EffectTerm, FrictionTerm
 
 
 def _recording(sigma: float, seconds: float = 30.0, rate_hz: float = 1000.0) -> Measurements:

@@ -1,6 +1,6 @@
 """Rule (vii) bounds a spring by its joint's torque room
 (:func:`control.identification.effect_rules.implausible`,
-:attr:`control.identification.terms.Envelope.torque_room_nm`): the largest torque the joint's
+:attr:`control.identification.envelope.Envelope.torque_room_nm`): the largest torque the joint's
 channel read plus the largest its URDF rigid body asks of it.
 
 A held-out hard draw (seed 157) had a gear ripple of 52 N·m at 10 cycles per revolution on a
@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 
 from control.identification.effect_rules import SPRING_TORQUE_FACTOR, implausible
-from control.identification.terms import EffectTerm, Envelope
+from control.identification.envelope import Envelope
+from control.identification.terms import EffectTerm
 
 SPRING = EffectTerm("spring", (0,))
 #: the joint's training range [rad] and torque room [N·m] (measured 1,640 + URDF 1,300)
