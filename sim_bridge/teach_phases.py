@@ -91,7 +91,8 @@ def classify(
     moving = (target_speed_m_s > MOVING_M_S) & during
     leg_start = np.full(tau_s.size, -math.inf)
     starts = np.flatnonzero(moving & ~np.r_[False, moving[:-1]])
-    for k, stop in zip(starts, [*starts[1:], tau_s.size], strict=True):
+    # (a run the product stopped before the target moved has no leg: its rows are dwell)
+    for k, stop in zip(starts, np.r_[starts[1:], tau_s.size][: starts.size], strict=True):
         leg_start[k:stop] = tau_s[k]
     startup = moving & (tau_s - leg_start < STARTUP_S)
     reversal = moving & ~startup

@@ -39,6 +39,15 @@ def test_each_leg_starts_with_a_start_up_then_cruises_and_stands_at_its_corners(
     assert set(name[tau > 10.0]) == {"after"}
 
 
+def test_a_run_stopped_before_the_target_moved_is_all_dwell():
+    # the product faulted 9 cycles into teaching (plant seed 105 on one CPU): the target never
+    # left its start, and the range's bench went on to its other seeds
+    tau = np.arange(9) * 0.008
+    q = np.zeros((tau.size, 6))
+    phase = classify(tau, np.zeros(tau.size), 57.0, q)
+    assert (phase == PHASES.index("dwell")).all()
+
+
 def test_a_joint_that_reverses_mid_leg_marks_the_rows_around_it_and_tremor_does_not():
     tau, speed = _legs()
     # joint 1 swings through zero speed at 3 s (0.1 rad/s before, -0.1 after); joint 2 stands
