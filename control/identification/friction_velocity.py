@@ -134,12 +134,12 @@ def friction_velocity(
     sigma = np.zeros(n)
     for j in range(n):
         vn = float(v_noise[j])
-        half = window_half(float(noise[j]), float(step[j]), vn, fs_hz, longest)
-        v_q = slope(q[:, j], half, fs_hz)
-        s_q = slope_noise(float(noise[j]), float(step[j]), half, fs_hz)
         if not (np.isfinite(vn) and vn > 0.0):  # an exact reading, or one too short to tell
             v[:, j], sigma[j] = v_measured[:, j], vn
             continue
+        half = window_half(float(noise[j]), float(step[j]), vn, fs_hz, longest)
+        v_q = slope(q[:, j], half, fs_hz)
+        s_q = slope_noise(float(noise[j]), float(step[j]), half, fs_hz)
         # two readings of one velocity agree within their noise; a velocity column that is not
         # the positions' derivative (a controller's estimate, another filter) is not blended.
         # Robustly (1.4826 × the median absolute difference): the two filters' bandwidths
