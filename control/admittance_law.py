@@ -18,6 +18,7 @@ from control._rt import Admittance, EngageProbe
 from control.config import ControlConfig
 from control.declared_model import DeclaredModel
 from control.load_check import REST_RAD_S
+from control.soft_walls import wall_torque_nm
 from control.stick_anchor import StickAnchor
 from control.stribeck_speed import stribeck_speeds
 from control.zero_moment_law import INERTIA_STEP_RAD, ZeroMomentController
@@ -63,7 +64,7 @@ class AdmittanceController(ZeroMomentController):
         )
         self.admittance = Admittance(
             cfg.admittance_mass_fraction,
-            cfg.damping_nm_s_per_rad,
+            cfg.admittance_damping_nm_s_per_rad or cfg.damping_nm_s_per_rad,
             band,
             cfg.admittance_filter_hz,
             cfg.max_velocity_rad_s,
@@ -239,13 +240,16 @@ class AdmittanceController(ZeroMomentController):
             # the reference, and a release's stop then ran the arm back: issue 47's item 4)
             self._drive_own -= 1
             tau_h = np.array(adm.tau_h)
-        k = self.cfg.wall_stiffness_nm_per_rad
-        walls = -k * np.maximum(q - self.upper, 0.0) + k * np.maximum(self.lower - q, 0.0)
+        mass = self.mass(np.array(adm.q_r))
+        # soft walls, damped for the inertia the reference renders (control/soft_walls.py)
+        walls = wall_torque_nm(q, np.array(adm.dq_r), self.lower, self.upper,
+                               self.cfg.wall_stiffness_nm_per_rad,
+                               adm.alpha * np.diag(mass), dt)  # fmt: skip
         # constrained guiding's fixture acts on the reference the arm follows
         walls = walls + np.array(self._cycle.guide_torque_at(adm.q_r, adm.dq_r))
         if not (np.isfinite(tau_h).all() and np.isfinite(walls).all()):
             raise MessageError(f"cycle {st.cycle}: hand torque estimate undefined")
-        q_r, dq_r = (np.array(v) for v in adm.step(tau_h, walls, self.mass(np.array(adm.q_r)), dt))
+        q_r, dq_r = (np.array(v) for v in adm.step(tau_h, walls, mass, dt))
         ddq_r = np.array(adm.ddq_r)
         self._sent_ddq.append(ddq_r)
         tau = self.model_torque(q_r, dq_r, ddq_r, p_bar) - self._bias

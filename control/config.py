@@ -116,7 +116,13 @@ class ControlConfig:
     admittance_filter_hz: float = 5.0
     #: its dead zone per joint: this × the model's held-out RMS, at least ``rest_hold_nm``
     admittance_band_rms_factor: float = 1.0
-    #: the damping while no joint is pushed beyond its dead zone, × ``damping_nm_s_per_rad``
+    #: the damping a hand pushing beyond the dead zone feels per joint [N·m·s/rad]; empty:
+    #: ``damping_nm_s_per_rad``. The painter pays it at the arm's joints for as long as the
+    #: tool moves, and (A2) does not need it while a hand holds the tool (the hand's own
+    #: damping, about 300 N·s/m, is some 400 N·m·s/rad at J1's reach); the wrist's keeps the
+    #: gun's orientation, which a painter changes on purpose (sim_cell.toml gives the values)
+    admittance_damping_nm_s_per_rad: tuple[float, ...] = ()
+    #: the damping while no joint is pushed beyond its dead zone, × the admittance's damping
     admittance_rest_damping_factor: float = 10.0
     #: the admittance's engagement probe (control/rt/src/law/admittance.rs, EngageProbe): every
     #: joint moves out and back to either side at this cruise speed [rad/s] (at least; each joint's
@@ -248,6 +254,12 @@ class ControlConfig:
             f"needs {n} values >= 0 (or none)",
         )
         require(all(v > 0 for v in self.upsilon_i_per_s), "[control].upsilon_i_per_s", "> 0")
+        require(
+            len(self.admittance_damping_nm_s_per_rad) in (0, n)
+            and all(v >= 0 for v in self.admittance_damping_nm_s_per_rad),
+            "[control].admittance_damping_nm_s_per_rad",
+            f"needs {n} values >= 0 (or none)",
+        )
         require(
             len(self.rest_hold_nm) in (0, n) and all(v >= 0 for v in self.rest_hold_nm),
             "[control].rest_hold_nm",
