@@ -160,6 +160,25 @@ def commissioned_stack(workdir: Path, plant_seed: int = 0, **kwargs: Any) -> Sta
     )  # fmt: skip
 
 
+def newest_commissioned(plant_seed: int, *, root: Path | None = None) -> Commissioned | None:
+    """The newest complete commissioning of ``plant_seed`` in the cache, whatever version of
+    the code made it (None: there is none). For benching a change to the laws without
+    commissioning every seed again (any edit changes :func:`code_version`): valid only while
+    the identification is the same as when the folder was made, which the caller answers for;
+    the folder's name carries the digest it was made with."""
+    if plant_seed < 0:
+        raise ValueError(f"plant seed {plant_seed} must be >= 0")
+    root = root or cache_root()
+    done = [
+        d
+        for d in root.glob(f"seed{plant_seed}-*")
+        if (d / "model.json").exists() and (d / "inner_loop.json").exists()
+    ]
+    if not done:
+        return None
+    return Commissioned(plant_seed, max(done, key=lambda d: (d / "model.json").stat().st_mtime))
+
+
 def commissioned(
     plant_seed: int,
     *,

@@ -79,7 +79,7 @@ from gateway.bus import open_client
 from gateway.guide_modes import GUIDES
 from gateway.progress import add_progress_argument, progress_bar, progress_enabled
 from sim_bridge.baseline import drag_released
-from sim_bridge.commission import commissioned
+from sim_bridge.commission import commissioned, newest_commissioned
 from sim_bridge.config import load_sim_config
 from sim_bridge.harness import Stack
 from sim_bridge.plant import Plant
@@ -278,12 +278,17 @@ def run_best(
     online_estimate: bool = False,
     control: dict[str, Any] | None = None,
     guide: str | None = None,
+    newest_commissioning: bool = False,
 ) -> dict[str, Any]:
     """The product's zero-moment lead-through on the virtual cell, as separate processes;
     ``online_estimate`` turns on the control process's online inner-loop estimate,
-    ``control`` sets keys of the cell config's ``[control]`` section (a tuning to try), and
-    ``guide`` is the constrained guide the operator's start asks for (None: the config's)."""
-    done = commissioned(plant_seed)
+    ``control`` sets keys of the cell config's ``[control]`` section (a tuning to try),
+    ``guide`` is the constrained guide the operator's start asks for (None: the config's),
+    and ``newest_commissioning`` takes the seed's newest commissioning in the cache whatever
+    code made it (:func:`.commission.newest_commissioned`; none: commissioned now)."""
+    done = (newest_commissioned(plant_seed) if newest_commissioning else None) or commissioned(
+        plant_seed
+    )
     control = dict(control or {})
     if online_estimate:
         n = len(load_sim_config().drives.gain_nm_per_a)
@@ -469,6 +474,13 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
         default=list(STRATEGIES),
         help="which to run (default: all)",
     )
+    p.add_argument(
+        "--newest-commissioning",
+        action="store_true",
+        help="take each seed's newest commissioning in the cache, whatever version of the "
+        "code made it (a change to the laws, benched without commissioning every seed again: "
+        "valid only while the identification is the same; each summary names its model)",
+    )
     add_progress_argument(p)
 
 
@@ -502,6 +514,7 @@ def run_seed(
                 online_estimate=args.online_estimate,
                 control=PRODUCT_STRATEGIES[name] | args.control,
                 guide=args.guide,
+                newest_commissioning=args.newest_commissioning,
             )
         results[name]["wall_time_s"] = time.monotonic() - t0
         bar.advance(label="")
