@@ -2,9 +2,10 @@
 
 Inside its soft limits a joint is free; past one, the wall pushes its reference back with
 ``k`` × the depth ([control] wall_stiffness_nm_per_rad) and damps the reference's speed
-deeper into it. Only deeper: a painter guiding a joint along inside its wall zone (seed 110's
-raster keeps J3 there for 20-35 s) or out of it pays no damper; one that damped both ways held
-the hand at 80 N for a quarter of that run.
+deeper into it. Only deeper: a painter guiding a joint along inside its wall zone or out of it
+pays no damper. (Seed 110's raster keeps J3 in its wall zone for 20-35 s; its painter sat at
+the hand's 80 N for long stretches with a damper either way, since the path asks J3 past its
+soft limit there; without one, the run ended on the speed monitor below.)
 
 A spring alone is no wall for an admittance: against the share α of the arm's inertia the
 reference renders, 2,000 N·m/rad rings at about 1.3 Hz on J3 (α M ≈ 30
