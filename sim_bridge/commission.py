@@ -160,6 +160,11 @@ def commissioned_stack(workdir: Path, plant_seed: int = 0, **kwargs: Any) -> Sta
     )  # fmt: skip
 
 
+def _complete(folder: Path) -> bool:
+    """A commissioning folder `leadthrough identify` finished: its model and inner loop."""
+    return (folder / "model.json").exists() and (folder / "inner_loop.json").exists()
+
+
 def newest_commissioned(plant_seed: int, *, root: Path | None = None) -> Commissioned | None:
     """The newest complete commissioning of ``plant_seed`` in the cache, whatever version of
     the code made it (None: there is none). For benching a change to the laws without
@@ -169,11 +174,7 @@ def newest_commissioned(plant_seed: int, *, root: Path | None = None) -> Commiss
     if plant_seed < 0:
         raise ValueError(f"plant seed {plant_seed} must be >= 0")
     root = root or cache_root()
-    done = [
-        d
-        for d in root.glob(f"seed{plant_seed}-*")
-        if (d / "model.json").exists() and (d / "inner_loop.json").exists()
-    ]
+    done = [d for d in root.glob(f"seed{plant_seed}-*") if _complete(d)]
     if not done:
         return None
     return Commissioned(plant_seed, max(done, key=lambda d: (d / "model.json").stat().st_mtime))
@@ -196,7 +197,7 @@ def commissioned(
     root = root or cache_root()
     folder = root / f"seed{plant_seed}-{code_version(plan)}"
     with _locked(root / f".seed{plant_seed}.lock"):
-        if (folder / "model.json").exists() and (folder / "inner_loop.json").exists():
+        if _complete(folder):
             return Commissioned(plant_seed, folder)
         progress(f"commissioning plant seed {plant_seed} with `leadthrough identify` "
                  f"(lock-step, about 3 minutes) into {folder} ...")  # fmt: skip
