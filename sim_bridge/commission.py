@@ -70,7 +70,7 @@ CELL_STOP_S = 60.0
 #: The longest one :func:`commission` may take from start to end [s]: the cell's start, the
 #: identification's limit and its grace, and the cell's stop. Lock-step commissioning runs the
 #: plant no faster than :data:`COMMISSION_SPEEDUP` × real time, so its wall time is at least
-#: the plan's motion over that (about 275 s / 3 for
+#: the plan's motion over that (about 338 s / 3 for
 #: :data:`~control.identification.on_cell.QUICK_PLAN`; 159 s in all for seed 0 on a fast
 #: machine, 2026-12-03) and more where the machine cannot keep the pace: a test that
 #: commissions is given this, not the suite's default per-test limit (300 s, pyproject.toml).

@@ -76,6 +76,15 @@ TEACHING_VALIDATION: dict[str, Any] = {
     "offset_rad": WORKSPACE_OFFSETS[3], "role": "validate",
 }  # fmt: skip
 
+#: The same kind of motion in two training boxes (role "train"): the slow sliding, the
+#: reversals and the starts from rest that teaching asks of the friction model, which
+#: constant-speed sweeps at 2 and 8 °/s never reach; about 30 s of robot time each.
+TEACHING_TRAINING: tuple[dict[str, Any], ...] = tuple(
+    {"seed": seed, "strokes": 4, "amplitude_rad": 0.03, "speeds_deg_s": [0.5, 2.0],
+     "rest_s": 1.0, "offset_rad": offset, "role": "train"}
+    for seed, offset in ((12, WORKSPACE_OFFSETS[0]), (13, WORKSPACE_OFFSETS[1]))
+)  # fmt: skip
+
 #: The paper's plan (Section 4): every joint's friction at 0.5–4 °/s and faster, gravity sweeps,
 #: inertia runs, and multi-sine excitation; about 25 minutes on the robot.
 FULL_PLAN: dict[str, Any] = {
@@ -107,7 +116,8 @@ FULL_PLAN: dict[str, Any] = {
 ANALYSIS_RATE_HZ = 125.0
 ANALYSIS_CUTOFF_HZ = 20.0
 
-#: A short plan for the virtual cell's tests and demos (about 2 minutes of robot time).
+#: A short plan for the virtual cell's tests and demos (338 s of robot time from the GR630ST's
+#: start pose, 63 s of it the two training teaching motions).
 QUICK_PLAN: dict[str, Any] = {
     "friction": {"joints": [1, 2, 3, 4, 5, 6], "amplitude_rad": 0.1,
                  "speeds_deg_s": [2.0, 8.0]},
@@ -122,7 +132,7 @@ QUICK_PLAN: dict[str, Any] = {
         {"seed": 7, "duration_s": 20, "amplitude_rad": [0.25, 0.2, 0.2, 0.4, 0.4, 0.4],
          "base_hz": 0.13, "harmonics": 5, "role": "test", "offset_rad": WORKSPACE_OFFSETS[3]},
     ],
-    "teaching": [TEACHING_VALIDATION],
+    "teaching": [*TEACHING_TRAINING, TEACHING_VALIDATION],
     "pause_s": 0.5,
 }  # fmt: skip
 
