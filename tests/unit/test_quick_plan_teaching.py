@@ -45,8 +45,11 @@ def test_every_joint_trains_on_slow_sliding_reversals_and_starts_from_rest():
     for dq in teaching:
         for j in range(6):
             moving = dq[np.abs(dq[:, j]) > 1e-5, j]
-            # four strokes, each from rest, three reversals between them
+            # four strokes, three reversals between them
             assert np.count_nonzero(np.diff(np.sign(moving)) != 0) >= 3
+        # each stroke starts from rest: the whole arm still for the motion's rest time (1 s)
+        still = np.all(np.abs(dq) < 1e-9, axis=1)
+        assert np.sum(_runs_s(still) >= 1.0 - 2 * DT) >= 4
 
 
 def test_the_validation_motion_is_not_trained_on_and_lies_in_another_box():
