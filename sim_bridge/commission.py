@@ -187,8 +187,8 @@ def commissioned(
     progress: Callable[[str], None] = print,
 ) -> Commissioned:
     """The commissioned model of ``plant_seed`` for this code: from the cache, or built now by
-    :func:`commission` (about 3 minutes: the plan's motion at up to three times real time,
-    and its analysis) and kept."""
+    :func:`commission` (5-7 minutes, 400 s per seed with two at once on 2026-12-06: the plan's
+    motion at up to three times real time, and its analysis) and kept."""
     from control.identification.on_cell import QUICK_PLAN
 
     if plant_seed < 0:
@@ -200,7 +200,7 @@ def commissioned(
         if _complete(folder):
             return Commissioned(plant_seed, folder)
         progress(f"commissioning plant seed {plant_seed} with `leadthrough identify` "
-                 f"(lock-step, about 3 minutes) into {folder} ...")  # fmt: skip
+                 f"(lock-step, 5-7 minutes) into {folder} ...")  # fmt: skip
         work = root / f".build-seed{plant_seed}-{os.getpid()}"
         shutil.rmtree(work, ignore_errors=True)
         t0 = time.monotonic()

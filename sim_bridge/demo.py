@@ -212,7 +212,7 @@ def cli_main(args: argparse.Namespace) -> int:
     }
     t0 = time.monotonic()
     # The product knows nothing of this plant: it teaches with what `leadthrough identify`
-    # measured on it (built now, about 3 minutes, or reused from the cache).
+    # measured on it (built now, 5-7 minutes, or reused from the cache).
     done = commissioned(args.plant_seed)
     ident = done.summary
     print(f"model: identified on plant seed {args.plant_seed} ({done.folder}); held-out torque "

@@ -76,14 +76,13 @@ TEACHING_VALIDATION: dict[str, Any] = {
     "offset_rad": WORKSPACE_OFFSETS[3], "role": "validate",
 }  # fmt: skip
 
-#: The same kind of motion in two training boxes (role "train"): the slow sliding, the
-#: reversals and the starts from rest that teaching asks of the friction model, which
-#: constant-speed sweeps at 2 and 8 °/s never reach; about 30 s of robot time each.
+#: The validation's kind of motion in two training boxes (role "train", other seeds): the slow
+#: sliding, the reversals and the starts from rest that teaching asks of the friction model,
+#: which constant-speed sweeps at 2 and 8 °/s never reach; about 30 s of robot time each.
 TEACHING_TRAINING: tuple[dict[str, Any], ...] = tuple(
-    {"seed": seed, "strokes": 4, "amplitude_rad": 0.03, "speeds_deg_s": [0.5, 2.0],
-     "rest_s": 1.0, "offset_rad": offset, "role": "train"}
+    {**TEACHING_VALIDATION, "seed": seed, "offset_rad": offset, "role": "train"}
     for seed, offset in ((12, WORKSPACE_OFFSETS[0]), (13, WORKSPACE_OFFSETS[1]))
-)  # fmt: skip
+)
 
 #: The paper's plan (Section 4): every joint's friction at 0.5–4 °/s and faster, gravity sweeps,
 #: inertia runs, and multi-sine excitation; about 25 minutes on the robot.

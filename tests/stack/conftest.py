@@ -38,5 +38,5 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
 
 @pytest.fixture(scope="session", autouse=True)
 def commissioned_default_plant() -> None:
-    """Plant seed 0's commissioned model, from the cache or built now (about 3 minutes)."""
+    """Plant seed 0's commissioned model, from the cache or built now (5-7 minutes)."""
     commissioned(0)

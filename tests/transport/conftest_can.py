@@ -120,6 +120,12 @@ class FakeController:
         self.heartbeats: list[tuple[float, Heartbeat]] = []
         self.bad_frames: list[str] = []
         self.late_frames = 0
+        #: 16-bit cycle → joint → every command frame the host sent for that cycle, in time or
+        #: late (a set that arrives after its cycle ended is dropped, but what it was is kept)
+        self.command_frames: dict[int, dict[int, JointCommandFrame]] = {}
+        #: 16-bit cycle counters whose next cycle is sent at once, as a controller's would be
+        #: if the host missed a whole period (settable by tests, under lock)
+        self.rush: set[int] = set()
         self.events: list[tuple[str, Any]] = []  #: ("request", frame) / ("set", CommandSet)
         self._pending: dict[int, tuple[JointCommandFrame, can.Message]] = {}
         #: frames another node puts on the bus, sent by this thread between its own (a server
@@ -147,6 +153,28 @@ class FakeController:
         with self.lock:
             return [s for s in self.sets if hold is None or s.hold == hold]
 
+    def sent_set(self, cycle: int) -> CommandSet | None:
+        """The whole set the host sent for the 16-bit ``cycle``, in time or late (timings and
+        raw frames not kept: ``after_status_s`` NaN); None unless every joint's frame came."""
+        with self.lock:
+            frames = self.command_frames.get(cycle, {})
+            if len(frames) < self.n:
+                return None
+            ordered = [frames[k + 1] for k in range(self.n)]
+        return CommandSet(
+            cycle_counter=cycle,
+            hold=any(f.hold for f in ordered),
+            q_cmd_rad=np.array([f.q_cmd_rad for f in ordered]),
+            dq_cmd_rad_s=np.array([f.dq_cmd_rad_s for f in ordered]),
+            after_status_s=float("nan"),
+            raw=(),
+        )
+
+    def sent_for(self, cycle: int) -> bool:
+        """Whether the host sent any command frame for the 16-bit ``cycle``."""
+        with self.lock:
+            return cycle in self.command_frames
+
     def request_log(self) -> list[HostRequest]:
         with self.lock:
             return [f.request for _, f in self.requests]
@@ -170,6 +198,10 @@ class FakeController:
         next_s = time.monotonic()
         while not self._stop.is_set():
             self._send_cycle()
+            with self.lock:
+                rushed = self.counter in self.rush
+            if rushed:
+                continue  # the next cycle now; the grid after it as before
             next_s += self.period_s
             while (left := next_s - time.monotonic()) > 0 and not self._stop.is_set():
                 for _ in range(min(INJECT_BATCH, len(self._inject))):
@@ -244,6 +276,8 @@ class FakeController:
             self.state, self.fault = ControllerState.BRAKED, FaultCode.NONE
 
     def _on_command(self, frame: JointCommandFrame, msg: can.Message, now: float) -> None:
+        cycle = (self.counter - ((self.counter - frame.counter) & 0xFF)) & 0xFFFF
+        self.command_frames.setdefault(cycle, {})[frame.joint] = frame
         if frame.counter != self.counter & 0xFF:
             self.late_frames += 1
             return
