@@ -245,11 +245,13 @@ class AdmittanceController(ZeroMomentController):
         walls = wall_torque_nm(q, np.array(adm.dq_r), self.lower, self.upper,
                                self.cfg.wall_stiffness_nm_per_rad,
                                adm.alpha * np.diag(mass), dt)  # fmt: skip
-        # constrained guiding's fixture acts on the reference the arm follows
-        walls = walls + np.array(self._cycle.guide_torque_at(adm.q_r, adm.dq_r))
         if not (np.isfinite(tau_h).all() and np.isfinite(walls).all()):
             raise MessageError(f"cycle {st.cycle}: hand torque estimate undefined")
-        q_r, dq_r = (np.array(v) for v in adm.step(tau_h, walls, mass, dt))
+        # constrained guiding holds the reference the arm follows on its fixture exactly
+        # (control/rt/src/law/guide.rs, Guide::constraint): rows on its speed, or none
+        rows, rates = self._cycle.guide_constraint_at(adm.q_r)
+        constraint = (rows, rates) if rows else None
+        q_r, dq_r = (np.array(v) for v in adm.step(tau_h, walls, mass, dt, constraint))
         ddq_r = np.array(adm.ddq_r)
         self._sent_ddq.append(ddq_r)
         tau = self.model_torque(q_r, dq_r, ddq_r, p_bar) - self._bias

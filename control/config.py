@@ -73,7 +73,8 @@ class ControlConfig:
     #: N·m·s/rad]. The rotation's stiffness sets what a push costs in orientation:
     #: |r × F| / K with r the tool point's lever about the wrist: the hand's 80 N at 0.25 m
     #: turns the gun 0.46° (teach-bench, seed 0, orientation-locked raster: 0.51° at most;
-    #: 1000 N·m/rad gave 1.17°)
+    #: 1000 N·m/rad gave 1.17°). The springs are the zero-moment law's; the admittance holds
+    #: the guide on its reference exactly (control/rt/src/law/admittance/constraint.rs)
     guide: str = "free"
     guide_axis: str = "x"
     guide_stiffness_n_per_m: float = 3000.0

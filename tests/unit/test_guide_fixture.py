@@ -128,12 +128,13 @@ def test_a_name_that_is_no_guide_is_refused_and_the_guide_stays(cfg, model):
 
 
 def test_the_admittances_reference_holds_a_locked_orientation_against_a_wrist_push(cfg, model):
-    """The admittance (its probe and stick zone off: the law alone) puts the fixture on its
-    reference. An arm that follows its reference exactly, its current carrying the model's
-    torque less a steady 10 N·m hand on J5: free, the tool turns on and on; locked, it turns
-    by at most what the rotational spring gives way, 10 / K_r rad (the arm keeps sliding in
-    the directions the lock leaves free, and that motion's joint damping takes a share of the
-    push), and stays there (pinocchio's kinematics judge the turn)."""
+    """The admittance (its probe and stick zone off: the law alone) holds the guide on its
+    reference (law/guide.rs Guide::constraint, law/admittance/constraint.rs). An arm that
+    follows its reference exactly, its current carrying the model's torque less a steady
+    10 N·m hand on J5: free, the tool turns on and on; locked, it does not turn (what the
+    reference's drift correction leaves, 1e-4 rad at most: test_admittance_guide.py), where
+    the spring this law used before gave way by up to 10 / K_r rad (4 mrad); pinocchio's
+    kinematics judge the turn."""
     from control.admittance_law import AdmittanceController
 
     base = dataclasses.replace(
@@ -162,11 +163,9 @@ def test_the_admittances_reference_holds_a_locked_orientation_against_a_wrist_pu
             q, dq, ddq = np.array(adm.q_r), np.array(adm.dq_r), np.array(adm.ddq_r)
             angles.append(np.linalg.norm(pin.log3(rotation(q) @ r0.T)))
         turned[guide] = np.array(angles)
-    most = 10.0 / cfg.guide_rot_stiffness_nm_per_rad
-    assert turned["free"][-1] > 50 * most  # on and on
-    locked = turned["orientation-locked"]
-    assert 0.5 * most < locked[-1] <= most and np.ptp(locked[-100:]) < 0.01 * most
-    assert locked.max() <= 1.05 * most  # no overshoot worth the name
+    spring = 10.0 / cfg.guide_rot_stiffness_nm_per_rad
+    assert turned["free"][-1] > 50 * spring  # on and on
+    assert turned["orientation-locked"].max() < 1e-4
 
 
 def _current_state(cycle, q, dq, current):

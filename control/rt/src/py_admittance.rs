@@ -134,7 +134,11 @@ impl PyAdmittance {
     }
 
     /// One cycle's raw hand torque estimate (A1) and the walls' torque [N·m], M̂ at the
-    /// reference (n rows of n); returns the new reference `(q_r, dq_r)`.
+    /// reference (n rows of n); returns the new reference `(q_r, dq_r)`. With `constraint`
+    /// `(rows, rates)`, the constrained guide's rows on the reference's speed
+    /// (ZeroMomentCycle.guide_constraint_at), the new speed meets them; without, it is free.
+    #[pyo3(signature = (tau_h_raw, tau_walls, mass, dt_s, constraint=None))]
+    #[allow(clippy::type_complexity)]
     fn step(
         &self,
         py: Python<'_>,
@@ -142,12 +146,27 @@ impl PyAdmittance {
         tau_walls: Vec<f64>,
         mass: Vec<Vec<f64>>,
         dt_s: f64,
+        constraint: Option<(Vec<Vec<f64>>, Vec<f64>)>,
     ) -> PyResult<(Vec<f64>, Vec<f64>)> {
         let n = self.n;
         check_len(&tau_h_raw, n, "tau_h_raw")?;
         check_len(&tau_walls, n, "tau_walls")?;
         if mass.len() != n || mass.iter().any(|row| row.len() != n) {
             return Err(PyValueError::new_err(format!("mass needs {n} rows of {n}")));
+        }
+        match constraint {
+            Some((rows, rates)) => {
+                if rows.len() != rates.len() || rows.iter().any(|row| row.len() != n) {
+                    return Err(PyValueError::new_err(format!(
+                        "constraint needs one row of {n} per rate"
+                    )));
+                }
+                let flat: Vec<f64> = rows.concat();
+                self.lock()?
+                    .set_constraint(&flat, &rates)
+                    .map_err(PyValueError::new_err)?;
+            }
+            None => self.lock()?.clear_constraint(),
         }
         let mut flat = [0.0; MAX_JOINTS * MAX_JOINTS];
         for (i, row) in mass.iter().enumerate() {

@@ -495,20 +495,33 @@ impl PyZeroMomentCycle {
         })
     }
 
-    /// The constrained guide's torque at (q, dq) [N·m]: the admittance's fixture on its
-    /// reference (control/admittance_law.py); the first call after :meth:`restart_guide` or
-    /// a change of mode takes the reference there.
-    fn guide_torque_at(&self, py: Python<'_>, q: Vec<f64>, dq: Vec<f64>) -> PyResult<Vec<f64>> {
+    /// The constrained guide as the admittance holds it at its reference `q` (law/guide.rs,
+    /// `Guide::constraint`): its rows on the reference's speed and their rates, ([] , []) in
+    /// "free"; the first call after :meth:`restart_guide` or a change of mode takes the
+    /// reference there.
+    #[allow(clippy::type_complexity)]
+    fn guide_constraint_at(
+        &self,
+        py: Python<'_>,
+        q: Vec<f64>,
+    ) -> PyResult<(Vec<Vec<f64>>, Vec<f64>)> {
         self.check(&q, "q")?;
-        self.check(&dq, "dq")?;
+        let n = q.len();
         self.with_parts(py, |law, parts| {
-            let mut out = vec![0.0; q.len()];
-            if let Some((chain, work)) = parts.chain.as_mut() {
-                law.guide.torque(chain, work, &q, &dq, &mut out);
+            let mut rows = [0.0; 5 * MAX_JOINTS];
+            let mut rates = [0.0; 5];
+            let m = if let Some((chain, work)) = parts.chain.as_mut() {
+                law.guide
+                    .constraint(chain, work, &q, &mut rows[..5 * n], &mut rates)
             } else if law.guide.mode() != GuideMode::Free {
                 return Err("constrained guiding needs the nominal chain".into());
-            }
-            Ok(out)
+            } else {
+                0
+            };
+            Ok((
+                (0..m).map(|i| rows[i * n..(i + 1) * n].to_vec()).collect(),
+                rates[..m].to_vec(),
+            ))
         })
     }
 

@@ -57,8 +57,12 @@
 
 use crate::chain::MAX_JOINTS;
 
+mod constraint;
 mod engage_probe;
 mod numpy_semantics;
+
+pub use self::constraint::MAX_ROWS;
+use self::constraint::{project, ProjectWork};
 
 pub use self::engage_probe::{EngageProbe, PROBE_MAX_SAMPLES, PROBE_MIN_SAMPLES, PROBE_RAMP_S};
 use self::numpy_semantics::{np_clip, np_max, np_min, np_sign, py_float, solve_in_place};
@@ -115,6 +119,14 @@ pub struct Admittance {
     pushed: Vec<f64>,
     dq_new: Vec<f64>,
     lhs: Vec<f64>,
+    /// Constrained guiding ([`Admittance::set_constraint`]): the guide's rows on the
+    /// reference's speed (row-major, `guide_m` × n, then one per held joint while a step
+    /// projects), their rates, the step's matrix without the held rows, the projection's work.
+    c_rows: Vec<f64>,
+    c_rates: Vec<f64>,
+    guide_m: usize,
+    metric: Vec<f64>,
+    project_work: ProjectWork,
 }
 
 impl Admittance {
@@ -183,6 +195,11 @@ impl Admittance {
             pushed: vec![0.0; n],
             dq_new: vec![0.0; n],
             lhs: vec![0.0; n * n],
+            c_rows: vec![0.0; MAX_ROWS * n],
+            c_rates: vec![0.0; MAX_ROWS],
+            guide_m: 0,
+            metric: vec![0.0; n * n],
+            project_work: ProjectWork::default(),
         })
     }
 
@@ -239,6 +256,34 @@ impl Admittance {
         self.hold_rad_s.copy_from_slice(hold_rad_s);
         Ok(())
     }
+    /// Constrained guiding: from the next step on, the reference's new speed meets `rows q̇ =
+    /// rates` (`rows` row-major, one row of n per rate; at most 6 rows): the speed (A2) gives,
+    /// projected in the step's own metric (admittance/constraint.rs), and a speed limit per
+    /// joint scales every joint alike instead of clipping one. Err (the constraint unchanged)
+    /// unless the sizes agree and every value is finite.
+    pub fn set_constraint(&mut self, rows: &[f64], rates: &[f64]) -> Result<(), String> {
+        let m = rates.len();
+        if m > 6 || rows.len() != m * self.n {
+            return Err(format!(
+                "admittance constraint: {} values for {m} rows of {} joints (at most 6 rows)",
+                rows.len(),
+                self.n
+            ));
+        }
+        if !rows.iter().chain(rates).all(|v| v.is_finite()) {
+            return Err("admittance constraint: a row or rate is not finite".to_string());
+        }
+        self.c_rows[..rows.len()].copy_from_slice(rows);
+        self.c_rates[..m].copy_from_slice(rates);
+        self.guide_m = m;
+        Ok(())
+    }
+
+    /// No constraint from the next step on (free guiding).
+    pub fn clear_constraint(&mut self) {
+        self.guide_m = 0;
+    }
+
     /// Per joint: held, its reference still (none with [`Admittance::hold_rad_s`] 0).
     pub fn held(&self) -> &[bool] {
         &self.held
@@ -348,6 +393,7 @@ impl Admittance {
                 rhs += m * self.dq_r[j];
                 // numpy adds dt × diag(D): dt × 0 off the diagonal
                 self.lhs[i * n + j] = m + dt_s * if i == j { damping } else { 0.0 };
+                self.metric[i * n + j] = self.lhs[i * n + j];
             }
             self.dq_new[i] = rhs + dt_s * drive;
         }
@@ -363,8 +409,49 @@ impl Admittance {
             }
         }
         solve_in_place(&mut self.lhs, &mut self.dq_new, n)?;
+        if self.guide_m > 0 {
+            self.constrain()?;
+            return Ok(());
+        }
         for (v, &vmax) in self.dq_new.iter_mut().zip(&self.max_velocity) {
             *v = np_clip(*v, -vmax, vmax);
+        }
+        Ok(())
+    }
+
+    /// The guide's rows and a held joint's (its speed 0) on the new speed: the speed (A2)
+    /// gave, projected in the step's metric α M̂ + dt D (admittance/constraint.rs), then
+    /// scaled as a whole so that no joint exceeds its maximum (a clip per joint would turn
+    /// the tool). Err (the speed unconstrained) where the metric is not positive definite.
+    fn constrain(&mut self) -> Result<(), String> {
+        let n = self.n;
+        let mut m = self.guide_m;
+        for i in 0..n {
+            if self.held[i] {
+                let row = &mut self.c_rows[m * n..(m + 1) * n];
+                row.fill(0.0);
+                row[i] = 1.0;
+                self.c_rates[m] = 0.0;
+                m += 1;
+            }
+        }
+        project(
+            &self.metric,
+            &self.c_rows[..m * n],
+            &self.c_rates[..m],
+            n,
+            m,
+            &mut self.dq_new,
+            &mut self.project_work,
+        )?;
+        let mut scale = 1.0f64;
+        for (v, &vmax) in self.dq_new.iter().zip(&self.max_velocity) {
+            if v.abs() > vmax {
+                scale = scale.min(vmax / v.abs());
+            }
+        }
+        for v in self.dq_new.iter_mut() {
+            *v *= scale;
         }
         Ok(())
     }

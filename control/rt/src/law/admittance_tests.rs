@@ -345,3 +345,90 @@ fn the_hold_speed_must_be_finite_and_not_negative() {
     a.reset(&[0.0; N], None);
     assert!(a.held().iter().all(|h| !h));
 }
+
+/// J1 + J2 turn the tool together (one "orientation" row): the constraint keeps their sum
+/// still while a hand pushes J1 alone.
+const SUM_ROW: [f64; N] = [1.0, 1.0, 0.0, 0.0, 0.0, 0.0];
+
+#[test]
+fn a_constraint_row_is_met_while_a_hand_pushes_against_it() {
+    let mut a = law(10.0);
+    a.reset(&[0.0; N], None);
+    a.set_constraint(&SUM_ROW, &[0.0]).unwrap();
+    let mass = coupled();
+    let push = [30.0, 0.0, 0.0, 0.0, 0.0, 0.0];
+    for _ in 0..500 {
+        a.step(&push, &[0.0; N], &mass, DT, None).unwrap();
+        assert!((a.dq_r()[0] + a.dq_r()[1]).abs() < 1e-9, "{:?}", a.dq_r()); // the ridge
+    }
+    // the push moves what the row allows: J1 forward and J2 back by as much
+    assert!(
+        a.q_r()[0] > 0.05 && (a.q_r()[0] + a.q_r()[1]).abs() < 1e-9,
+        "{:?}",
+        a.q_r()
+    );
+    a.clear_constraint();
+    for _ in 0..50 {
+        a.step(&push, &[0.0; N], &mass, DT, None).unwrap();
+    }
+    assert!(
+        (a.dq_r()[0] + a.dq_r()[1]).abs() > 1e-3,
+        "free again: {:?}",
+        a.dq_r()
+    );
+}
+
+#[test]
+fn a_held_joint_stays_still_under_a_constraint() {
+    // the let-go under the row: once slow, J1 and J2 are held, and the projection keeps
+    // them so while a wall pushes J3 (a wall moves its own joint, held or not)
+    let mut a = law(10.0);
+    a.set_hold(&[4e-3; N]).unwrap();
+    a.set_constraint(&SUM_ROW, &[0.0]).unwrap();
+    let travel = let_go(&mut a, 500, 1000);
+    assert_eq!(travel, 0.0, "J2's reference travelled {travel} rad");
+    assert!(a.held()[0] && a.held()[1], "{:?}", a.held());
+    let q = a.q_r().to_vec();
+    let mut wall = [0.0; N];
+    wall[2] = 30.0;
+    for _ in 0..100 {
+        a.step(&[0.0; N], &wall, &coupled(), DT, None).unwrap();
+    }
+    assert!(a.q_r()[2] > q[2], "the wall moves J3");
+    assert!((a.q_r()[0] - q[0]).abs() < 1e-9 && (a.q_r()[1] - q[1]).abs() < 1e-9);
+}
+
+#[test]
+fn under_a_constraint_the_speed_cap_scales_every_joint_alike() {
+    // a clip per joint would break the row; the cap scales the whole speed instead
+    let mut a = Admittance::new(0.01, &[1.0; N], &[2.0; N], 5.0, &[0.5; N], 1.0).unwrap();
+    a.reset(&[0.0; N], None);
+    let row = [1.0, -0.5, 0.0, 0.0, 0.0, 0.0];
+    a.set_constraint(&row, &[0.0]).unwrap();
+    for _ in 0..200 {
+        a.step(
+            &[1e4, 0.0, 1e4, 0.0, 0.0, 0.0],
+            &[0.0; N],
+            &diag(&[1.0; N]),
+            DT,
+            None,
+        )
+        .unwrap();
+    }
+    let v = a.dq_r();
+    assert!(v.iter().all(|x| x.abs() <= 0.5 + 1e-12), "{v:?}");
+    assert!((v[0] - 0.5 * v[1]).abs() < 1e-8, "{v:?}"); // the ridge leaves 1e-9 of it
+    assert!(
+        v.iter().any(|x| (x.abs() - 0.5).abs() < 1e-12),
+        "at the cap: {v:?}"
+    );
+}
+
+#[test]
+fn a_constraint_of_the_wrong_size_or_not_finite_is_refused() {
+    let mut a = law(1.0);
+    assert!(a.set_constraint(&[1.0; N - 1], &[0.0]).is_err());
+    assert!(a.set_constraint(&[1.0; 7 * N], &[0.0; 7]).is_err());
+    assert!(a.set_constraint(&SUM_ROW, &[f64::NAN]).is_err());
+    a.set_constraint(&SUM_ROW, &[0.0]).unwrap();
+}
