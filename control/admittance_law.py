@@ -19,6 +19,7 @@ from control.config import ControlConfig
 from control.declared_model import DeclaredModel
 from control.load_check import REST_RAD_S
 from control.soft_walls import wall_torque_nm
+from control.startup_dither import StartupDither
 from control.stick_anchor import StickAnchor
 from control.stribeck_speed import stribeck_speeds
 from control.zero_moment_law import INERTIA_STEP_RAD, ZeroMomentController
@@ -103,6 +104,9 @@ class AdmittanceController(ZeroMomentController):
         self._tau_d = np.zeros(model.n)
         #: states still to come whose currents a cycle the drive held or coasted drove
         self._drive_own = 0
+        #: the start-up dither on each joint whose reference rests (control/startup_dither.py)
+        self._dither = StartupDither(cfg.admittance_dither, cfg.admittance_dither_hz,
+                                     REST_RAD_S, cfg.command_delay_cycles)  # fmt: skip
 
     @property
     def tau_d_nm(self) -> np.ndarray:
@@ -215,7 +219,8 @@ class AdmittanceController(ZeroMomentController):
             drove = self._sent_ddq[0]
         else:
             drove = np.array(adm.ddq_r)
-        tau_m = np.array(self.motor_torque_nm(st))
+        # the drive gave the dither that drove this state too: not a hand
+        tau_m = np.array(self.motor_torque_nm(st)) - self._dither.drove()
         # the friction the arm met is at its measured speed, not at the reference's
         tau_h = self.model_torque(q, st.dq_rad_s, drove, p_bar) - self._bias - tau_m
         # a joint at rest: its friction carries any torque up to its static level, which the
@@ -255,7 +260,8 @@ class AdmittanceController(ZeroMomentController):
         ddq_r = np.array(adm.ddq_r)
         self._sent_ddq.append(ddq_r)
         tau = self.model_torque(q_r, dq_r, ddq_r, p_bar) - self._bias
-        self._tau_d = tau
+        dither = self._dither.step(dq_r, dt)
+        self._tau_d = tau + dither
         offset = np.clip(self.loop.omega * tau / self.loop.upsilon_i, -self._max_offset,
                          self._max_offset)  # fmt: skip
         # the command may lead the arm by at most the offset limit (the controller faults at
@@ -263,6 +269,10 @@ class AdmittanceController(ZeroMomentController):
         q_cmd = np.clip(q_r + offset, q - self._max_offset, q + self._max_offset)
         if not np.array_equal(q_cmd, q_r + offset):
             adm.q_r = q_cmd - offset
+        if dither.any():
+            # on the command only: the reference stays where (A2) put it
+            q_cmd = np.clip(q_cmd + self.loop.omega * dither / self.loop.upsilon_i,
+                            q - self._max_offset, q + self._max_offset)  # fmt: skip
         return q_cmd.tolist(), dq_r.tolist()
 
     def probe_speeds(self, friction_level_nm: np.ndarray) -> np.ndarray:
@@ -282,6 +292,7 @@ class AdmittanceController(ZeroMomentController):
         self.admittance.reset(q, noise)
         self._anchor.reset()
         self._drive_own = 0
+        self._dither.reset(self._friction_level)
         self._cycle.restart_guide()
         log.info("admittance engaged: dead zone %s N·m, residual b %s N·m, joints nobody "
                  "pushes held below %s rad/s", np.round(self.admittance.band, 3).tolist(),

@@ -154,6 +154,14 @@ class ControlConfig:
     #: friction is what its fit knows least, and a joint let go of slid on carried by that
     #: error (4 of 51 let-gos after a 20 N push with the 4 mrad/s hold alone)
     admittance_hold_stribeck: bool = True
+    #: the admittance's start-up dither (control/startup_dither.py): each joint whose reference
+    #: rests gets a sine of this share of the model's static friction level at
+    #: ``admittance_dither_hz`` [Hz] on the torque it asks of the vendor loop, so the painter's
+    #: push from rest needs only the rest of the breakaway; 0: off. Half: a joint nobody pushes
+    #: stays stuck even where the model's level is off by 2x or its friction holds a load share
+    #: of half its level (docs/control.md, Stiction; docs/results/teaching.md: seeds 100-109)
+    admittance_dither: float = 0.5
+    admittance_dither_hz: float = 4.0
     #: the speed limit of hand guiding on the tool point and the flange [m/s], kept by the
     #: admittance's reference, and by the zero-moment law's velocity command (scaled down
     #: where it would exceed it, so the vendor loop brakes the arm); 0: none.
@@ -362,6 +370,16 @@ class ControlConfig:
             self.admittance_stick in ADMITTANCE_STICKS,
             "[control].admittance_stick",
             f"{self.admittance_stick!r} is not one of {', '.join(ADMITTANCE_STICKS)}",
+        )
+        require(
+            math.isfinite(self.admittance_dither) and 0.0 <= self.admittance_dither < 1.0,
+            "[control].admittance_dither",
+            f"{self.admittance_dither} not in [0, 1) of the friction level",
+        )
+        require(
+            math.isfinite(self.admittance_dither_hz) and 0.0 < self.admittance_dither_hz <= 20.0,
+            "[control].admittance_dither_hz",
+            f"{self.admittance_dither_hz} Hz not in (0, 20]",
         )
         require(
             0.0 <= self.admittance_hold_rad_s <= 0.05,

@@ -4,11 +4,13 @@ The virtual robot of ``--plant-seed`` is first commissioned as a user commission
 by `leadthrough identify` (or the cached result of that for this plant and code,
 :mod:`sim_bridge.commission`). Then the operator presses the enabling device, grabs the tool
 and guides it along a rectangle in a vertical plane (like the paper's Fig. 11 path) while the
-zero-moment controller makes the arm weightless, pressing the teach handle's mark button at
-each corner; the gateway writes the taught program. The operator lets go, the session is
-stopped, and the program is replayed (`leadthrough replay`). Prints mean and peak operator
-force, tool travel, the loop rate achieved, the commands missed, the program's marks and how
-closely the replay followed the taught path; writes a plot and a JSON summary.
+lead-through law of ``--strategy`` makes the arm light (the sensorless admittance by default:
+the lightest law on every plant benched, docs/results/teaching.md), pressing the teach
+handle's mark button at each corner; the gateway writes the taught program. The operator lets
+go, the session is stopped, and the program is replayed (`leadthrough replay`). Prints mean
+and peak operator force, tool travel, the loop rate achieved, the commands missed, the
+program's marks and how closely the replay followed the taught path; writes a plot and a JSON
+summary.
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from control.config import STRATEGIES
 from gateway.recorder import BusRecorder
 from sim_bridge.baseline import run_baseline
 from sim_bridge.commission import commissioned
@@ -161,6 +164,14 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
         "deploy/config/sim_cell_cia402.toml: CiA 402 drives over CANopen); the virtual cell "
         "runs the controller its [can].adapter speaks to",
     )
+    p.add_argument(
+        "--strategy",
+        choices=STRATEGIES,
+        default="admittance",
+        help="the lead-through law the operator teaches with, in place of the cell config's "
+        "[control].strategy (default: admittance, the sensorless admittance with its start-up "
+        "dither; zero_moment: the paper's eq. 21 with eq. 28; paper: eqs. 28 and 30)",
+    )
 
 
 def baseline_main(out: Path, plant_seed: int) -> int:
@@ -218,11 +229,12 @@ def cli_main(args: argparse.Namespace) -> int:
     print(f"model: identified on plant seed {args.plant_seed} ({done.folder}); held-out torque "
           f"RMS per joint {_fmt(ident['rms_after'])} N·m, effects found: "
           f"{', '.join(e['name'] for e in ident['effects']) or 'none'}")  # fmt: skip
-    print("starting the virtual cell, the drivers, the control process and the gateway ...")
+    print(f"starting the virtual cell, the drivers, the control process ({args.strategy}) and "
+          "the gateway ...")  # fmt: skip
     with Stack(
         out / "run", sim_overrides={"operator": operator}, plant_seed=args.plant_seed,
         model=done.model, inner_loop=done.inner_loop, current_zero=done.current_zero,
-        cell_file=args.cell,
+        cell_file=args.cell, cell_overrides={"control": {"strategy": args.strategy}},
     ) as stack:  # fmt: skip
         stack.start()
         # Everything on the bus, as `leadthrough record` writes it (self-describing MCAP).
@@ -260,6 +272,7 @@ def cli_main(args: argparse.Namespace) -> int:
     plot(truth, out / "demo.png", taught_rows, replayed)
     m["wall_time_s"] = time.monotonic() - t0
     m["plant_seed"] = args.plant_seed
+    m["strategy"] = args.strategy
     m["model"] = str(done.model)
     m["recording"] = str(out / "recording.mcap")
     m["recording_messages"] = recorder.count
@@ -268,6 +281,7 @@ def cli_main(args: argparse.Namespace) -> int:
     if m["replay_result"] != "done":
         replay_line += f" ({m['replay_reason'] or 'no reason given'})"
     rows = [
+        ("lead-through law", args.strategy),
         ("mean operator force", f"{m['mean_force_n']:.1f} N"),
         ("peak operator force", f"{m['peak_force_n']:.1f} N"),
         ("tool travel (path length)", f"{m['tool_path_length_m'] * 1e3:.0f} mm"),

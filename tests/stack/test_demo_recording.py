@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -51,6 +52,8 @@ def test_the_demo_leaves_a_recording_any_mcap_and_json_tool_reads(tmp_path):
             proc.wait()
     assert proc.returncode == 0, log[-4000:]
     summary = json.loads((out / "summary.json").read_text())
+    assert summary["strategy"] == "admittance"  # the demo's default law
+    assert re.search(r"lead-through law\s+admittance\n", log), log[-4000:]
     path = Path(summary["recording"])
     assert path == out / "recording.mcap" and summary["recording_messages"] > 1000
 

@@ -93,9 +93,12 @@ def cell(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def stiction_cfg(cell):
-    """The defaults: the engagement probe and the stick zone on."""
+    """The defaults: the engagement probe and the stick zone on; the start-up dither off (these
+    fake arms' currents carry the model's torque, not what else a command asks of the drive:
+    tests/unit/test_startup_dither.py drives it)."""
     base = load_control_config(cell)[0]
-    return dataclasses.replace(base, strategy="admittance", engage_rest_states=0)
+    return dataclasses.replace(base, strategy="admittance", engage_rest_states=0,
+                               admittance_dither=0.0)  # fmt: skip
 
 
 @pytest.fixture(scope="module")

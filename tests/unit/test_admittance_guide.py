@@ -42,10 +42,11 @@ LOCK_RAD = 1e-4
 def cfg(tmp_path_factory):
     cell = example_cell(tmp_path_factory.mktemp("cell"))
     base = load_control_config(cell)[0]
-    # the law alone: engaged on the first state, no probe, no stick zone (test_admittance.py)
+    # the law alone: engaged on the first state, no probe, no stick zone, no start-up dither
+    # (the fake drives carry the model's torque only; test_admittance.py)
     return dataclasses.replace(base, strategy="admittance", engage_rest_states=0,
-                               admittance_probe_speed_rad_s=0.0,
-                               admittance_stick_zone=0.0)  # fmt: skip
+                               admittance_probe_speed_rad_s=0.0, admittance_stick_zone=0.0,
+                               admittance_dither=0.0)  # fmt: skip
 
 
 def state(k: int, q, dq, current):

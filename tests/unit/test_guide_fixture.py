@@ -137,9 +137,9 @@ def test_the_admittances_reference_holds_a_locked_orientation_against_a_wrist_pu
     kinematics judge the turn."""
     from control.admittance_law import AdmittanceController
 
-    base = dataclasses.replace(
-        cfg, strategy="admittance", admittance_probe_speed_rad_s=0.0, admittance_stick_zone=0.0
-    )
+    # no start-up dither: the fake drives carry the model's torque only (test_admittance.py)
+    base = dataclasses.replace(cfg, strategy="admittance", admittance_probe_speed_rad_s=0.0,
+                               admittance_stick_zone=0.0, admittance_dither=0.0)  # fmt: skip
     k_nm_per_a = np.array([j.drive_gain_nm_per_a for j in model.desc.joints])
     push = np.array([0.0, 0.0, 0.0, 0.0, 10.0, 0.0])
     rigid = RigidBodyModel.from_description(model.desc)
