@@ -230,6 +230,11 @@ def _true(state) -> bool:
     )
 
 
+# its count of late polls is a wall-clock deadline of TIMEOUT_S: in the niced tier beside the
+# stack tier 85 of 114 sane polls came late at 10 ms (2026-12-07, make test), against about half
+# in session 91; a driver that lost step is late on all of them. So it runs where deadlines do,
+# at normal priority one test at a time (tests/run_suite.py, ``deadline``)
+@pytest.mark.deadline
 def test_mangled_replies_never_publish_a_mangled_frame(proxy, module):
     text = sim_modbus_section_toml(port=proxy.port).replace(
         "timeout_s = 0.1", f"timeout_s = {TIMEOUT_S}"
