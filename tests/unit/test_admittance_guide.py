@@ -11,10 +11,9 @@ import dataclasses
 import numpy as np
 import pinocchio as pin
 import pytest
-from example_cell import example_cell
+from example_cell import ADMITTANCE_ALONE, example_control
 
 from control.admittance_law import AdmittanceController
-from control.cell_config import load_control_config
 from control.declared_model import DeclaredModel
 from control.model.dynamics import RigidBodyModel
 from gateway.message_factories import make_joint_state
@@ -40,13 +39,8 @@ LOCK_RAD = 1e-4
 
 @pytest.fixture(scope="module")
 def cfg(tmp_path_factory):
-    cell = example_cell(tmp_path_factory.mktemp("cell"))
-    base = load_control_config(cell)[0]
-    # the law alone: engaged on the first state, no probe, no stick zone, no start-up dither
-    # (the fake drives carry the model's torque only; test_admittance.py)
-    return dataclasses.replace(base, strategy="admittance", engage_rest_states=0,
-                               admittance_probe_speed_rad_s=0.0, admittance_stick_zone=0.0,
-                               admittance_dither=0.0)  # fmt: skip
+    # the law alone: the fake drives carry the model's torque only (test_admittance.py)
+    return example_control(tmp_path_factory.mktemp("cell"), **ADMITTANCE_ALONE)
 
 
 def state(k: int, q, dq, current):

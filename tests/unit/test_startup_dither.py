@@ -8,10 +8,9 @@ import math
 
 import numpy as np
 import pytest
-from example_cell import example_cell
+from example_cell import ADMITTANCE_ALONE, example_control
 
 from control.admittance_law import AdmittanceController
-from control.cell_config import load_control_config
 from control.declared_model import DeclaredModel
 from control.startup_dither import FADE_S, StartupDither
 from gateway.errors import ConfigError
@@ -87,15 +86,13 @@ def test_bad_settings_are_refused(share, hz, match):
 
 @pytest.fixture(scope="module")
 def cfg(tmp_path_factory):
-    cell = example_cell(tmp_path_factory.mktemp("cell"))
-    base = load_control_config(cell)[0]
-    # no engagement probe (b is the residual at rest) and no stick zone, which would hide a
-    # swing of the estimate within the friction level: the estimate itself is judged, against
-    # a dead zone of 1 N·m (a model's held-out error; the example model declares none)
-    return dataclasses.replace(base, strategy="admittance", engage_rest_states=0,
-                               admittance_probe_speed_rad_s=0.0, admittance_stick_zone=0.0,
-                               rest_hold_nm=(1.0,) * N, admittance_dither=0.5,
-                               admittance_dither_hz=4.0)  # fmt: skip
+    # the law alone with the dither: no stick zone, which would hide a swing of the estimate
+    # within the friction level (the estimate itself is judged), against a dead zone of 1 N·m
+    # (a model's held-out error; the example model declares none)
+    return example_control(tmp_path_factory.mktemp("cell"),
+                           **ADMITTANCE_ALONE | {"rest_hold_nm": (1.0,) * N,
+                                                 "admittance_dither": 0.5,
+                                                 "admittance_dither_hz": 4.0})  # fmt: skip
 
 
 @pytest.mark.parametrize(("key", "value"), [("admittance_dither", 1.0),
