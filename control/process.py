@@ -27,6 +27,7 @@ from control.cell_config import load_control_config
 from control.config import ControlConfig
 from control.declared_model import DeclaredModel
 from control.load_check import REST_RAD_S, LoadCheck, static_load_check
+from control.mass_refresh import MassRefresh
 from control.plan_builder import PlanBuilder
 from control.plan_player import PlanPlayer
 from control.pressure_schedule import PressureSchedule, ScheduleSettings
@@ -125,6 +126,8 @@ class ControlProcess(ProcessAdaptation):
         #: zero-moment law answers teaching's states there, every other state comes to
         #: :meth:`_on_state_bytes`
         self._loop: _rt.CycleLoop | None = None
+        #: the admittance's M̂ of the identified model, off the cycle (control/mass_refresh.py)
+        self._mass_refresh: MassRefresh | None = None
         #: the newest state Python handled: (cycle, q, dq)
         self._last_state: tuple[int, np.ndarray, np.ndarray] | None = None
         #: the latest static-load check and when it was made (monotonic [s])
@@ -152,15 +155,19 @@ class ControlProcess(ProcessAdaptation):
         self.session = open_peer(self.bus, security.CONTROL)
         s = self.session
         self._pub_cmd = declare_loop_publisher(s, self.keys.joint_command)
-        # The admittance's law is Python's: its teaching and its replays (which disengage it)
-        # stay in Python. Without a model, an identification's plan plays compiled.
-        compiled = type(self.ctl) is ZeroMomentController
-        plays = compiled or self.ctl is None
+        # Both laws' teaching cycles are compiled, and the plans play compiled (without a
+        # model too: an identification's).
+        law = None
+        if isinstance(self.ctl, AdmittanceController):
+            law = self.ctl.compiled
+            self._mass_refresh = MassRefresh(self.ctl, lambda: self._last_pose()[0])
+            self._mass_refresh.start()
+        elif self.ctl is not None:
+            law = self.ctl._cycle
         self._loop = _rt.CycleLoop(
             peer_config_entries(self.bus, security.CONTROL), self.keys.joint_state,
-            self.keys.joint_command, self.ctl._cycle if compiled else None,
-            self._on_state_bytes, self.player.play if plays else None,
-            compiled and self.adaptation is not None,
+            self.keys.joint_command, law, self._on_state_bytes, self.player.play,
+            law is not None and self.adaptation is not None,
         )  # fmt: skip
         self._subs = [
             s.declare_subscriber(self.keys.io_state, self._on_io),
@@ -168,6 +175,8 @@ class ControlProcess(ProcessAdaptation):
         ]
 
     def close(self) -> None:
+        if self._mass_refresh is not None:
+            self._mass_refresh.stop()
         if self._loop is not None:
             self._loop.close()
         undeclare_all([*self._subs, self._pub_cmd])

@@ -314,7 +314,7 @@ def test_with_stiction_a_load_share_the_friction_may_carry_is_no_hand(stiction_c
     k = 0
     assert ctl.engagement() == {"phase": "idle"}
     left = []  # the probe's time still to run, as the operator's status shows it
-    while k < 400 and (k < 5 or ctl._probe is not None):
+    while k < 400 and (k < 5 or ctl.probing):
         k += 1
         # the arm follows each command a cycle late (the example cell's delay is 0)
         tau = static + error + level * np.sign(dq_cmd)
@@ -322,11 +322,11 @@ def test_with_stiction_a_load_share_the_friction_may_carry_is_no_hand(stiction_c
         dq_cmd = np.array(dq_new)
         if (phase := ctl.engagement())["phase"] == "probing":
             left.append(phase["left_s"])
-    assert ctl._probe is None, "the probe did not end"
+    assert not ctl.probing, "the probe did not end"
     assert ctl.engagement() == {"phase": "following"}
     assert left and left[0] == pytest.approx(stiction_cfg.admittance_probe_s, abs=0.02)
     assert np.all(np.diff(left) <= 0) and left[-1] <= 0.02, left[-3:]  # (0.01 s steps)
-    np.testing.assert_allclose(ctl._bias, -error, atol=1e-9)
+    np.testing.assert_allclose(ctl.bias, -error, atol=1e-9)
     share = np.zeros(N)
     share[1] = 0.8 * level[1]
     for i in range(k + 1, k + 200):

@@ -1,5 +1,5 @@
-"""The admittance's soft walls (control/soft_walls.py): a spring past the soft limit, and a
-damper on the speed deeper into it, critical for the inertia the reference renders."""
+"""The admittance's soft walls (control/soft_walls.py, compiled): a spring past the soft
+limit, and a damper on the speed deeper into it, critical for the inertia the reference renders."""
 
 from __future__ import annotations
 
@@ -7,11 +7,16 @@ import numpy as np
 import pytest
 
 from control import _rt
-from control.soft_walls import wall_torque_nm
+from control.soft_walls import wall_torque_nm as compiled_walls
 
 K = 2000.0  # [N·m/rad], the virtual cell's wall_stiffness_nm_per_rad
 DT = 0.008  # [s], 125 Hz
 LOWER, UPPER = np.array([-1.0]), np.array([1.0])
+
+
+def wall_torque_nm(*args) -> np.ndarray:
+    """The compiled walls' torque as an array."""
+    return np.asarray(compiled_walls(*args))
 
 
 def test_a_joint_inside_its_limits_feels_no_wall_whatever_its_speed():

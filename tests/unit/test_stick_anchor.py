@@ -1,4 +1,4 @@
-"""The admittance's stick anchor (control/stick_anchor.py): a resting joint's share of its
+"""The admittance's stick anchor (control/stick_anchor.py, compiled): a resting joint's share of its
 load reads as no hand, and a push that changes the estimate passes in full."""
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ def test_a_push_that_breaks_the_joint_away_passes_in_full_at_once():
     settle(a, 30.0, REST, 2.0)
     # the push slipped the joint: the vendor loop's reaction moves the estimate by 10 N·m
     out = a.hand(np.array([20.0]), REST, BAND, DT)
-    assert out[0] == pytest.approx(-10.0)
+    assert np.asarray(out[0]) == pytest.approx(-10.0)
     # and it is not followed away while it is beyond the dead zone
     pushed, _ = settle(a, 20.0, REST, 3.0 * FOLLOW_S)
     assert pushed[0] == pytest.approx(-10.0, abs=1e-6)

@@ -18,6 +18,8 @@ mod py;
 #[cfg(feature = "python")]
 mod py_admittance;
 #[cfg(feature = "python")]
+mod py_admittance_cycle;
+#[cfg(feature = "python")]
 mod py_cycle_loop;
 #[cfg(feature = "python")]
 mod py_delay;

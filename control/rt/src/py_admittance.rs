@@ -61,6 +61,13 @@ pub struct PyAdmittance {
 }
 
 impl PyAdmittance {
+    /// The law, for the compiled admittance cycle (no GIL).
+    pub(crate) fn state_lock(&self) -> Result<MutexGuard<'_, Admittance>, String> {
+        self.law
+            .lock()
+            .map_err(|_| "the admittance's lock is poisoned".to_string())
+    }
+
     pub(crate) fn lock(&self) -> PyResult<MutexGuard<'_, Admittance>> {
         self.law
             .lock()

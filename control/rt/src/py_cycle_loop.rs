@@ -6,17 +6,18 @@
 //! driver's compiled loop does) and subscribes to the joint states on zenoh's receiving thread.
 //! Each state is decided there, once:
 //!
-//! - teaching with the zero-moment law (the gateway's lifecycle fresh and TEACHING, the drives
-//!   following, the cylinders' pressures fresh): the compiled law answers it
-//!   ([`PyZeroMomentCycle`], its pieces borrowed without the GIL) and the command is encoded and
-//!   published from that thread, stamped at receipt and at sending as the Python did;
+//! - teaching (the gateway's lifecycle fresh and TEACHING, the drives following, the cylinders'
+//!   pressures fresh): the compiled law answers it, the zero-moment law's
+//!   ([`PyZeroMomentCycle`]) or the admittance's ([`PyAdmittanceCycle`]), their pieces borrowed
+//!   without the GIL, and the command is encoded and published from that thread, stamped at
+//!   receipt and at sending as the Python did;
 //! - identifying or replaying with a built plan ([`PyPlanPlay`], installed by
 //!   control/plan_player.py once its worker built it): the plan's sample answers it, with the
 //!   law's hold offset on a replay's (eq. 21's steady state: a taught path is where the tool
 //!   must be), and a replay's state goes to a buffer for eq. (29), which Python's slow loop
 //!   drains ([`PyCycleLoop::take_samples`]);
 //! - anything else (a hold to observe, a plan being built, stale pressures, a malformed
-//!   payload, the admittance law): the payload and its receipt time go to the Python callback
+//!   payload): the payload and its receipt time go to the Python callback
 //!   (`ControlProcess._on_state_bytes`), under the GIL, as the Python subscription did.
 //!
 //! Python tells the loop what it needs to decide ([`PyCycleLoop::set_lifecycle`],
@@ -37,6 +38,7 @@ use zenoh::{Session, Wait};
 
 use crate::chain::MAX_JOINTS;
 use crate::law::zero_moment::State;
+use crate::py_admittance_cycle::PyAdmittanceCycle;
 use crate::py_plan_play::{playable, PyPlanPlay};
 use crate::py_zero_moment::PyZeroMomentCycle;
 
@@ -77,6 +79,62 @@ fn monotonic_s() -> f64 {
     ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9
 }
 
+/// The lead-through law whose teaching cycle the loop answers: the zero-moment law's, or the
+/// admittance's (which shares the zero-moment law's pieces: its offset on a replay, the motor
+/// torque).
+enum Law {
+    ZeroMoment(Py<PyZeroMomentCycle>),
+    Admittance(Py<PyAdmittanceCycle>),
+}
+
+impl Law {
+    fn from_py(law: &Bound<'_, PyAny>) -> PyResult<Law> {
+        if let Ok(z) = law.cast::<PyZeroMomentCycle>() {
+            return Ok(Law::ZeroMoment(z.clone().unbind()));
+        }
+        if let Ok(a) = law.cast::<PyAdmittanceCycle>() {
+            return Ok(Law::Admittance(a.clone().unbind()));
+        }
+        Err(PyValueError::new_err(
+            "law must be a ZeroMomentCycle, an AdmittanceCycle or None",
+        ))
+    }
+
+    fn zero_moment(&self) -> &PyZeroMomentCycle {
+        match self {
+            Law::ZeroMoment(z) => z.get(),
+            Law::Admittance(a) => a.get().zero_moment(),
+        }
+    }
+
+    fn joints(&self) -> usize {
+        match self {
+            Law::ZeroMoment(z) => z.get().joints(),
+            Law::Admittance(a) => a.get().joints(),
+        }
+    }
+
+    fn answer_state(
+        &self,
+        st: &State,
+        p_bar: &[f64],
+        q_cmd: &mut [f64],
+        dq_cmd: &mut [f64],
+    ) -> Result<(), String> {
+        match self {
+            Law::ZeroMoment(z) => z.get().answer_state(st, p_bar, q_cmd, dq_cmd),
+            Law::Admittance(a) => a.get().answer_state(st, p_bar, q_cmd, dq_cmd),
+        }
+    }
+
+    fn disengage_now(&self) {
+        match self {
+            Law::ZeroMoment(z) => z.get().disengage_now(),
+            Law::Admittance(a) => a.get().disengage_now(),
+        }
+    }
+}
+
 /// What decides whether the law answers a state (set by Python).
 struct Mode {
     /// The gateway's last lifecycle is TEACHING (and the law is the compiled one).
@@ -92,7 +150,7 @@ struct Mode {
 }
 
 struct Shared {
-    law: Option<Py<PyZeroMomentCycle>>,
+    law: Option<Law>,
     player: Option<Py<PyPlanPlay>>,
     /// Collect a replay's states for eq. (29).
     sampling: bool,
@@ -120,7 +178,7 @@ impl Shared {
     }
 
     /// The law answers this state (module docs).
-    fn answers(&self, st: &JointState, law: &PyZeroMomentCycle, now: f64) -> Option<[f64; 2]> {
+    fn answers(&self, st: &JointState, law: &Law, now: f64) -> Option<[f64; 2]> {
         let m = self.mode.lock().unwrap_or_else(|p| p.into_inner());
         let fresh = now - m.lifecycle_rx_s <= m.lifecycle_timeout_s;
         let io_fresh = now - m.io_stamp_s <= m.io_timeout_s;
@@ -152,7 +210,7 @@ impl Shared {
         let Ok(st) = JointState::from_bytes(payload) else {
             return self.forward(payload, now); // Python decodes it again, counts and logs it
         };
-        if let Some(law) = self.law.as_ref().map(Py::get) {
+        if let Some(law) = self.law.as_ref() {
             if let Some(p_bar) = self.answers(&st, law, now) {
                 return self.teach(&st, law, &p_bar, now);
             }
@@ -172,7 +230,7 @@ impl Shared {
     }
 
     /// Teaching: the law answers `st`.
-    fn teach(&self, st: &JointState, law: &PyZeroMomentCycle, p_bar: &[f64; 2], now: f64) {
+    fn teach(&self, st: &JointState, law: &Law, p_bar: &[f64; 2], now: f64) {
         let n = st.q_rad.len();
         self.remember(st);
         let state = State {
@@ -253,7 +311,7 @@ impl Shared {
         let n = st.q_rad.len();
         let mut q_cmd = [0.0; MAX_JOINTS];
         let mut dq_cmd = [0.0; MAX_JOINTS];
-        let law = self.law.as_ref().map(Py::get);
+        let law = self.law.as_ref();
         {
             let Ok(mut slot) = player.slot() else {
                 return false; // Python reports the poisoned lock
@@ -279,7 +337,12 @@ impl Shared {
                 if let Some(law) = law {
                     // a taught path is where the tool must be: the load's offset on top
                     let mut offset = [0.0; MAX_JOINTS];
-                    let got = law.offset_at(&q_cmd[..n], &dq_cmd[..n], &p_bar, &mut offset[..n]);
+                    let got = law.zero_moment().offset_at(
+                        &q_cmd[..n],
+                        &dq_cmd[..n],
+                        &p_bar,
+                        &mut offset[..n],
+                    );
                     if let Err(e) = got {
                         plan.fail(format!("the model is undefined on the path: {e}"));
                         return true;
@@ -311,10 +374,14 @@ impl Shared {
     }
 
     /// Keep a replay's state for eq. (29) (free motion), with the motor torque it reports.
-    fn sample(&self, st: &JointState, law: &PyZeroMomentCycle, p_bar: [f64; 2]) {
+    fn sample(&self, st: &JointState, law: &Law, p_bar: [f64; 2]) {
         let n = st.q_rad.len();
         let mut tau = [0.0; MAX_JOINTS];
-        if law.motor_torque_at(&st.current_a, &mut tau[..n]).is_err() {
+        if law
+            .zero_moment()
+            .motor_torque_at(&st.current_a, &mut tau[..n])
+            .is_err()
+        {
             return;
         }
         let (mut q, mut dq) = ([0.0; MAX_JOINTS], [0.0; MAX_JOINTS]);
@@ -337,8 +404,8 @@ pub struct PyCycleLoop {
 #[pymethods]
 impl PyCycleLoop {
     /// Open the session (`zenoh_config`: (key, JSON5 value) pairs), declare the command
-    /// publisher and the joint-state subscriber. `law`: the zero-moment law's compiled cycle,
-    /// or None; `player`: the slot of the plan being played, or None; without either every
+    /// publisher and the joint-state subscriber. `law`: the zero-moment law's or the
+    /// admittance's compiled cycle, or None; `player`: the slot of the plan being played, or None; without either every
     /// state goes to `forward(payload: bytes, rx_s: float)`. `sampling`: keep a replay's states
     /// for eq. (29) ([`PyCycleLoop::take_samples`]).
     #[new]
@@ -349,7 +416,7 @@ impl PyCycleLoop {
         zenoh_config: Vec<(String, String)>,
         joint_state_key: String,
         joint_command_key: String,
-        law: Option<Py<PyZeroMomentCycle>>,
+        law: Option<Bound<'_, PyAny>>,
         forward: Py<PyAny>,
         player: Option<Py<PyPlanPlay>>,
         sampling: bool,
@@ -357,6 +424,7 @@ impl PyCycleLoop {
         if !forward.bind(py).is_callable() {
             return Err(PyValueError::new_err("forward must be callable"));
         }
+        let law = law.as_ref().map(Law::from_py).transpose()?;
         let opened = py.detach(|| -> Result<(Session, Publisher<'static>), String> {
             let mut cfg = zenoh::Config::default();
             for (k, v) in &zenoh_config {

@@ -12,6 +12,7 @@ fn _rt(m: &Bound<'_, PyModule>) -> PyResult<()> {
     crate::py_rest_hold::register(m)?;
     crate::py_outer_loop::register(m)?;
     crate::py_admittance::register(m)?;
+    crate::py_admittance_cycle::register(m)?;
     crate::py_zero_moment::register(m)?;
     crate::py_plan_play::register(m)?;
     crate::py_cycle_loop::register(m)?;

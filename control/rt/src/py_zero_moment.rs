@@ -33,7 +33,7 @@ fn check_len(v: &[f64], n: usize, what: &str) -> PyResult<()> {
 }
 
 /// A model error (not finite) as ArithmeticError, anything else as ValueError.
-fn law_error(e: String) -> PyErr {
+pub(crate) fn law_error(e: String) -> PyErr {
     if e.contains("not finite") {
         PyArithmeticError::new_err(e)
     } else {
@@ -191,7 +191,7 @@ impl PyZeroMomentCycle {
     }
 
     #[allow(clippy::too_many_arguments)]
-    fn state<'a>(
+    pub(crate) fn state<'a>(
         &self,
         cycle: i64,
         flags: u32,

@@ -52,14 +52,19 @@
 //! numpy's semantics are kept where they show: `maximum`, `minimum`, `clip` and `sign` let NaN
 //! through, the linear solve refuses an exactly singular matrix (numpy's `LinAlgError`), and
 //! `round` in the probe's length rounds half to even as Python's does. The buffers are
-//! allocated in `new`; the per-cycle methods allocate nothing. The Python
-//! `AdmittanceController` (control/admittance_law.py) drives it once per cycle.
+//! allocated in `new`; the per-cycle methods allocate nothing. Its cycle (the engagement, the
+//! probe, the stick zone or anchor, the walls, the guide, the speed limit, the command) is
+//! [`cycle::AdmittanceCycle`], which the control process's compiled loop runs.
 
 use crate::chain::MAX_JOINTS;
 
 mod constraint;
+pub mod cycle;
 mod engage_probe;
 mod numpy_semantics;
+pub mod soft_walls;
+pub mod startup_dither;
+pub mod stick_anchor;
 
 pub use self::constraint::MAX_ROWS;
 use self::constraint::{project, ProjectWork};
