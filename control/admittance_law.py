@@ -147,8 +147,12 @@ class AdmittanceController(ZeroMomentController):
         return True
 
     def mass_pose(self, measured_q: np.ndarray | None) -> np.ndarray | None:
-        """Where M̂ is wanted: the reference while engaged, else the arm's pose ``measured_q``."""
-        return np.array(self.admittance.q_r) if self.engaged else measured_q
+        """Where M̂ is wanted: the reference while the admittance follows a hand, else (before
+        it engages, while its probe runs: the reference then is the last one's, and the
+        admittance starts where the arm is) the arm's pose ``measured_q``."""
+        if self.engaged and not self.probing:
+            return np.array(self.admittance.q_r)
+        return measured_q
 
     def model_torque(self, q: np.ndarray, dq: np.ndarray, ddq: np.ndarray, p_bar) -> np.ndarray:
         """What the drives must give for the arm to move so, without a hand [N·m]: M̂ q̈ +

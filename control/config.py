@@ -139,9 +139,10 @@ class ControlConfig:
     #: how a joint at rest keeps the load its friction carries from reading as a hand: "zone"
     #: (the stick zone above, symmetric about 0: a push must exceed about twice the static
     #: level to start a joint, 47-57 N mean force on plant seeds 101-103) or "anchor"
-    #: (control/stick_anchor.py: a joint settled at rest is pushed by what moved its estimate
-    #: off the one it settled with while the arm is guided, and by that beyond the stick zone
-    #: while the arm rests; 8-10 N there; safe with the holds below, docs/results/teaching.md)
+    #: (control/rt/src/law/admittance/stick_anchor.rs: a joint settled at rest is pushed by what
+    #: moved its estimate off the one it settled with while the arm is guided, and by that beyond
+    #: the stick zone while the arm rests; 8-10 N there; safe with the holds below,
+    #: docs/results/teaching.md)
     admittance_stick: str = "anchor"
     #: per-joint hold (control/rt/src/law/admittance.rs): once no joint's estimate exceeds its
     #: static dead zone (the hand eases or lets go), a joint whose reference is slower than
@@ -154,12 +155,12 @@ class ControlConfig:
     #: friction is what its fit knows least, and a joint let go of slid on carried by that
     #: error (4 of 51 let-gos after a 20 N push with the 4 mrad/s hold alone)
     admittance_hold_stribeck: bool = True
-    #: the admittance's start-up dither (control/startup_dither.py): each joint whose reference
-    #: rests gets a sine of this share of the model's static friction level at
-    #: ``admittance_dither_hz`` [Hz] on the torque it asks of the vendor loop, so the painter's
-    #: push from rest needs only the rest of the breakaway; 0: off. Half: a joint nobody pushes
-    #: stays stuck even where the model's level is off by 2x or its friction holds a load share
-    #: of half its level (docs/control.md, Stiction; docs/results/teaching.md: seeds 100-109)
+    #: the admittance's start-up dither (control/rt/src/law/admittance/startup_dither.rs): each
+    #: joint whose reference rests gets a sine of this share of the model's static friction level at
+    #: ``admittance_dither_hz`` [Hz] on the torque it asks of the vendor loop, so the painter's push
+    #: from rest needs only the rest of the breakaway; 0: off. Half: a joint nobody pushes stays
+    #: stuck even where the model's level is off by 2x or its friction holds a load share of half
+    #: its level (docs/control.md, Stiction; docs/results/teaching.md: seeds 100-109)
     admittance_dither: float = 0.5
     admittance_dither_hz: float = 4.0
     #: the speed limit of hand guiding on the tool point and the flange [m/s], kept by the

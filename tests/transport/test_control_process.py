@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from example_cell import example_cell
+from example_cell import ADMITTANCE_ALONE, example_cell
 
 from control.cell_config import load_control_config
 from control.process import ControlProcess
@@ -29,9 +29,20 @@ DELAY_S = 0.1
 
 @pytest.fixture
 def rig(port, tmp_path):
+    yield from control_rig(port, tmp_path)
+
+
+@pytest.fixture
+def admittance_rig(port, tmp_path):
+    yield from control_rig(port, tmp_path, **ADMITTANCE_ALONE)
+
+
+def control_rig(port, tmp_path, **control):
+    """A control process of the example cell (``control``: its [control] settings) on a
+    router of its own, a client and the commands it publishes."""
     bus = BusConfig(endpoint=f"tcp/127.0.0.1:{port}")
     router = open_router(bus)
-    cfg, _ = load_control_config(example_cell(tmp_path))
+    cfg, _ = load_control_config(example_cell(tmp_path, **control))
     proc = ControlProcess(cfg, bus)
     proc.open()
     client = open_client(bus)
@@ -179,7 +190,19 @@ def test_a_held_state_not_checked_says_why(rig):
 def test_teaching_is_answered_while_python_holds_the_gil(rig):
     """The compiled loop (control/rt/src/py_cycle_loop.rs): a teaching state is answered and
     the command sent while this process's Python is held (a C call that keeps the GIL for
-    0.3 s): no Python on the path from the joint state to the command."""
+    0.5 s): no Python on the path from the joint state to the command."""
+    answered_while_python_holds_the_gil(rig)
+
+
+def test_the_admittances_teaching_is_answered_while_python_holds_the_gil(admittance_rig):
+    """As the zero-moment law's: the admittance's cycle is compiled
+    (control/rt/src/law/admittance/cycle.rs), and the loop answers with it."""
+    answered_while_python_holds_the_gil(admittance_rig)
+
+
+def answered_while_python_holds_the_gil(rig) -> None:
+    """The law engages on a first teaching state, then answers a second sent while this
+    process's Python is held, from the compiled loop."""
     bus, client, proc, commands = rig
     keys = bus.keys
     client.put(keys.io_state, IoState(time.monotonic(), 6.0, 4.0, 6.0, 4.0, True, True).to_bytes())

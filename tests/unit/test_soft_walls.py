@@ -1,4 +1,4 @@
-"""The admittance's soft walls (control/soft_walls.py, compiled): a spring past the soft
+"""The admittance's soft walls (control/rt/src/law/admittance/soft_walls.rs): a spring past the soft
 limit, and a damper on the speed deeper into it, critical for the inertia the reference renders."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from control import _rt
-from control.soft_walls import wall_torque_nm as compiled_walls
+from control._rt import wall_torque_nm as compiled_walls
 
 K = 2000.0  # [N·m/rad], the virtual cell's wall_stiffness_nm_per_rad
 DT = 0.008  # [s], 125 Hz

@@ -1,6 +1,6 @@
-"""The admittance's start-up dither (control/startup_dither.py, compiled): its sine on each
-resting joint, and the admittance that adds back what the drive gave of it, so a stuck arm
-stays where it is."""
+"""The admittance's start-up dither (control/rt/src/law/admittance/startup_dither.rs): its
+sine on each resting joint, and the admittance that adds back what the drive gave of it, so a
+stuck arm stays where it is."""
 
 from __future__ import annotations
 
@@ -11,9 +11,10 @@ import numpy as np
 import pytest
 from example_cell import ADMITTANCE_ALONE, example_control
 
+from control._rt import STARTUP_DITHER_FADE_S as FADE_S
+from control._rt import StartupDither
 from control.admittance_law import AdmittanceController
 from control.declared_model import DeclaredModel
-from control.startup_dither import FADE_S, StartupDither
 from gateway.errors import ConfigError
 from gateway.message_factories import make_joint_state
 from gateway.messages import ControllerState

@@ -1,12 +1,14 @@
-"""The admittance's stick anchor (control/stick_anchor.py, compiled): a resting joint's share of its
-load reads as no hand, and a push that changes the estimate passes in full."""
+"""The admittance's stick anchor (control/rt/src/law/admittance/stick_anchor.rs): a resting
+joint's share of its load reads as no hand, and a push that changes the estimate passes in full."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from control.stick_anchor import FOLLOW_S, SETTLE_S, StickAnchor
+from control._rt import STICK_ANCHOR_FOLLOW_S as FOLLOW_S
+from control._rt import STICK_ANCHOR_SETTLE_S as SETTLE_S
+from control._rt import StickAnchor
 
 DT = 0.008
 BAND = np.array([1.5])

@@ -221,6 +221,25 @@ impl PyAdmittanceCycle {
         Ok(self.lock()?.mass_wanted(&q).is_some())
     }
 
+    /// M̂ the cycle would use with its reference at `q` (n rows of n): the identified model's
+    /// as last handed in, else the nominal rigid body's with rotor inertias.
+    fn mass_in_use(&self, q: Vec<f64>) -> PyResult<Vec<Vec<f64>>> {
+        check_len(&q, self.n, "q")?;
+        let n = self.n;
+        let mut m = vec![0.0; n * n];
+        self.zero_moment
+            .get()
+            .locked(|law, parts| {
+                let cycle = self
+                    .cycle
+                    .lock()
+                    .map_err(|_| "the admittance cycle's lock is poisoned".to_string())?;
+                cycle.mass_in_use(law, parts, &q, &mut m)
+            })
+            .map_err(law_error)?;
+        Ok(m.chunks(n).map(<[f64]>::to_vec).collect())
+    }
+
     /// What the drives must give for the arm to move so without a hand [N·m], with M̂ `mass`.
     fn model_torque(
         &self,
@@ -299,7 +318,7 @@ impl PyAdmittanceCycle {
     }
 }
 
-/// The stick anchor (law/admittance/stick_anchor.rs), as control/stick_anchor.py gave it.
+/// The stick anchor (law/admittance/stick_anchor.rs).
 #[pyclass(frozen, name = "StickAnchor", module = "control._rt")]
 pub struct PyStickAnchor {
     inner: Mutex<StickAnchor>,
@@ -350,8 +369,7 @@ impl PyStickAnchor {
     }
 }
 
-/// The start-up dither (law/admittance/startup_dither.rs), as control/startup_dither.py gave
-/// it.
+/// The start-up dither (law/admittance/startup_dither.rs).
 #[pyclass(frozen, name = "StartupDither", module = "control._rt")]
 pub struct PyStartupDither {
     inner: Mutex<StartupDither>,

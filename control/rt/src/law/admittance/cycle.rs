@@ -274,6 +274,16 @@ impl AdmittanceCycle {
 
     /// M̂ at `q` into `m`: the identified model's as handed in (the newest, wherever it was
     /// computed), else the nominal chain's with rotor inertias (cached by the zero-moment law).
+    pub fn mass_in_use(
+        &self,
+        zm: &mut ZeroMoment,
+        parts: &mut Parts,
+        q: &[f64],
+        m: &mut [f64],
+    ) -> Result<(), String> {
+        self.mass_at(zm, parts, q, m)
+    }
+
     fn mass_at(
         &self,
         zm: &mut ZeroMoment,
