@@ -20,6 +20,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from control.config import STRATEGIES
 from sim_bridge import proc_stat
 from sim_bridge.commission import commissioned_stack
 from sim_bridge.harness import Stack
@@ -105,15 +106,19 @@ def process_cpu_per_cycle(stack: Stack, seconds: float) -> dict[str, float]:
     return out
 
 
-def measure(rate_hz: float, seconds: float, workdir: Path) -> tuple[dict[str, float], str]:
-    """Start a stack at ``rate_hz``, teach (no operator force), measure, stop. Returns the
-    figures and the lifecycle state at the end of the window (``teaching`` unless it faulted,
-    in which case the control process stopped commanding part way)."""
+def measure(
+    rate_hz: float, seconds: float, workdir: Path, strategy: str | None = None
+) -> tuple[dict[str, float], str]:
+    """Start a stack at ``rate_hz``, teach (no operator force) with the lead-through law
+    ``strategy`` (None: the cell's), measure, stop. Returns the figures and the lifecycle
+    state at the end of the window (``teaching`` unless it faulted, in which case the control
+    process stopped commanding part way)."""
     overrides = {
         "controller": {"cycle_period_s": 1.0 / rate_hz},
         "operator": {"enabling_after_s": 0.0, "mode": "none"},
     }
-    with commissioned_stack(workdir, sim_overrides=overrides) as stack:
+    cell = {"control": {"strategy": strategy}} if strategy else None
+    with commissioned_stack(workdir, sim_overrides=overrides, cell_overrides=cell) as stack:
         stack.start()
         stack.start_teaching()
         try:
@@ -133,10 +138,14 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--rate", type=float, default=250.0, help="controller rate [Hz]")
     p.add_argument("--seconds", type=float, default=10.0, help="measurement window [s]")
     p.add_argument("--out", type=Path, default=None, help="work folder (default: a temp dir)")
+    p.add_argument("--strategy", choices=STRATEGIES, default=None,
+                   help="the lead-through law that teaches (default: the cell's)")  # fmt: skip
     args = p.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:
-        res, state = measure(args.rate, args.seconds, args.out or Path(tmp))
-    print(f"CPU per {1e3 / args.rate:g} ms cycle at {args.rate:g} Hz, {args.seconds:g} s window:")
+        res, state = measure(args.rate, args.seconds, args.out or Path(tmp), args.strategy)
+    law = f", {args.strategy}" if args.strategy else ""
+    print(f"CPU per {1e3 / args.rate:g} ms cycle at {args.rate:g} Hz{law}, {args.seconds:g} s "
+          "window:")  # fmt: skip
     for name, ms in sorted(res.items(), key=lambda kv: -kv[1]):
         print(f"  {name:<15} {ms:7.3f} ms")
     product = sum(v for k, v in res.items() if k in PRODUCT)
