@@ -19,7 +19,8 @@ CARGO_BUILD = PYO3_PYTHON=$(abspath $(BIN)/python) $(CARGO) build --release --lo
 CAN_SO := drivers/can/_rt.abi3.so
 CONTROL_SO := control/_rt.abi3.so
 ROUTER_SO := gateway/_router.abi3.so
-RT_SO := $(CAN_SO) $(CONTROL_SO) $(ROUTER_SO)
+SIM_SO := sim_bridge/_rt.abi3.so
+RT_SO := $(CAN_SO) $(CONTROL_SO) $(ROUTER_SO) $(SIM_SO)
 
 BUS_RS := gateway/rt/Cargo.toml $(shell find gateway/rt/src -name '*.rs')
 
@@ -35,6 +36,11 @@ $(ROUTER_SO): Cargo.toml Cargo.lock gateway/router/Cargo.toml $(shell find gatew
 	$(CARGO_BUILD) -p leadthrough-router-rt --features python
 	cp target/release/librouter_rt.so $@
 
+# the virtual cell's compiled pieces (its I/O module's Modbus server), not part of the product
+$(SIM_SO): Cargo.toml Cargo.lock sim_bridge/rt/Cargo.toml $(shell find sim_bridge/rt/src -name '*.rs') $(STAMP)
+	$(CARGO_BUILD) -p leadthrough-sim-rt --features python
+	cp target/release/libsim_rt.so $@
+
 demo: $(STAMP) $(RT_SO)
 	$(BIN)/leadthrough demo --out demo_out
 
@@ -43,7 +49,7 @@ test: $(STAMP) $(RT_SO)
 	$(BIN)/ruff format --check .
 	$(BIN)/lint-imports
 	$(CARGO) fmt --all --check
-	$(CARGO) test --locked --quiet -p leadthrough-bus-rt -p leadthrough-router-rt -p leadthrough-can-rt -p leadthrough-control-rt
+	$(CARGO) test --locked --quiet -p leadthrough-bus-rt -p leadthrough-router-rt -p leadthrough-can-rt -p leadthrough-control-rt -p leadthrough-sim-rt
 	# the stack tier beside the other tiers, which yield to it (tests/run_suite.py); the slowest
 	# twenty tests of each: where the suite's time goes (issue 49)
 	$(BIN)/python tests/run_suite.py -- -q --durations=20

@@ -5,9 +5,9 @@ cycle on the slowest supported PC), so that is the unit: CPU time (user + system
 from ``/proc/<pid>/stat``) spent over a window, divided by the controller cycles in it [ms].
 
 Processes: ``gateway`` (which hosts the zenoh router), the children it supervises
-(``can-driver``, ``modbus-driver``, ``control``, found as its child processes), ``sim``, the
-virtual controller, and ``sim-io``, its I/O module's process (neither part of the product,
-reported so the machine's whole load is visible).
+(``can-driver``, ``modbus-driver``, ``control``, found as its child processes), and ``sim``,
+the virtual controller with its I/O module's threads (not part of the product, reported so the
+machine's whole load is visible).
 
 Run ``python -m sim_bridge.cpu --rate 250`` for the whole measurement on a fresh stack.
 """
@@ -38,23 +38,16 @@ def _children(pid: int) -> dict[str, int]:
         except OSError:
             continue  # gone since
         args = [a.decode(errors="replace") for a in argv]
-        if "gateway.cli" in args[:-1]:
-            name = args[args.index("gateway.cli") + 1]
-        elif "sim_bridge.modbus_process" in args:
-            name = "sim-io"  # the virtual I/O module (sim_bridge/modbus_process.py)
-        else:
-            name = str(child)
+        name = args[args.index("gateway.cli") + 1] if "gateway.cli" in args[:-1] else str(child)
         out[name] = child
     return out
 
 
 def stack_pids(stack: Stack) -> dict[str, int]:
-    """PIDs of every process of ``stack``: sim and its I/O module, gateway and the gateway's
-    children."""
+    """PIDs of every process of ``stack``: sim, gateway and the gateway's children."""
     if stack.gateway is None or stack.sim is None:
         raise RuntimeError("the stack is not started")
-    return {"sim": stack.sim.pid, **_children(stack.sim.pid), "gateway": stack.gateway.pid,
-            **_children(stack.gateway.pid)}  # fmt: skip
+    return {"sim": stack.sim.pid, "gateway": stack.gateway.pid, **_children(stack.gateway.pid)}
 
 
 def controller_cycle(stack: Stack) -> int | None:

@@ -45,7 +45,7 @@ from sim_bridge.can_hub import SeqpacketHubBus
 from sim_bridge.config import Endpoints, Scheduling, SimConfig
 from sim_bridge.controller import VirtualController, controller_protocol
 from sim_bridge.lockstep_pace import LockstepPace
-from sim_bridge.modbus_process import VirtualIoProcess
+from sim_bridge.modbus_server import VirtualIoServer
 from sim_bridge.operator import Operator
 from sim_bridge.plant import Plant
 
@@ -154,7 +154,7 @@ class VirtualCell:
         self._fb_sent_wall: float | None = None
         self._set_arrival_wall: float | None = None
         self.can: can.BusABC | None = None
-        self.io: VirtualIoProcess | None = None
+        self.io: VirtualIoServer | None = None
         self._can_fd = cfg.controller.can_profile == "fd"  #: the segment must carry CAN FD
         self._log: TextIO | None = None
         self._row_format = ",".join(["%.9g"] * len(truth_log_columns(self.n))) + "\n"
@@ -176,7 +176,7 @@ class VirtualCell:
 
     # --- endpoints ----------------------------------------------------------------------
     def open(self) -> None:
-        # first: the CAN hub's thread and the I/O module's process started below inherit it.
+        # first: the CAN hub's thread and the I/O module's threads started below inherit it.
         # Lock-step too: its loop waits for the product's every answer, but the product's
         # wall-clock watchdogs do not wait for it, and a loop at normal priority beside a busy
         # machine stalled 1.06 s between two cycles (the gateway faulted on "no fresh joint
@@ -188,10 +188,8 @@ class VirtualCell:
         # The valves power up holding the initial pressures: a 0 bar set-point would let the arm
         # sag onto its brakes before the first set-point arrives.
         p2_set, p3_set = self.cfg.cylinders.initial_bar
-        self.io = VirtualIoProcess(
-            ep.modbus_host, ep.modbus_port, p2_set_bar=p2_set, p3_set_bar=p3_set,
-            fifo_priority=self.cfg.scheduling.sched_fifo_priority,
-        )  # fmt: skip
+        self.io = VirtualIoServer(ep.modbus_host, ep.modbus_port, p2_set_bar=p2_set,
+                                  p3_set_bar=p3_set)  # fmt: skip
         self.io.start()
         p = self.plant.pressure_bar
         self.io.set_inputs(float(p[0]), float(p[1]), False, True)

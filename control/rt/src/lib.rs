@@ -20,6 +20,8 @@ mod py_admittance;
 #[cfg(feature = "python")]
 mod py_admittance_cycle;
 #[cfg(feature = "python")]
+mod py_args;
+#[cfg(feature = "python")]
 mod py_cycle_loop;
 #[cfg(feature = "python")]
 mod py_delay;

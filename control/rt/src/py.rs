@@ -16,19 +16,10 @@ use pyo3::prelude::*;
 
 use crate::chain::{Chain, Work, MAX_JOINTS};
 use crate::point_model::PointModel;
+use crate::py_args::check_len;
 
 fn json_arg(text: &str, what: &str) -> PyResult<serde_json::Value> {
     serde_json::from_str(text).map_err(|e| PyValueError::new_err(format!("{what}: not JSON ({e})")))
-}
-
-fn check_len(v: &[f64], n: usize, what: &str) -> PyResult<()> {
-    if v.len() != n {
-        return Err(PyValueError::new_err(format!(
-            "{what} needs {n} values, got {}",
-            v.len()
-        )));
-    }
-    Ok(())
 }
 
 fn rows(flat: &[f64], width: usize) -> Vec<Vec<f64>> {

@@ -25,16 +25,7 @@ use pyo3::PyTraverseError;
 
 use crate::chain::MAX_JOINTS;
 use crate::law::admittance::{self as law, Admittance, EngageProbe};
-
-fn check_len(v: &[f64], n: usize, what: &str) -> PyResult<()> {
-    if v.len() != n {
-        return Err(PyValueError::new_err(format!(
-            "{what} needs {n} values, got {}",
-            v.len()
-        )));
-    }
-    Ok(())
-}
+use crate::py_args::check_len;
 
 /// numpy's `LinAlgError` (a ValueError) with `msg`; ValueError if numpy cannot be imported.
 fn linalg_error(py: Python<'_>, msg: String) -> PyErr {

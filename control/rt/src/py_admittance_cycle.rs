@@ -21,17 +21,8 @@ use crate::law::admittance::startup_dither::{self as sd, StartupDither};
 use crate::law::admittance::stick_anchor::{self as sa, StickAnchor};
 use crate::law::zero_moment::State;
 use crate::py_admittance::PyAdmittance;
+use crate::py_args::check_len;
 use crate::py_zero_moment::{law_error, PyZeroMomentCycle};
-
-fn check_len(v: &[f64], n: usize, what: &str) -> PyResult<()> {
-    if v.len() != n {
-        return Err(PyValueError::new_err(format!(
-            "{what} needs {n} values, got {}",
-            v.len()
-        )));
-    }
-    Ok(())
-}
 
 fn flat(rows: &[Vec<f64>], n: usize, what: &str) -> PyResult<Vec<f64>> {
     if rows.len() != n || rows.iter().any(|r| r.len() != n) {

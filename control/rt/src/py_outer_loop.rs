@@ -19,16 +19,7 @@ use pyo3::types::{PyDict, PyTuple};
 use crate::law::outer_loop::{
     Adaptation, HoldAverage, OmegaAdaptation, OuterLoop, PaperAdaptation,
 };
-
-fn check_len(v: &[f64], n: usize, what: &str) -> PyResult<()> {
-    if v.len() != n {
-        return Err(PyValueError::new_err(format!(
-            "{what} needs {n} values, got {}",
-            v.len()
-        )));
-    }
-    Ok(())
-}
+use crate::py_args::check_len;
 
 fn tuple<'py>(py: Python<'py>, v: &[f64]) -> PyResult<Bound<'py, PyTuple>> {
     PyTuple::new(py, v)

@@ -16,21 +16,12 @@ use crate::chain::MAX_JOINTS;
 use crate::law::guide::GuideMode;
 use crate::law::zero_moment::{Parts, Settings, State, ZeroMoment};
 use crate::py::{PyChain, PyPointModel};
+use crate::py_args::check_len;
 use crate::py_delay::PyDelayPredictor;
 use crate::py_guided_friction::PyGuidedFriction;
 use crate::py_inner_estimate::PyInnerLoopEstimator;
 use crate::py_outer_loop::{PyHoldAverage, PyOuterLoop};
 use crate::py_rest_hold::PyRestHold;
-
-fn check_len(v: &[f64], n: usize, what: &str) -> PyResult<()> {
-    if v.len() != n {
-        return Err(PyValueError::new_err(format!(
-            "{what} needs {n} values, got {}",
-            v.len()
-        )));
-    }
-    Ok(())
-}
 
 /// A model error (not finite) as ArithmeticError, anything else as ValueError.
 pub(crate) fn law_error(e: String) -> PyErr {
