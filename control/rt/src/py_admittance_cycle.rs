@@ -225,7 +225,7 @@ impl PyAdmittanceCycle {
                     .cycle
                     .lock()
                     .map_err(|_| "the admittance cycle's lock is poisoned".to_string())?;
-                cycle.mass_in_use(law, parts, &q, &mut m)
+                cycle.mass_at(law, parts, &q, &mut m)
             })
             .map_err(law_error)?;
         Ok(m.chunks(n).map(<[f64]>::to_vec).collect())

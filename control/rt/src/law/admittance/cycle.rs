@@ -276,17 +276,7 @@ impl AdmittanceCycle {
 
     /// M̂ at `q` into `m`: the identified model's as handed in (the newest, wherever it was
     /// computed), else the nominal chain's with rotor inertias (cached by the zero-moment law).
-    pub fn mass_in_use(
-        &self,
-        zm: &mut ZeroMoment,
-        parts: &mut Parts,
-        q: &[f64],
-        m: &mut [f64],
-    ) -> Result<(), String> {
-        self.mass_at(zm, parts, q, m)
-    }
-
-    fn mass_at(
+    pub fn mass_at(
         &self,
         zm: &mut ZeroMoment,
         parts: &mut Parts,
@@ -424,7 +414,6 @@ impl AdmittanceCycle {
         zm.motor_torque(st.current_a, &mut tau_m[..n]);
         let mut dithered = [0.0; MAX_JOINTS];
         self.dither.drove(&mut dithered[..n]);
-        // the friction the arm met is at its measured speed, not at the reference's
         let mut mass = [0.0; SQUARE];
         let q_r0: Joints = {
             let mut a = [0.0; MAX_JOINTS];
@@ -433,6 +422,7 @@ impl AdmittanceCycle {
         };
         self.mass_at(zm, parts, &q_r0[..n], &mut mass)?;
         let mut tau_h = [0.0; MAX_JOINTS];
+        // the friction the arm met is at its measured speed, not at the reference's
         Self::model_torque(
             zm,
             parts.model,
