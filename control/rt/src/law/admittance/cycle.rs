@@ -302,6 +302,30 @@ impl AdmittanceCycle {
     /// speed beyond the friction deadband (as the zero-moment law: at rest the arm stands on
     /// its own friction, and a creep never earns a push). `mass` row-major n × n.
     #[allow(clippy::too_many_arguments)]
+    /// The model's torque holding the arm at rest at `q` into `out`: no speed, no acceleration
+    /// (M̂ plays no part): gravity, the cylinders at `p_bar`, the effects at rest.
+    pub fn static_torque(
+        zm: &ZeroMoment,
+        model: &mut PointModel,
+        q: &[f64],
+        p_bar: &[f64],
+        out: &mut [f64],
+    ) -> Result<(), String> {
+        let n = q.len();
+        let zeros = [0.0; MAX_JOINTS];
+        let no_mass = [0.0; SQUARE];
+        Self::model_torque(
+            zm,
+            model,
+            q,
+            &zeros[..n],
+            &zeros[..n],
+            p_bar,
+            &no_mass[..n * n],
+            out,
+        )
+    }
+
     pub fn model_torque(
         zm: &ZeroMoment,
         model: &mut PointModel,

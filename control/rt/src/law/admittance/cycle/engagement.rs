@@ -10,7 +10,7 @@ use super::super::numpy_semantics::np_max;
 use super::super::{Admittance, EngageProbe};
 use super::{
     fmt_list, AdmittanceCycle, Joints, Probe, MIN_NOISE_STATES, PROBE_BREAKAWAY_SHARE,
-    PROBE_MAX_RAD_S, SQUARE,
+    PROBE_MAX_RAD_S,
 };
 use crate::chain::MAX_JOINTS;
 use crate::law::zero_moment::{Parts, State, ZeroMoment};
@@ -64,20 +64,8 @@ impl AdmittanceCycle {
         } else {
             zm.motor_torque(st.current_a, &mut tau_m[..n]);
         }
-        let zeros = [0.0; MAX_JOINTS];
         let mut at_rest = [0.0; MAX_JOINTS];
-        // no acceleration: M̂ plays no part (zeros stand for it)
-        let no_mass = [0.0; SQUARE];
-        Self::model_torque(
-            zm,
-            parts.model,
-            &st.q[..n],
-            &zeros[..n],
-            &zeros[..n],
-            p_bar,
-            &no_mass[..n * n],
-            &mut at_rest[..n],
-        )?;
+        Self::static_torque(zm, parts.model, &st.q[..n], p_bar, &mut at_rest[..n])?;
         for j in 0..n {
             self.bias[j] = at_rest[j] - tau_m[j];
         }
@@ -174,19 +162,8 @@ impl AdmittanceCycle {
         let drove = k - (delay + 1);
         zm.last_cycle = Some(st.cycle);
         if drove >= 0 && st.flags & flags == 0 {
-            let zeros = [0.0; MAX_JOINTS];
-            let no_mass = [0.0; SQUARE];
             let mut residual = [0.0; MAX_JOINTS];
-            Self::model_torque(
-                zm,
-                parts.model,
-                &st.q[..n],
-                &zeros[..n],
-                &zeros[..n],
-                p_bar,
-                &no_mass[..n * n],
-                &mut residual[..n],
-            )?;
+            Self::static_torque(zm, parts.model, &st.q[..n], p_bar, &mut residual[..n])?;
             let mut tau_m = [0.0; MAX_JOINTS];
             zm.motor_torque(st.current_a, &mut tau_m[..n]);
             for j in 0..n {
