@@ -102,6 +102,20 @@ class BusConfig:
 CONNECT_TIMEOUT_S = 10.0
 
 
+#: Batches zenoh's transmission queue holds for real-time messages, per link (zenoh allows
+#: 1-16; its default, 2, bounds a queue that holds a burst). The control loop's data goes out
+#: express at real-time priority, one batch per message, and is dropped when no batch frees
+#: within 1 ms (CongestionControl.DROP: a slow peer must never stall the loop). A controller
+#: that ran late sends the cycles it owes back to back, and so does a driver that reads a
+#: backlog after its thread was held: the driver's and the router's queues then took the
+#: first two joint states of a 12-cycle burst and dropped the rest, the newest among them (the
+#: one the driver waits to have answered), in 4 of 6 runs of
+#: tests/transport/test_can_driver.py::test_a_burst_of_cycles_reaches_control_whole... on an
+#: idle 2-core machine (2026-12-07). 16 holds such a burst; the batches are allocated lazily,
+#: so a queue that never fills costs nothing.
+REAL_TIME_QUEUE_BATCHES = 16
+
+
 def _zenoh_config(
     mode: str,
     listen: list[str],
@@ -115,6 +129,7 @@ def _zenoh_config(
     cfg.insert_json5("scouting/gossip/enabled", json.dumps(mode != "client"))
     cfg.insert_json5("listen/endpoints", json.dumps(listen))
     cfg.insert_json5("connect/endpoints", json.dumps(connect))
+    cfg.insert_json5("transport/link/tx/queue/size/real_time", str(REAL_TIME_QUEUE_BATCHES))
     if connect:
         # Keep retrying the router during start-up instead of failing the first attempt.
         cfg.insert_json5("connect/timeout_ms", str(max(1, round(connect_timeout_s * 1000))))
