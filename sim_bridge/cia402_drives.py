@@ -26,7 +26,10 @@ The wire, per drive with node id ``n`` (all COB-IDs are CiA 301's predefined con
   (producer id << 16) | time [ms]: armed by the producer's first heartbeat; a miss longer
   than the time while operational or in Operation enabled applies 0x6007
   (:mod:`sim_bridge.cia402_heartbeat`);
-- EMCY ``0x80+n`` on every fault (its 0x603F code, 0x1001) and ``0x0000`` on its reset.
+- EMCY ``0x80+n`` on every fault (its 0x603F code, 0x1001) and ``0x0000`` on its reset;
+- the current (0x6078, and 0x6077 in its units) is the motor current of the last servo cycle
+  before it is read, or with 0x2010 (manufacturer-specific) at 1 its mean over the servo cycles
+  since the last SYNC, the communication cycle's mean (not stored: 0 after a reset node).
 
 Units: the drive's own, per its parameters (:mod:`sim_bridge.cia402_parameters`). The drives
 of every joint are :mod:`sim_bridge.cia402_drive_set`.
@@ -63,6 +66,7 @@ from sim_bridge.cia402_profile import (
     CONSUMER_HEARTBEAT_TIME,
     CONTROLWORD,
     CURRENT_ACTUAL,
+    CURRENT_AVERAGING,
     EMCY_BASE,
     ERROR_CODE,
     ERROR_REGISTER,
@@ -176,6 +180,9 @@ class Cia402Drive:
         self.rpdo_stamp_s: float | None = None  #: the last RPDO's arrival since the last SYNC
         #: measurements: joint position [rad], velocity [rad/s], motor current [A]
         self.q_rad = self.dq_rad_s = self.current_a = 0.0
+        #: the servo cycles' currents since the last SYNC: their sum [A] and count (0x2010)
+        self._current_sum_a, self._current_samples = 0.0, 0
+        self._current_averaging = False  #: 0x2010 is 1
         self._q_step = 0.0  #: the joint's position at the last step [rad]
         #: the reference: q_ref [rad] at t_ref [s], extrapolated with dq_ref [rad/s]
         self.q_ref_rad = self.dq_ref_rad_s = self.t_ref_s = 0.0
@@ -230,6 +237,10 @@ class Cia402Drive:
             self._quick_stop_decel_inc = value
         elif index == COMMUNICATION_CYCLE_PERIOD:
             self._cycle_period_s = value * 1e-6
+        elif index == CURRENT_AVERAGING:
+            if value not in (0, 1):
+                raise SdoAbortedError(SdoAbort.VALUE_RANGE_EXCEEDED)
+            self._current_averaging = bool(value)
         elif index == COB_ID_SYNC:
             if value & (SYNC_GENERATES | 1 << 29):  # the SYNC producer, or a 29-bit id
                 raise SdoAbortedError(SdoAbort.VALUE_RANGE_EXCEEDED)
@@ -255,6 +266,7 @@ class Cia402Drive:
         self._quick_stop_decel_inc = self.read(QUICK_STOP_DECELERATION)
         self._abort_option = AbortConnectionOption(self.read(ABORT_CONNECTION_OPTION))
         self._cycle_period_s = self.read(COMMUNICATION_CYCLE_PERIOD) * 1e-6
+        self._current_averaging = bool(self.read(CURRENT_AVERAGING))
 
     def pdo_config(self, comm_index: int) -> PdoConfig:
         """A PDO as its objects now configure it (``comm_index`` 0x1400.. or 0x1800..)."""
@@ -374,6 +386,9 @@ class Cia402Drive:
         """A SYNC: send the TPDOs sampled now, then the RPDOs received since the last SYNC take
         effect (on the motion at the next :meth:`step`)."""
         self._last_sync_s = now_s
+        if self._current_averaging and self._current_samples:
+            self.current_a = self._current_sum_a / self._current_samples
+        self._current_sum_a, self._current_samples = 0.0, 0
         if self.nmt_state != NmtState.OPERATIONAL:
             return
         self._sync_count += 1
@@ -503,7 +518,11 @@ class Cia402Drive:
 
     def sample(self, q_rad: float, dq_rad_s: float, current_a: float) -> None:
         """The joint's measurements as the drive's encoder and current sensor have them."""
-        self.q_rad, self.dq_rad_s, self.current_a = q_rad, dq_rad_s, current_a
+        self.q_rad, self.dq_rad_s = q_rad, dq_rad_s
+        self._current_sum_a += current_a
+        self._current_samples += 1
+        if not self._current_averaging:
+            self.current_a = current_a
 
     # --- the servo cycle --------------------------------------------------------------------
     def step(self, now_s: float, q_rad: float, wall_s: float, estop: bool = False) -> None:

@@ -20,6 +20,9 @@ RPDO_COMMUNICATION = (0x1400, 0x1401)
 RPDO_MAPPING = (0x1600, 0x1601)
 TPDO_COMMUNICATION = (0x1800, 0x1801)
 TPDO_MAPPING = (0x1A00, 0x1A01)
+# --- manufacturer-specific objects (the drive's EDS) ----------------------------------------
+#: what 0x6078/0x6077 report: 0, the last servo cycle's current; 1, the mean since the last SYNC
+CURRENT_AVERAGING = 0x2010
 # --- CiA 402 objects ----------------------------------------------------------------------
 ABORT_CONNECTION_OPTION = 0x6007
 ERROR_CODE = 0x603F

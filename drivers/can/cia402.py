@@ -21,7 +21,10 @@ TPDO1     0x180 + node    0x6041 statusword, 0x6064 position actual             
 TPDO2     0x280 + node    0x606C velocity actual, 0x6078 current, 0x6077 torque   drive→host
 ========  ==============  ======================================================  ==========
 
-all synchronous (transmission type 1), then NMT start. In CSP the standard's feed-forward for
+all synchronous (transmission type 1); then ``[can.cia402].startup_sdo``, the writes the drive's
+vendor documents in the manufacturer-specific area (the virtual drives': 0x2010 = 1, the
+current as the communication cycle's mean, which the laws' inner-loop model reads it as); then
+NMT start. In CSP the standard's feed-forward for
 the drive's position loop is the velocity offset 0x60B1, which is what the paper's eq. (19)
 takes besides the position; 0x60FF is the target of CSV.
 
@@ -214,6 +217,33 @@ class _Joint:
     position_inc: int = 0  #: its newest position actual value
 
 
+def _write_startup_sdo(node: Any, where: str, index: int, subindex: int, value: int) -> None:
+    """One ``[can.cia402].startup_sdo`` write to ``node`` (a canopen RemoteNode), typed by its
+    EDS; ConfigError naming the entry when the EDS lacks it, its type cannot hold the value or
+    the drive refuses it."""
+    from canopen.objectdictionary import ODVariable
+    from canopen.sdo import SdoAbortedError
+
+    entry = f"{where}: [can.cia402].startup_sdo 0x{index:04X} sub {subindex} = {value}"
+    try:
+        obj = node.object_dictionary[index]
+        if isinstance(obj, ODVariable):
+            if subindex != 0:
+                raise KeyError(subindex)
+            variable = node.sdo[index]
+        else:
+            obj[subindex]  # KeyError when the EDS has no such sub-index
+            variable = node.sdo[index][subindex]
+    except KeyError:
+        raise ConfigError(f"{entry}: the drive's EDS has no such object") from None
+    try:
+        variable.raw = value
+    except (struct.error, ValueError, TypeError) as exc:
+        raise ConfigError(f"{entry}: not a value of the object's type ({exc})") from None
+    except SdoAbortedError as exc:
+        raise ConfigError(f"{entry}: the drive refused it: {exc}") from None
+
+
 class Cia402Adapter(CanAdapter):
     """CiA 402 drives (one CANopen node per joint), host-clocked by SYNC."""
 
@@ -371,6 +401,8 @@ class Cia402Adapter(CanAdapter):
                 else:
                     pdo_map.enabled = False
             maps.save()
+        for index, subindex, value in cfg.startup_sdo:
+            _write_startup_sdo(node, where, index, subindex, value)
         mode_shown = int(node.sdo[0x6061].raw)
         if mode_shown != MODES[cfg.mode]:
             raise ConfigError(f"{where}: 0x6061 shows mode {mode_shown}, not {cfg.mode}")

@@ -52,6 +52,10 @@ def _production_transport() -> dict[str, Any]:
     return {"interface": "socketcan", "channel": "can0"}
 
 
+#: CiA 301's manufacturer-specific area: the only objects ``startup_sdo`` may write
+MANUFACTURER_AREA = (0x2000, 0x5FFF)
+
+
 @dataclass(frozen=True)
 class Cia402Config:
     """``[can.cia402]``: CiA 402 servo drives over CANopen (``[can] adapter = "cia402"``,
@@ -80,6 +84,11 @@ class Cia402Config:
     rated_current_a: tuple[float, ...] = ()
     #: Encoder increments per motor revolution; checked against each drive's 0x608F.
     encoder_increments: int = 1 << 20
+    #: Writes every drive gets by SDO at start-up, after the adapter's own: [index, subindex,
+    #: value], each in the manufacturer-specific area (what the drive's vendor documents: a
+    #: current filter, a brake delay); the objects the adapter sets and checks are not here.
+    #: Written in this order, each as the EDS types it; a refusal fails the start, naming it.
+    startup_sdo: tuple[tuple[int, int, int], ...] = ()
     #: Each SDO request, and the drives' boot-up, must be answered within these [s].
     sdo_timeout_s: float = 0.5
     boot_timeout_s: float = 5.0
@@ -111,6 +120,14 @@ class Cia402Config:
         ok = all(math.isfinite(i) and i > 0 for i in self.rated_current_a)
         require(ok, f"{w}.rated_current_a", "every current must be positive")
         require(self.encoder_increments > 0, f"{w}.encoder_increments", "must be positive")
+        for k, (index, subindex, _value) in enumerate(self.startup_sdo):
+            require(
+                MANUFACTURER_AREA[0] <= index <= MANUFACTURER_AREA[1] and 0 <= subindex <= 0xFF,
+                f"{w}.startup_sdo[{k}]",
+                f"0x{index:X} sub {subindex} is not an object of the manufacturer-specific area "
+                f"0x{MANUFACTURER_AREA[0]:04X}-0x{MANUFACTURER_AREA[1]:04X} (sub 0-255): the "
+                "communication and drive profile objects are the adapter's",
+            )
 
     def check_joints(self, joints: int) -> None:
         """ConfigError unless the per-joint lists fit ``joints`` (called by the adapter)."""

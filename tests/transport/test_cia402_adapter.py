@@ -161,6 +161,29 @@ def test_a_drive_whose_gear_ratio_differs_from_the_config_is_refused_at_start(ce
         adapter.start(bus)
 
 
+def test_the_startup_sdo_writes_reach_every_drive_and_one_it_cannot_take_fails_the_start(cell, bus):
+    def averaging() -> list[int]:
+        return [d.read(0x2010) for d in cell.ctrl.drives]
+
+    Cia402Adapter.from_config(_config(startup_sdo=())).start(bus)
+    assert averaging() == [0] * 6, "nothing written without the list"
+    for entry, refusal in (
+        (
+            (0x2011, 0, 1),
+            r"node 1 \(J1\): \[can.cia402\].startup_sdo 0x2011 sub 0 = 1: the "
+            r"drive's EDS has no such object",
+        ),
+        ((0x2010, 3, 1), r"0x2010 sub 3 = 1: the drive's EDS has no such object"),
+        ((0x2010, 0, 2), r"0x2010 sub 0 = 2: the drive refused it: .*0x06090030"),
+        ((0x2010, 0, 300), r"0x2010 sub 0 = 300: not a value of the object's type"),
+    ):
+        with pytest.raises(ConfigError, match=refusal):
+            Cia402Adapter.from_config(_config(startup_sdo=(entry,))).start(bus)
+    assert averaging() == [0] * 6
+    Cia402Adapter.from_config(_config(startup_sdo=((0x2010, 0, 1),))).start(bus)
+    assert averaging() == [1] * 6
+
+
 def test_the_cia402_cell_config_names_a_shipped_eds():
     cfg, _ = load_can_config(SIM_CELL_CIA402)
     assert cfg.adapter == "cia402"

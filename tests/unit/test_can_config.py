@@ -92,6 +92,19 @@ def test_from_toml_table_with_per_joint_lists():
             },
             r"lockstep_answer_wait_s: CiA 402 drives are clocked by the host's SYNC",
         ),
+        # start-up writes only in the manufacturer-specific area: the profile's are the adapter's
+        (
+            {"adapter": "cia402", "cia402": {**CIA402_TABLE, "startup_sdo": [[0x6007, 0, 0]]}},
+            r"startup_sdo\[0\]: 0x6007 sub 0 is not an object of the manufacturer-specific area",
+        ),
+        (
+            {"adapter": "cia402", "cia402": {**CIA402_TABLE, "startup_sdo": [[0x2010, 256, 1]]}},
+            r"startup_sdo\[0\]: 0x2010 sub 256 is not",
+        ),
+        (
+            {"adapter": "cia402", "cia402": {**CIA402_TABLE, "startup_sdo": [[0x2010, 1]]}},
+            r"startup_sdo\[0\]: expected 3 values, got 2",
+        ),
     ],
 )
 def test_bad_values_are_refused_with_field_and_reason(table, message):

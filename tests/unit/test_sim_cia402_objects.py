@@ -172,6 +172,33 @@ def test_pdos_follow_the_mapping_the_host_writes_not_a_fixed_layout():
     assert b.frames(0x085)[-1][:2] == struct.pack("<H", 0x8210)
 
 
+def test_the_current_is_the_last_servo_cycles_or_with_0x2010_the_mean_since_the_last_sync():
+    b = Bench()
+    d = b.drive
+    b.map_pdo(0x1801, [0x60780010])
+    b.nmt(0x01)
+
+    def tpdo_current_after(currents_a: list[float]) -> int:
+        for i in currents_a:
+            d.sample(0.0, 0.0, i)
+        b.sent.clear()
+        b.frame(0x80, b"")
+        return struct.unpack("<h", b.frames(0x285)[0])[0]
+
+    # 61 A rated: 0.061 A per count
+    assert d.read(0x2010) == 0
+    assert tpdo_current_after([6.1, 0.0, 12.2, 24.4]) == 400, "the last servo cycle's"
+    d.write(0x2010, 0, 1)
+    assert tpdo_current_after([6.1, 0.0, 12.2, 24.4]) == 175, "the mean of the four"
+    assert tpdo_current_after([-6.1]) == -100, "only those since the last SYNC"
+    assert d.read(0x6078) == -100 and d.read(0x6077) == -100, "an SDO read: the same mean"
+    with pytest.raises(SdoAbortedError) as refused:
+        d.write(0x2010, 0, 2)
+    assert refused.value.code == 0x06090030
+    b.nmt(0x81)  # reset node: not a stored parameter
+    assert d.read(0x2010) == 0
+
+
 def test_no_pdos_before_nmt_start():
     b = Bench()
     b.map_pdo(0x1800, [0x60410010])
