@@ -9,10 +9,10 @@ included) inherits it:
   `leadthrough bench` and the test harness give the product one core and the simulator the
   other.
 * ``sched_fifo_priority``: SCHED_FIFO priority of the processes on the cycle, the CAN driver
-  and control (0: normal scheduling). The supervisors, the gateway and the Modbus driver, run
+  and control (0: normal scheduling). Control's slow loop drops one below
+  (:func:`below_the_cycle`). The supervisors, the gateway and the Modbus driver, run
   :data:`SUPERVISION_BELOW` below the cycle: not on it, but above everything at normal
-  priority (:data:`SUPERVISION_PROCESSES`). Control's slow loop drops
-  :data:`SLOW_WORK_BELOW` below it (:func:`below_the_cycle`), under the supervisors.
+  priority (:data:`SUPERVISION_PROCESSES`).
 * ``mlockall``: lock the processes' memory (no page fault on the cycle).
 
 The OS may refuse (no such CPU, no CAP_SYS_NICE or rtprio limit, no memlock limit): the
@@ -50,18 +50,15 @@ CYCLE_PROCESSES = ("can-driver", "control")
 #: cycle, `leadthrough bench --profile fd --rates 125`), and it cannot delay the cycle.
 SUPERVISION_PROCESSES = ("gateway", "modbus-driver")
 #: How far below ``sched_fifo_priority`` the supervisors run: under the cycle's threads (which
-#: they must never delay) and above control's slow work (:data:`SLOW_WORK_BELOW`).
-SUPERVISION_BELOW = 1
-#: How far below ``sched_fifo_priority`` control's slow loop and its M̂ thread run
-#: (:func:`below_the_cycle`): under the cycle's threads, and under the supervisors, which judge
-#: the cycle and must not wait for work of no bound (an adapted model built, M̂ computed,
-#: telemetry encoded). The gateway faults the cell on a joint state 0.1 s old by its own clock,
-#: so a gateway held off the CPU reports the CAN driver stale: with the supervisors below the
-#: slow loop, a replay under `taskset -c 0 make test` faulted on "no fresh joint state from the
-#: CAN driver" while the virtual controller ran every cycle on time and the CAN driver answered
-#: them, the gateway silent for 0.69 s in the middle of the replay's model adaptation
-#: (2026-12-07, tests/stack/test_demo_recording.py).
-SLOW_WORK_BELOW = 2
+#: they must never delay) and under control's slow loop one below (:func:`below_the_cycle`).
+#: The other order was tried (2026-12-07: the supervisors one below the cycle, the slow loop two
+#: below) after a replay under `taskset -c 0 make test` faulted on "no fresh joint state" with
+#: the gateway 0.69 s without the CPU while control adapted its model (every cycle had run). On
+#: the emulated slowest machine (`python tests/slow_machine.py --as-slow-as 1.62 -- leadthrough
+#: demo`) control's health then went silent (0.5 s) in 3 of 3 runs, 0-2.3 s into teaching; in
+#: this order 2 of 2 runs taught 2.8 and 11.2 s before the CAN driver's speed monitor held the
+#: arm. Kept; a burst of slow work (an adapted model built) can still hold the gateway off.
+SUPERVISION_BELOW = 2
 _MCL_CURRENT, _MCL_FUTURE = 1, 2
 
 
@@ -86,11 +83,11 @@ class Realtime:
             isinstance(self.sched_fifo_priority, int)
             and (
                 self.sched_fifo_priority == 0
-                or 1 + SLOW_WORK_BELOW <= self.sched_fifo_priority <= 99
+                or 1 + SUPERVISION_BELOW <= self.sched_fifo_priority <= 99
             ),
             f"{where}.sched_fifo_priority",
-            f"{self.sched_fifo_priority!r} outside {1 + SLOW_WORK_BELOW}..99 (0 = normal "
-            f"scheduling): control's slow work runs {SLOW_WORK_BELOW} below it, at 1 or more",
+            f"{self.sched_fifo_priority!r} outside {1 + SUPERVISION_BELOW}..99 (0 = normal "
+            f"scheduling): the supervisors run {SUPERVISION_BELOW} below it, at 1 or more",
         )
         require(
             isinstance(self.mlockall, bool), f"{where}.mlockall", f"{self.mlockall!r} not a bool"
@@ -181,18 +178,19 @@ def normal_priority_children() -> Iterator[None]:
 
 
 def below_the_cycle(what: str) -> int | None:
-    """The calling thread :data:`SLOW_WORK_BELOW` SCHED_FIFO priorities below the one it has
-    (None: it is not at SCHED_FIFO, nothing changed; else the new priority), for a process on
-    the cycle whose cycle runs on other threads, created before at the cycle's priority, while
-    this one does the slow work: at equal SCHED_FIFO priority a thread runs until it blocks,
-    so on a shared core the control process's slow loop (an adapted model built, telemetry
-    encoded) could hold the CAN driver off its cycle. Below, the CAN driver, the process's own
-    cycle threads and the supervisors (:data:`SUPERVISION_BELOW`) preempt it, and it still
-    runs before the processes at normal priority, so it holds the interpreter's lock no longer
-    than it did."""
+    """The calling thread one SCHED_FIFO priority below the one it has (None: it is not at
+    SCHED_FIFO, nothing changed; else the new priority), for a process on the cycle whose
+    cycle runs on other threads, created before at the cycle's priority, while this one does
+    the slow work: at equal SCHED_FIFO priority a thread runs until it blocks, so on a shared
+    core the control process's slow loop (an adapted model built, telemetry encoded) can hold
+    the CAN driver off its cycle. (A demo under `taskset -c 0` faulted on "no fresh joint state
+    from the CAN driver" 2.3 s into teaching, 2026-11-30; that fault was not reproduced alone
+    and not traced to this loop.) One below, the CAN driver and the
+    process's own cycle threads preempt it, and it still runs before the processes at normal
+    priority, so it holds the interpreter's lock no longer than it did."""
     if os.sched_getscheduler(0) != os.SCHED_FIFO:
         return None
-    priority = max(os.sched_getparam(0).sched_priority - SLOW_WORK_BELOW, 1)
+    priority = max(os.sched_getparam(0).sched_priority - 1, 1)
     os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
     log.info("%s: its slow loop runs at SCHED_FIFO %d, below the cycle's threads", what, priority)
     return priority

@@ -41,7 +41,7 @@ def own_affinity():
         ({"cpu_affinity": [0, 0]}, "cpu_affinity"),
         ({"cpu_affinity": [-1]}, "cpu_affinity"),
         ({"sched_fifo_priority": 100}, "sched_fifo_priority"),
-        ({"sched_fifo_priority": 2}, "sched_fifo_priority"),  # the slow work would be at 0
+        ({"sched_fifo_priority": 2}, "sched_fifo_priority"),  # the supervisors would be at 0
         ({"mlockall": "yes"}, "mlockall"),
         ({"cpu_set": [0]}, "cpu_set"),
     ],
@@ -66,13 +66,13 @@ def test_affinity_is_applied_and_a_refusal_is_reported_not_raised(own_affinity, 
     assert "cpu_affinity" in caplog.text and os.sched_getaffinity(0) == {first}
 
 
-def test_the_cycle_gets_the_priority_and_the_supervisors_run_one_below(monkeypatch):
+def test_the_cycle_gets_the_priority_and_the_supervisors_run_two_below(monkeypatch):
     asked = []
     monkeypatch.setattr(os, "sched_setscheduler", lambda *a: asked.append(a[2].sched_priority))
     cfg = Realtime(sched_fifo_priority=40)
     for process in ("gateway", "modbus-driver", "can-driver", "control", "record", "sim"):
         apply_realtime(cfg, process)
-    assert asked == [39, 39, 40, 40]
+    assert asked == [38, 38, 40, 40]
     asked.clear()
     for process in ("gateway", "modbus-driver", "can-driver", "control"):
         apply_realtime(Realtime(), process)
@@ -163,7 +163,7 @@ def test_a_process_the_gateway_starts_runs_at_normal_priority():
 
     def supervisor_thread() -> None:
         try:
-            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(39))
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(38))
         except PermissionError:
             seen["skip"] = True
             return
@@ -179,14 +179,13 @@ def test_a_process_the_gateway_starts_runs_at_normal_priority():
     t.join(30.0)
     if seen.get("skip"):
         pytest.skip("SCHED_FIFO not permitted here (no CAP_SYS_NICE)")
-    assert seen == {"child": [str(os.SCHED_OTHER), "0"], "self": (os.SCHED_FIFO, 39)}
+    assert seen == {"child": [str(os.SCHED_OTHER), "0"], "self": (os.SCHED_FIFO, 38)}
 
 
 def test_the_slow_loop_drops_below_the_cycle_and_the_cycle_threads_keep_its_priority():
     """A thread at SCHED_FIFO 40 (the control process's main thread after [realtime]) starts
-    a cycle thread, which inherits 40, then drops itself to 38, under the supervisors (39); at
-    normal scheduling nothing changes. Run in threads of their own: the test process keeps its
-    scheduling."""
+    a cycle thread, which inherits 40, then drops itself to 39; at normal scheduling nothing
+    changes. Run in threads of their own: the test process keeps its scheduling."""
     seen: dict[str, object] = {}
     release = threading.Event()
 
@@ -212,5 +211,5 @@ def test_the_slow_loop_drops_below_the_cycle_and_the_cycle_threads_keep_its_prio
     t.join(10.0)
     if seen.get("skip"):
         pytest.skip("SCHED_FIFO not permitted here (no CAP_SYS_NICE)")
-    assert seen == {"returned": 38, "slow": 38, "cycle": 40}
+    assert seen == {"returned": 39, "slow": 39, "cycle": 40}
     assert below_the_cycle("test") is None  # this thread is at normal scheduling
