@@ -9,6 +9,7 @@ the built plan from zenoh's thread (control/rt/src/py_cycle_loop.rs, issue 48).
 from __future__ import annotations
 
 import logging
+import threading
 import time
 from collections.abc import Callable
 
@@ -42,8 +43,11 @@ class PlanPlayer:
     the robot is holding.
 
     The plan is built off the cycle (control/plan_builder.py) when a ``builder`` is given:
-    meanwhile the player is ``planning`` and answers every cycle with the plan's first sample,
-    the pose the robot holds, at rest. A plan not built within :attr:`MAX_PLANNING_S` fails.
+    meanwhile the player is ``planning`` and every cycle is answered with the plan's first
+    sample, the pose the robot holds, at rest, by the compiled loop (a plan of that one sample
+    sits in :attr:`play` until the built one replaces it; Python answers only a state the loop
+    passes on). The owner's slow loop calls :meth:`poll` to take the built plan (so does
+    :meth:`command`). A plan not built within :attr:`MAX_PLANNING_S` fails.
     Without a builder (pure tests) :meth:`start` builds it in place. A built plan goes into
     :attr:`play` (``control._rt.PlanPlay``), which plays it as described below: from the
     control process's compiled loop, which answers the states with it, or from
@@ -107,6 +111,9 @@ class PlanPlayer:
         self._job: int | None = None  #: the builder's job of the plan being built
         self._planning_since = 0.0  #: when planning began, on :attr:`clock` [s]
         self.planning_s = 0.0  #: how long the plan took to build [s] (reported)
+        #: one thread at a time takes the builder's outcome (:meth:`poll` on the slow loop,
+        #: :meth:`command` on the cycle's callback); the other goes on without waiting
+        self._taking = threading.Lock()
 
     # --- where the plan is: the compiled play's once it has the plan --------------------------
     def _status(self) -> tuple | None:
@@ -157,6 +164,10 @@ class PlanPlayer:
         return self._segments_of(self._status())
 
     def start(self, plan: dict, st: JointState, period_s: float) -> None:
+        with self._taking:  # not while the slow loop takes the last plan's outcome
+            self._start(plan, st, period_s)
+
+    def _start(self, plan: dict, st: JointState, period_s: float) -> None:
         self.play.clear()  # the compiled loop plays nothing until this plan is built
         self.plan_id, self._phase, self._reason = str(plan.get("plan_id")), "idle", ""
         self._logged = "idle"
@@ -173,6 +184,7 @@ class PlanPlayer:
         if self.builder is not None:
             self._phase = self._logged = "planning"
             self._job, self._planning_since = self.builder.submit(*args), self.clock()
+            self._hold_while_planning()
             log.info("excitation plan %s: planning", self.plan_id)
             return
         try:
@@ -180,11 +192,40 @@ class PlanPlayer:
         except PlanRefused as exc:
             self.fail(str(exc))
 
+    def _hold_while_planning(self) -> None:
+        """The compiled loop answers the cycles while the plan is built, with a plan of one
+        sample: where the plan will start, at rest (what :meth:`command` answers meanwhile).
+        Answered by Python, each cycle waited for the interpreter, which the process's slow
+        work holds: on an emulated machine 3.5 times slower (tests/slow_machine.py) the demo's
+        replay took 25 s to plan (the worker gets what the cycle's threads leave) and the CAN
+        driver refused 20-25 late commands a second meanwhile (2026-12-07). Its pause limit
+        is the planning's: the driver holding it is no reason to fail a plan not built yet."""
+        n = len(self._q0)
+        try:
+            self.play.install(self._q0.tolist(), [0.0] * n, n, [1], self.period_s,
+                              self.MAX_PLANNING_S, RESUME_ACCEL_RAD_S2)  # fmt: skip
+        except ValueError as exc:  # a held pose that is not finite: Python answers, as before
+            log.warning("excitation plan %s: the hold while planning stays in Python: %s",
+                        self.plan_id, exc)  # fmt: skip
+
+    def poll(self) -> None:
+        """While planning: take the built plan if it came (the compiled loop plays it from
+        its next cycle), or fail the plan when it takes too long. Called by the owner's slow
+        loop; cheap otherwise."""
+        if self._phase != "planning" or not self._taking.acquire(blocking=False):
+            return
+        try:
+            if self._phase == "planning":
+                self._planned()
+        finally:
+            self._taking.release()
+
     def drop(self) -> None:
         """Forget the plan (another is coming): the compiled loop plays nothing of it, and
         the player is idle until :meth:`start`."""
-        self.play.clear()
-        self._job, self._phase, self._reason = None, "idle", ""
+        with self._taking:  # an outcome taken meanwhile would install the dropped plan
+            self.play.clear()
+            self._job, self._phase, self._reason = None, "idle", ""
 
     def fail(self, why: str) -> None:
         """The plan ends here, failed, with ``why``; nothing more is sent for it."""
@@ -192,6 +233,7 @@ class PlanPlayer:
         if self._phase == "played":
             self.play.fail(why)
         else:
+            self.play.clear()  # the hold while planning ends too: nothing is sent for it
             self._phase, self._reason = "failed", why
         self._log_state(self._status())
 
@@ -225,9 +267,9 @@ class PlanPlayer:
         else:
             log.error("excitation plan %s failed: %s", self.plan_id, self._reason_of(status))
 
-    def _planned(self, st: JointState) -> None:
+    def _planned(self) -> None:
         """While planning: take the builder's outcome if it came, or fail the plan when it
-        takes too long."""
+        takes too long (one thread at a time: :attr:`_taking`)."""
         assert self.builder is not None and self._job is not None
         # wall time, not cycles: the worker computes in wall time, and a lock-stepped
         # virtual plant runs its cycles up to three times as fast (sim_bridge/commission.py):
@@ -247,7 +289,7 @@ class PlanPlayer:
     def command(self, st: JointState) -> tuple[np.ndarray, np.ndarray] | None:
         """This cycle's sample (q [rad], dq [rad/s]), or None when nothing is to be sent."""
         if self._phase == "planning":
-            self._planned(st)
+            self.poll()
             if self._phase == "planning":
                 return self._q0, np.zeros_like(self._q0)  # held where the plan will start
         if self._phase != "played":

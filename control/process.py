@@ -456,6 +456,7 @@ class ControlProcess(ProcessAdaptation):
         period = 1.0 / HEALTH_RATE_HZ
         while not self.stop_event.wait(min(period, PRESSURE_PUBLISH_PERIOD_S)):
             now = self.clock()
+            self.player.poll()  # a plan built off the cycle: the compiled loop plays it next
             self._adapt_model(now)
             adapted = self._adaptation_report()
             p2, p3 = self.pressure_setpoints(now)

@@ -241,10 +241,11 @@ REPLAY_PLAN = {
 BUILD_TIMEOUT_S = 30.0
 
 
-def test_a_replay_is_played_while_python_holds_the_gil(rig):
-    """The compiled loop plays a built plan (control/rt/src/law/plan_play.rs): once the
-    builder has built it, a replaying state is answered with the plan's sample and the
-    command sent while this process's Python is held, as teaching's is."""
+def test_a_replay_is_held_and_played_by_the_compiled_loop_while_python_holds_the_gil(rig):
+    """The compiled loop answers a replay's cycles from its first: while the plan is built
+    (control/plan_player.py) with the pose the arm holds, at rest, then the built plan
+    (control/rt/src/law/plan_play.rs), taken by the slow loop's :meth:`PlanPlayer.poll`; a
+    state sent while this process's Python is held is answered then, as teaching's is."""
     bus, client, proc, commands = rig
     keys = bus.keys
 
@@ -258,17 +259,24 @@ def test_a_replay_is_played_while_python_holds_the_gil(rig):
     while proc.player.state != "running" and time.monotonic() < deadline:
         replaying(cycle)  # the lifecycle stays fresh
         time.sleep(0.02)
-        client.put(keys.joint_state, state(cycle))  # Python holds the arm while it plans
+        client.put(keys.joint_state, state(cycle))
         cycle += 1
         time.sleep(0.03)
+        proc.player.poll()  # what the slow loop (ControlProcess.run) does every 0.1 s
     assert proc.player.state == "running", proc.player.report()
     settle()
-    assert proc._loop_report().get("compiled_commands", 0) == 0  # the plan came on Python's
+    held = commands[:]
+    assert len(held) == cycle - 1  # every cycle answered while planning
+    # the first state came to Python, which started the plan; the loop answered the others
+    assert proc._loop_report()["compiled_commands"] == len(held) - 1 > 0
+    for c in held:  # where the plan starts (the held pose and the load's offset), at rest
+        np.testing.assert_array_equal(c.q_cmd_rad, held[0].q_cmd_rad)
+        assert not np.any(c.dq_cmd_rad_s)
     replaying(cycle)
     time.sleep(0.05)
-    client.put(keys.joint_state, state(cycle))  # the plan's first compiled cycle
+    client.put(keys.joint_state, state(cycle))  # the built plan's first cycle
     settle()
-    assert proc._loop_report()["compiled_commands"] == 1
+    assert proc._loop_report()["compiled_commands"] == len(held)
     held_from, held_until = state_while_the_gil_is_held(
         bus.endpoint, cycle + 1, lambda: replaying(cycle + 1)
     )
@@ -280,8 +288,6 @@ def test_a_replay_is_played_while_python_holds_the_gil(rig):
         last.sent_stamp_s,
         held_until,
     )
-    assert proc._loop_report()["compiled_commands"] == 2
-    # sample 0 went out on the cycle that found the plan built (Python's), the next ones
-    # compiled
+    assert proc._loop_report()["compiled_commands"] == len(held) + 1
     report = proc.player.report()
-    assert report["state"] == "running" and report["segments"][0]["start_cycle"] == cycle - 1
+    assert report["state"] == "running" and report["segments"][0]["start_cycle"] == cycle

@@ -17,7 +17,7 @@ from control.plan_builder import PlanBuilder, PlanRefused, build_parts
 from control.plan_player import PlanPlayer
 from control.plan_worker import WORKER_NICENESS
 from gateway.message_factories import make_joint_state
-from gateway.messages import FLAG_SERVO_POWER, ControllerState
+from gateway.messages import FLAG_PREV_HOLD, FLAG_SERVO_POWER, ControllerState
 from gateway.robot.description import load_description
 
 PERIOD_S = 0.008
@@ -83,6 +83,49 @@ def test_a_replay_is_built_in_the_worker_while_every_cycle_is_answered_with_a_ho
     np.testing.assert_array_equal(player.dq, in_place.dq)
     assert player.segments == in_place.segments
     assert player.report()["planning_s"] > 0
+
+
+def _until_polled(player: PlanPlayer) -> None:
+    """Poll as the control process's slow loop does (every 0.1 s) until not planning."""
+    deadline = time.monotonic() + BUILD_TIMEOUT_S
+    while player.state == "planning" and time.monotonic() < deadline:
+        player.poll()
+        time.sleep(0.1)
+
+
+def test_while_planning_the_compiled_loop_holds_the_pose_at_rest_then_plays_the_plan(
+    tmp_path, builder
+):
+    """The compiled slot (what the control process's compiled loop answers the cycles with)
+    holds the pose the plan starts from, at rest, while the worker builds; the driver holding
+    those commands longer than a plan's pause limit does not fail it; the slow loop's poll
+    puts the built plan there."""
+    desc = load_description()
+    player = PlanPlayer(desc.lower_rad, desc.upper_rad, desc, builder)
+    player.start(_replay_plan(tmp_path), _state(100), PERIOD_S)
+    held_cycles = int(2 * PlanPlayer.MAX_PAUSE_S / PERIOD_S)
+    for k in range(1, held_cycles + 1):  # every command held by the driver (late, say)
+        sample = player.play.command(100 + k, FLAG_SERVO_POWER | (FLAG_PREV_HOLD if k > 1 else 0))
+        assert sample is not None, k
+        np.testing.assert_array_equal(sample[0], Q_HELD)
+        assert not any(sample[1])
+    assert player.state == "planning"
+    _until_polled(player)
+    assert player.state == "running", player.reason
+    status = player.play.status()
+    assert status is not None and status[0] == "running" and status[3] == len(player.q) > 1
+
+
+def test_a_plan_refused_while_planning_leaves_the_compiled_loop_nothing_to_send(builder):
+    desc = load_description()
+    player = PlanPlayer(desc.lower_rad, desc.upper_rad, desc, builder)
+    plan = {"plan_id": "bad", "replay": {"program": "/nonexistent.jsonl", "speed_m_s": 0.1}}
+    player.start(plan, _state(100), PERIOD_S)
+    assert player.play.command(101, FLAG_SERVO_POWER) is not None  # held while planning
+    _until_polled(player)
+    assert player.state == "failed" and "cannot read program" in player.reason
+    assert player.play.status() is None
+    assert player.play.command(102, FLAG_SERVO_POWER) is None
 
 
 def test_a_refused_plan_fails_with_the_reason_and_nothing_moves(builder):
