@@ -24,6 +24,7 @@ import fcntl
 import hashlib
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -148,6 +149,24 @@ def _locked(path: Path) -> Iterator[None]:
             fcntl.flock(fh, fcntl.LOCK_UN)
 
 
+def _tag(plant_seed: int, cell_file: Path) -> str:
+    """The start of a commissioning folder's name: the plant seed, and the cell config's name
+    when it is not the default virtual cell's (``seed0``, ``seed0-sim_cell_cia402``): each
+    chain of drives is commissioned on its own, as a user commissions the robot through the
+    drives it has."""
+    if Path(cell_file).resolve() == SIM_CELL.resolve():
+        return f"seed{plant_seed}"
+    return f"seed{plant_seed}-{Path(cell_file).stem}"
+
+
+def _folders(root: Path, tag: str) -> list[Path]:
+    """The commissioning folders of ``tag`` in ``root``: ``TAG-`` and a code version (hex
+    digits; a cell's name after the seed has other letters: ``seed0-sim_cell_cia402-...``
+    is not one of ``seed0``'s)."""
+    pattern = re.compile(re.escape(tag) + r"-[0-9a-f]+")
+    return [d for d in root.glob(f"{tag}-*") if pattern.fullmatch(d.name)]
+
+
 def commissioned_stack(workdir: Path, plant_seed: int = 0, **kwargs: Any) -> Stack:
     """A :class:`~.harness.Stack` of ``plant_seed`` whose control process compensates the
     plant's commissioned model and inner-loop estimate (:func:`commissioned`, built by
@@ -165,7 +184,9 @@ def _complete(folder: Path) -> bool:
     return (folder / "model.json").exists() and (folder / "inner_loop.json").exists()
 
 
-def newest_commissioned(plant_seed: int, *, root: Path | None = None) -> Commissioned | None:
+def newest_commissioned(
+    plant_seed: int, *, root: Path | None = None, cell_file: Path = SIM_CELL
+) -> Commissioned | None:
     """The newest complete commissioning of ``plant_seed`` in the cache, whatever version of
     the code made it (None: there is none). For benching a change to the laws without
     commissioning every seed again (any edit changes :func:`code_version`): valid only while
@@ -174,7 +195,7 @@ def newest_commissioned(plant_seed: int, *, root: Path | None = None) -> Commiss
     if plant_seed < 0:
         raise ValueError(f"plant seed {plant_seed} must be >= 0")
     root = root or cache_root()
-    done = [d for d in root.glob(f"seed{plant_seed}-*") if _complete(d)]
+    done = [d for d in _folders(root, _tag(plant_seed, cell_file)) if _complete(d)]
     if not done:
         return None
     return Commissioned(plant_seed, max(done, key=lambda d: (d / "model.json").stat().st_mtime))
@@ -185,34 +206,38 @@ def commissioned(
     *,
     root: Path | None = None,
     progress: Callable[[str], None] = print,
+    cell_file: Path = SIM_CELL,
 ) -> Commissioned:
     """The commissioned model of ``plant_seed`` for this code: from the cache, or built now by
     :func:`commission` (5-7 minutes, 400 s per seed with two at once on 2026-12-06: the plan's
-    motion at up to three times real time, and its analysis) and kept."""
+    motion at up to three times real time, and its analysis) and kept. ``cell_file``: the
+    product's cell config it is commissioned through (its drives: the virtual cell runs the
+    controller its ``[can].adapter`` speaks to), kept apart from the other cells'."""
     from control.identification.on_cell import QUICK_PLAN
 
     if plant_seed < 0:
         raise ValueError(f"plant seed {plant_seed} must be >= 0")
     plan = {"plan_id": f"commission-seed{plant_seed}", **QUICK_PLAN}
     root = root or cache_root()
-    folder = root / f"seed{plant_seed}-{code_version(plan)}"
-    with _locked(root / f".seed{plant_seed}.lock"):
+    tag = _tag(plant_seed, cell_file)
+    folder = root / f"{tag}-{code_version(plan)}"
+    with _locked(root / f".{tag}.lock"):
         if _complete(folder):
             return Commissioned(plant_seed, folder)
-        progress(f"commissioning plant seed {plant_seed} with `leadthrough identify` "
-                 f"(lock-step, 5-7 minutes) into {folder} ...")  # fmt: skip
-        work = root / f".build-seed{plant_seed}-{os.getpid()}"
+        progress(f"commissioning plant seed {plant_seed} through {Path(cell_file).name} with "
+                 f"`leadthrough identify` (lock-step, 5-7 minutes) into {folder} ...")  # fmt: skip
+        work = root / f".build-{tag}-{os.getpid()}"
         shutil.rmtree(work, ignore_errors=True)
         t0 = time.monotonic()
         try:
-            commission(plant_seed, plan, work)
+            commission(plant_seed, plan, work, cell_file=cell_file)
             shutil.rmtree(folder, ignore_errors=True)
             (work / "ident").rename(folder)
         finally:
             shutil.rmtree(work, ignore_errors=True)
         progress(f"commissioned plant seed {plant_seed} in {time.monotonic() - t0:.0f} s")
-        # Older versions of this seed are of no further use.
-        for old in root.glob(f"seed{plant_seed}-*"):
+        # Older versions of this seed on this cell are of no further use.
+        for old in _folders(root, tag):
             if old != folder:
                 shutil.rmtree(old, ignore_errors=True)
         return Commissioned(plant_seed, folder)
@@ -223,20 +248,22 @@ def commission(
     plan: dict[str, Any],
     work: Path,
     sim_overrides: dict[str, Any] | None = None,
+    cell_file: Path = SIM_CELL,
 ) -> Path:
     """Run `leadthrough identify` with ``plan`` on a fresh virtual cell of ``plant_seed`` whose
     product knows no model yet (``sim_overrides`` on the simulator's truth file, e.g. injected
-    effects); returns ``work/ident`` (raises RuntimeError on failure)."""
+    effects), through the product's ``cell_file``; returns ``work/ident`` (raises RuntimeError
+    on failure)."""
     sim = {"operator": {"enabling_after_s": 0.0}, "controller": {"cycle_period_s": CYCLE_S},
            "lockstep_max_speedup": commission_speedup()}  # fmt: skip
     sim = deep_merge(sim, sim_overrides or {})
-    poll_s = load_toml(SIM_CELL)["modbus"]["poll_period_s"] / sim["lockstep_max_speedup"]
+    poll_s = load_toml(cell_file)["modbus"]["poll_period_s"] / sim["lockstep_max_speedup"]
     plan_path = work / "plan.json"
     work.mkdir(parents=True, exist_ok=True)
     plan_path.write_text(json.dumps(plan))
     with Stack(
         work / "cell", sim_overrides=sim, lockstep=True,
-        plant_seed=plant_seed, model=None,
+        plant_seed=plant_seed, model=None, cell_file=cell_file,
         cell_overrides={"modbus": {"poll_period_s": poll_s}},
     ) as stack:  # fmt: skip
         stack.start()
@@ -280,8 +307,11 @@ def _lifecycle_lines(cell_dir: Path, last: int = 30) -> str:
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m sim_bridge.commission", description=__doc__)
     p.add_argument("--plant-seed", type=int, default=0)
+    p.add_argument("--cell", type=Path, default=SIM_CELL,
+                   help="the product's cell config to commission through (default: "
+                   "deploy/config/sim_cell.toml)")  # fmt: skip
     args = p.parse_args(argv)
-    c = commissioned(args.plant_seed)
+    c = commissioned(args.plant_seed, cell_file=args.cell)
     print(c.folder)
     return 0
 

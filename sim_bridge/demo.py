@@ -223,8 +223,8 @@ def cli_main(args: argparse.Namespace) -> int:
     }
     t0 = time.monotonic()
     # The product knows nothing of this plant: it teaches with what `leadthrough identify`
-    # measured on it (built now, 5-7 minutes, or reused from the cache).
-    done = commissioned(args.plant_seed)
+    # measured on it through this cell's drives (built now, 5-7 minutes, or reused).
+    done = commissioned(args.plant_seed, cell_file=args.cell)
     ident = done.summary
     print(f"model: identified on plant seed {args.plant_seed} ({done.folder}); held-out torque "
           f"RMS per joint {_fmt(ident['rms_after'])} N·m, effects found: "

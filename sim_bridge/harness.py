@@ -305,13 +305,19 @@ class Stack:
             # late by the machine's load then slows the virtual plant instead of cutting holds
             # and coasts into the motion commissioning records (under CPU steal, 14-245 per
             # segment, and a model 4x its noise floor, 2026-11-29).
+            # CiA 402 drives never wait: the host's SYNC clocks them, and in lock-step each
+            # SYNC advances the virtual plant by one servo cycle (its [controller]
+            # cycle_period_s, set to the host's SYNC period), so the bus waits for the host.
             wait = LOCKSTEP_STATE_TIMEOUT_S
+            answer_wait = {} if cell.get("can", {}).get("adapter") == "cia402" else {
+                "can": {"lockstep_answer_wait_s": LOCKSTEP_ANSWER_WAIT_S}
+            }  # fmt: skip
             cell = deep_merge(
                 cell,
                 {
                     "gateway": {"joint_state_timeout_s": wait, "io_timeout_s": wait},
                     "control": {"io_timeout_s": wait},
-                    "can": {"lockstep_answer_wait_s": LOCKSTEP_ANSWER_WAIT_S},
+                    **answer_wait,
                 },
             )
         self.placement = placement() if place else None

@@ -8,6 +8,7 @@ import os
 import pytest
 
 from sim_bridge.commission import newest_commissioned
+from sim_bridge.harness import REPO
 
 
 def folder(root, name: str, mtime: float, complete: bool = True):
@@ -34,3 +35,14 @@ def test_no_commissioning_of_the_seed_is_none_and_a_negative_seed_is_refused(tmp
     assert newest_commissioned(7, root=tmp_path) is None
     with pytest.raises(ValueError, match="plant seed"):
         newest_commissioned(-1, root=tmp_path)
+
+
+def test_each_cell_config_has_its_own_commissionings(tmp_path):
+    """A robot is commissioned through the drives it has: the CiA 402 cell's folders are not
+    the default cell's, nor the other way round."""
+    cia402 = REPO / "deploy" / "config" / "sim_cell_cia402.toml"
+    default = folder(tmp_path, "seed7-aaaa", 1000.0)
+    through_cia402 = folder(tmp_path, "seed7-sim_cell_cia402-bbbb", 2000.0)
+    assert newest_commissioned(7, root=tmp_path).folder == default
+    assert newest_commissioned(7, root=tmp_path, cell_file=cia402).folder == through_cia402
+    assert newest_commissioned(8, root=tmp_path, cell_file=cia402) is None
