@@ -103,7 +103,7 @@ CONNECT_TIMEOUT_S = 10.0
 
 
 #: Batches zenoh's transmission queue holds for real-time messages, per link (zenoh allows
-#: 1-16; its default, 2, bounds a queue that holds a burst). The control loop's data goes out
+#: 1-16; its default, 2, is too few to hold a burst of cycles). The control loop's data goes out
 #: express at real-time priority, one batch per message, and is dropped when no batch frees
 #: within 1 ms (CongestionControl.DROP: a slow peer must never stall the loop). A controller
 #: that ran late sends the cycles it owes back to back, and so does a driver that reads a

@@ -81,10 +81,11 @@ from gateway.progress import add_progress_argument, progress_bar, progress_enabl
 from sim_bridge.baseline import drag_released
 from sim_bridge.commission import commissioned, newest_commissioned
 from sim_bridge.config import load_sim_config
-from sim_bridge.harness import Stack
+from sim_bridge.harness import SIM_CELL, Stack
 from sim_bridge.plant import Plant
 from sim_bridge.teach_bench_metrics import (
     adaptation_report,
+    commands_missed,
     flange_poses,
     metrics,
     orientation_drift_deg,
@@ -279,16 +280,18 @@ def run_best(
     control: dict[str, Any] | None = None,
     guide: str | None = None,
     newest_commissioning: bool = False,
+    cell_file: Path = SIM_CELL,
 ) -> dict[str, Any]:
     """The product's zero-moment lead-through on the virtual cell, as separate processes;
     ``online_estimate`` turns on the control process's online inner-loop estimate,
     ``control`` sets keys of the cell config's ``[control]`` section (a tuning to try),
     ``guide`` is the constrained guide the operator's start asks for (None: the config's),
     and ``newest_commissioning`` takes the seed's newest commissioning in the cache whatever
-    code made it (:func:`.commission.newest_commissioned`; none: commissioned now)."""
-    done = (newest_commissioned(plant_seed) if newest_commissioning else None) or commissioned(
-        plant_seed
-    )
+    code made it (:func:`.commission.newest_commissioned`; none: commissioned now);
+    ``cell_file``: the product's cell config, whose drives the virtual cell runs and the robot
+    is commissioned through."""
+    newest = newest_commissioned(plant_seed, cell_file=cell_file) if newest_commissioning else None
+    done = newest or commissioned(plant_seed, cell_file=cell_file)
     control = dict(control or {})
     if online_estimate:
         n = len(load_sim_config().drives.gain_nm_per_a)
@@ -306,7 +309,7 @@ def run_best(
     with Stack(
         work, sim_overrides={"operator": operator}, cell_overrides=cell_overrides,
         plant_seed=plant_seed, model=done.model, inner_loop=done.inner_loop,
-        current_zero=done.current_zero,
+        current_zero=done.current_zero, cell_file=cell_file,
     ) as stack:  # fmt: skip
         stack.start()
         session = open_client(stack.bus)
@@ -342,7 +345,7 @@ def run_best(
         "max": round(float(drift.max()), 3),
     }
     out["guide"] = guide or control.get("guide", "free")
-    out["commands_missed"] = int(np.sum(np.isnan(truth["latency_s"][rows])))
+    out["commands_missed"] = commands_missed(truth["cycle"][rows], truth["latency_s"][rows])
     # what the motors carried (the datasheet's K × the reported current), RMS per joint: the
     # cylinders' share of the load shows here ([control] pressure_schedule)
     k = np.array(load_sim_config().drives.gain_nm_per_a)
@@ -475,6 +478,15 @@ def configure_parser(p: argparse.ArgumentParser) -> None:
         help="which to run (default: all)",
     )
     p.add_argument(
+        "--cell",
+        type=Path,
+        default=SIM_CELL,
+        help="the product's cell config for its strategies (default deploy/config/"
+        "sim_cell.toml; deploy/config/sim_cell_cia402.toml: CiA 402 drives): the virtual cell "
+        "runs the controller its [can].adapter speaks to, and each robot is commissioned "
+        "through it",
+    )
+    p.add_argument(
         "--newest-commissioning",
         action="store_true",
         help="take each seed's newest commissioning in the cache, whatever version of the "
@@ -515,6 +527,7 @@ def run_seed(
                 control=PRODUCT_STRATEGIES[name] | args.control,
                 guide=args.guide,
                 newest_commissioning=args.newest_commissioning,
+                cell_file=args.cell,
             )
         results[name]["wall_time_s"] = time.monotonic() - t0
         bar.advance(label="")
@@ -529,6 +542,7 @@ def run_seed(
             "waypoints": path,
         },
         "hand": {**HAND, "tremor_m": TREMOR_M, "tremor_hz": TREMOR_HZ},
+        "cell": str(args.cell),
         "control_settings": args.control,
         "guide": args.guide,
         "strategies": results,

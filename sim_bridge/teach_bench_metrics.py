@@ -123,6 +123,19 @@ def metrics(
     }
 
 
+def commands_missed(cycle: np.ndarray, latency_s: np.ndarray) -> int:
+    """Command cycles of a truth log's rows that got no command in time: a cycle is the run of
+    consecutive rows with the same ``cycle`` value (one row on the LTC cell; one per servo
+    cycle of the CiA 402 drives, several to a SYNC, the SYNC's answer latency in one of them),
+    missed when none of its rows has a latency. Counting rows instead read 22,119 missed
+    commands in 59 s of CiA 402 teaching whose controller missed none (2026-12-07)."""
+    if cycle.size == 0:
+        return 0
+    starts = np.flatnonzero(np.r_[True, cycle[1:] != cycle[:-1]])
+    answered = np.add.reduceat(~np.isnan(latency_s), starts) > 0
+    return int(np.sum(~answered))
+
+
 def settling_time_s(t_s: np.ndarray, ratios: np.ndarray, band: float = 0.05) -> float | None:
     """From ``t_s[0]``, the time after which every ratio (columns) stays within ``band`` of 1
     to the last sample; None if the last sample is outside it."""

@@ -3,16 +3,20 @@ sim_bridge/teach_bench_metrics.py), on synthetic traces."""
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 
 import numpy as np
 import pytest
 
+from sim_bridge import teach_bench
 from sim_bridge.config import load_sim_config
+from sim_bridge.harness import REPO, SIM_CELL
 from sim_bridge.plant import Plant
 from sim_bridge.teach_bench import (
     DWELL_S,
     SPEED_M_S,
+    configure_parser,
     inertia_config,
     raster_facing,
     raster_path,
@@ -23,6 +27,7 @@ from sim_bridge.teach_bench_metrics import (
     _distance_to_polyline,
     _target,
     adaptation_report,
+    commands_missed,
     metrics,
     settling_time_s,
 )
@@ -189,3 +194,53 @@ def test_a_raster_facing_the_gun_lies_in_its_plane_with_level_passes():
     np.testing.assert_allclose(np.diff(b[:, 3])[level], 0.0, atol=1e-12)
     assert b[-1, 3] < 0.0  # it ends at the bottom, as the y-z raster
     np.testing.assert_allclose(raster_facing(path, [1.0, 0.0, 0.0]), path, atol=1e-12)
+
+
+class _Bar:
+    """What a progress bar gives run_seed: nothing shown."""
+
+    def write(self, text: str) -> None: ...
+
+    def set_label(self, text: str) -> None: ...
+
+    def advance(self, label: str = "") -> None: ...
+
+
+class _Reached(Exception):
+    pass
+
+
+@pytest.mark.parametrize("cell", [None, REPO / "deploy" / "config" / "sim_cell_cia402.toml"])
+def test_the_products_strategies_run_through_the_cell_config_asked_for(cell, tmp_path, monkeypatch):
+    """`teach-bench --cell`: the product's strategies run (and the robot is commissioned)
+    through the cell config given, the default virtual cell's without it."""
+    p = argparse.ArgumentParser()
+    configure_parser(p)
+    argv = ["--strategies", "admittance", "--out", str(tmp_path)]
+    args = p.parse_args(argv + ([] if cell is None else ["--cell", str(cell)]))
+    seen: dict = {}
+
+    def run_best(plant_seed, path, work, **kwargs):
+        seen.update(kwargs, plant_seed=plant_seed)
+        raise _Reached
+
+    monkeypatch.setattr(teach_bench, "run_best", run_best)
+    with pytest.raises(_Reached):
+        teach_bench.run_seed(3, ["admittance"], tmp_path, args, _Bar())
+    assert seen["plant_seed"] == 3
+    assert seen["cell_file"] == (SIM_CELL if cell is None else cell)
+
+
+def test_commands_missed_are_counted_per_command_cycle_not_per_truth_row():
+    nan = np.nan
+    # the LTC cell: a row per cycle; two of five without an answer
+    assert commands_missed(np.arange(5), np.array([1e-3, nan, 1e-3, nan, 1e-3])) == 2
+    # CiA 402 drives: four servo rows to a SYNC, the answer's latency in one of them; the
+    # third SYNC got none
+    cycle = np.repeat([7, 8, 9, 10], 4)
+    latency = np.full(16, nan)
+    latency[[3, 5, 15]] = 1e-3
+    assert commands_missed(cycle, latency) == 1
+    # the counter wraps (the CiA 402 cell logs its SYNC count modulo 2**16): runs, not values
+    assert commands_missed(np.array([65535, 65535, 0, 0]), np.array([nan, 1e-3, nan, nan])) == 1
+    assert commands_missed(np.array([], dtype=int), np.array([])) == 0
