@@ -194,12 +194,13 @@ class PlanPlayer:
 
     def _hold_while_planning(self) -> None:
         """The compiled loop answers the cycles while the plan is built, with a plan of one
-        sample: where the plan will start, at rest (what :meth:`command` answers meanwhile).
-        Answered by Python, each cycle waited for the interpreter, which the process's slow
-        work holds: on an emulated machine 3.5 times slower (tests/slow_machine.py) the demo's
-        replay took 25 s to plan (the worker gets what the cycle's threads leave) and the CAN
-        driver refused 20-25 late commands a second meanwhile (2026-12-07). Its pause limit
-        is the planning's: the driver holding it is no reason to fail a plan not built yet."""
+        sample: where the plan will start, at rest (what :meth:`command` answers meanwhile),
+        so no Python is on the cycle then either (issue 48). On an emulated machine 3.5 times
+        slower (tests/slow_machine.py) the demo's replay took 25-30 s to plan (the worker gets
+        what the cycle's threads leave), all of it answered by Python before; the CAN driver's
+        late answers meanwhile did not fall with this (26 and 29 warnings a run: that machine
+        lacks CPU, 2026-12-07). Its pause limit is the planning's: the driver holding it is
+        no reason to fail a plan not built yet."""
         n = len(self._q0)
         try:
             self.play.install(self._q0.tolist(), [0.0] * n, n, [1], self.period_s,
