@@ -7,29 +7,8 @@ holds each drive's object dictionary and serves SDO (:mod:`sim_bridge.cia402_dic
 NMT, SYNC, PDOs, heartbeats, EMCY and the CiA 402 state machine are done here, because
 canopen 2.4.1's local node neither transmits TPDOs on SYNC nor stores received RPDOs in its
 dictionary, and its NMT slave and heartbeat producer run timer threads this single-threaded
-cell loop cannot have. The protocol's facts and the state machine's table are
-:mod:`sim_bridge.cia402_profile`.
-
-The wire, per drive with node id ``n`` (all COB-IDs are CiA 301's predefined connection set):
-
-- NMT (COB 0x000 ``[command, n or 0]``): boot → boot-up ``0x700+n [0x00]`` → pre-operational;
-  start 0x01 → operational (PDOs active), stop 0x02, pre-operational 0x80, reset node 0x81,
-  reset communication 0x82 (both send the boot-up again);
-- SDO server ``0x600+n`` → ``0x580+n`` (canopen), not in stopped;
-- SYNC (COB from 0x1005, 0x080, 0 or 1 data bytes): in operational, the RPDOs received since
-  the last SYNC take effect (synchronous transmission types 0..240; 254/255 take effect on
-  arrival), and each TPDO is sent with the values sampled at this SYNC (types 1..240: every
-  n-th SYNC; 0: when its data changed);
-- PDOs as the host maps them by SDO, checked on write, packed and unpacked by their
-  mapping (:mod:`sim_bridge.cia402_dictionary`);
-- heartbeat producer ``0x700+n [state]`` every 0x1017 ms (0: off); consumer 0x1016 sub 1 =
-  (producer id << 16) | time [ms]: armed by the producer's first heartbeat; a miss longer
-  than the time while operational or in Operation enabled applies 0x6007
-  (:mod:`sim_bridge.cia402_heartbeat`);
-- EMCY ``0x80+n`` on every fault (its 0x603F code, 0x1001) and ``0x0000`` on its reset;
-- the current (0x6078, and 0x6077 in its units) is the motor current of the last servo cycle
-  before it is read, or with 0x2010 (manufacturer-specific) at 1 its mean over the servo cycles
-  since the last SYNC, the communication cycle's mean (not stored: 0 after a reset node).
+cell loop cannot have. The protocol's facts, the state machine's table and the wire (NMT, SDO,
+SYNC, PDOs, heartbeats, EMCY, per COB-ID) are :mod:`sim_bridge.cia402_profile`.
 
 Units: the drive's own, per its parameters (:mod:`sim_bridge.cia402_parameters`). The drives
 of every joint are :mod:`sim_bridge.cia402_drive_set`.
@@ -55,49 +34,24 @@ import can
 from canopen.objectdictionary import ODVariable
 from canopen.sdo import SdoAbortedError
 
+from sim_bridge import cia402_profile as profile
 from sim_bridge.cia402_dictionary import EDS_PATH, DriveDictionary, PdoConfig
 from sim_bridge.cia402_heartbeat import Heartbeats
 from sim_bridge.cia402_parameters import AxisParameters, DriveLimits
 from sim_bridge.cia402_profile import (
-    ABORT_CONNECTION_OPTION,
-    COB_ID_SYNC,
-    COMMUNICATION_CYCLE_PERIOD,
     COMMUNICATION_ERRORS,
-    CONSUMER_HEARTBEAT_TIME,
-    CONTROLWORD,
-    CURRENT_ACTUAL,
-    CURRENT_AVERAGING,
     EMCY_BASE,
-    ERROR_CODE,
-    ERROR_REGISTER,
     ERROR_REGISTER_COMMUNICATION,
     ERROR_REGISTER_GENERIC,
     ERROR_REGISTER_PROFILE,
-    FOLLOWING_ERROR_WINDOW,
     HEARTBEAT_BASE,
-    MODES_OF_OPERATION,
-    MODES_OF_OPERATION_DISPLAY,
-    POSITION_ACTUAL,
     POWERED_STATES,
-    PRODUCER_HEARTBEAT_TIME,
-    QUICK_STOP_DECELERATION,
-    QUICK_STOP_OPTION,
     QUICK_STOP_TO_SWITCH_ON_DISABLED,
-    RPDO_COMMUNICATION,
-    RPDO_MAPPING,
     SDO_RX_BASE,
-    STATUSWORD,
     SUPPORTED_QUICK_STOP_OPTIONS,
     SYNC_COB_ID_MASK,
     SYNC_GENERATES,
-    TARGET_POSITION,
-    TARGET_VELOCITY,
-    TORQUE_ACTUAL,
-    TPDO_COMMUNICATION,
-    TPDO_MAPPING,
     TRANSITIONS,
-    VELOCITY_ACTUAL,
-    VELOCITY_OFFSET,
     AbortConnectionOption,
     Command,
     DriveState,
@@ -153,19 +107,19 @@ class Cia402Drive:
         #: the parameters stored in the drive's memory: a reset node restores them
         self._stored: dict[tuple[int, int], int] = {
             **axis.objects(),
-            (FOLLOWING_ERROR_WINDOW, 0): round(
+            (profile.FOLLOWING_ERROR_WINDOW, 0): round(
                 limits.max_following_error_rad * axis.increments_per_rad
             ),
         }
         self._live: dict[int, Callable[[], int]] = {
-            STATUSWORD: lambda: self.statusword,
-            MODES_OF_OPERATION_DISPLAY: lambda: int(self.mode or 0),
-            ERROR_CODE: lambda: int(self.error_code),
-            ERROR_REGISTER: self._error_register,
-            POSITION_ACTUAL: lambda: self.axis.increments(self.q_rad),
-            VELOCITY_ACTUAL: lambda: self.axis.increments(self.dq_rad_s),
-            CURRENT_ACTUAL: lambda: self.axis.per_mille(self.current_a),
-            TORQUE_ACTUAL: lambda: self.axis.per_mille(self.current_a),
+            profile.STATUSWORD: lambda: self.statusword,
+            profile.MODES_OF_OPERATION_DISPLAY: lambda: int(self.mode or 0),
+            profile.ERROR_CODE: lambda: int(self.error_code),
+            profile.ERROR_REGISTER: self._error_register,
+            profile.POSITION_ACTUAL: lambda: self.axis.increments(self.q_rad),
+            profile.VELOCITY_ACTUAL: lambda: self.axis.increments(self.dq_rad_s),
+            profile.CURRENT_ACTUAL: lambda: self.axis.per_mille(self.current_a),
+            profile.TORQUE_ACTUAL: lambda: self.axis.per_mille(self.current_a),
         }
         self.booted = False
         self.nmt_state = NmtState.INITIALISING
@@ -211,62 +165,68 @@ class Cia402Drive:
     def _on_write(self, index: int, subindex: int, od: ODVariable, data: bytes) -> None:
         """Check and apply a write (SDO or RPDO) before the dictionary stores it."""
         value = od.decode_raw(data)
-        if index == CONTROLWORD:
+        if index == profile.CONTROLWORD:
             self.controlword = value
-        elif index == MODES_OF_OPERATION:
+        elif index == profile.MODES_OF_OPERATION:
             if value not in tuple(Mode):
                 raise SdoAbortedError(SdoAbort.VALUE_RANGE_EXCEEDED)
             self.mode = Mode(value)
-        elif index == TARGET_POSITION:
+        elif index == profile.TARGET_POSITION:
             self._target_inc, self._target_written = value, True
-        elif index == VELOCITY_OFFSET:
+        elif index == profile.VELOCITY_OFFSET:
             self._velocity_offset_inc = value
-        elif index == TARGET_VELOCITY:
+        elif index == profile.TARGET_VELOCITY:
             self._target_velocity_inc = value
-        elif index == QUICK_STOP_OPTION:
+        elif index == profile.QUICK_STOP_OPTION:
             if value not in SUPPORTED_QUICK_STOP_OPTIONS:
                 raise SdoAbortedError(SdoAbort.VALUE_RANGE_EXCEEDED)
             self._quick_stop_option = value
-        elif index == ABORT_CONNECTION_OPTION:
+        elif index == profile.ABORT_CONNECTION_OPTION:
             if value not in tuple(AbortConnectionOption):
                 raise SdoAbortedError(SdoAbort.VALUE_RANGE_EXCEEDED)
             self._abort_option = AbortConnectionOption(value)
-        elif index == QUICK_STOP_DECELERATION:
+        elif index == profile.QUICK_STOP_DECELERATION:
             if value <= 0:
                 raise SdoAbortedError(SdoAbort.VALUE_RANGE_EXCEEDED)
             self._quick_stop_decel_inc = value
-        elif index == COMMUNICATION_CYCLE_PERIOD:
+        elif index == profile.COMMUNICATION_CYCLE_PERIOD:
             self._cycle_period_s = value * 1e-6
-        elif index == CURRENT_AVERAGING:
+        elif index == profile.CURRENT_AVERAGING:
             if value not in (0, 1):
                 raise SdoAbortedError(SdoAbort.VALUE_RANGE_EXCEEDED)
             self._current_averaging = bool(value)
-        elif index == COB_ID_SYNC:
+        elif index == profile.COB_ID_SYNC:
             if value & (SYNC_GENERATES | 1 << 29):  # the SYNC producer, or a 29-bit id
                 raise SdoAbortedError(SdoAbort.VALUE_RANGE_EXCEEDED)
             self.sync_cob_id = value & SYNC_COB_ID_MASK
-        elif index == PRODUCER_HEARTBEAT_TIME:
+        elif index == profile.PRODUCER_HEARTBEAT_TIME:
             self._heartbeats.set_producer(value)
-        elif index == CONSUMER_HEARTBEAT_TIME and subindex == 1:
+        elif index == profile.CONSUMER_HEARTBEAT_TIME and subindex == 1:
             self._heartbeats.set_consumer(value)
-        elif index in RPDO_COMMUNICATION + TPDO_COMMUNICATION + RPDO_MAPPING + TPDO_MAPPING:
+        elif (
+            index
+            in profile.RPDO_COMMUNICATION
+            + profile.TPDO_COMMUNICATION
+            + profile.RPDO_MAPPING
+            + profile.TPDO_MAPPING
+        ):
             self._od.check_pdo_write(index, subindex, value)
             self._od.invalidate_pdos()
 
     def _load_settings(self) -> None:
         """The values the drive works with, from its dictionary (after a reset)."""
-        self.controlword = self.read(CONTROLWORD)
+        self.controlword = self.read(profile.CONTROLWORD)
         self._previous_controlword = self.controlword
-        mode = self.read(MODES_OF_OPERATION)
+        mode = self.read(profile.MODES_OF_OPERATION)
         self.mode = Mode(mode) if mode in tuple(Mode) else None
-        self._target_inc = self.read(TARGET_POSITION)
-        self._velocity_offset_inc = self.read(VELOCITY_OFFSET)
-        self._target_velocity_inc = self.read(TARGET_VELOCITY)
-        self._quick_stop_option = self.read(QUICK_STOP_OPTION)
-        self._quick_stop_decel_inc = self.read(QUICK_STOP_DECELERATION)
-        self._abort_option = AbortConnectionOption(self.read(ABORT_CONNECTION_OPTION))
-        self._cycle_period_s = self.read(COMMUNICATION_CYCLE_PERIOD) * 1e-6
-        self._current_averaging = bool(self.read(CURRENT_AVERAGING))
+        self._target_inc = self.read(profile.TARGET_POSITION)
+        self._velocity_offset_inc = self.read(profile.VELOCITY_OFFSET)
+        self._target_velocity_inc = self.read(profile.TARGET_VELOCITY)
+        self._quick_stop_option = self.read(profile.QUICK_STOP_OPTION)
+        self._quick_stop_decel_inc = self.read(profile.QUICK_STOP_DECELERATION)
+        self._abort_option = AbortConnectionOption(self.read(profile.ABORT_CONNECTION_OPTION))
+        self._cycle_period_s = self.read(profile.COMMUNICATION_CYCLE_PERIOD) * 1e-6
+        self._current_averaging = bool(self.read(profile.CURRENT_AVERAGING))
 
     def pdo_config(self, comm_index: int) -> PdoConfig:
         """A PDO as its objects now configure it (``comm_index`` 0x1400.. or 0x1800..)."""
@@ -302,14 +262,14 @@ class Cia402Drive:
         """NMT reset communication (and the end of every reset): the communication objects
         (0x1000-0x1FFF) back to their defaults, then boot-up and pre-operational."""
         self._od.clear_communication()
-        self.sync_cob_id = self.read(COB_ID_SYNC) & SYNC_COB_ID_MASK
-        self._cycle_period_s = self.read(COMMUNICATION_CYCLE_PERIOD) * 1e-6
+        self.sync_cob_id = self.read(profile.COB_ID_SYNC) & SYNC_COB_ID_MASK
+        self._cycle_period_s = self.read(profile.COMMUNICATION_CYCLE_PERIOD) * 1e-6
         self._sync_count = 0
         self._tpdo_last: dict[int, bytes] = {}
         self._rpdo_latched: dict[int, bytes] = {}
         self.rpdo_stamp_s = None
-        self._heartbeats.set_producer(self.read(PRODUCER_HEARTBEAT_TIME))
-        self._heartbeats.set_consumer(self.read(CONSUMER_HEARTBEAT_TIME, 1))
+        self._heartbeats.set_producer(self.read(profile.PRODUCER_HEARTBEAT_TIME))
+        self._heartbeats.set_consumer(self.read(profile.CONSUMER_HEARTBEAT_TIME, 1))
         self.nmt_state = NmtState.INITIALISING
         self._send(HEARTBEAT_BASE + self.node_id, bytes([NmtState.INITIALISING]))  # boot-up
         self.nmt_state = NmtState.PRE_OPERATIONAL

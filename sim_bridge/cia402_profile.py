@@ -3,6 +3,28 @@ states and commands, SDO abort and error codes (CiA 301); the state machine of C
 device control (its numbered transitions, controlword commands and statusword patterns); and
 the pure functions that apply them. Written from the standards for the drive side
 (:mod:`sim_bridge.cia402_drives`); nothing here comes from the product's host code.
+
+The wire a drive of :mod:`sim_bridge.cia402_drives` speaks, per drive with node id ``n`` (all
+COB-IDs are CiA 301's predefined connection set):
+
+- NMT (COB 0x000 ``[command, n or 0]``): boot → boot-up ``0x700+n [0x00]`` → pre-operational;
+  start 0x01 → operational (PDOs active), stop 0x02, pre-operational 0x80, reset node 0x81,
+  reset communication 0x82 (both send the boot-up again);
+- SDO server ``0x600+n`` → ``0x580+n`` (canopen), not in stopped;
+- SYNC (COB from 0x1005, 0x080, 0 or 1 data bytes): in operational, the RPDOs received since
+  the last SYNC take effect (synchronous transmission types 0..240; 254/255 take effect on
+  arrival), and each TPDO is sent with the values sampled at this SYNC (types 1..240: every
+  n-th SYNC; 0: when its data changed);
+- PDOs as the host maps them by SDO, checked on write, packed and unpacked by their
+  mapping (:mod:`sim_bridge.cia402_dictionary`);
+- heartbeat producer ``0x700+n [state]`` every 0x1017 ms (0: off); consumer 0x1016 sub 1 =
+  (producer id << 16) | time [ms]: armed by the producer's first heartbeat; a miss longer
+  than the time while operational or in Operation enabled applies 0x6007
+  (:mod:`sim_bridge.cia402_heartbeat`);
+- EMCY ``0x80+n`` on every fault (its 0x603F code, 0x1001) and ``0x0000`` on its reset;
+- the current (0x6078, and 0x6077 in its units) is the motor current of the last servo cycle
+  before it is read, or with 0x2010 (manufacturer-specific) at 1 its mean over the servo cycles
+  since the last SYNC, the communication cycle's mean (not stored: 0 after a reset node).
 """
 
 from __future__ import annotations

@@ -32,7 +32,8 @@ import can
 import numpy as np
 
 from drivers.can.adapter import HostRequest
-from drivers.can.cia402 import NMT_OPERATIONAL, Cia402Adapter, DriveState
+from drivers.can.cia402 import NMT_OPERATIONAL, Cia402Adapter
+from drivers.can.cia402_states import DriveState
 from drivers.can.config import Cia402Config
 from drivers.can.rt_cia402_tables import (
     _float,

@@ -1,5 +1,5 @@
-"""The host's side of the CiA 402 state machine (drivers/can/cia402.py) against the standard's
-tables, written out here as the standard prints them: the statusword's state coding
+"""The host's side of the CiA 402 state machine (drivers/can/cia402_states.py) against the
+standard's tables, written out here as the standard prints them: the statusword's state coding
 (x: any value) and the device control commands with their transition numbers."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import itertools
 import pytest
 
 from drivers.can.adapter import HostRequest
-from drivers.can.cia402 import (
+from drivers.can.cia402_states import (
     CW_SHUTDOWN,
     TRANSITIONS,
     DriveState,

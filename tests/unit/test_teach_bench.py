@@ -14,12 +14,8 @@ from sim_bridge.config import load_sim_config
 from sim_bridge.harness import REPO, SIM_CELL
 from sim_bridge.plant import Plant
 from sim_bridge.teach_bench import (
-    DWELL_S,
-    SPEED_M_S,
     configure_parser,
     inertia_config,
-    raster_facing,
-    raster_path,
     run_inertia,
     run_offservo,
 )
@@ -31,6 +27,7 @@ from sim_bridge.teach_bench_metrics import (
     metrics,
     settling_time_s,
 )
+from sim_bridge.teach_raster import DWELL_S, SPEED_M_S, raster_facing, raster_path
 
 
 def test_the_raster_zig_zags_on_the_vertical_plane_at_the_painters_speed():

@@ -22,6 +22,8 @@ mod py_admittance_cycle;
 #[cfg(feature = "python")]
 mod py_args;
 #[cfg(feature = "python")]
+mod py_cycle_law;
+#[cfg(feature = "python")]
 mod py_cycle_loop;
 #[cfg(feature = "python")]
 mod py_delay;

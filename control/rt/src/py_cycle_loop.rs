@@ -7,10 +7,9 @@
 //! Each state is decided there, once:
 //!
 //! - teaching (the gateway's lifecycle fresh and TEACHING, the drives following, the cylinders'
-//!   pressures fresh): the compiled law answers it, the zero-moment law's
-//!   ([`PyZeroMomentCycle`]) or the admittance's ([`PyAdmittanceCycle`]), their pieces borrowed
-//!   without the GIL, and the command is encoded and published from that thread, stamped at
-//!   receipt and at sending as the Python did;
+//!   pressures fresh): the compiled law answers it ([`Law`]: the zero-moment law's or the
+//!   admittance's), their pieces borrowed without the GIL, and the command is encoded and
+//!   published from that thread, stamped at receipt and at sending as the Python did;
 //! - identifying or replaying with a built plan ([`PyPlanPlay`], installed by
 //!   control/plan_player.py once its worker built it): the plan's sample answers it, with the
 //!   law's hold offset on a replay's (eq. 21's steady state: a taught path is where the tool
@@ -38,9 +37,8 @@ use zenoh::{Session, Wait};
 
 use crate::chain::MAX_JOINTS;
 use crate::law::zero_moment::State;
-use crate::py_admittance_cycle::PyAdmittanceCycle;
+use crate::py_cycle_law::Law;
 use crate::py_plan_play::{playable, PyPlanPlay};
-use crate::py_zero_moment::PyZeroMomentCycle;
 
 /// Notes kept for Python at most (the oldest go first).
 const MAX_NOTES: usize = 64;
@@ -77,62 +75,6 @@ fn monotonic_s() -> f64 {
     // SAFETY: a valid timespec.
     unsafe { libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut ts) };
     ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9
-}
-
-/// The lead-through law whose teaching cycle the loop answers: the zero-moment law's, or the
-/// admittance's (which shares the zero-moment law's pieces: its offset on a replay, the motor
-/// torque).
-enum Law {
-    ZeroMoment(Py<PyZeroMomentCycle>),
-    Admittance(Py<PyAdmittanceCycle>),
-}
-
-impl Law {
-    fn from_py(law: &Bound<'_, PyAny>) -> PyResult<Law> {
-        if let Ok(z) = law.cast::<PyZeroMomentCycle>() {
-            return Ok(Law::ZeroMoment(z.clone().unbind()));
-        }
-        if let Ok(a) = law.cast::<PyAdmittanceCycle>() {
-            return Ok(Law::Admittance(a.clone().unbind()));
-        }
-        Err(PyValueError::new_err(
-            "law must be a ZeroMomentCycle, an AdmittanceCycle or None",
-        ))
-    }
-
-    fn zero_moment(&self) -> &PyZeroMomentCycle {
-        match self {
-            Law::ZeroMoment(z) => z.get(),
-            Law::Admittance(a) => a.get().zero_moment(),
-        }
-    }
-
-    fn joints(&self) -> usize {
-        match self {
-            Law::ZeroMoment(z) => z.get().joints(),
-            Law::Admittance(a) => a.get().joints(),
-        }
-    }
-
-    fn answer_state(
-        &self,
-        st: &State,
-        p_bar: &[f64],
-        q_cmd: &mut [f64],
-        dq_cmd: &mut [f64],
-    ) -> Result<(), String> {
-        match self {
-            Law::ZeroMoment(z) => z.get().answer_state(st, p_bar, q_cmd, dq_cmd),
-            Law::Admittance(a) => a.get().answer_state(st, p_bar, q_cmd, dq_cmd),
-        }
-    }
-
-    fn disengage_now(&self) {
-        match self {
-            Law::ZeroMoment(z) => z.get().disengage_now(),
-            Law::Admittance(a) => a.get().disengage_now(),
-        }
-    }
 }
 
 /// What decides whether the law answers a state (set by Python).

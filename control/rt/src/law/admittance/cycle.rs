@@ -42,6 +42,7 @@ use crate::law::zero_moment::{Parts, State, ZeroMoment};
 use crate::point_model::PointModel;
 
 mod engagement;
+mod inertia;
 
 type Joints = [f64; MAX_JOINTS];
 const SQUARE: usize = MAX_JOINTS * MAX_JOINTS;
@@ -232,76 +233,6 @@ impl AdmittanceCycle {
         self.events.push(Event { warning, text });
     }
 
-    /// M̂ at `q_at` (row-major n × n), computed off the cycle. Err unless finite and sized.
-    pub fn set_mass(&mut self, q_at: &[f64], mass: &[f64]) -> Result<(), String> {
-        let n = self.n;
-        if q_at.len() != n || mass.len() != n * n {
-            return Err(format!(
-                "admittance mass: needs {n} positions and {n} x {n} values"
-            ));
-        }
-        if !q_at.iter().chain(mass).all(|v| v.is_finite()) {
-            return Err("admittance mass: a value is not finite".into());
-        }
-        self.mass[..n * n].copy_from_slice(mass);
-        let mut at = [0.0; MAX_JOINTS];
-        at[..n].copy_from_slice(q_at);
-        self.mass_at = Some(at);
-        Ok(())
-    }
-
-    /// Where M̂ should be computed again (the reference `q_r`, when the law has no M̂ of the
-    /// identified model within [`Settings::inertia_step_rad`] of it), or None.
-    pub fn mass_wanted(&self, q_r: &[f64]) -> Option<Joints> {
-        if !self.s.identified_mass {
-            return None;
-        }
-        let stale = match &self.mass_at {
-            None => true,
-            Some(at) => {
-                let mut far = false;
-                for j in 0..self.n {
-                    let d = (q_r[j] - at[j]).abs();
-                    far |= d.is_nan() || d > self.s.inertia_step_rad;
-                }
-                far
-            }
-        };
-        stale.then(|| {
-            let mut at = [0.0; MAX_JOINTS];
-            at[..self.n].copy_from_slice(&q_r[..self.n]);
-            at
-        })
-    }
-
-    /// M̂ at `q` into `m`: the identified model's as handed in (the newest, wherever it was
-    /// computed), else the nominal chain's with rotor inertias (cached by the zero-moment law).
-    pub fn mass_at(
-        &self,
-        zm: &mut ZeroMoment,
-        parts: &mut Parts,
-        q: &[f64],
-        m: &mut [f64],
-    ) -> Result<(), String> {
-        let n = self.n;
-        if self.s.identified_mass && self.mass_at.is_some() {
-            m[..n * n].copy_from_slice(&self.mass[..n * n]);
-            return Ok(());
-        }
-        let (chain, work) = parts
-            .chain
-            .as_mut()
-            .ok_or_else(|| "the admittance needs the nominal chain for M(q)".to_string())?;
-        zm.refresh_inertia(chain, work, q)?;
-        m[..n * n].copy_from_slice(zm.m());
-        Ok(())
-    }
-
-    /// What the drives must give for the arm to move so, without a hand, into `out` [N·m]:
-    /// M̂ q̈ + gravity − cylinders + the model's friction where it opposes the motion, at the
-    /// speed beyond the friction deadband (as the zero-moment law: at rest the arm stands on
-    /// its own friction, and a creep never earns a push). `mass` row-major n × n.
-    #[allow(clippy::too_many_arguments)]
     /// The model's torque holding the arm at rest at `q` into `out`: no speed, no acceleration
     /// (M̂ plays no part): gravity, the cylinders at `p_bar`, the effects at rest.
     pub fn static_torque(
@@ -326,6 +257,11 @@ impl AdmittanceCycle {
         )
     }
 
+    /// What the drives must give for the arm to move so, without a hand, into `out` [N·m]:
+    /// M̂ q̈ + gravity − cylinders + the model's friction where it opposes the motion, at the
+    /// speed beyond the friction deadband (as the zero-moment law: at rest the arm stands on
+    /// its own friction, and a creep never earns a push). `mass` row-major n × n.
+    #[allow(clippy::too_many_arguments)]
     pub fn model_torque(
         zm: &ZeroMoment,
         model: &mut PointModel,
