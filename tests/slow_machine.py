@@ -24,6 +24,14 @@ the loop is then timed under the emulation and the factor corrected by what it m
 spinners' own switching slows it further: 5.74x gave 2.18 s for 1.62 s, session 84;
 :func:`corrected_factor`), up to :data:`CALIBRATION_STEPS` times; every timing is printed.
 
+The loop is the guide's measure of the class, not of this product's work, and it overstates
+the slowest machine for the product 3.5-4.5 times: the same bench at the same commit (main
+292d2ae, ``leadthrough bench --profile fd --rates 125 250 --cycles 5000``) took 1.16-1.32x the
+CPU per process on the slowest machine (issue 48's figures) that it takes on a fast one whose
+loop is 4.5-5.8x quicker (session 104; session 63: 1.3-1.55x). ``--as-slow-as 1.62`` therefore
+tries a machine much slower than any measured; ``--factor F`` with F about 1.3-1.6 stands for the
+slowest one measured, 2-2.7 for twice it (docs/results/realtime.md).
+
 SCHED_FIFO needs root or an rtprio limit; without it the emulation is refused (exit 2), never
 silently skipped. The kernel's real-time throttling (``/proc/sys/kernel/sched_rt_runtime_us``,
 by default 95 % of each second per CPU) bounds what all SCHED_FIFO threads together take: with
