@@ -282,13 +282,28 @@ def commission(
         stack.request("stop")
     (work / "identify.log").write_text(out.stdout + out.stderr)
     if out.returncode != 0:
+        lifecycle = _lifecycle_lines(work / "cell")
         raise RuntimeError(
-            f"commissioning plant seed {plant_seed} failed ({out.returncode}):\n"
+            f"commissioning plant seed {plant_seed} failed ({out.returncode}): "
+            f"{_cause(out.stdout, out.stderr, lifecycle)}\n"
             f"{out.stdout[-3000:]}{out.stderr[-3000:]}\n"
-            f"the gateway's lifecycle and errors:\n{_lifecycle_lines(work / 'cell')}"
+            f"the gateway's lifecycle and errors:\n{lifecycle}"
         )
     shutil.copy(work / "identify.log", work / "ident" / "identify.log")
     return work / "ident"
+
+
+def _cause(stdout: str, stderr: str, lifecycle: str) -> str:
+    """One line that says why `leadthrough identify` failed: its error (its stderr's last line),
+    how the plan ended on the cell if it said, and the gateway's last error or lifecycle change.
+    It goes on the RuntimeError's first line, which is all pytest's short summary of a failure
+    shows, and a CI log read from its tail has only that (session 104's CI: "failed (2):" and
+    nothing more)."""
+    error = next((ln for ln in reversed(stderr.splitlines()) if ln.strip()), "")
+    ended = next((ln for ln in stdout.splitlines() if ln.startswith("identification ended")), "")
+    gateway = next((ln for ln in reversed(lifecycle.splitlines()) if ln.strip()), "")
+    parts = [p.strip() for p in (error, ended, gateway and f"gateway: {gateway}") if p]
+    return "; ".join(parts) or "(it printed nothing)"
 
 
 def _lifecycle_lines(cell_dir: Path, last: int = 30) -> str:

@@ -121,6 +121,7 @@ def make_context(
         raw_hz=data.raw_hz,
         dq_noise=data.dq_noise_rad_s,
         dq_friction=data.dq_friction,
+        resample_mix=data.resample_mix,
     )
 
 

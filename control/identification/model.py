@@ -379,6 +379,7 @@ class IdentifiedModel:
             dq_friction=data.dq_friction,
         )  # fmt: skip
         ctx.sample_hz, ctx.raw_hz = data.sample_hz, data.raw_hz
+        ctx.resample_mix = data.resample_mix
         tau = self.measured(data.lowpass(self.torque_from_context(ctx)))
         return shift_signal(data.t, data.segment, tau, -self.delay_s) if self.delay_s else tau
 

@@ -5,8 +5,7 @@ Per recorded file (and per gap-free segment of it):
 1. **Segments.** A time step above :data:`GAP_FACTOR` × the median step starts a new segment;
    segments are filtered separately and never differentiated across a gap.
 2. **Uniform grid.** If the time steps jitter by more than :data:`JITTER_TOLERANCE` (relative),
-   the segment is resampled onto a uniform grid at the median step by linear interpolation
-   (the Franka log, for one, jitters between 0.7 and 1.8 ms).
+   the segment is resampled onto a uniform grid at the median step (:mod:`.resample`).
 3. **Zero-phase low-pass** (``scipy.signal.butter`` order :data:`FILTER_ORDER`, applied forward
    and backward with ``sosfiltfilt``, so no delay between signals):
 
@@ -49,6 +48,7 @@ import numpy as np
 from control.identification.datafile import Measurements
 from control.identification.friction_law import rest_log_odds_per_joint
 from control.identification.friction_velocity import friction_velocity
+from control.identification.resample import uniform_grid
 from gateway.errors import ConfigError, DataFileError
 
 DEFAULT_RATE_HZ = 200.0
@@ -120,6 +120,9 @@ class Prepared:
     #: (T, n) the velocity friction is taken of [rad/s] (:mod:`.friction_velocity`; None:
     #: ``dq``); ``dq_noise_rad_s`` and ``dq_rest_odds`` are its noise and odds
     dq_friction: np.ndarray | None = None
+    #: (T, 3) how a resampled sample mixes the recorded ones around it (:mod:`.resample`;
+    #: zeros: not resampled): the torque is that mix, so is each friction column
+    resample_mix: np.ndarray | None = None
 
     @property
     def n_samples(self) -> int:
@@ -137,7 +140,8 @@ class Prepared:
         """The samples where ``mask`` (T,) is true (a boolean array or index array)."""
         per_sample = ("t", "q", "dq", "ddq", "tau", "segment")
         changes = {k: getattr(self, k)[mask] for k in per_sample}
-        for k in ("p", "filter_hz", "sample_hz", "raw_hz", "dq_rest_odds", "dq_friction"):
+        for k in ("p", "filter_hz", "sample_hz", "raw_hz", "dq_rest_odds", "dq_friction",
+                  "resample_mix"):  # fmt: skip
             v = getattr(self, k)
             changes[k] = None if v is None else v[mask]
         return replace(self, **changes)
@@ -418,13 +422,9 @@ def prepare(
             signals["dq"] = m.dq[a:b]
         if m.p is not None:
             signals["p"] = m.p[a:b]
+        mix = np.zeros((t.size, 3))
         if np.max(np.abs(np.diff(t) - step)) > JITTER_TOLERANCE * step:
-            grid = t[0] + step * np.arange(int(np.floor((t[-1] - t[0]) / step + 1e-9)) + 1)
-            signals = {
-                k: np.column_stack([np.interp(grid, t, v[:, c]) for c in range(v.shape[1])])
-                for k, v in signals.items()
-            }
-            t = grid
+            t, signals, mix = uniform_grid(t, signals, step)
         edge = _edge_samples(edge_cutoff_hz or position_cutoff_hz, fs)
         if t.size < 2 * edge + MIN_SEGMENT_SAMPLES:
             continue
@@ -446,6 +446,7 @@ def prepare(
         keep = slice(edge, t.size - edge, factor)
         part = {"t": t[keep], "q": q[keep], "dq": dq[keep], "ddq": ddq[keep], "tau": tau[keep]}
         part["dq_friction"] = dq_fr[keep]
+        part["resample_mix"] = mix[keep]
         if p is not None:
             part["p"] = p[keep]
         part["segment"] = np.full(part["t"].size, seg_id)
@@ -486,6 +487,7 @@ def prepare(
         dq_noise_rad_s=_pooled(dq_noise),
         dq_rest_odds=cat["rest_odds"],
         dq_friction=cat["dq_friction"],
+        resample_mix=cat["resample_mix"],
     )
 
 
@@ -547,6 +549,7 @@ def concatenate(parts: Sequence[Prepared]) -> Prepared:
         dq_noise_rad_s=_pooled([(p.n_samples, p.dq_noise_rad_s) for p in parts]),
         dq_rest_odds=_cat_optional([p.dq_rest_odds for p in parts]),
         dq_friction=_cat_optional([p.dq_friction for p in parts]),
+        resample_mix=_cat_optional([p.resample_mix for p in parts]),
     )
 
 

@@ -137,6 +137,10 @@ class Context:
     directions: np.ndarray | None = None
     #: (T, n) friction's velocity (:mod:`.friction_velocity`; None: ``dq``)
     dq_friction: np.ndarray | None = None
+    #: (T, 3) how each sample of a resampled recording mixes the recorded samples around it
+    #: (:attr:`.preprocess.Prepared.resample_mix`; None: it does not): :meth:`sample_mean`
+    #: mixes each friction column as the torque was mixed
+    resample_mix: np.ndarray | None = None
     _directions: dict[tuple[int, float], np.ndarray] = field(
         default_factory=dict, repr=False, compare=False
     )
@@ -224,13 +228,14 @@ class Context:
             rest = rest_probability(v, sigma, odds)[:, None]
             return rest * at_rest + (1.0 - rest) * exact(v)
 
+        ddq = self.ddq[:, j]
+        single = self._resampled(at, dq, ddq)
         if self.sample_hz is None or self.raw_hz is None or dq.size == 0:
-            return at(dq)
+            return single
         raw = np.asarray(self.raw_hz, dtype=float)
         k = np.maximum(1, np.round(raw / np.asarray(self.sample_hz, dtype=float))).astype(int)
         if int(k.max()) == 1:
-            return at(dq)
-        ddq = self.ddq[:, j]
+            return single
         acc: np.ndarray | None = None
         for i in range(int(k.max())):
             live = i < k
@@ -238,7 +243,22 @@ class Context:
             part = at(dq + ddq * dt) * (live / k)[:, None]
             acc = part if acc is None else acc + part
         assert acc is not None
-        return acc
+        # a kept sample that stands for one recorded (or resampled) sample: as that one
+        return np.where((k == 1)[:, None], single, acc)
+
+    def _resampled(
+        self, at: Callable[[np.ndarray], np.ndarray], dq: np.ndarray, ddq: np.ndarray
+    ) -> np.ndarray:
+        """``at`` of the velocity per sample, mixed over the two recorded samples around it
+        where the recording was resampled onto a uniform grid (:attr:`resample_mix`), as the
+        torque there was mixed; the velocity at each is carried by the acceleration. Where a
+        kept sample stands for several (decimation), their mean above has the larger share
+        of the blur, and this is not applied to them."""
+        mix = self.resample_mix
+        if mix is None or dq.size == 0 or not np.any(mix[:, 2] > 0.0):
+            return at(dq)
+        w = mix[:, 2:3]
+        return (1.0 - w) * at(dq + ddq * mix[:, 0]) + w * at(dq + ddq * mix[:, 1])
 
     def _rest_odds_of(self, index: np.ndarray | slice) -> np.ndarray | None:
         """:attr:`rest_odds` for the rows ``index`` (a subset keeps its parent's prior)."""
@@ -278,6 +298,7 @@ class Context:
             self.sequence,
             take(self.directions),
             take(self.dq_friction),
+            take(self.resample_mix),
         )
 
 
