@@ -37,7 +37,7 @@ from control.identification.terms import Context, EffectTerm, shift_signal
 RIPPLE_PEAKS = 2
 #: The delay is refined to this [s] (a tenth of a sample at 1 kHz).
 DELAY_TOLERANCE_S = 1e-5
-#: Joints that may couple (0-based offsets from the end): the last three.
+#: Joints of the wrist, which may couple: those after the arm's first three at most three.
 WRIST_JOINTS = 3
 
 
@@ -123,7 +123,7 @@ def candidates(
     if ctx.y_payload is not None:
         out.append(EffectTerm("payload", tuple(range(n))))
     if ctx.rigid is not None and ctx.friction is not None and n >= 2:
-        wrist = range(max(0, n - WRIST_JOINTS), n)
+        wrist = range(wrist_start(n), n)
         for j in wrist:
             for k in wrist:
                 if k != j:
@@ -132,6 +132,13 @@ def candidates(
                             EffectTerm("wrist_coupling", (j,), {"from_joint": k, "source": source})
                         )
     return [t for t in out if _taken_key(t) not in taken or t.name == "position_ripple"]
+
+
+def wrist_start(n: int) -> int:
+    """The first joint (0-based) of an ``n``-joint arm's wrist: after the first three joints,
+    which place the wrist (base, shoulder, elbow: each on its own motor and gear train), at most
+    the last :data:`WRIST_JOINTS`; at least the last two of a shorter arm."""
+    return max(n - WRIST_JOINTS, min(3, n - 2), 0)
 
 
 def _taken_key(t: EffectTerm) -> tuple[str, tuple[int, ...], Any]:

@@ -52,7 +52,8 @@ it, not on the decimated grid.
   friction drops) and ``viscous_rate_nm_per_rad`` (viscous coefficient change per second,
   [N·m·s/rad per s]). A warming gear's drift multiplies the sign of the velocity; a plain
   ``t`` column (a growing offset) left it half-absorbed by spurious negative Stribeck terms.
-- ``wrist_coupling`` on joint j from joint k (k ≠ j, both among the last three): joint k's
+- ``wrist_coupling`` on joint j from joint k (k ≠ j, both of the wrist,
+  :func:`.effect_candidates.wrist_start`): joint k's
   model torque (rigid + friction, ``source = "torque"``) or its friction torque
   (``source = "friction"``); parameters ``from_joint`` k, ``coefficient``, ``source``.
 """
