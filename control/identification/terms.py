@@ -230,13 +230,12 @@ class Context:
             return rest * at_rest + (1.0 - rest) * exact(v)
 
         ddq = self.ddq[:, j]
-        single = self._resampled(at, dq, ddq)
         if self.sample_hz is None or self.raw_hz is None or dq.size == 0:
-            return single
+            return self._resampled(at, dq, ddq)
         raw = np.asarray(self.raw_hz, dtype=float)
         k = np.maximum(1, np.round(raw / np.asarray(self.sample_hz, dtype=float))).astype(int)
         if int(k.max()) == 1:
-            return single
+            return self._resampled(at, dq, ddq)
         acc: np.ndarray | None = None
         for i in range(int(k.max())):
             live = i < k
@@ -244,8 +243,10 @@ class Context:
             part = at(dq + ddq * dt) * (live / k)[:, None]
             acc = part if acc is None else acc + part
         assert acc is not None
+        if int(k.min()) > 1:  # every kept sample stands for several: the mean alone
+            return acc
         # a kept sample that stands for one recorded (or resampled) sample: as that one
-        return np.where((k == 1)[:, None], single, acc)
+        return np.where((k == 1)[:, None], self._resampled(at, dq, ddq), acc)
 
     def _resampled(
         self, at: Callable[[np.ndarray], np.ndarray], dq: np.ndarray, ddq: np.ndarray
