@@ -188,3 +188,16 @@ def test_criteria_fail_a_false_effect_on_a_null_draw_and_an_after_rms_above_both
     found = [{"name": "spring", "joints": [3], "parameters": {"k_nm_per_rad": 2.1}}]
     named = world_criteria([spring], n, found, after, floor, plain, oracle)
     assert named["effect_named_or_absorbed"] and named["named"]
+
+
+def test_never_worse_passes_a_joint_as_good_as_the_oracle_and_fails_one_worse_than_both():
+    n, floor, plain = 3, [0.1] * 3, [0.15] * 3
+    # joint 2: plain LS beats the product (0.157 against 0.146 in draw 207) and the oracle too
+    oracle = [0.15, 0.161, 0.15]
+    after = [0.15, 0.157, 0.15]
+    c = world_criteria([], n, [], after, floor, plain, oracle)
+    assert c["never_worse_than_plain_ls"] and not c["never_worse_than_plain_ls_strict"]
+    # the same joint worse than the oracle: worse than plain least squares
+    c = world_criteria([], n, [], after, floor, plain, [0.15, 0.156, 0.15])
+    assert not c["never_worse_than_plain_ls"] and not c["never_worse_than_plain_ls_strict"]
+    assert c["not_worse_than_plain_ls_per_joint"] == [True, False, True]

@@ -15,7 +15,16 @@ squares (on the wrong URDF analyze is given, fitted on the training file).
 - ``effect_named_or_absorbed``: every true effect named (:func:`.family.compare_effects`, main
   parameter within 20 %) or absorbed (after on its joints within the criterion above), and no
   false effect accepted (the same exemption);
-- ``never_worse_than_plain_ls``: as in the declared world.
+- ``never_worse_than_plain_ls``: as in the declared world, and a joint whose after-RMS is at
+  most the oracle's (:data:`fam.RMS_TOLERANCE`) is not worse either: the generating model,
+  fitted on the same files and predicting from the holdout file alone, is the most any model
+  can reach there, so plain least squares below it is chance, as below the floor in the
+  declared world. Traced (issue 46, draws 207 and 209, session 106): a Dahl joint rests for the
+  holdout's first 4 s holding its last motion's friction (-F_c), which no model of the file can
+  know (its motion before the file is not in it); the product and the oracle predict 0 there
+  (the expected value), plain least squares is nearer by its own rigid part's error (0.11 and
+  1.1 N·m towards the held friction), and wins by 7 % and 1 % while the oracle loses by 10 %
+  and 2 %. ``never_worse_than_plain_ls_strict`` keeps the verdict without this clause.
 """
 
 from __future__ import annotations
@@ -91,11 +100,12 @@ def world_criteria(
         range(1, n + 1)
     )
     within = [good(j) for j in affected]
-    beats = [
+    strict = [
         usable
         and (fam._le(after_l[j], plain_l[j]) or fam._le(after_l[j], fam.AT_FLOOR * floor_l[j]))
         for j in range(n)
     ]
+    beats = [s or (usable and fam._le(after_l[j], oracle_l[j])) for j, s in enumerate(strict)]
     cmp_ = fam.compare_effects(truth_effects, found, n, plain_joints)
     false = _false_effects(cmp_, found, exempt)
     out: dict[str, Any] = {
@@ -104,6 +114,7 @@ def world_criteria(
         "after_within_2x_floor_per_joint": within,
         "never_worse_than_plain_ls": bool(usable and all(beats)),
         "not_worse_than_plain_ls_per_joint": beats,
+        "never_worse_than_plain_ls_strict": bool(usable and all(strict)),
         "false_effects": false,
     }
     if not truth_effects:

@@ -487,6 +487,9 @@ def test_close_requests_brake_and_holds(make_cell):
 #: beyond the 90 ms a killed gateway's CiA 402 drives once ran on (drivers/can/rt/src/
 #: driver_loop.rs, its docstring)
 PYTHON_HELD_S = 0.3
+#: how long this process's other threads get the GIL before the hold [s]: ten of the old switch
+#: intervals (5 ms), so that every thread waiting for it has had it once
+SETTLE_S = 0.05
 #: the loop's BRAKE after the signal [ms]: its longest sleep (MAX_WAIT_S, 5 ms) plus the kernel's
 #: wake-up of a second runnable thread on one CPU (the held thread keeps it busy; CFS/EEVDF give
 #: a woken thread the CPU within its few-ms slice), with room for a slow machine
@@ -520,6 +523,10 @@ def test_a_stop_signal_makes_the_loop_brake_while_python_cannot_run(make_cell, c
         previous = sys.getswitchinterval()
         sys.setswitchinterval(10 * PYTHON_HELD_S)  # no other Python thread gets the GIL
         try:
+            # a thread already waiting for the GIL waits out the interval it started with
+            # (5 ms) and then asks for it: given it once now, each waits the new one from here
+            # (without this the watcher ran in one suite run of 2026-12-07, the hold not held)
+            time.sleep(SETTLE_S)
             os.kill(os.getpid(), signal.SIGTERM)
             held_until = time.perf_counter() + PYTHON_HELD_S
             while time.perf_counter() < held_until:
