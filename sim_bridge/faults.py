@@ -16,6 +16,10 @@ Figures (:func:`measure`, from the truth log, the tool point's path):
 
 - ``speed_m_s``: the tool's speed when the fault was injected (every speed is taken over the
   4 rows about its own, 32 ms on the virtual controller);
+- ``speed_before_m_s``: the tool's speed over the :data:`SPAN` rows up to the injection, the
+  measure the injection waited on (:func:`_moving`): whether the arm moved when the fault
+  struck, which the rows after it cannot say (a hung control process stops the arm within
+  three cycles, and ``speed_m_s`` read 66 mm/s of an arm at 91 mm/s at its last command);
 - ``detected_s``: from the injection to the first status that left TEACHING (the gateway's
   view; polled, so up to 50 ms late; None where no gateway answers);
 - ``reaction_s``: from the injection to where the arm begins to stop, the last point at 95 %
@@ -268,6 +272,9 @@ def measure(truth: dict[str, np.ndarray], k: int) -> dict[str, Any]:
     tail = t >= t[-1] - 0.5
     return {
         "speed_m_s": float(speed[k]),
+        "speed_before_m_s": float(
+            np.linalg.norm(xyz[k] - xyz[k - SPAN]) / max(t[k] - t[k - SPAN], 1e-12)
+        ),
         "reaction_s": float(t[peak] - t[k]),
         "stop_s": None if rest is None else float(t[rest] - t[k]),
         "travel_m": float(step[k:end].sum()),

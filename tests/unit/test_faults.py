@@ -34,6 +34,7 @@ def test_the_figures_of_a_stop_match_its_kinematics():
     k = round(1.0 / DT)
     r = measure(truth_of(x), k)
     assert r["speed_m_s"] == pytest.approx(0.15, rel=1e-6)
+    assert r["speed_before_m_s"] == pytest.approx(0.15, rel=1e-6)
     assert r["reaction_s"] == pytest.approx(0.05, abs=2 * DT)
     assert r["stop_s"] == pytest.approx(0.05 + 0.1, abs=3 * DT)
     assert r["travel_after_reaction_m"] == pytest.approx(0.15**2 / 3.0, rel=0.15)
@@ -73,3 +74,13 @@ def test_the_stop_after_the_last_command_is_timed_from_that_command():
     assert r["travel_after_missed_m"] == pytest.approx(0.2**2 / 25.0, rel=0.1)
     truth["latency_s"][:] = np.nan  # no command near the fault: nothing to time
     assert after_last_command(truth, last)["stop_after_command_s"] is None
+
+
+def test_the_speed_before_a_fault_is_not_read_from_the_stop_that_follows_it():
+    """A fault that stops the arm within a cycle or two: the speed centred on the injection
+    row already holds the stop; the speed over the rows before it is the arm's at the fault."""
+    x = drag_then_stop(react_s=0.0, decel=15.0)
+    k = round(1.0 / DT)
+    r = measure(truth_of(x), k)
+    assert r["speed_before_m_s"] == pytest.approx(0.15, rel=1e-6)
+    assert r["speed_m_s"] < 0.9 * 0.15
