@@ -272,9 +272,7 @@ def measure(truth: dict[str, np.ndarray], k: int) -> dict[str, Any]:
     tail = t >= t[-1] - 0.5
     return {
         "speed_m_s": float(speed[k]),
-        "speed_before_m_s": float(
-            np.linalg.norm(xyz[k] - xyz[k - SPAN]) / max(t[k] - t[k - SPAN], 1e-12)
-        ),
+        "speed_before_m_s": _speed_up_to(t, xyz, k),
         "reaction_s": float(t[peak] - t[k]),
         "stop_s": None if rest is None else float(t[rest] - t[k]),
         "travel_m": float(step[k:end].sum()),
@@ -282,6 +280,13 @@ def measure(truth: dict[str, np.ndarray], k: int) -> dict[str, Any]:
         "peak_m_s": float(speed[k:].max()),
         "tail_m": float(np.linalg.norm(xyz[tail][-1] - xyz[tail][0])),
     }
+
+
+def _speed_up_to(t: np.ndarray, xyz: np.ndarray, k: int) -> float:
+    """The tool's speed [m/s] over the :data:`SPAN` rows up to row ``k`` (from row 0 when
+    there are fewer): the measure :func:`_moving` waits on before a fault strikes."""
+    a = max(k - SPAN, 0)
+    return float(np.linalg.norm(xyz[k] - xyz[a]) / max(t[k] - t[a], 1e-12))
 
 
 def after_last_command(truth: dict[str, np.ndarray], k: int) -> dict[str, Any]:
@@ -318,10 +323,7 @@ def after_last_command(truth: dict[str, np.ndarray], k: int) -> dict[str, Any]:
     end = speed.size if rest is None else rest
     return {
         "last_command_s": float(t[last] - t[k]),
-        "speed_at_last_command_m_s": float(
-            np.linalg.norm(xyz[last] - xyz[max(last - SPAN, 0)])
-            / max(t[last] - t[max(last - SPAN, 0)], 1e-12)
-        ),
+        "speed_at_last_command_m_s": _speed_up_to(t, xyz, last),
         "stop_after_command_s": None if rest is None else float(t[rest] - t[last]),
         "travel_after_command_m": float(step[last:end].sum()),
         "travel_after_missed_m": float(step[last + 1 : end].sum()),

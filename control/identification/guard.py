@@ -62,8 +62,8 @@ def plain_least_squares(
     while True:
         ls = BlockLS(y, folds, mask)
         free = {j: [c for c in range(-cols[j].shape[1], 0) if c not in held[j]] for j in range(n)}
-        for j in range(n):
-            ls.add(plain_key(j), {j: cols[j][:, free[j]]})
+        for j in range(n):  # a joint with every column free is added as it is (no copy)
+            ls.add(plain_key(j), {j: cols[j][:, free[j]] if held[j] else cols[j]})
         ev = ls.evaluate([plain_key(j) for j in range(n)], np.ones(n))
         negative = False
         for j in range(n):
