@@ -30,6 +30,7 @@ from gateway.recorder import BusRecorder
 from sim_bridge.baseline import run_baseline
 from sim_bridge.commission import commissioned
 from sim_bridge.config import load_sim_config
+from sim_bridge.fault_trace import fault_trace
 from sim_bridge.harness import SIM_CELL, Stack
 
 #: [t_s, dx_m, dy_m, dz_m] from the tool position at teaching onset
@@ -256,11 +257,16 @@ def cli_main(args: argparse.Namespace) -> int:
                     print(f"leadthrough demo: teaching ended {elapsed:.1f} s in: the cell is "
                           f"{status.get('state')} ({status.get('reason')}); the demo stops "
                           f"(logs in {out / 'run'})", file=sys.stderr)  # fmt: skip
+                    print(fault_trace(stack.truth()), file=sys.stderr)
                     return 1
                 time.sleep(0.5)
             taught_rows = stack.truth()["t_s"].size
             stack.request("stop")
-            replay = replay_program(stack, program)
+            try:
+                replay = replay_program(stack, program)
+            except RuntimeError:
+                print(fault_trace(stack.truth()), file=sys.stderr)
+                raise
         finally:
             recorder.stop()
     truth = stack.truth()
