@@ -76,13 +76,14 @@ from control.identification.model import MODEL, PLAIN_LS, PlainJoint, plain_key
 from control.identification.parallel import map_forked
 from control.identification.preprocess import FILTER_ORDER, sliding_mask
 from control.identification.report import write_report
+from control.identification.signal_shift import shift_signal
 from control.identification.speed_regimes import (
     friction_coverage,
     raw_by_speed,
     scored_velocity,
 )
 from control.identification.stages import AUTO, AnalyzeOptions, Progress, _Clock, _Run
-from control.identification.terms import Context, shift_signal
+from control.identification.terms import Context
 from control.identification.validate import (
     import_plotting,
     masked_rms,

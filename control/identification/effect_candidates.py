@@ -32,7 +32,8 @@ from control.identification.effect_rules import (
 )
 from control.identification.lsq import BlockLS, Evaluation
 from control.identification.preprocess import Prepared
-from control.identification.terms import Context, EffectTerm, shift_signal
+from control.identification.signal_shift import shift_signal
+from control.identification.terms import Context, EffectTerm
 
 RIPPLE_PEAKS = 2
 #: The delay is refined to this [s] (a tenth of a sample at 1 kHz).

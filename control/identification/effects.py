@@ -61,7 +61,8 @@ from control.identification.envelope import Envelope
 from control.identification.lsq import BlockLS, Evaluation, Solution, contiguous_folds
 from control.identification.parallel import map_forked
 from control.identification.preprocess import Prepared
-from control.identification.terms import Context, EffectTerm, shift_signal
+from control.identification.signal_shift import shift_signal
+from control.identification.terms import Context, EffectTerm
 
 ALL_ALONG = "all_along"
 BETWEEN = "between_train_and_test"

@@ -143,33 +143,62 @@ def friction_direction(
     q_before: float | None = None,
     log_odds: float | np.ndarray = REST_LOG_ODDS,
 ) -> np.ndarray:
-    """The direction of a friction with memory, (T,) in [-1, 1]: the state z of Dahl's model
-    (exponent 1) driven by the joint's travel, ``dz/dx = (1 - z sgn(dx)) / x_c`` with ``x_c``
-    = ``presliding_rad`` the travel over which friction turns round after a reversal.
+    """The direction of a friction with memory, (T,) in [-1, 1]: the first of
+    :func:`friction_memory`."""
+    return friction_memory(q, dq, sigma, presliding_rad, start, q_before, log_odds)[0]
 
-    Stepped exactly per sample (for travel of one sign, ``z → s + (z - s) exp(-|Δx| / x_c)``,
-    s = sgn(Δx)), from z = ``start`` before the first sample (0: a file says nothing of the
-    joint's history; a caller cutting one motion into pieces carries the last piece's end, and
-    with ``q_before``, the last piece's last position, the travel from there to ``q[0]``).
-    The travel is the positions' difference weighted by the probability that the joint moves
-    (1 - :func:`rest_probability` of ``dq`` under the velocity noise ``sigma`` and the prior
-    ``log_odds``; all of it without noise): the positions of a resting joint wander by their
-    noise, and Dahl's state driven by that wander would decay from ±1 towards 0 at every rest
-    (a step against the direction moves z twice as far as a step with it). At rest z holds:
-    the joint holds the friction torque of its last motion, as a gear's teeth stay loaded
-    when the joint stops.
-    Sliding steadily, z = sgn(dq): the friction of a memoryless law."""
+
+def friction_memory(
+    q: np.ndarray,
+    dq: np.ndarray,
+    sigma: float,
+    presliding_rad: float,
+    start: float = 0.0,
+    q_before: float | None = None,
+    log_odds: float | np.ndarray = REST_LOG_ODDS,
+    start_speed: float = 0.0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """What a friction with memory holds, (z, w), each (T,): its direction z in [-1, 1] and
+    its speed w [rad/s], both over the joint's travel x, with ``x_c`` = ``presliding_rad``.
+
+    z is the state of Dahl's model (exponent 1), ``dz/dx = (1 - z sgn(dx)) / x_c``, the
+    travel over which friction turns round after a reversal. Stepped exactly per sample (for
+    travel of one sign, ``z → s + (z - s) exp(-|Δx| / x_c)``, s = sgn(Δx)), from z = ``start``
+    before the first sample (0: a file says nothing of the joint's history; a caller cutting
+    one motion into pieces carries the last piece's end, and with ``q_before``, the last
+    piece's last position, the travel from there to ``q[0]``). The travel is the positions'
+    difference weighted by the probability that the joint moves (1 - :func:`rest_probability`
+    of ``dq`` under the velocity noise ``sigma`` and the prior ``log_odds``; all of it without
+    noise): the positions of a resting joint wander by their noise, and Dahl's state driven by
+    that wander would decay from ±1 towards 0 at every rest (a step against the direction
+    moves z twice as far as a step with it). At rest z holds: the joint holds the friction
+    torque of its last motion, as a gear's teeth stay loaded when the joint stops.
+    Sliding steadily, z = sgn(dq): the friction of a memoryless law.
+
+    w is the joint's speed |dq| over the same travel, ``dw/dx = (|dq| - w) / x_c`` (from
+    ``start_speed``): sliding, the speed itself (x_c is a fraction of a milliradian); at rest
+    it holds the speed of the last x_c of travel. The level a joint holds at rest is the one
+    its contacts were loaded to over that travel: a bristle (LuGre) follows its steady level
+    g(v) over x_c of travel, and a joint that decelerates to rest freezes at g of the speed it
+    had there, the static level only if it crept the whole last x_c. Friction's Stribeck
+    parts at rest are taken at w (:class:`.terms.FrictionTerm`)."""
     q = np.asarray(q, dtype=float)
     if q.size == 0:
-        return np.zeros(0)
+        return np.zeros(0), np.zeros(0)
+    dq = np.asarray(dq, dtype=float)
     dx = np.diff(q, prepend=q[0] if q_before is None else float(q_before))
+    moving = np.ones_like(dx)
     if np.isfinite(sigma) and sigma > 0.0:
-        dx = dx * (1.0 - rest_probability(dq, sigma, log_odds))
+        moving = 1.0 - rest_probability(dq, sigma, log_odds)
+        dx = dx * moving
     a = np.exp(-np.abs(dx) / presliding_rad)
     z = linear_recurrence(a, np.sign(dx) * (1.0 - a))
-    if start:
-        z = z + float(start) * np.exp(-np.cumsum(np.abs(dx)) / presliding_rad)
-    return z
+    w = linear_recurrence(a, np.abs(dq) * moving * (1.0 - a))
+    if start or start_speed:
+        kept = np.exp(-np.cumsum(np.abs(dx)) / presliding_rad)
+        z = z + float(start) * kept
+        w = w + float(start_speed) * kept
+    return z, w
 
 
 def gaussian_stribeck(

@@ -22,16 +22,16 @@ from control.identification.datafile import Measurements
 from control.identification.envelope import Envelope
 from control.identification.friction_law import (
     FRICTION_PARAM_NAMES,
-    friction_direction,
+    friction_memory,
     rest_log_odds,
 )
 from control.identification.preprocess import Prepared
 from control.identification.rigid import BaseParameters, RobotRegressor
+from control.identification.signal_shift import shift_signal
 from control.identification.terms import (
     Context,
     EffectTerm,
     FrictionTerm,
-    shift_signal,
 )
 from control.model.cylinders import with_measured_cylinders
 from gateway.errors import DataFileError
@@ -312,16 +312,20 @@ class IdentifiedModel:
         q_before: np.ndarray | None = None,
         rest_odds: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
-        """The friction directions of rows (T, n) of one motion, and each joint's last (n,):
-        for a caller that evaluates the motion in pieces (``leadthrough predict``: stretches
-        between gaps, chunks of rows) and passes each piece's slice to :meth:`torque_nm`, with
-        ``start`` (n,) the previous piece's last (None: zeros, no history) and ``q_before``
-        (n,) its last position [rad] (the travel across a gap; None: none). Joints whose
-        friction has no memory read 0. ``rest_odds`` (n,) as :meth:`torque_nm` takes it (None:
-        estimated from these rows)."""
+        """The friction memory of rows (T, n) of one motion, (T, n, 2): each joint's direction
+        and speed (:func:`.friction_law.friction_memory`), and its last (n, 2): for a caller
+        that evaluates the motion in pieces (``leadthrough predict``: stretches between gaps,
+        chunks of rows) and passes each piece's slice to :meth:`torque_nm` as ``directions``,
+        with ``start`` the previous piece's last ((n, 2), or (n,) directions alone; None: no
+        history) and ``q_before`` (n,) its last position [rad] (the travel across a gap; None:
+        none). Joints whose friction has no memory read 0. ``rest_odds`` (n,) as
+        :meth:`torque_nm` takes it (None: estimated from these rows)."""
         q, dq = (np.asarray(a, dtype=float).reshape(-1, self.n) for a in (q_rad, dq_rad_s))
-        out = np.zeros_like(q)
-        z0 = np.zeros(self.n) if start is None else np.asarray(start, dtype=float)
+        out = np.zeros((*q.shape, 2))
+        z0 = np.zeros((self.n, 2))
+        if start is not None:
+            given = np.asarray(start, dtype=float)
+            z0[:, : 1 if given.ndim == 1 else 2] = given.reshape(self.n, -1)
         for term in self.friction_terms:
             j = term.joint
             if term.presliding_rad is None or j in self.plain_joints:
@@ -333,9 +337,10 @@ class IdentifiedModel:
                 if rest_odds is None
                 else np.asarray(rest_odds, dtype=float)[..., j]
             )
-            out[:, j] = friction_direction(
-                q[:, j], dq[:, j], sigma, term.presliding_rad, z0[j], before, odds
+            z, w = friction_memory(
+                q[:, j], dq[:, j], sigma, term.presliding_rad, z0[j, 0], before, odds, z0[j, 1]
             )
+            out[:, j, 0], out[:, j, 1] = z, w
         end = out[-1].copy() if out.shape[0] else z0.copy()
         return out, end
 

@@ -66,14 +66,13 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy.fft import next_fast_len
 
 from control.identification.envelope import Envelope
 from control.identification.friction_law import (
     FRICTION_PARAM_NAMES,
     STRIBECK_PARAM_NAMES,
     friction_basis,
-    friction_direction,
+    friction_memory,
     gaussian_stribeck,
     qe_columns,
     qe_part,
@@ -133,8 +132,10 @@ class Context:
     #: True: the rows are one motion in time order, whose history a friction with memory
     #: follows (:meth:`direction`); False: unrelated states (one sample at run time): it slides
     sequence: bool = True
-    #: (T, n) friction directions given by a caller that follows the motion across several
-    #: contexts (:meth:`.model.IdentifiedModel.friction_directions`); None: computed here
+    #: friction's memory given by a caller that follows the motion across several contexts
+    #: (:meth:`.model.IdentifiedModel.friction_directions`): (T, n, 2) each joint's direction
+    #: and speed (:func:`.friction_law.friction_memory`), or (T, n) directions alone (the
+    #: speed then 0: the static level at rest); None: computed here
     directions: np.ndarray | None = None
     #: (T, n) friction's velocity (:mod:`.friction_velocity`; None: ``dq``)
     dq_friction: np.ndarray | None = None
@@ -142,7 +143,7 @@ class Context:
     #: (:attr:`.preprocess.Prepared.resample_mix`; None: it does not): :meth:`sample_mean`
     #: mixes each friction column as the torque was mixed
     resample_mix: np.ndarray | None = None
-    _directions: dict[tuple[int, float], np.ndarray] = field(
+    _directions: dict[tuple[int, float], tuple[np.ndarray, np.ndarray]] = field(
         default_factory=dict, repr=False, compare=False
     )
     #: :meth:`FrictionTerm.columns`' last, by what they depend on but q_e (one entry)
@@ -173,21 +174,33 @@ class Context:
         odds = self._odds()
         return odds[:, j] if odds.ndim == 2 else np.full(self.dq.shape[0], odds[j])
 
-    def direction(self, j: int, presliding_rad: float) -> np.ndarray:
-        """Joint j's friction direction with memory (:func:`friction_direction`), (T,);
-        computed once per joint and presliding travel."""
+    def memory(self, j: int, presliding_rad: float) -> tuple[np.ndarray, np.ndarray]:
+        """Joint j's friction memory (:func:`friction_memory`): its direction and its speed,
+        each (T,); computed once per joint and presliding travel."""
         if self.directions is not None:
-            return self.directions[:, j]
+            given = np.asarray(self.directions)
+            if given.ndim == 3:
+                return given[:, j, 0], given[:, j, 1]
+            return given[:, j], np.zeros(given.shape[0])
         key = (j, float(presliding_rad))
         if key not in self._directions:
             sigma = 0.0 if self.dq_noise is None else float(self.dq_noise[j])
-            self._directions[key] = friction_direction(
+            self._directions[key] = friction_memory(
                 self.q[:, j], self.v_friction[:, j], sigma, presliding_rad,
                 log_odds=self.rest_log_odds(j),
             )  # fmt: skip
         return self._directions[key]
 
-    def sample_mean(self, j: int, fn: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
+    def direction(self, j: int, presliding_rad: float) -> np.ndarray:
+        """Joint j's friction direction with memory (:func:`friction_direction`), (T,)."""
+        return self.memory(j, presliding_rad)[0]
+
+    def sample_mean(
+        self,
+        j: int,
+        fn: Callable[[np.ndarray], np.ndarray],
+        at_rest_fn: Callable[[], np.ndarray] | None = None,
+    ) -> np.ndarray:
         """``fn`` (columns (T,) or (T, m) of a velocity array (T,)) of joint j's velocity,
         clipped to the envelope, per sample averaged over the recorded samples it stands for.
 
@@ -202,7 +215,9 @@ class Context:
         the recorded samples around it, the velocity carried there by the acceleration
         (``dq + ddq δ``, δ their time offsets): the reversal lands at its recorded time, as
         in the measurement. One recorded sample per kept one (or no rates known) is ``fn``
-        of the velocity itself.
+        of the velocity itself. ``at_rest_fn``: the columns of a resting joint per sample
+        (T, m) where they are not ``fn`` at 0 (a friction with memory holds the level of its
+        last motion, :class:`FrictionTerm`).
         """
         dq = self.v_friction[:, j]
         env = self.envelope
@@ -214,7 +229,9 @@ class Context:
         sigma = 0.0 if self.dq_noise is None else float(self.dq_noise[j])
         odds = self.rest_log_odds(j) if np.isfinite(sigma) and sigma > 0.0 else None
         # ``fn`` at rest is the same for every recorded sample a kept one stands for: once
-        at_rest = None if odds is None else exact(np.zeros_like(dq))
+        at_rest = None
+        if odds is not None:
+            at_rest = exact(np.zeros_like(dq)) if at_rest_fn is None else at_rest_fn()
 
         def at(v: np.ndarray) -> np.ndarray:
             """``fn`` in expectation over whether the joint moves (class docstring). A joint
@@ -329,9 +346,11 @@ class FrictionTerm:
     with (LuGre, Dahl, Maxwell-slip models). A memoryless law puts zero friction at rest, a
     whole static level off at every pause of a teaching motion. Columns are then the family's
     with ``direction`` for the sign, taken in expectation over whether the joint moves
-    (:meth:`Context.sample_mean`): at rest the static level (eq. 15's τ_s + τ_c) in the held
-    direction. In a context that is not a sequence (:attr:`Context.sequence`) the joint slides:
-    the family's own sign.
+    (:meth:`Context.sample_mean`): at rest the level of the joint's last presliding travel in
+    the held direction, its Stribeck rises taken at the speed it had there
+    (:func:`friction_memory`): the sliding level after a stop from speed, the static level
+    (eq. 15's τ_s + τ_c) after a creep. In a context that is not a sequence
+    (:attr:`Context.sequence`) the joint slides: the family's own sign.
 
     With ``stribeck_rad_s`` v_s set, the friction has a second Stribeck rise, of Gaussian shape
     (Armstrong's ``exp(-(dq/v_s)²)``, LuGre's steady state), beside the family's own (eq. 15's
@@ -359,38 +378,64 @@ class FrictionTerm:
     def columns(self, ctx: Context) -> dict[int, np.ndarray]:
         j = self.joint
         q = ctx.q_of(j)
-        direction = None
+        direction = speed = None
         if self.presliding_rad is not None and ctx.sequence:
-            direction = ctx.direction(j, self.presliding_rad)
+            direction, speed = ctx.memory(j, self.presliding_rad)
         v_s = self.stribeck_rad_s
+        kind, q_e, width = self.kind, self.q_e_rad_s, self.sign_width_rad_s
+        # the columns that depend on q_e: the Stribeck rise (the others are the same for
+        # every q_e, so a search over q_e computes them once)
+        moving = qe_columns(kind, width, direction is not None)
 
         def basis(dq: np.ndarray) -> np.ndarray:
-            return friction_basis(
-                self.kind, q, dq, self.q_e_rad_s, self.gear_ratio, self.sign_width_rad_s, direction
-            )
+            return friction_basis(kind, q, dq, q_e, self.gear_ratio, width, direction)
 
-        def columns(fn: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
-            return ctx.filtered(ctx.sample_mean(j, fn))
+        def stribeck(dq: np.ndarray) -> np.ndarray:
+            return qe_part(kind, dq, q_e, width, direction)
+
+        def columns(
+            fn: Callable[[np.ndarray], np.ndarray], at_speed: Callable[[], np.ndarray] | None
+        ) -> np.ndarray:
+            return ctx.filtered(ctx.sample_mean(j, fn, at_speed))
+
+        # A friction with memory at rest holds the level of its last motion: the Stribeck
+        # rises taken at the speed of the joint's last x_c of travel (friction_memory), the
+        # rest as at 0 (no viscous part).
+        basis_at_rest = stribeck_at_rest = gauss_at_rest = None
+        if speed is not None:
+            held = speed
+
+            def basis_at_rest() -> np.ndarray:
+                out = basis(np.zeros_like(held))
+                if moving:
+                    out[:, moving] = stribeck(held)
+                return out
+
+            def stribeck_at_rest() -> np.ndarray:
+                return stribeck(held)
+
+            if v_s is not None:
+
+                def gauss_at_rest() -> np.ndarray:
+                    return gaussian_stribeck(held, v_s, direction)[:, None]
 
         # Every step is column by column, so the columns that do not depend on q_e are those
         # of the last call that differed only in q_e, to the last bit (a search over q_e).
-        moving = qe_columns(self.kind, self.sign_width_rad_s, direction is not None)
         memory = self.presliding_rad if direction is not None else None
-        key = (j, self.kind, self.gear_ratio, self.sign_width_rad_s, memory)
+        key = (j, kind, self.gear_ratio, width, memory)
         kept = None if moving is None else ctx._friction_at.get(key)
         if kept is None:
-            out = columns(basis)
+            out = columns(basis, basis_at_rest)
             if moving is not None:
                 ctx._friction_at.clear()
                 ctx._friction_at[key] = out.copy()
         else:
-            out, w = kept.copy(), self.sign_width_rad_s
+            out = kept.copy()
             if moving:
-                out[:, moving] = columns(
-                    lambda v: qe_part(self.kind, v, self.q_e_rad_s, w, direction)
-                )
+                out[:, moving] = columns(stribeck, stribeck_at_rest)
         if v_s is not None:
-            out = np.column_stack([out, columns(lambda dq: gaussian_stribeck(dq, v_s, direction))])
+            gauss = columns(lambda dq: gaussian_stribeck(dq, v_s, direction), gauss_at_rest)
+            out = np.column_stack([out, gauss])
         return {j: out}
 
     @property
@@ -526,54 +571,3 @@ class EffectTerm:
         if name not in EFFECT_NAMES:
             raise ValueError(f"unknown effect {name!r} (known: {list(EFFECT_NAMES)})")
         return cls(name, tuple(int(j) - 1 for j in doc["joints"]), dict(doc.get("setting", {})))
-
-
-def shift_signal(
-    t: np.ndarray, segment: np.ndarray | None, x: np.ndarray, delta_s: float
-) -> np.ndarray:
-    """``x`` evaluated at ``t + delta_s`` within each segment: a band-limited (Fourier) shift.
-
-    ``x`` (T,) or (T, n), sampled uniformly within each segment (as :mod:`.preprocess` leaves
-    it). Used for the time-delay effect: with the torque lagging by δ, ``τ_model(t - δ)`` is
-    ``shift_signal(t, seg, τ_model, -δ)``. The shift multiplies the spectrum by
-    ``exp(i 2π f δ)``: an all-pass, so a shifted signal keeps its noise. (Linear interpolation
-    between samples would average neighbours and take up to half the white-noise power out at
-    a half-sample shift, which a delay search then mistakes for a better fit.) Each segment is
-    extended by reflection before the transform, so its ends do not wrap round.
-    """
-    if delta_s == 0.0:
-        return np.array(x, dtype=float, copy=True)
-    arr = np.asarray(x, dtype=float)
-    flat = arr[:, None] if arr.ndim == 1 else arr
-    out = np.empty_like(flat)
-    seg = np.zeros(t.size, dtype=int) if segment is None else segment
-    bounds = np.flatnonzero(np.diff(seg) != 0) + 1
-    for a, b in zip(np.r_[0, bounds], np.r_[bounds, t.size], strict=True):
-        out[a:b] = _fourier_shift(t[a:b], flat[a:b], delta_s)
-    return out[:, 0] if arr.ndim == 1 else out
-
-
-def _fourier_shift(t: np.ndarray, x: np.ndarray, delta_s: float) -> np.ndarray:
-    """One uniformly sampled segment ``x`` (L, m) at ``t + delta_s`` (see :func:`shift_signal`).
-
-    The segment is extended at both ends by point reflection (value and slope continue) and
-    the straight line through the extension's ends is taken out, so the transform's circular
-    wrap meets no step; the line is shifted exactly and added back.
-    """
-    length = x.shape[0]
-    if length < 2:
-        return x.copy()
-    dt = float(np.median(np.diff(t)))
-    pad = min(length - 1, int(np.ceil(abs(delta_s) / dt)) + 128)
-    # the right end takes a few samples more up to a length the FFT factors well (a segment
-    # whose length has a large prime factor transforms several times slower)
-    extra = next_fast_len(length + 2 * pad, real=True) - (length + 2 * pad)
-    ext = np.pad(x, ((pad, pad + extra), (0, 0)), mode="reflect", reflect_type="odd")
-    size = ext.shape[0]
-    k = np.arange(size, dtype=float)[:, None]
-    slope = (ext[-1] - ext[0]) / size  # the wrap from the last sample to the first is a step
-    base = ext[0] + slope * k
-    spec = np.fft.rfft(ext - base, axis=0)
-    spec *= np.exp(2j * np.pi * np.fft.rfftfreq(size, d=dt) * delta_s)[:, None]
-    shifted = np.fft.irfft(spec, n=size, axis=0) + base + slope * (delta_s / dt)
-    return shifted[pad : pad + length]

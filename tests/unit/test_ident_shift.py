@@ -1,4 +1,4 @@
-"""The time shift of the delay effect (:func:`control.identification.terms.shift_signal`) is
+"""The time shift of the delay effect (:func:`control.identification.signal_shift.shift_signal`) is
 band-limited: exact on a smooth signal, and it keeps white noise's power at any fraction of a
 sample (linear interpolation halves it at half a sample, which a delay search mistook for a
 better fit: a -3.8 ms "delay" accepted on a 100 Hz run that had none)."""
@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from control.identification.terms import shift_signal
+from control.identification.signal_shift import shift_signal
 
 
 @pytest.mark.parametrize("fraction", [0.25, 0.5, 0.9])
