@@ -10,7 +10,7 @@ the loaded model (:class:`.model.IdentifiedModel`) and the run-time tables
 - a Stribeck rise of Gaussian shape beside the family's own (:func:`gaussian_stribeck`,
   coefficient :data:`STRIBECK_PARAM_NAMES`);
 - a friction with memory: the direction of Dahl's model over the joint's travel
-  (:func:`friction_direction`, stepped by the prefix scan :func:`linear_recurrence`), the
+  (:func:`friction_memory`, stepped by the prefix scan :func:`linear_recurrence`), the
   travel weighted by the probability that the joint moves (:func:`rest_probability`, with
   which :meth:`.terms.Context.sample_mean` also takes every function of the velocity in
   expectation, under prior odds of rest the motion's own velocities give,
@@ -132,20 +132,6 @@ def linear_recurrence(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         mul[shift:] = mul[shift:] * mul[:-shift]
         shift *= 2
     return out
-
-
-def friction_direction(
-    q: np.ndarray,
-    dq: np.ndarray,
-    sigma: float,
-    presliding_rad: float,
-    start: float = 0.0,
-    q_before: float | None = None,
-    log_odds: float | np.ndarray = REST_LOG_ODDS,
-) -> np.ndarray:
-    """The direction of a friction with memory, (T,) in [-1, 1]: the first of
-    :func:`friction_memory`."""
-    return friction_memory(q, dq, sigma, presliding_rad, start, q_before, log_odds)[0]
 
 
 def friction_memory(

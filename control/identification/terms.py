@@ -126,11 +126,11 @@ class Context:
     dq_noise: np.ndarray | None = None
     #: (T, n) the log prior odds that each joint rests (:func:`.friction_law.rest_log_odds`,
     #: :attr:`.preprocess.Prepared.dq_rest_odds`) with which :meth:`sample_mean` and
-    #: :meth:`direction` weigh each reading; (n,) for every row alike; None: estimated from
+    #: :meth:`memory` weigh each reading; (n,) for every row alike; None: estimated from
     #: these rows' own velocities, all taken as one motion
     rest_odds: np.ndarray | None = None
     #: True: the rows are one motion in time order, whose history a friction with memory
-    #: follows (:meth:`direction`); False: unrelated states (one sample at run time): it slides
+    #: follows (:meth:`memory`); False: unrelated states (one sample at run time): it slides
     sequence: bool = True
     #: friction's memory given by a caller that follows the motion across several contexts
     #: (:meth:`.model.IdentifiedModel.friction_directions`): (T, n, 2) each joint's direction
@@ -190,10 +190,6 @@ class Context:
                 log_odds=self.rest_log_odds(j),
             )  # fmt: skip
         return self._directions[key]
-
-    def direction(self, j: int, presliding_rad: float) -> np.ndarray:
-        """Joint j's friction direction with memory (:func:`friction_direction`), (T,)."""
-        return self.memory(j, presliding_rad)[0]
 
     def sample_mean(
         self,
@@ -339,7 +335,7 @@ class FrictionTerm:
 
     With ``presliding_rad`` x_c set, the friction has memory: the family's sign of the
     velocity becomes the state of Dahl's model over the joint's travel
-    (:func:`friction_direction`), which turns round over x_c of travel after a reversal and
+    (:func:`friction_memory`), which turns round over x_c of travel after a reversal and
     holds at rest. A gear's friction is a deformation of its contacts before it is a sliding:
     after a reversal the torque crosses from one level to the other over a small travel, not
     at one velocity, and a joint that stops keeps the torque its last motion loaded the teeth

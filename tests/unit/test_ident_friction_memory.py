@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from control.identification.fit import fit_rigid_friction, rechoose_options
-from control.identification.friction_law import friction_direction, linear_recurrence
+from control.identification.friction_law import friction_memory, linear_recurrence
 from control.identification.lsq import BlockLS, contiguous_folds
 from control.identification.terms import (
     Context,
@@ -34,7 +34,7 @@ def test_direction_turns_round_over_the_presliding_travel_and_holds_at_rest():
     out = np.linspace(0.0, 0.05, 501)
     q = np.r_[out, np.full(200, 0.05), out[::-1]]
     dq = np.r_[np.full(501, 0.1), np.zeros(200), np.full(501, -0.1)]
-    z = friction_direction(q, dq, 0.0, x_c)
+    z = friction_memory(q, dq, 0.0, x_c)[0]
     assert z[500] == pytest.approx(1.0, abs=1e-9)  # sliding: the velocity's sign
     np.testing.assert_allclose(z[501:701], z[500])  # held at rest
     back = 701 + np.searchsorted(-q[701:] + 0.05, [x_c, 3 * x_c])
@@ -54,8 +54,8 @@ def test_position_noise_at_rest_does_not_wear_the_held_direction_away():
     move = np.linspace(0.0, 0.02, 201)
     q = np.r_[move, 0.02 + 1e-6 * rng.standard_normal(2000)]
     dq = np.r_[np.full(201, 0.1), sigma_dq * rng.standard_normal(2000)]
-    weighted = friction_direction(q, dq, sigma_dq, 3e-5)
-    unweighted = friction_direction(q, dq, 0.0, 3e-5)
+    weighted = friction_memory(q, dq, sigma_dq, 3e-5)[0]
+    unweighted = friction_memory(q, dq, 0.0, 3e-5)[0]
     # the probability of motion is not zero at rest: the smallest presliding travel loses a few
     # per cent over 4 s of rest, against most of it unweighted
     assert weighted[-1] > 0.9
@@ -124,12 +124,12 @@ def test_a_motion_cut_in_pieces_carries_its_direction_across_the_cut():
     piece starting from the last one's end gives the whole motion's direction."""
     t = np.linspace(0.0, 6.0, 3001)
     q, dq = 0.01 * np.sin(2.0 * t), 0.02 * np.cos(2.0 * t)
-    whole = friction_direction(q, dq, 1e-3, 2e-4)
-    first = friction_direction(q[:1200], dq[:1200], 1e-3, 2e-4)
+    whole = friction_memory(q, dq, 1e-3, 2e-4)[0]
+    first = friction_memory(q[:1200], dq[:1200], 1e-3, 2e-4)[0]
     # the second piece starts from the first one's last state and position
-    second = friction_direction(q[1200:], dq[1200:], 1e-3, 2e-4, first[-1], q[1199])
+    second = friction_memory(q[1200:], dq[1200:], 1e-3, 2e-4, first[-1], q[1199])[0]
     np.testing.assert_allclose(np.r_[first, second], whole, atol=1e-12)
-    assert not np.allclose(friction_direction(q[1200:], dq[1200:], 1e-3, 2e-4), whole[1200:])
+    assert not np.allclose(friction_memory(q[1200:], dq[1200:], 1e-3, 2e-4)[0], whole[1200:])
 
 
 def _with_ripple(tau: np.ndarray, q: np.ndarray, dq: np.ndarray) -> tuple:
